@@ -1,0 +1,3 @@
+from layercam.cli import main
+
+raise SystemExit(main())

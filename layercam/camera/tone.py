@@ -1,0 +1,125 @@
+"""Tone mapper (paper Sec. 3.3): ``c = T(log2 r' + log2 dt)``, three per-channel MLPs.
+
+The three channel MLPs are evaluated as one batched op (``torch.baddbmm`` over a channel axis).
+:func:`srgb_tone` is the fixed curve used when a clip has a single exposure and no CRF can be learned.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from torch import nn
+
+Z_SCALE = 0.125  # MLP input is z / 8: log exposures span about +-20 stops
+
+
+def srgb_encode(x: torch.Tensor) -> torch.Tensor:
+    """Linear ``[0, 1]`` -> sRGB-encoded ``[0, 1]`` (values outside are clamped)."""
+    x = x.clamp(0.0, 1.0)
+    return torch.where(x <= 0.0031308, 12.92 * x, 1.055 * x.clamp_min(1e-12) ** (1 / 2.4) - 0.055)
+
+
+def srgb_tone(z: torch.Tensor) -> torch.Tensor:
+    """Fixed tone curve: sRGB of ``2^z`` clipped to 1. ``z (N, 3) -> c (N, 3)``."""
+    return srgb_encode(torch.exp2(z.clamp(-40, 1)))
+
+
+class ToneMapper(nn.Module):
+    """``z (N, 3) -> c (N, 3)`` in ``(0, 1)``; channel ``k`` of ``z`` goes through MLP ``k``.
+
+    ``monotone=True`` makes each curve monotone by construction: the output is a sigmoid of a
+    cumulative sum of positive (softplus) increments on a knot grid over ``[-z_max, z_max]``,
+    linearly interpolated (the paper instead penalises negative slopes with its gradient loss).
+    """
+
+    def __init__(self, width: int = 64, depth: int = 2, monotone: bool = False, z_max: float = 24.0, knots: int = 97):
+        super().__init__()
+        self.monotone = monotone
+        if monotone:
+            self.z_max = z_max
+            self.register_buffer("knots", torch.linspace(-z_max, z_max, knots))
+            self.inc = nn.Parameter(torch.full((3, knots - 1), -2.0))
+            self.offset = nn.Parameter(torch.zeros(3))
+            return
+        dims = [1] + [width] * depth + [1]
+        self.weights = nn.ParameterList()
+        self.biases = nn.ParameterList()
+        for a, b in zip(dims[:-1], dims[1:]):
+            w = torch.empty(3, a, b)
+            for k in range(3):
+                nn.init.kaiming_uniform_(w[k].T, a=math.sqrt(5))
+            bound = 1 / math.sqrt(a)
+            self.weights.append(nn.Parameter(w))
+            self.biases.append(nn.Parameter(torch.empty(3, 1, b).uniform_(-bound, bound)))
+
+    def logits(self, z: torch.Tensor) -> torch.Tensor:
+        """Pre-sigmoid output ``(N, 3)``."""
+        if z.ndim != 2 or z.shape[1] != 3:
+            raise ValueError(f"ToneMapper expects z of shape (N, 3), got {tuple(z.shape)}")
+        z = z.float()
+        if self.monotone:
+            return self._monotone_logits(z)
+        x = (z * Z_SCALE).t().unsqueeze(-1)  # (3, N, 1)
+        n = len(self.weights)
+        for i, (w, b) in enumerate(zip(self.weights, self.biases)):
+            x = torch.baddbmm(b, x, w)
+            if i < n - 1:
+                x = torch.relu(x)
+        return x.squeeze(-1).t()
+
+    def _monotone_logits(self, z: torch.Tensor) -> torch.Tensor:
+        step = torch.nn.functional.softplus(self.inc)  # (3, K-1) > 0
+        cum = torch.cat([torch.zeros_like(step[:, :1]), torch.cumsum(step, dim=1)], dim=1)  # (3, K)
+        cum = cum - cum[:, cum.shape[1] // 2 : cum.shape[1] // 2 + 1] + self.offset[:, None]
+        k = self.knots
+        zc = z.clamp(-self.z_max, self.z_max)
+        pos = (zc - k[0]) / (k[1] - k[0])
+        i0 = pos.floor().long().clamp(0, k.numel() - 2)
+        frac = pos - i0.float()
+        out = []
+        for c in range(3):
+            lo = cum[c][i0[:, c]]
+            hi = cum[c][i0[:, c] + 1]
+            out.append(lo + frac[:, c] * (hi - lo))
+        return torch.stack(out, dim=1)
+
+    def forward(self, z: torch.Tensor) -> torch.Tensor:
+        return torch.sigmoid(self.logits(z))
+
+    @torch.no_grad()
+    def curve(self, z: torch.Tensor) -> torch.Tensor:
+        """The response per channel on a 1D grid ``z (K,)`` -> ``(K, 3)``."""
+        return self(z[:, None].expand(-1, 3).contiguous())
+
+
+class FixedTone(nn.Module):
+    """The fixed sRGB curve as a module (no parameters)."""
+
+    monotone = True
+
+    def forward(self, z: torch.Tensor) -> torch.Tensor:
+        return srgb_tone(z.float())
+
+    @torch.no_grad()
+    def curve(self, z: torch.Tensor) -> torch.Tensor:
+        return self(z[:, None].expand(-1, 3).contiguous())
+
+
+def init_curve(z: torch.Tensor, slope: float) -> torch.Tensor:
+    """The tone mapper's starting curve: ``sigmoid(slope * ln2 * z)``; ``T(0) = 0.5``."""
+    return torch.sigmoid(slope * math.log(2) * z)
+
+
+def fit_init_curve(tone: ToneMapper, slope: float, steps: int = 300, seed: int = 0) -> float:
+    """Fit ``tone`` to :func:`init_curve` over ``[-16, 16]`` stops; returns the final MSE."""
+    g = torch.Generator().manual_seed(seed)
+    opt = torch.optim.Adam(tone.parameters(), lr=1e-2)
+    loss = torch.tensor(0.0)
+    for _ in range(steps):
+        z = (torch.rand(2048, 3, generator=g) * 32 - 16)
+        loss = ((tone(z) - init_curve(z, slope)) ** 2).mean()
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+    return float(loss)

@@ -1,0 +1,83 @@
+"""Atomic file writes: write to a temporary sibling file, then ``os.replace`` it into place.
+
+A reader never sees a half-written output, and an interrupted run leaves no partial file
+under the final name.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+import uuid
+from pathlib import Path
+from typing import Callable
+
+from layercam.errors import LayercamError
+
+__all__ = ["atomic_write", "ensure_writable_dir"]
+
+
+def ensure_writable_dir(path: str | os.PathLike) -> Path:
+    """Create folder ``path`` (with parents) and check that files can be written in it.
+
+    Returns the folder as a ``Path``. Raises ``LayercamError`` (one line) when it cannot be
+    created (e.g. a file stands where a folder is expected) or is not writable.
+    """
+    if not isinstance(path, (str, os.PathLike)):
+        raise TypeError(f"ensure_writable_dir expects a path, got {type(path).__name__}")
+    p = Path(path).expanduser()
+    if p.exists() and not p.is_dir():
+        raise LayercamError(f"output folder {p} is a file, not a folder")
+    try:
+        p.mkdir(parents=True, exist_ok=True)
+    except (OSError, FileExistsError) as e:
+        raise LayercamError(f"cannot create output folder {p}: {e.strerror or e}") from None
+    try:
+        fd, probe = tempfile.mkstemp(prefix=".layercam_write_probe_", dir=p)
+        os.close(fd)
+        os.unlink(probe)
+    except OSError as e:
+        raise LayercamError(f"output folder {p} is not writable: {e.strerror or e}") from None
+    return p
+
+
+def _temp_name(path: Path) -> Path:
+    """Hidden sibling temp name that keeps the full suffix, e.g. ``.frame_00000.<rand>.tmp.exr``."""
+    suffix = "".join(path.suffixes[-1:])  # the last suffix decides the encoder
+    stem = path.name[: len(path.name) - len(suffix)] if suffix else path.name
+    return path.with_name(f".{stem}.{uuid.uuid4().hex[:8]}.tmp{suffix}")
+
+
+def atomic_write(path: str | os.PathLike, writer: Callable[[Path], None]) -> Path:
+    """Write ``path`` atomically: ``writer(tmp_path)`` fills a temp file in the same folder,
+    which then replaces ``path``.
+
+    The temp file has the same suffix as ``path`` (so encoders that pick the format from the
+    suffix work) and is removed if ``writer`` raises or does not create it. The parent folder
+    must exist or be creatable (``LayercamError`` otherwise). Returns the final ``Path``.
+    """
+    if not isinstance(path, (str, os.PathLike)):
+        raise TypeError(f"atomic_write expects a path, got {type(path).__name__}")
+    if not callable(writer):
+        raise TypeError("atomic_write expects a callable writer(tmp_path)")
+    final = Path(path).expanduser()
+    if final.is_dir():
+        raise LayercamError(f"cannot write {final}: it is a folder")
+    parent = final.parent
+    if not parent.is_dir():
+        ensure_writable_dir(parent)
+    tmp = _temp_name(final)
+    try:
+        writer(tmp)
+        if not tmp.exists():
+            raise LayercamError(f"writing {final} produced no file")
+        os.replace(tmp, final)
+    except BaseException:
+        try:
+            tmp.unlink()
+        except FileNotFoundError:
+            pass
+        except OSError:
+            pass
+        raise
+    return final

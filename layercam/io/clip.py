@@ -1,0 +1,320 @@
+"""A clip: the frames of one input (video file, folder of images, list of images) as
+``(T,H,W,3)`` float32 RGB in [0,1], with per-frame names, fps, bit depth and EXIF exposures.
+"""
+
+from __future__ import annotations
+
+import glob
+import hashlib
+import os
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from layercam.errors import LayercamError
+from layercam.io.images import IMAGE_SUFFIXES, read_exif_exposure, read_image
+from layercam.io.video import VIDEO_SUFFIXES, read_video
+
+__all__ = ["Clip", "load_clip", "parse_resize", "natural_key"]
+
+_EXIF_SUFFIXES = (".jpg", ".jpeg", ".tif", ".tiff")
+_GLOB_CHARS = re.compile(r"[*?\[]")
+
+
+@dataclass
+class Clip:
+    """Frames of one input and what is known about them.
+
+    frames: ``(T,H,W,3)`` float32 RGB in [0,1].
+    source: what the user passed (a path, or e.g. ``"synthetic:..."``).
+    names: ``T`` per-frame stems (``"00000"`` for video frame 0, ``"IMG_2600"`` for images).
+    fps: frames per second (24 when unknown, e.g. for image folders).
+    bit_depth: 8, 16 or 32 (float) of the source data.
+    exif_exposures: ``T`` EXIF exposure times in seconds (None where absent) for image inputs,
+        else None.
+    meta: free-form; ``load_clip`` sets ``kind`` ("video"/"images"), ``frame_indices`` (index
+        of each frame in the source before stride/max_frames), ``n_source_frames`` (None if
+        unknown), ``source_size`` (W,H before resizing), ``paths`` (for images).
+    """
+
+    frames: np.ndarray
+    source: str
+    names: list[str]
+    fps: float = 24.0
+    bit_depth: int = 8
+    exif_exposures: list[float | None] | None = None
+    meta: dict = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        f = np.asarray(self.frames)
+        if f.ndim != 4 or f.shape[3] != 3:
+            raise ValueError(f"Clip.frames must be (T,H,W,3), got shape {f.shape}")
+        if f.shape[0] < 1:
+            raise ValueError("Clip needs at least one frame")
+        if f.dtype != np.float32:
+            f = f.astype(np.float32)
+        self.frames = f
+        self.names = [str(n) for n in self.names]
+        if len(self.names) != f.shape[0]:
+            raise ValueError(f"Clip has {f.shape[0]} frames but {len(self.names)} names")
+        if self.exif_exposures is not None and len(self.exif_exposures) != f.shape[0]:
+            raise ValueError(
+                f"Clip has {f.shape[0]} frames but {len(self.exif_exposures)} EXIF exposures"
+            )
+        self.fps = float(self.fps)
+
+    @property
+    def T(self) -> int:  # noqa: N802 - conventional shape name
+        return int(self.frames.shape[0])
+
+    @property
+    def H(self) -> int:  # noqa: N802
+        return int(self.frames.shape[1])
+
+    @property
+    def W(self) -> int:  # noqa: N802
+        return int(self.frames.shape[2])
+
+    def fingerprint(self) -> str:
+        """SHA-1 hex of the shape and the float16-quantised frames: a cache key for this content."""
+        h = hashlib.sha1()
+        h.update(repr(tuple(self.frames.shape)).encode())
+        h.update(np.ascontiguousarray(self.frames, dtype=np.float16).tobytes())
+        return h.hexdigest()
+
+    def __repr__(self) -> str:
+        return (
+            f"Clip(source={self.source!r}, T={self.T}, H={self.H}, W={self.W}, "
+            f"fps={self.fps:g}, bit_depth={self.bit_depth})"
+        )
+
+
+def natural_key(name: str) -> list:
+    """Sort key that orders ``frame2`` before ``frame10``."""
+    return [int(tok) if tok.isdigit() else tok.lower() for tok in re.split(r"(\d+)", name)]
+
+
+def parse_resize(resize) -> tuple[str, float | tuple[int, int]] | None:
+    """Parse a resize option: None, a factor (``0.5``, ``"0.5"``) or ``"WxH"``.
+
+    Returns None, ``("factor", f)`` or ``("size", (W, H))``; bad values raise ``LayercamError``.
+    """
+    if resize is None:
+        return None
+    if isinstance(resize, bool):
+        raise LayercamError(f"bad resize {resize!r}: give a factor like 0.5 or a size like 640x360")
+    if isinstance(resize, (int, float, np.integer, np.floating)):
+        f = float(resize)
+    elif isinstance(resize, (tuple, list)) and len(resize) == 2:
+        try:
+            w, h = (int(v) for v in resize)
+        except (TypeError, ValueError):
+            raise LayercamError(f"bad resize {resize!r}: expected (W, H)") from None
+        if w < 1 or h < 1:
+            raise LayercamError(f"bad resize {resize!r}: width and height must be >= 1")
+        return ("size", (w, h))
+    elif isinstance(resize, str):
+        s = resize.strip().lower()
+        m = re.fullmatch(r"(\d+)\s*[x×]\s*(\d+)", s)
+        if m:
+            w, h = int(m.group(1)), int(m.group(2))
+            if w < 1 or h < 1:
+                raise LayercamError(f"bad resize {resize!r}: width and height must be >= 1")
+            return ("size", (w, h))
+        try:
+            f = float(s)
+        except ValueError:
+            raise LayercamError(
+                f"bad resize {resize!r}: give a factor like 0.5 or a size like 640x360"
+            ) from None
+    else:
+        raise LayercamError(f"bad resize {resize!r}: give a factor like 0.5 or a size like 640x360")
+    if not np.isfinite(f) or f <= 0:
+        raise LayercamError(f"bad resize factor {resize!r}: must be a positive number")
+    return ("factor", f)
+
+
+def _target_size(rs, w: int, h: int) -> tuple[int, int]:
+    if rs is None:
+        return (w, h)
+    kind, val = rs
+    if kind == "size":
+        return val  # type: ignore[return-value]
+    return (max(1, int(round(w * val))), max(1, int(round(h * val))))
+
+
+def _resize(img: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    import cv2
+
+    w, h = size
+    if (img.shape[1], img.shape[0]) == (w, h):
+        return img
+    down = w * h < img.shape[0] * img.shape[1]
+    interp = cv2.INTER_AREA if down else cv2.INTER_LINEAR
+    out = cv2.resize(img, (w, h), interpolation=interp)
+    return np.clip(out, 0.0, 1.0).astype(np.float32, copy=False)
+
+
+def _check_count(name: str, value, minimum: int) -> None:
+    if value is None and name == "max_frames":
+        return
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < minimum:
+        raise LayercamError(f"{name} must be an integer >= {minimum}, got {value!r}")
+
+
+def _list_folder(folder: Path) -> list[Path]:
+    files = [
+        p
+        for p in folder.iterdir()
+        if p.is_file() and not p.name.startswith(".") and p.suffix.lower() in IMAGE_SUFFIXES
+    ]
+    if not files:
+        videos = [p.name for p in folder.iterdir() if p.suffix.lower() in VIDEO_SUFFIXES]
+        hint = f" (it has video {videos[0]}: pass the file itself)" if videos else ""
+        raise LayercamError(
+            f"folder {folder} has no images ({'/'.join(s[1:] for s in IMAGE_SUFFIXES)}){hint}"
+        )
+    return sorted(files, key=lambda p: natural_key(p.name))
+
+
+def _expand_inputs(inputs) -> tuple[str, list[Path] | Path]:
+    """Return ("video", path) or ("images", [paths]) for the user's input."""
+    if isinstance(inputs, (str, os.PathLike)):
+        s = os.fspath(inputs)
+        if isinstance(s, str) and s.startswith("synthetic:"):
+            raise LayercamError(f"{s!r} is a synthetic clip: build it with layercam.synth, not load_clip")
+        p = Path(s).expanduser()
+        if p.is_dir():
+            return ("images", _list_folder(p))
+        if p.is_file():
+            if p.suffix.lower() in IMAGE_SUFFIXES:
+                return ("images", [p])
+            return ("video", p)  # any other file: let ffmpeg decide (errors say what it is)
+        if _GLOB_CHARS.search(s):
+            hits = [Path(h) for h in glob.glob(os.path.expanduser(s))]
+            hits = [h for h in hits if h.is_file() and h.suffix.lower() in IMAGE_SUFFIXES]
+            if not hits:
+                raise LayercamError(f"no images match {s}")
+            return ("images", sorted(hits, key=lambda q: natural_key(q.name)))
+        raise LayercamError(f"input not found: {p}")
+    if isinstance(inputs, (list, tuple)):
+        if not inputs:
+            raise LayercamError("no input frames given (empty list)")
+        if len(inputs) == 1:
+            return _expand_inputs(inputs[0])
+        paths: list[Path] = []
+        for item in inputs:
+            if not isinstance(item, (str, os.PathLike)):
+                raise TypeError(f"load_clip list items must be paths, got {type(item).__name__}")
+            p = Path(item).expanduser()
+            if p.is_dir():
+                raise LayercamError(f"{p} is a folder: pass either one folder or a list of image files")
+            if not p.exists():
+                raise LayercamError(f"image not found: {p}")
+            if p.suffix.lower() not in IMAGE_SUFFIXES:
+                raise LayercamError(
+                    f"{p.name} is not an image ({'/'.join(s[1:] for s in IMAGE_SUFFIXES)}); "
+                    "pass a video on its own"
+                )
+            paths.append(p)
+        return ("images", paths)
+    raise TypeError(f"load_clip expects a path or a list of paths, got {type(inputs).__name__}")
+
+
+def _unique_names(paths: list[Path]) -> list[str]:
+    names, seen = [], {}
+    for p in paths:
+        stem = p.stem
+        n = seen.get(stem, 0)
+        seen[stem] = n + 1
+        names.append(stem if n == 0 else f"{stem}_{n}")
+    return names
+
+
+def load_clip(
+    inputs: str | os.PathLike | list,
+    max_frames: int | None = None,
+    stride: int = 1,
+    resize: str | float | None = None,
+) -> Clip:
+    """Load a video file, a folder of images or a list of image files as a ``Clip``.
+
+    inputs: video (mp4/mov/avi/mkv/...), folder (image files sorted naturally by name; other
+        files ignored), list of image paths (kept in the given order) or an unexpanded glob.
+    stride: keep every K-th frame; then max_frames keeps the first N of those.
+    resize: None, a factor (``0.5`` or ``"0.5"``) or ``"WxH"``; INTER_AREA when shrinking.
+    Images of differing sizes raise ``LayercamError`` naming the file unless resize is "WxH".
+    Every user-input problem raises ``LayercamError`` with a one-line message.
+    """
+    _check_count("stride", stride, 1)
+    _check_count("max_frames", max_frames, 1)
+    rs = parse_resize(resize)
+    kind, what = _expand_inputs(inputs)
+    source = os.fspath(inputs) if isinstance(inputs, (str, os.PathLike)) else ",".join(
+        os.fspath(p) for p in inputs
+    )
+
+    if kind == "video":
+        assert isinstance(what, Path)
+        u8, fps = read_video(what, max_frames=max_frames, stride=stride)
+        t, h, w, _ = u8.shape
+        tw, th = _target_size(rs, w, h)
+        frames = np.empty((t, th, tw, 3), np.float32)
+        for i in range(t):
+            frames[i] = _resize(u8[i].astype(np.float32) / 255.0, (tw, th))
+        idx = [i * stride for i in range(t)]
+        return Clip(
+            frames=frames,
+            source=source,
+            names=[f"{i:05d}" for i in idx],
+            fps=fps,
+            bit_depth=8,
+            exif_exposures=None,
+            meta={
+                "kind": "video",
+                "frame_indices": idx,
+                "n_source_frames": None,
+                "source_size": (w, h),
+            },
+        )
+
+    assert isinstance(what, list)
+    all_paths = what
+    idx = list(range(0, len(all_paths), stride))
+    if max_frames is not None:
+        idx = idx[:max_frames]
+    paths = [all_paths[i] for i in idx]
+    frames_list, depths = [], []
+    size0 = None
+    target = None
+    for p in paths:
+        img, depth = read_image(p, return_bit_depth=True)
+        h, w = img.shape[:2]
+        if size0 is None:
+            size0 = (w, h)
+            target = _target_size(rs, w, h)
+        elif (w, h) != size0 and not (rs is not None and rs[0] == "size"):
+            raise LayercamError(
+                f"{p.name} is {w}x{h} but {paths[0].name} is {size0[0]}x{size0[1]}; "
+                "give --resize WxH to bring all frames to one size"
+            )
+        frames_list.append(_resize(img, target))
+        depths.append(depth)
+    exif = [read_exif_exposure(p) if p.suffix.lower() in _EXIF_SUFFIXES else None for p in paths]
+    return Clip(
+        frames=np.stack(frames_list, axis=0),
+        source=source,
+        names=_unique_names(paths),
+        fps=24.0,
+        bit_depth=max(depths),
+        exif_exposures=exif,
+        meta={
+            "kind": "images",
+            "frame_indices": idx,
+            "n_source_frames": len(all_paths),
+            "source_size": size0,
+            "paths": [str(p) for p in paths],
+        },
+    )

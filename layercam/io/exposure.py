@@ -1,0 +1,419 @@
+"""Per-frame exposure times from the user's ``--exposures`` spec (and the frames).
+
+All ``log2_dt`` values are relative log2 exposure times (EV), **normalised so that their
+minimum is 0** (the darkest frame/phase is 0). Only differences matter to the model.
+
+Brightness measurements (used to find the brighter phase of ``alt``/``alt3`` and to initialise
+learned exposures) linearise pixel values with a gamma of 2.2 and compare consecutive frames
+pixel by pixel over pixels unclipped in both, so they are rough initial values, not calibration.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+from dataclasses import dataclass
+from fractions import Fraction
+from pathlib import Path
+
+import numpy as np
+
+from layercam.errors import LayercamError
+from layercam.io.clip import Clip
+
+__all__ = ["Exposures", "parse_exposures", "measure_pair_ev", "parse_time"]
+
+_GAMMA = 2.2
+_LO, _HI = 0.02, 0.95  # encoded-value range considered neither noise-dominated nor clipped
+_EV_MIN, _EV_MAX = 0.5, 12.0
+
+
+@dataclass
+class Exposures:
+    """Exposure model for a clip of ``T`` frames.
+
+    log2_dt: ``(T,)`` float32 initial relative log2 exposure time per frame, minimum 0.
+    learn: ``"none"`` (times are given and fixed), ``"ratio"`` (one learned EV offset per
+        phase; alt/alt3 without ev_step) or ``"all"`` (one learned value per frame, frame 0 fixed).
+    phase: ``(T,)`` int phase index for alt/alt3/cycle specs (from the frame's index in the
+        source, so stride is accounted for), else None.
+    spec: the user's spec string (``"none"`` when None was given).
+    reason: one line saying how the exposures were decided.
+    dt_seconds: ``(T,)`` absolute exposure times in seconds when known (exif, file), else None.
+    """
+
+    log2_dt: np.ndarray
+    learn: str
+    phase: np.ndarray | None
+    spec: str
+    reason: str
+    dt_seconds: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        self.log2_dt = np.asarray(self.log2_dt, dtype=np.float32).reshape(-1)
+        if self.learn not in ("none", "ratio", "all"):
+            raise ValueError(f"learn must be none/ratio/all, got {self.learn!r}")
+        if self.phase is not None:
+            self.phase = np.asarray(self.phase, dtype=np.int64).reshape(-1)
+            if self.phase.shape != self.log2_dt.shape:
+                raise ValueError("phase and log2_dt must have the same length")
+
+    @property
+    def T(self) -> int:  # noqa: N802
+        return int(self.log2_dt.shape[0])
+
+    @property
+    def count_distinct(self) -> int:
+        """Number of distinct exposures (1 means a single exposure). Phases count when the
+        spec has them; otherwise values are compared at a 0.1 EV tolerance."""
+        if self.phase is not None and self.learn == "ratio":
+            return int(len(np.unique(self.phase)))
+        vals = np.sort(self.log2_dt.astype(np.float64))
+        if vals.size == 0:
+            return 0
+        return int(1 + np.count_nonzero(np.diff(vals) > 0.1))
+
+
+# ----------------------------------------------------------------------------- measurement
+
+
+def _luma_small(frame: np.ndarray, max_side: int = 160) -> np.ndarray:
+    h, w = frame.shape[:2]
+    s = max(1, int(np.ceil(max(h, w) / max_side)))
+    return frame[::s, ::s].mean(axis=2, dtype=np.float32)
+
+
+def measure_pair_ev(a: np.ndarray, b: np.ndarray) -> float:
+    """Rough EV of frame ``b`` relative to frame ``a`` (both ``(H,W,3)`` in [0,1]).
+
+    Median over pixels unclipped in both of ``gamma*log2(b/a)``; when fewer than 0.5% of the
+    pixels qualify (e.g. many stops apart), falls back to the difference of per-frame medians.
+    """
+    la, lb = _luma_small(a), _luma_small(b)
+    ok = (la > _LO) & (la < _HI) & (lb > _LO) & (lb < _HI)
+    if np.count_nonzero(ok) >= max(16, 0.005 * ok.size):
+        return float(_GAMMA * np.median(np.log2(lb[ok]) - np.log2(la[ok])))
+
+    def level(x: np.ndarray) -> float:
+        good = (x > _LO) & (x < _HI)
+        v = x[good] if np.any(good) else np.clip(x, 1e-3, 1.0)
+        return float(np.median(np.log2(np.maximum(v, 1e-3))))
+
+    return _GAMMA * (level(lb) - level(la))
+
+
+def _pair_diffs(frames: np.ndarray) -> np.ndarray:
+    return np.array([measure_pair_ev(frames[t], frames[t + 1]) for t in range(len(frames) - 1)])
+
+
+def _measure_phase_ev(frames: np.ndarray, phase: np.ndarray, n: int) -> np.ndarray:
+    """Least-squares EV per phase (phase 0 at 0) from medians of consecutive-pair EVs."""
+    d = _pair_diffs(frames)
+    rows, rhs = [], []
+    groups: dict[tuple[int, int], list[float]] = {}
+    for t, v in enumerate(d):
+        a, b = int(phase[t]), int(phase[t + 1])
+        if a == b:
+            continue
+        groups.setdefault((a, b), []).append(float(v))
+    for (a, b), vals in groups.items():
+        row = np.zeros(n)
+        row[b] += 1.0
+        row[a] -= 1.0
+        rows.append(row)
+        rhs.append(float(np.median(vals)))
+    row0 = np.zeros(n)
+    row0[0] = 1.0
+    rows.append(row0 * 10.0)
+    rhs.append(0.0)
+    sol, *_ = np.linalg.lstsq(np.array(rows), np.array(rhs), rcond=None)
+    return sol
+
+
+# ----------------------------------------------------------------------------- parsing helpers
+
+
+def parse_time(tok: str) -> float:
+    """Parse an exposure time in seconds: ``0.01``, ``1/125``, ``2.5``. Raises ValueError."""
+    tok = tok.strip().rstrip("s")
+    if "/" in tok:
+        num, den = tok.split("/", 1)
+        return float(Fraction(num.strip())) / float(Fraction(den.strip()))
+    return float(tok)
+
+
+def _frame_phase(clip: Clip, n: int) -> np.ndarray:
+    idx = clip.meta.get("frame_indices") if isinstance(clip.meta, dict) else None
+    if idx is None or len(idx) != clip.T:
+        idx = range(clip.T)
+    return np.asarray(idx, dtype=np.int64) % n
+
+
+def _normalise(v: np.ndarray) -> np.ndarray:
+    v = np.asarray(v, dtype=np.float64)
+    return (v - v.min()).astype(np.float32)
+
+
+def _fmt_phases(ev: np.ndarray) -> str:
+    return ", ".join(f"{x:+.2f}" for x in ev)
+
+
+# ----------------------------------------------------------------------------- specs
+
+
+def _alt(clip: Clip, n: int, spec: str, ev_step: float | None) -> Exposures:
+    if clip.T < n:
+        raise LayercamError(f"'{spec}' needs at least {n} frames, the clip has {clip.T}")
+    phase = _frame_phase(clip, n)
+    present = np.unique(phase)
+    if len(present) < n:
+        stride = clip.meta.get("frame_indices", [0, 1])
+        raise LayercamError(
+            f"'{spec}': the selected frames cover only {len(present)} of {n} exposure phases "
+            f"(frame indices {list(stride[:4])}...); use a stride that is not a multiple of {n}"
+        )
+    measured = _measure_phase_ev(clip.frames, phase, n)  # EV per phase, phase 0 at 0
+    order = np.argsort(measured)  # darkest first
+    rank = np.empty(n, dtype=np.int64)
+    rank[order] = np.arange(n)
+    gaps = np.diff(measured[order])
+    small = bool(np.any(gaps < _EV_MIN))
+    if n == 2:
+        brighter = "odd" if order[1] == 1 else "even"
+        what = f"alt: {brighter} frames brighter by {gaps[0]:.1f} EV (measured)"
+    else:
+        what = f"alt3: phases darkest..brightest {list(map(int, order))}, measured gaps " + ", ".join(
+            f"{g:.1f}" for g in gaps
+        ) + " EV"
+    if ev_step is not None:
+        step = float(ev_step)
+        per_phase = rank * step
+        learn = "none"
+        tail = f", ev-step {step:g} given"
+    else:
+        clamped = np.clip(gaps, _EV_MIN, _EV_MAX)
+        ranked = np.concatenate([[0.0], np.cumsum(clamped)])
+        per_phase = ranked[rank]
+        learn = "ratio"
+        tail = ", ratio learned from initial " + "/".join(f"{g:.1f}" for g in clamped) + " EV"
+    if small:
+        tail += " (warning: phases differ by under 0.5 EV; is the clip really alternating?)"
+    return Exposures(
+        log2_dt=_normalise(per_phase[phase]),
+        learn=learn,
+        phase=phase,
+        spec=spec,
+        reason=what + tail,
+    )
+
+
+def _cycle(clip: Clip, spec: str) -> Exposures:
+    toks = [t for t in re.split(r"[,\s]+", spec.strip()) if t]
+    evs = []
+    for t in toks:
+        try:
+            v = float(t)
+        except ValueError:
+            raise LayercamError(
+                f"exposure cycle entry {t!r} in {spec!r} is not a number (expected EVs like 0,3)"
+            ) from None
+        if not np.isfinite(v):
+            raise LayercamError(f"exposure cycle entry {t!r} in {spec!r} is not finite")
+        evs.append(v)
+    if not evs:
+        raise LayercamError(f"empty exposure cycle {spec!r}")
+    n = len(evs)
+    phase = _frame_phase(clip, n)
+    log2 = np.asarray(evs, dtype=np.float64)[phase]
+    return Exposures(
+        log2_dt=_normalise(log2),
+        learn="none",
+        phase=phase,
+        spec=spec,
+        reason=f"cycle of {n} EV offsets ({', '.join(f'{v:g}' for v in evs)}) given, frame t uses entry t mod {n}",
+    )
+
+
+def _exif(clip: Clip, spec: str) -> Exposures:
+    ex = clip.exif_exposures
+    if ex is None:
+        raise LayercamError(
+            f"'exif' needs image files with EXIF exposure times; {clip.source} is not a set of images"
+        )
+    for name, v in zip(clip.names, ex):
+        if v is None or not (v > 0):
+            raise LayercamError(f"frame {name} has no EXIF exposure time; give --exposures FILE or learn")
+    secs = np.asarray(ex, dtype=np.float64)
+    return Exposures(
+        log2_dt=_normalise(np.log2(secs)),
+        learn="none",
+        phase=None,
+        spec=spec,
+        reason=f"exif: {len(secs)} exposure times {_fmt_secs(secs)} from EXIF",
+        dt_seconds=secs.astype(np.float32),
+    )
+
+
+def _fmt_secs(secs: np.ndarray) -> str:
+    def one(s: float) -> str:
+        return f"1/{1 / s:g}s" if s < 1 else f"{s:g}s"
+
+    if len(secs) <= 4:
+        return ", ".join(one(s) for s in secs)
+    return f"{one(secs.min())}..{one(secs.max())}"
+
+
+def _learn(clip: Clip, spec: str) -> Exposures:
+    d = _pair_diffs(clip.frames) if clip.T > 1 else np.zeros(0)
+    rel = np.concatenate([[0.0], np.cumsum(d)])
+    return Exposures(
+        log2_dt=_normalise(rel),
+        learn="all",
+        phase=None,
+        spec=spec,
+        reason=f"learn: one exposure per frame, initialised from measured brightness "
+        f"(span {np.ptp(rel):.1f} EV), frame 0 fixed",
+    )
+
+
+def _read_time_file(path: Path, clip: Clip, spec: str) -> Exposures:
+    try:
+        text = path.read_text(encoding="utf-8", errors="replace")
+    except OSError as e:
+        raise LayercamError(f"cannot read exposure file {path}: {e.strerror or e}") from None
+    named: list[tuple[str, float]] = []
+    plain: list[float] = []
+    for lineno, raw in enumerate(text.splitlines(), 1):
+        line = raw.split("#", 1)[0].strip()
+        if not line:
+            continue
+        toks = line.replace(",", " ").split()
+        try:
+            plain.append(parse_time(toks[0]))
+            val = plain[-1]
+            name = None
+        except (ValueError, ZeroDivisionError):
+            name = toks[0]
+            val = None
+            for t in toks[1:]:
+                try:
+                    val = parse_time(t)
+                    break
+                except (ValueError, ZeroDivisionError):
+                    continue
+            if val is None:
+                raise LayercamError(
+                    f"{path.name} line {lineno}: no exposure time in {line[:60]!r}"
+                ) from None
+            named.append((name, val))
+        if not (np.isfinite(val) and val > 0):
+            raise LayercamError(f"{path.name} line {lineno}: exposure time must be positive, got {toks[0 if name is None else 1]}")
+    if named and plain:
+        raise LayercamError(f"{path.name} mixes lines with and without file names")
+    if not named and not plain:
+        raise LayercamError(f"exposure file {path} lists no times")
+
+    how = ""
+    if named:
+        table = {}
+        for name, v in named:
+            table[name] = v
+            table[Path(name).stem] = v
+        missing = [n for n in clip.names if n not in table]
+        if not missing:
+            secs = np.array([table[n] for n in clip.names], dtype=np.float64)
+            how = " (matched by file name)"
+        elif len(named) == clip.T:
+            secs = np.array([v for _, v in named], dtype=np.float64)
+            how = " (in file order; names did not match the frames)"
+        else:
+            raise LayercamError(
+                f"exposure file {path.name} has no time for frame {missing[0]} ({len(named)} times for {clip.T} frames)"
+            )
+    else:
+        vals = np.asarray(plain, dtype=np.float64)
+        idx = clip.meta.get("frame_indices") if isinstance(clip.meta, dict) else None
+        n_src = clip.meta.get("n_source_frames") if isinstance(clip.meta, dict) else None
+        if len(vals) == clip.T:
+            secs = vals
+        elif (
+            idx is not None
+            and len(idx) == clip.T
+            and len(vals) > max(idx)
+            and (n_src is None or len(vals) == n_src)
+        ):
+            secs = vals[np.asarray(idx)]
+            how = f" (selected {clip.T} of {len(vals)} by frame index)"
+        else:
+            expect = clip.T if n_src in (None, clip.T) else f"{clip.T} (or {n_src} source)"
+            raise LayercamError(f"exposure file lists {len(vals)} times for {expect} frames")
+    return Exposures(
+        log2_dt=_normalise(np.log2(secs)),
+        learn="none",
+        phase=None,
+        spec=spec,
+        reason=f"file {path.name}: {len(secs)} times {_fmt_secs(secs)}{how}",
+        dt_seconds=secs.astype(np.float32),
+    )
+
+
+def parse_exposures(spec: str | None, clip: Clip, ev_step: float | None = None) -> Exposures:
+    """Decide the exposure of each frame of ``clip`` from ``spec``.
+
+    spec:
+      ``None``/``"none"``/``"single"``: one exposure, all zeros.
+      ``"alt"``/``"alt3"``: 2/3 alternating exposures; the brightness order of the phases is
+          measured from the frames; phases get 0, ev_step, 2*ev_step (darkest first) when
+          ``ev_step`` is given (learn="none"), else measured gaps clamped to [0.5, 12] EV and
+          learn="ratio".
+      ``"0,3"``, ``"-2,0,2"``: explicit EV cycle, frame t uses entry t mod n (learn="none").
+      a text file: one exposure time per line in seconds (``0.01`` or ``1/125``; ``#``
+          comments), or lines ``name time ...`` (e.g. ``DSC_0058.png 32 0.03125``) matched to
+          frame names; a list covering the whole source is subset by frame index.
+      ``"exif"``: EXIF times of the image files (all frames must have one).
+      ``"learn"``: one learned exposure per frame, initialised from measured brightness.
+    Returns ``Exposures`` with ``log2_dt`` of shape ``(T,)``, minimum 0. Bad specs raise
+    ``LayercamError`` with one line.
+    """
+    if not isinstance(clip, Clip):
+        raise TypeError(f"parse_exposures expects a Clip, got {type(clip).__name__}")
+    if ev_step is not None:
+        try:
+            ev_step = float(ev_step)
+        except (TypeError, ValueError):
+            raise LayercamError(f"ev-step must be a number, got {ev_step!r}") from None
+        if not np.isfinite(ev_step) or ev_step <= 0:
+            raise LayercamError(f"ev-step must be positive, got {ev_step:g}")
+    if spec is not None and not isinstance(spec, (str, os.PathLike)):
+        raise LayercamError(f"bad exposure spec {spec!r}")
+    s = "none" if spec is None else os.fspath(spec).strip()
+    key = s.lower()
+    if key in ("", "none", "single"):
+        return Exposures(
+            log2_dt=np.zeros(clip.T, np.float32),
+            learn="none",
+            phase=None,
+            spec=s or "none",
+            reason="single exposure: all frames share one exposure time",
+        )
+    if key == "alt":
+        return _alt(clip, 2, s, ev_step)
+    if key == "alt3":
+        return _alt(clip, 3, s, ev_step)
+    if key == "exif":
+        return _exif(clip, s)
+    if key == "learn":
+        return _learn(clip, s)
+    p = Path(s).expanduser()
+    if p.is_file():
+        return _read_time_file(p, clip, s)
+    if p.is_dir():
+        raise LayercamError(f"exposure spec {s!r} is a folder; expected a text file of times")
+    if "," in s or re.fullmatch(r"[+-]?\d+(\.\d*)?", s):
+        return _cycle(clip, s)
+    if "/" in s or os.sep in s or p.suffix:
+        raise LayercamError(f"exposure file not found: {s}")
+    raise LayercamError(
+        f"unknown exposure spec {s!r}: use none, alt, alt3, exif, learn, an EV cycle like 0,3, "
+        "or a file of exposure times"
+    )

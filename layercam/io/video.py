@@ -1,0 +1,174 @@
+"""Video files: decode to uint8 frames ``(T,H,W,3)`` and encode H.264 mp4, through the ffmpeg
+binary bundled with imageio-ffmpeg (works offline). Imported lazily inside the functions.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import subprocess
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from layercam.errors import LayercamError
+from layercam.io.atomic import atomic_write
+
+__all__ = ["VIDEO_SUFFIXES", "read_video", "write_video"]
+
+VIDEO_SUFFIXES: tuple[str, ...] = (".mp4", ".mov", ".avi", ".mkv", ".m4v", ".webm", ".gif")
+
+
+def _check_int(name: str, value, minimum: int) -> None:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+        raise LayercamError(f"{name} must be an integer, got {value!r}")
+    if value < minimum:
+        raise LayercamError(f"{name} must be >= {minimum}, got {value}")
+
+
+_OUT_STREAM = re.compile(r"Output #0.*?Stream #0:0.*?: Video: rawvideo[^\n]*?, (\d+)x(\d+)([^\n]*)", re.S)
+
+
+def _last_line(text: str) -> str:
+    lines = [ln.strip() for ln in text.splitlines() if ln.strip()]
+    return lines[-1][:160] if lines else "no output from ffmpeg"
+
+
+def read_video(
+    path: str | os.PathLike, max_frames: int | None = None, stride: int = 1
+) -> tuple[np.ndarray, float]:
+    """Decode a video file into ``(frames, fps)``.
+
+    ``frames`` is uint8 RGB ``(T, H, W, 3)``. ``stride`` keeps every K-th frame (0, K, 2K, ...),
+    then ``max_frames`` keeps the first N of those; decoding stops as soon as N are collected.
+    Raises ``LayercamError`` for a missing, corrupt or non-video file, or one with no frames.
+    Runs imageio-ffmpeg's bundled ffmpeg binary directly (all pipes are closed on return).
+    """
+    if not isinstance(path, (str, os.PathLike)):
+        raise TypeError(f"read_video expects a path, got {type(path).__name__}")
+    _check_int("stride", stride, 1)
+    if max_frames is not None:
+        _check_int("max_frames", max_frames, 1)
+    p = Path(path).expanduser()
+    if not p.exists():
+        raise LayercamError(f"video not found: {p}")
+    if p.is_dir():
+        raise LayercamError(f"expected a video file, got a folder: {p}")
+
+    import imageio_ffmpeg
+
+    cmd = [
+        imageio_ffmpeg.get_ffmpeg_exe(), "-nostdin", "-hide_banner", "-nostats",
+        "-i", str(p), "-map", "0:v:0", "-f", "rawvideo", "-pix_fmt", "rgb24", "-",
+    ]  # fmt: skip
+    frames: list[np.ndarray] = []
+    with tempfile.TemporaryFile() as log:
+        proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=log)
+        try:
+            # The output stream header is logged before the first frame reaches the pipe.
+            deadline = time.monotonic() + 60.0
+            while True:
+                log.seek(0)
+                text = log.read().decode("utf-8", "replace")
+                m = _OUT_STREAM.search(text)
+                if m or proc.poll() is not None or time.monotonic() > deadline:
+                    break
+                time.sleep(0.005)
+            if not m:
+                log.seek(0)
+                text = log.read().decode("utf-8", "replace")
+                m = _OUT_STREAM.search(text)
+            if not m:
+                raise LayercamError(
+                    f"cannot read video {p}: not a video or corrupt ({_last_line(text)})"
+                )
+            w, h = int(m.group(1)), int(m.group(2))
+            rate = re.search(r"([\d.]+) (?:fps|tbr)", m.group(3))
+            fps = float(rate.group(1)) if rate else 24.0
+            if not np.isfinite(fps) or fps <= 0:
+                fps = 24.0
+            nbytes = w * h * 3
+            assert proc.stdout is not None
+            i = 0
+            while max_frames is None or len(frames) < max_frames:
+                buf = proc.stdout.read(nbytes)
+                if len(buf) < nbytes:
+                    break  # end of stream (or a truncated last frame)
+                if i % stride == 0:
+                    frames.append(np.frombuffer(buf, dtype=np.uint8).reshape(h, w, 3))
+                i += 1
+        finally:
+            if proc.stdout is not None:
+                proc.stdout.close()
+            if proc.poll() is None:
+                proc.kill()
+            proc.wait()
+        if not frames:
+            log.seek(0)
+            text = log.read().decode("utf-8", "replace")
+            raise LayercamError(f"video {p} has no decodable frames ({_last_line(text)})")
+    return np.stack(frames, axis=0), fps
+
+
+def _to_uint8(frames: np.ndarray) -> np.ndarray:
+    if frames.dtype == np.uint8:
+        return frames
+    f = frames.astype(np.float32, copy=False)
+    if not np.all(np.isfinite(f)):
+        raise ValueError("write_video got non-finite values")
+    return np.round(np.clip(f, 0.0, 1.0) * 255.0).astype(np.uint8)
+
+
+def write_video(
+    path: str | os.PathLike, frames: np.ndarray, fps: float = 24.0, crf: int = 18
+) -> Path:
+    """Encode ``frames`` to an H.264 (libx264, yuv420p) mp4 at ``path``, atomically.
+
+    ``frames``: ``(T,H,W,3)`` RGB, float in [0,1] (clipped) or uint8; ``(T,H,W)`` grey is
+    replicated. Odd widths/heights are padded to even by repeating the last row/column.
+    ``crf`` is the x264 quality (lower is better, 18 is visually lossless).
+    """
+    frames = np.asarray(frames)
+    if frames.ndim == 3:
+        frames = np.repeat(frames[..., None], 3, axis=3)
+    if frames.ndim != 4 or frames.shape[3] != 3:
+        raise ValueError(f"write_video expects (T,H,W,3) frames, got shape {frames.shape}")
+    if frames.shape[0] == 0 or frames.shape[1] == 0 or frames.shape[2] == 0:
+        raise ValueError(f"write_video got an empty clip {frames.shape}")
+    fps = float(fps)
+    if not np.isfinite(fps) or fps <= 0:
+        raise ValueError(f"fps must be positive, got {fps}")
+    u8 = _to_uint8(frames)
+    t, h, w, _ = u8.shape
+    ph, pw = h % 2, w % 2
+    if ph or pw:
+        u8 = np.pad(u8, ((0, 0), (0, ph), (0, pw), (0, 0)), mode="edge")
+    size = (w + pw, h + ph)
+
+    import imageio_ffmpeg
+
+    def _write(tmp: Path) -> None:
+        gen = imageio_ffmpeg.write_frames(
+            str(tmp),
+            size,
+            fps=fps,
+            codec="libx264",
+            quality=None,
+            macro_block_size=2,
+            pix_fmt_out="yuv420p",
+            ffmpeg_log_level="error",
+            output_params=["-crf", str(int(crf)), "-preset", "medium", "-movflags", "+faststart"],
+        )
+        gen.send(None)
+        for i in range(t):
+            gen.send(np.ascontiguousarray(u8[i]))
+        gen.close()
+
+    try:
+        return atomic_write(path, _write)
+    except (OSError, RuntimeError) as e:
+        if isinstance(e, LayercamError):
+            raise
+        raise LayercamError(f"cannot write video {path}: {str(e).strip()[:160]}") from None

@@ -1,0 +1,68 @@
+"""Loss terms as pure functions. The model weights them and returns ``{name: weighted_term}``."""
+
+from __future__ import annotations
+
+import torch
+
+
+def color_loss(pred: torch.Tensor, target: torch.Tensor, mode: str = "plain", lo: float = 1.0 / 255, hi: float = 254.0 / 255) -> torch.Tensor:
+    """Colour reconstruction (paper Eq. 9), ``(N, 3)`` each.
+
+    mode "plain": MSE. mode "one_sided": a target at or below ``lo`` only says "at most", at or above
+    ``hi`` only "at least", so the error counts there only when the prediction is on the wrong side.
+    """
+    err = pred.float() - target.float()
+    if mode == "one_sided":
+        under = target <= lo
+        over = target >= hi
+        err = torch.where(under, err.clamp_min(0.0), err)
+        err = torch.where(over, err.clamp_max(0.0), err)
+    elif mode != "plain":
+        raise ValueError(f"unknown colour loss mode {mode!r}")
+    return (err**2).mean()
+
+
+def flow_loss(uv: torch.Tensor, uv_match: torch.Tensor, valid: torch.Tensor) -> torch.Tensor:
+    """Flow consistency (paper Eq. 10): ``||q_p - q_p*||^2`` over pairs marked ``valid (N,)``."""
+    d = ((uv - uv_match) ** 2).sum(dim=1)
+    v = valid.float()
+    return (d * v).sum() / v.sum().clamp_min(1.0)
+
+
+def white_balance_loss(c_at_zero: torch.Tensor, c0: float = 0.5) -> torch.Tensor:
+    """``||T(0) - c0||^2`` (paper Eq. 11): unit irradiance at unit exposure maps to mid-grey."""
+    return ((c_at_zero.float() - c0) ** 2).mean()
+
+
+def gradient_loss(tone, z: torch.Tensor, eps: float = 0.05) -> torch.Tensor:
+    """``ReLU(-dT/dz)`` (paper Eq. 12) by a forward difference at samples ``z (N, 3)``."""
+    slope = (tone(z + eps) - tone(z)) / eps
+    return torch.relu(-slope).mean()
+
+
+def rigidity_loss(uv_fn, xy: torch.Tensor, t: torch.Tensor, delta: float) -> torch.Tensor:
+    """Kasten et al.'s rigidity term: the mapping's local Jacobian should be a similarity.
+
+    Estimated with finite differences of size ``delta`` (normalised frame units); penalises
+    ``J^T J`` away from a multiple of the identity (symmetric Dirichlet simplified).
+    """
+    uv0 = uv_fn(xy, t)
+    ux = (uv_fn(xy + torch.tensor([delta, 0.0], device=xy.device), t) - uv0) / delta
+    uy = (uv_fn(xy + torch.tensor([0.0, delta], device=xy.device), t) - uv0) / delta
+    j = torch.stack([ux, uy], dim=2)  # (N, 2, 2)
+    jtj = j.transpose(1, 2) @ j
+    s = (jtj[:, 0, 0] + jtj[:, 1, 1]) / 2
+    off = jtj - s[:, None, None] * torch.eye(2, device=xy.device)
+    return (off**2).sum(dim=(1, 2)).mean() / s.detach().clamp_min(1e-8).pow(2).mean()
+
+
+def sparsity_loss(alpha: torch.Tensor) -> torch.Tensor:
+    """Prefer a small foreground: mean alpha."""
+    return alpha.float().mean()
+
+
+def alpha_flow_loss(alpha: torch.Tensor, alpha_match: torch.Tensor, valid: torch.Tensor) -> torch.Tensor:
+    """Alpha should follow the flow: ``|alpha(p) - alpha(p*)|`` over valid pairs."""
+    d = (alpha - alpha_match).abs().squeeze(-1)
+    v = valid.float()
+    return (d * v).sum() / v.sum().clamp_min(1.0)

@@ -1,0 +1,102 @@
+"""Scene fields: atlas ``(u,v) -> log2 irradiance``, deformation ``(x,y,t) -> (u,v)``, alpha ``(x,y,t) -> alpha``.
+
+Coordinates: ``xy`` is ``(N, 2)`` in ``[-1, 1]`` (x along the width), ``t`` is ``(N,)`` long frame index.
+Atlas coordinates ``uv`` live in ``[-1, 1]^2``.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+from layercam.config import SceneConfig
+from layercam.scene.encodings import DenseGrid2D, PositionalEncoding
+from layercam.scene.mlp import MLP
+
+LOG2_R_BOUND = 40.0  # guard: |log2 irradiance| never exceeds this (2^40 covers any sensor)
+
+
+class AtlasField(nn.Module):
+    """``uv (N, 2) -> log2 r (N, 3)``. Encoding "grid" (fast) or "pe" (paper: PE(7) -> 4x512)."""
+
+    def __init__(self, cfg: SceneConfig, init_log2: float = 0.0):
+        super().__init__()
+        if cfg.encoding == "grid":
+            self.enc = DenseGrid2D(cfg.grid_levels, cfg.grid_min_res, cfg.grid_max_res, cfg.grid_features)
+        elif cfg.encoding == "pe":
+            self.enc = PositionalEncoding(2, cfg.pe_freqs)
+        else:
+            raise ValueError(f"unknown atlas encoding {cfg.encoding!r} (grid | pe)")
+        self.mlp = MLP(self.enc.out_dim, 3, cfg.atlas_width, cfg.atlas_depth)
+        with torch.no_grad():
+            self.mlp.last.bias.fill_(init_log2)
+
+    def forward(self, uv: torch.Tensor) -> torch.Tensor:
+        out = self.mlp(self.enc(uv))
+        return out.float().clamp(-LOG2_R_BOUND, LOG2_R_BOUND)
+
+
+def _t_norm(t: torch.Tensor, n_frames: int) -> torch.Tensor:
+    return (t.float() / max(n_frames - 1, 1) * 2.0 - 1.0)[:, None]
+
+
+def apply_homography(h: torch.Tensor, xy: torch.Tensor) -> torch.Tensor:
+    """``h (N, 3, 3)``, ``xy (N, 2)`` -> ``(N, 2)``; the projective divide is guarded away from 0."""
+    p = torch.einsum("nij,nj->ni", h, torch.cat([xy, torch.ones_like(xy[:, :1])], dim=1))
+    w = p[:, 2:3]
+    w = torch.where(w.abs() < 1e-3, torch.full_like(w, 1e-3) * torch.sign(w + 1e-12), w)
+    return p[:, :2] / w
+
+
+class Deformation(nn.Module):
+    """``(xy, t) -> uv``. Starts from a per-frame bootstrap mapping ``h0 (T, 3, 3)``.
+
+    kind "homography": ``uv = (h0_t + dh_t)(xy) + s * tanh(residual(PE(x, y, t)))`` with the
+    per-frame correction ``dh`` and the residual MLP both starting at zero (fast, exact at start).
+    kind "mlp" (paper): ``uv = tanh(MLP(x, y, t))``, fitted to ``h0`` during the bootstrap steps.
+    """
+
+    def __init__(self, cfg: SceneConfig, h0: torch.Tensor):
+        super().__init__()
+        if h0.ndim != 3 or h0.shape[1:] != (3, 3):
+            raise ValueError(f"h0 must be (T, 3, 3), got {tuple(h0.shape)}")
+        self.kind = cfg.deformation
+        self.n_frames = h0.shape[0]
+        self.register_buffer("h0", h0.float().clone())
+        if self.kind == "homography":
+            self.dh = nn.Parameter(torch.zeros(self.n_frames, 8))
+            self.pe = PositionalEncoding(3, cfg.deform_pe_freqs)
+            self.residual = MLP(self.pe.out_dim, 2, cfg.deform_width, cfg.deform_depth, zero_last=True)
+            self.residual_scale = cfg.residual_scale
+        elif self.kind == "mlp":
+            self.net = MLP(3, 2, cfg.deform_width, cfg.deform_depth)
+        else:
+            raise ValueError(f"unknown deformation {self.kind!r} (homography | mlp)")
+
+    def bootstrap_target(self, xy: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
+        return apply_homography(self.h0[t], xy)
+
+    def forward(self, xy: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
+        tn = _t_norm(t, self.n_frames)
+        if self.kind == "mlp":
+            return torch.tanh(self.net(torch.cat([xy, tn], dim=1)).float())
+        dh = torch.cat([self.dh, torch.zeros_like(self.dh[:, :1])], dim=1).view(-1, 3, 3)
+        uv = apply_homography(self.h0[t] + dh[t], xy)
+        res = self.residual(self.pe(torch.cat([xy, tn], dim=1))).float()
+        return uv + self.residual_scale * torch.tanh(res)
+
+
+class AlphaField(nn.Module):
+    """``(xy, t) -> alpha (N, 1)`` in ``(0, 1)``: foreground opacity of a two-layer scene."""
+
+    def __init__(self, cfg: SceneConfig, n_frames: int):
+        super().__init__()
+        self.n_frames = n_frames
+        self.pe = PositionalEncoding(3, cfg.alpha_pe_freqs)
+        self.net = MLP(self.pe.out_dim, 1, cfg.alpha_width, cfg.alpha_depth)
+
+    def logits(self, xy: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
+        return self.net(self.pe(torch.cat([xy, _t_norm(t, self.n_frames)], dim=1))).float().clamp(-30, 30)
+
+    def forward(self, xy: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
+        return torch.sigmoid(self.logits(xy, t))

@@ -1,0 +1,143 @@
+"""The stage runner and its cache.
+
+A stage's output lives in ``RUN/cache/<stage>-<key>/`` and is marked finished by ``done.json``.
+The key hashes the stage's name and version, the input (clip fingerprint and exposure spec), the
+settings the stage reads, and the keys of the stages it depends on. So the same command twice
+skips finished stages; a changed setting redoes only the stages whose key it changes; and a stage
+interrupted half-way (training) finds its own partial state (a checkpoint) in the same folder.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from layercam.config import Config, config_hash
+from layercam.errors import LayercamError
+from layercam.io.atomic import atomic_write, ensure_writable_dir
+
+
+@dataclass
+class Context:
+    """Everything a stage may read. ``results[name]`` holds each finished stage's summary dict."""
+
+    run_dir: Path
+    clip: Any                       # layercam.io.Clip
+    exposures: Any                  # layercam.io.Exposures
+    cfg: Config
+    spec: Any                       # layercam.spec.ModelSpec
+    task: str
+    masks: Any = None               # (T, H, W) foreground masks or None
+    progress: bool = True
+    extra: dict = field(default_factory=dict)   # task inputs that are not settings (e.g. ground truth)
+    results: dict = field(default_factory=dict)
+    dirs: dict = field(default_factory=dict)
+    keys: dict = field(default_factory=dict)
+    times: dict = field(default_factory=dict)
+    log: list = field(default_factory=list)
+
+    def say(self, msg: str) -> None:
+        self.log.append(msg)
+        if self.progress:
+            print(msg, flush=True)
+
+
+class Stage:
+    """A named, cached step. Subclasses set ``name``, ``deps``, ``version`` and implement
+    :meth:`key_material` (the settings it reads), :meth:`run` and optionally :meth:`load`."""
+
+    name = "stage"
+    deps: tuple = ()
+    version = 1
+
+    def key_material(self, ctx: Context) -> dict:
+        return {}
+
+    def run(self, ctx: Context, out: Path) -> dict:
+        raise NotImplementedError
+
+    def load(self, ctx: Context, out: Path, summary: dict) -> dict:
+        return summary
+
+
+def input_key(ctx: Context) -> dict:
+    e = ctx.exposures
+    return {
+        "clip": ctx.clip.fingerprint(),
+        "exposures": {"log2_dt": [round(float(v), 6) for v in e.log2_dt], "learn": e.learn},
+        "masks": None if ctx.masks is None else config_hash(ctx.masks.sum(axis=(1, 2)).tolist()),
+    }
+
+
+def run_stages(ctx: Context, stages: list[Stage]) -> Context:
+    ensure_writable_dir(ctx.run_dir)
+    cache = ensure_writable_dir(ctx.run_dir / "cache")
+    inkey = input_key(ctx)
+    for st in stages:
+        missing = [d for d in st.deps if d not in ctx.keys]
+        if missing:
+            raise RuntimeError(f"stage {st.name} needs {missing} first")
+        material = {"stage": st.name, "version": st.version, "input": inkey, "settings": st.key_material(ctx), "deps": {d: ctx.keys[d] for d in st.deps}}
+        key = config_hash(material)[:12]
+        out = cache / f"{st.name}-{key}"
+        ctx.keys[st.name], ctx.dirs[st.name] = key, out
+        done = out / "done.json"
+        if done.exists():
+            summary = json.loads(done.read_text())
+            ctx.results[st.name] = st.load(ctx, out, summary)
+            ctx.times[st.name] = {"seconds": 0.0, "cached": True, "original_seconds": summary.get("_seconds")}
+            ctx.say(f"[{st.name}] cached ({out.name})")
+            continue
+        out.mkdir(parents=True, exist_ok=True)
+        (out / "settings.json").write_text(json.dumps(material, indent=1, default=str))
+        t0 = time.perf_counter()
+        summary = st.run(ctx, out)
+        secs = time.perf_counter() - t0
+        summary["_seconds"] = secs
+        atomic_write(done, lambda p: p.write_text(json.dumps(summary, indent=1, default=_json_default)))
+        ctx.results[st.name] = st.load(ctx, out, summary)
+        ctx.times[st.name] = {"seconds": round(secs, 3), "cached": False}
+        ctx.say(f"[{st.name}] done in {secs:.1f} s")
+    return ctx
+
+
+def _json_default(o):
+    try:
+        import numpy as np
+
+        if isinstance(o, np.generic):
+            return o.item()
+        if isinstance(o, np.ndarray):
+            return o.tolist()
+    except ImportError:  # pragma: no cover
+        pass
+    return str(o)
+
+
+def write_json(path: Path, obj: Any) -> None:
+    atomic_write(Path(path), lambda p: p.write_text(json.dumps(obj, indent=1, default=_json_default)))
+
+
+def set_aside_previous(run_dir: Path, names: list[str], new_key: str, say) -> None:
+    """If ``run_dir`` holds outputs of another export (other settings), move them to
+    ``run_dir/previous/<old key>/`` instead of overwriting them."""
+    marker = run_dir / "export_key.txt"
+    if not marker.exists():
+        leftovers = [n for n in names if (run_dir / n).exists()]
+        if leftovers:
+            raise LayercamError(f"{run_dir} already holds {leftovers[0]} from something else; choose another --out")
+        return
+    old = marker.read_text().strip()
+    if old == new_key:
+        return
+    dest = run_dir / "previous" / old
+    dest.mkdir(parents=True, exist_ok=True)
+    for n in names + ["export_key.txt"]:
+        src = run_dir / n
+        if src.exists():
+            shutil.move(str(src), str(dest / n))
+    say(f"settings changed: earlier outputs moved to {dest}")

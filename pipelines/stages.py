@@ -1,0 +1,319 @@
+"""The stages every task is built from: flow -> bootstrap -> train -> export."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+from layercam.errors import LayercamError
+from layercam.pipelines.runner import Context, Stage, set_aside_previous, write_json
+
+
+class FlowStage(Stage):
+    """Optical flow between neighbours, forward and backward, with consistency masks and the
+    per-pair global homography fitted to each forward flow (RANSAC)."""
+
+    name = "flow"
+    version = 1
+
+    def key_material(self, ctx):
+        return ctx.cfg.section_dict("flow")
+
+    def run(self, ctx, out):
+        from layercam import flow
+
+        frames = ctx.clip.frames
+        if ctx.clip.T < 2:
+            np.savez(out / "flow.npz", fw=np.zeros((0, ctx.clip.H, ctx.clip.W, 2), np.float16))
+            return {"pairs": 0}
+        method = ctx.cfg.flow.method
+        if method == "raft":
+            fw, bw = flow.raft_flow(frames, ctx.cfg.flow.raft_weights)
+        else:
+            fw, bw = flow.compute_flow(frames, method=method, progress=ctx.progress)
+        fw_ok = flow.flow_consistency(fw, bw)
+        bw_ok = flow.flow_consistency(bw, fw)
+        homs = flow.global_homographies(fw)
+        np.savez(out / "flow.npz", fw=fw.astype(np.float16), bw=bw.astype(np.float16), fw_ok=fw_ok, bw_ok=bw_ok, homs=homs)
+        mag = np.sqrt((fw.astype(np.float32) ** 2).sum(-1))
+        return {"pairs": int(len(fw)), "mean_flow_px": float(mag.mean()), "consistent_fraction": float(fw_ok.mean())}
+
+    def load(self, ctx, out, summary):
+        return {**summary, "path": str(out / "flow.npz")}
+
+
+def load_flow(ctx: Context) -> dict | None:
+    res = ctx.results.get("flow")
+    if not res or not res.get("pairs"):
+        return None
+    with np.load(res["path"]) as z:
+        return {k: z[k] for k in z.files}
+
+
+def normalised_frame_matrix(h: int, w: int) -> np.ndarray:
+    """Pixel coordinates -> normalised ``[-1, 1]`` coordinates (pixel centres at +0.5)."""
+    return np.array([[2.0 / w, 0, 1.0 / w - 1], [0, 2.0 / h, 1.0 / h - 1], [0, 0, 1]], dtype=np.float64)
+
+
+def chain_homographies(pair_h: np.ndarray, ref: int) -> np.ndarray:
+    """Per-pair ``H_t: frame t -> frame t+1`` (pixels) -> ``M_t: frame t -> frame ref`` (pixels)."""
+    n = len(pair_h) + 1
+    m = [np.eye(3) for _ in range(n)]
+    for t in range(ref - 1, -1, -1):
+        m[t] = m[t + 1] @ pair_h[t]
+    for t in range(ref + 1, n):
+        m[t] = m[t - 1] @ np.linalg.inv(pair_h[t - 1])
+    return np.stack([x / x[2, 2] for x in m])
+
+
+def atlas_mappings(h: int, w: int, pixel_maps: np.ndarray, margin: float = 0.9) -> np.ndarray:
+    """Per-frame pixel maps into a reference view -> ``(T, 3, 3)`` from normalised frame
+    coordinates to atlas ``uv``, scaled isotropically so that every frame lands inside
+    ``[-margin, margin]^2``."""
+    corners = np.array([[0, 0, 1], [w, 0, 1], [0, h, 1], [w, h, 1]], dtype=np.float64).T
+    pts = []
+    for m in pixel_maps:
+        p = m @ corners
+        pts.append((p[:2] / p[2:]).T)
+    pts = np.concatenate(pts)
+    lo, hi = pts.min(0), pts.max(0)
+    centre, half = (lo + hi) / 2, (hi - lo).max() / 2
+    s = margin / max(half, 1e-6)
+    a = np.array([[s, 0, -s * centre[0]], [0, s, -s * centre[1]], [0, 0, 1]])
+    n_inv = np.linalg.inv(normalised_frame_matrix(h, w))
+    return np.stack([a @ m @ n_inv for m in pixel_maps]).astype(np.float32)
+
+
+class BootstrapStage(Stage):
+    """Starting point of the scene: each layer's mapping into its atlas (chained flow homographies
+    or the paper's identity), the atlas's initial log irradiance, and foreground masks for alpha."""
+
+    name = "bootstrap"
+    deps = ("flow",)
+    version = 1
+
+    def key_material(self, ctx):
+        s = ctx.cfg.scene
+        return {"bootstrap": s.bootstrap, "layers": ctx.spec.layers, "init_slope": ctx.cfg.tone.init_slope, "tone": ctx.spec.tone_mapper}
+
+    def run(self, ctx, out):
+        clip = ctx.clip
+        T, H, W = clip.T, clip.H, clip.W
+        fl = load_flow(ctx)
+        ref = T // 2
+        if ctx.cfg.scene.bootstrap == "flow" and fl is not None:
+            bg = chain_homographies(fl["homs"].astype(np.float64), ref)
+            how = f"chained flow homographies to frame {ref}"
+        elif ctx.cfg.scene.bootstrap in ("flow", "identity"):
+            bg = np.stack([np.eye(3)] * T)
+            how = "identity"
+        else:
+            raise LayercamError(f"unknown scene.bootstrap {ctx.cfg.scene.bootstrap!r} (flow | identity)")
+        h0 = [atlas_mappings(H, W, bg)]
+        if ctx.spec.layers > 1:
+            h0.append(atlas_mappings(H, W, np.stack([np.eye(3)] * T)))
+        h0 = np.stack(h0)
+        init_log2 = initial_log2(clip.frames, ctx.exposures.log2_dt, ctx.cfg.tone.init_slope, ctx.spec.tone_mapper)
+        np.save(out / "h0.npy", h0)
+        return {"how": how, "init_log2": init_log2, "layers": int(h0.shape[0])}
+
+    def load(self, ctx, out, summary):
+        return {**summary, "h0": np.load(out / "h0.npy")}
+
+
+def initial_log2(frames: np.ndarray, log2_dt: np.ndarray, slope: float, tone: str) -> float:
+    """Median log2 irradiance implied by the frames through the starting tone curve."""
+    c = np.clip(frames.mean(-1), 0.02, 0.98)
+    if tone == "fixed":
+        lin = np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
+        z = np.log2(np.maximum(lin, 1e-6))
+    else:
+        z = np.log(c / (1 - c)) / (slope * math.log(2))
+    return float(np.median(z - np.asarray(log2_dt, dtype=np.float32)[:, None, None]))
+
+
+class TrainStage(Stage):
+    """Fits the model. Its folder keeps ``ckpt.pt`` so that an interrupted run resumes."""
+
+    name = "train"
+    deps = ("flow", "bootstrap")
+    version = 1
+
+    def key_material(self, ctx):
+        d = ctx.cfg.section_dict("scene", "tone", "blur", "loss", "train")
+        d["train"].pop("checkpoint_every", None)
+        d["train"].pop("device", None)
+        d["spec"] = ctx.spec.key_dict()
+        return d
+
+    def run(self, ctx, out):
+        import torch
+
+        from layercam.camera.tone import fit_init_curve
+        from layercam.data import PixelSampler
+        from layercam.render import build_model, save_run_model
+        from layercam.train import BootstrapPhase, FlowDecay, Trainer
+
+        cfg = ctx.cfg
+        torch.manual_seed(cfg.train.seed)
+        meta = model_meta(ctx)
+        model = build_model(cfg, ctx.spec, meta)
+        if ctx.spec.tone_mapper == "learned" and not cfg.tone.monotone:
+            fit_init_curve(model.tone, cfg.tone.init_slope, seed=cfg.train.seed)
+        if ctx.masks is not None and model.scene.alpha is not None:
+            model.weights["alpha_mask"] = 1.0
+        fl = load_flow(ctx) if ctx.spec.flow_loss else None
+        dev = resolve_device(cfg.train.device)
+        model.to(dev)
+        sampler = PixelSampler(
+            ctx.clip.frames, *(fl[k] for k in ("fw", "bw", "fw_ok", "bw_ok")) if fl else (None,) * 4,
+            masks=ctx.masks, device=dev, seed=cfg.train.seed,
+        )
+        callbacks = [FlowDecay(cfg.loss.flow, cfg.loss.flow_decay_end), BootstrapPhase(cfg.train.bootstrap_steps)]
+        trainer = Trainer(model, sampler, cfg.train, out / "ckpt.pt", callbacks, progress=ctx.progress, desc=f"{ctx.task} train")
+        if (out / "ckpt.pt").exists():
+            ctx.say(f"[train] resuming from {out / 'ckpt.pt'}")
+        res = trainer.fit()
+        save_run_model(out / "model.pt", model, meta)
+        losses = [h for h in res.history if "total" in h]
+        return {
+            "steps": res.steps,
+            "seconds_this_session": round(res.seconds, 2),
+            "steps_per_s": round((res.steps - res.resumed_from) / max(res.seconds, 1e-9), 2),
+            "resumed_from": res.resumed_from,
+            "first_loss": losses[0] if losses else None,
+            "final_loss": losses[-1] if losses else None,
+            "bad_steps": res.bad_steps,
+            "events": [h for h in res.history if "event" in h][-20:],
+            "log2_dt": model.exposure.values().detach().cpu().tolist(),
+            "loss_curve": [[h["step"], h["total"]] for h in losses],
+        }
+
+    def load(self, ctx, out, summary):
+        return {**summary, "model_path": str(out / "model.pt")}
+
+
+def resolve_device(name: str) -> str:
+    import torch
+
+    if name == "auto":
+        return "cuda" if torch.cuda.is_available() else "cpu"
+    if name == "cuda" and not torch.cuda.is_available():
+        raise LayercamError("--device cuda asked for, but torch sees no CUDA device")
+    return name
+
+
+def model_meta(ctx: Context) -> dict:
+    """What :func:`layercam.render.build_model` needs, saved with the model."""
+    b = ctx.results["bootstrap"]
+    e = ctx.exposures
+    return {
+        "cfg": ctx.cfg.to_dict(),
+        "spec": ctx.spec.to_dict(),
+        "h0": b["h0"],
+        "log2_dt": np.asarray(e.log2_dt, dtype=np.float32),
+        "exposure_learn": e.learn,
+        "phase": None if e.phase is None else np.asarray(e.phase),
+        "init_log2": b["init_log2"],
+        "frame_hw": (ctx.clip.H, ctx.clip.W),
+        "n_frames": ctx.clip.T,
+        "names": list(ctx.clip.names),
+        "fps": float(ctx.clip.fps or 24.0),
+        "task": ctx.task,
+        "source": str(ctx.clip.source),
+    }
+
+
+def load_trained(ctx: Context):
+    import torch
+
+    from layercam.config import config_from_dict
+    from layercam.render import build_model
+    from layercam.spec import ModelSpec
+
+    ck = torch.load(ctx.results["train"]["model_path"], map_location="cpu", weights_only=False)
+    model = build_model(config_from_dict(ck["cfg"]), ModelSpec(**ck["spec"]), ck)
+    model.load_state_dict(ck["state"])
+    model.eval()
+    return model, ck
+
+
+HDR_VIDEO_OUTPUTS = ["hdr", "preview.mp4", "crf.json", "crf.png", "checkpoint.pt", "report.json"]
+
+
+class ExportStage(Stage):
+    """Writes the run folder: linear HDR EXR per frame, a tonemapped preview, the learned CRF,
+    and the checkpoint that ``layercam render`` reads."""
+
+    name = "export"
+    deps = ("train",)
+    version = 1
+    outputs = HDR_VIDEO_OUTPUTS
+
+    def key_material(self, ctx):
+        return ctx.cfg.section_dict("export")
+
+    def run(self, ctx, out):
+        from tqdm.auto import tqdm
+
+        from layercam.io import write_exr, write_video
+        from layercam.render import render_frame, save_run_model, tonemap_display
+
+        run = ctx.run_dir
+        set_aside_previous(run, self.outputs, ctx.keys[self.name], ctx.say)
+        model, meta = load_trained(ctx)
+        hw = (ctx.clip.H, ctx.clip.W)
+        hdr_dir = run / "hdr"
+        hdr_dir.mkdir(exist_ok=True)
+        frames = []
+        for t in tqdm(range(ctx.clip.T), desc="export", unit="frame", disable=not ctx.progress, leave=False):
+            img = render_frame(model, t, hw, ctx.cfg.export.chunk)["image"]
+            if not np.isfinite(img).all():
+                raise LayercamError(f"frame {t}: the model rendered non-finite irradiance; not writing it")
+            write_exr(hdr_dir / f"frame_{t:05d}.exr", img, half=ctx.cfg.export.half)
+            frames.append(img)
+        hdr = np.stack(frames)
+        np.save(out / "hdr_stats.npy", np.array([hdr.min(), hdr.max(), hdr.mean()]))
+        preview, stats = tonemap_display(hdr)
+        fps = ctx.cfg.export.preview_fps or float(ctx.clip.fps or 24.0)
+        write_video(run / "preview.mp4", preview, fps=fps)
+        write_crf(run, model)
+        save_run_model(run / "checkpoint.pt", model, meta)
+        (run / "export_key.txt").write_text(ctx.keys[self.name])
+        return {"frames": int(ctx.clip.T), "hdr_min": float(hdr.min()), "hdr_max": float(hdr.max()), "display": stats}
+
+
+def write_crf(run: Path, model) -> None:
+    """``crf.json`` (z = log2 r + log2 dt in stops -> value per channel) and ``crf.png``."""
+    import torch
+
+    z = torch.linspace(-12, 12, 241)
+    curve = model.tone.curve(z).numpy()
+    write_json(run / "crf.json", {"z_stops": z.tolist(), "r": curve[:, 0].tolist(), "g": curve[:, 1].tolist(), "b": curve[:, 2].tolist(), "kind": model.spec.tone_mapper, "exposures_log2": model.exposure.values().detach().tolist()})
+    plot_crf(run / "crf.png", z.numpy(), curve)
+
+
+def plot_crf(path: Path, z: np.ndarray, curve: np.ndarray, truth: np.ndarray | None = None) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from layercam.io.atomic import atomic_write
+
+    fig, ax = plt.subplots(figsize=(4.5, 3.2), dpi=100)
+    for k, col in enumerate("rgb"):
+        ax.plot(z, curve[:, k], color=col, label=f"learned {col.upper()}")
+        if truth is not None:
+            ax.plot(z, truth[:, k], color=col, ls="--", lw=0.8)
+    ax.set_xlabel("log2 irradiance + log2 exposure (stops)")
+    ax.set_ylabel("pixel value")
+    ax.set_title("camera response")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    atomic_write(Path(path), lambda p: fig.savefig(p))
+    plt.close(fig)

@@ -50,6 +50,7 @@ class ToneConfig:
     monotone: bool = False          # monotone by construction (cumulative positive increments)
     c0: float = 0.5                 # white-balance target T(0)
     init_slope: float = 0.6         # initial curve sigmoid(init_slope * ln2 * z)
+    lut: int = 1024                 # evaluate the curves on this many knots and interpolate (0: per pixel, paper)
 
 
 @dataclass

@@ -12,6 +12,7 @@ import torch
 from torch import nn
 
 Z_SCALE = 0.125  # MLP input is z / 8: log exposures span about +-20 stops
+LUT_RANGE = 32.0  # the lookup-table fast path covers +-32 stops; beyond, the curve is flat
 
 
 def srgb_encode(x: torch.Tensor) -> torch.Tensor:
@@ -33,9 +34,10 @@ class ToneMapper(nn.Module):
     linearly interpolated (the paper instead penalises negative slopes with its gradient loss).
     """
 
-    def __init__(self, width: int = 64, depth: int = 2, monotone: bool = False, z_max: float = 24.0, knots: int = 97):
+    def __init__(self, width: int = 64, depth: int = 2, monotone: bool = False, z_max: float = 24.0, knots: int = 97, lut: int = 0):
         super().__init__()
         self.monotone = monotone
+        self.lut = lut if not monotone else 0
         if monotone:
             self.z_max = z_max
             self.register_buffer("knots", torch.linspace(-z_max, z_max, knots))
@@ -85,7 +87,23 @@ class ToneMapper(nn.Module):
         return torch.stack(out, dim=1)
 
     def forward(self, z: torch.Tensor) -> torch.Tensor:
+        if self.lut and z.shape[0] > self.lut:
+            return torch.sigmoid(self._lut_logits(z))
         return torch.sigmoid(self.logits(z))
+
+    def _lut_logits(self, z: torch.Tensor) -> torch.Tensor:
+        """Fast path: evaluate the MLPs on ``lut`` knots over ``[-LUT_RANGE, LUT_RANGE]`` stops and
+        interpolate linearly (differentiable in the knot values, so the MLPs still learn). The
+        curves are 1D, so this is exact to the interpolation error (< 1e-4 at 1024 knots)."""
+        k = torch.linspace(-LUT_RANGE, LUT_RANGE, self.lut, device=z.device)
+        table = self.logits(k[:, None].expand(-1, 3).contiguous())  # (K, 3)
+        zf = z.float().clamp(-LUT_RANGE, LUT_RANGE)
+        pos = (zf + LUT_RANGE) / (2 * LUT_RANGE) * (self.lut - 1)
+        i0 = pos.floor().long().clamp(0, self.lut - 2)
+        frac = pos - i0.float()
+        lo = torch.gather(table, 0, i0)
+        hi = torch.gather(table, 0, i0 + 1)
+        return lo + frac * (hi - lo)
 
     @torch.no_grad()
     def curve(self, z: torch.Tensor) -> torch.Tensor:

@@ -1,0 +1,107 @@
+"""Tests for layercam.metrics."""
+
+import numpy as np
+import pytest
+
+from layercam import metrics
+from layercam.errors import LayercamError
+
+
+def _hdr(seed=0, shape=(2, 24, 24, 3)):
+    rng = np.random.default_rng(seed)
+    return np.exp(rng.normal(0, 1.5, shape)).astype(np.float32)
+
+
+def test_psnr_identical_finite_and_known_value():
+    a = np.random.default_rng(0).uniform(0, 1, (16, 16, 3))
+    assert metrics.psnr(a, a) == metrics.PSNR_CAP
+    b = np.clip(a + 0.1, None, None)
+    assert metrics.psnr(b, a) == pytest.approx(20.0, abs=1e-6)
+    assert metrics.psnr_mu(a, a) == metrics.PSNR_CAP and np.isfinite(metrics.psnr_l(a, a))
+
+
+def test_align_scale_recovers_per_channel_scale():
+    gt = _hdr()
+    s = np.array([2.0, 0.5, 7.0], np.float32)
+    pred = gt / s
+    al = metrics.align_scale(pred, gt)
+    assert np.allclose(al, gt, rtol=1e-4)
+    # robust to a few outliers
+    pred2 = pred.copy()
+    pred2[0, :3] *= 100
+    assert np.allclose(metrics.align_scale(pred2, gt)[1], gt[1], rtol=1e-3)
+
+
+def test_align_scale_valid_mask_and_zeros():
+    gt = _hdr(1, (16, 16, 3))
+    pred = gt * 3
+    pred[:8] = 0.0
+    valid = np.zeros((16, 16), bool)
+    valid[8:] = True
+    assert np.allclose(metrics.align_scale(pred, gt, valid)[8:], gt[8:], rtol=1e-4)
+    out = metrics.align_scale(np.zeros_like(gt), gt)
+    assert np.all(np.isfinite(out))
+
+
+def test_psnr_mu_invariant_to_channel_scale():
+    gt = _hdr(2)
+    noisy = gt * np.exp(np.random.default_rng(3).normal(0, 0.05, gt.shape)).astype(np.float32)
+    p1 = metrics.psnr_mu(noisy, gt)
+    p2 = metrics.psnr_mu(noisy * np.array([0.1, 3.0, 40.0], np.float32), gt)
+    assert p1 == pytest.approx(p2, abs=1e-3)
+    assert 20 < p1 < 80
+    l1, l2 = metrics.psnr_l(noisy, gt), metrics.psnr_l(noisy * 9.0, gt)
+    assert l1 == pytest.approx(l2, abs=1e-3)
+    # without alignment the scale matters
+    assert metrics.psnr_mu(noisy * 9.0, gt, align=False) < p1 - 3
+
+
+def test_mu_law_endpoints():
+    assert metrics.mu_law(0.0) == 0.0
+    assert metrics.mu_law(1.0) == pytest.approx(1.0)
+    assert metrics.mu_law(0.01) == pytest.approx(np.log(51) / np.log(5001))
+
+
+def test_ssim_and_bundles():
+    gt = _hdr(4, (2, 20, 20, 3))
+    ldr = np.clip(gt / gt.max(), 0, 1)
+    assert metrics.ssim(ldr, ldr) == pytest.approx(1.0, abs=1e-4)
+    assert metrics.ssim(ldr[0], ldr[0]) == pytest.approx(1.0, abs=1e-4)
+    noisy = np.clip(ldr + np.random.default_rng(0).normal(0, 0.1, ldr.shape), 0, 1)
+    assert metrics.ssim(noisy, ldr) < 0.95
+    d = metrics.hdr_metrics(gt * 0.3, gt)
+    assert set(d) == {"psnr_mu", "psnr_l", "ssim_mu"} and all(np.isfinite(list(d.values())))
+    assert d["ssim_mu"] == pytest.approx(1.0, abs=1e-4)
+    e = metrics.ldr_metrics(noisy, ldr)
+    assert set(e) == {"psnr", "ssim"} and 10 < e["psnr"] < 30
+    assert all(isinstance(v, float) for v in list(d.values()) + list(e.values()))
+
+
+def test_guards():
+    gt = _hdr(5, (8, 8, 3))
+    bad = gt.copy()
+    bad[0, 0, 0] = np.nan
+    for fn in (metrics.psnr, metrics.psnr_mu, metrics.psnr_l, metrics.ssim, metrics.align_scale):
+        with pytest.raises(ValueError):
+            fn(bad, gt)
+    with pytest.raises(LayercamError):
+        metrics.psnr(gt[:4], gt)
+    # NaN/inf in gt is left out, results finite
+    gt2 = gt.copy()
+    gt2[1, 1] = np.inf
+    assert np.isfinite(metrics.psnr_mu(gt, gt2)) and np.isfinite(metrics.psnr(gt, gt2))
+    # zero prediction against positive gt: finite
+    assert np.isfinite(metrics.psnr_mu(np.zeros_like(gt), gt))
+    with pytest.raises(ValueError):
+        metrics.psnr_mu(gt, np.zeros_like(gt))
+
+
+def test_iou():
+    a = np.zeros((4, 4), bool)
+    b = np.zeros((4, 4), bool)
+    assert metrics.iou(a, b) == 1.0
+    a[:2] = True
+    b[1:3] = True
+    assert metrics.iou(a, b) == pytest.approx(4 / 12)
+    with pytest.raises(ValueError):
+        metrics.iou(a, b[:2])

@@ -125,7 +125,7 @@ def _progress(it, total: int, enabled: bool, desc: str):
         from tqdm import tqdm
     except ImportError:  # pragma: no cover - tqdm is a dependency
         return it
-    return tqdm(it, total=total, desc=desc, unit="pair", leave=False)
+    return tqdm(it, total=total, desc=desc, unit="pair", leave=False, disable=None)
 
 
 def compute_flow(

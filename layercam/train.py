@@ -127,9 +127,9 @@ class Trainer:
         t0 = time.perf_counter()
         bar = None
         if self.progress:
-            from tqdm.auto import tqdm
+            from layercam.progress import bar as progress_bar
 
-            bar = tqdm(total=self.cfg.steps, initial=self.step, desc=self.desc, unit="step", dynamic_ncols=True, leave=False)
+            bar = progress_bar(total=self.cfg.steps, initial=self.step, desc=self.desc, unit="step")
         bad_run = 0
         params = [p for g in self.opt.param_groups for p in g["params"]]
         last: dict = {}
@@ -163,7 +163,7 @@ class Trainer:
                 self.opt.step()
                 self.step += 1
                 if self.step % 25 == 0 or self.step == self.cfg.steps or self.step == 1:
-                    last = {k: float(v) for k, v in terms.items()}
+                    last = {k: float(v.detach()) for k, v in terms.items()}
                     last["total"] = float(loss)
                     self.history.append({"step": self.step, **last})
                     if bar is not None:

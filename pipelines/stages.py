@@ -257,9 +257,8 @@ class ExportStage(Stage):
         return ctx.cfg.section_dict("export")
 
     def run(self, ctx, out):
-        from tqdm.auto import tqdm
-
         from layercam.io import write_exr, write_video
+        from layercam.progress import bar as progress_bar
         from layercam.render import render_frame, save_run_model, tonemap_display
 
         run = ctx.run_dir
@@ -269,7 +268,7 @@ class ExportStage(Stage):
         hdr_dir = run / "hdr"
         hdr_dir.mkdir(exist_ok=True)
         frames = []
-        for t in tqdm(range(ctx.clip.T), desc="export", unit="frame", disable=not ctx.progress, leave=False):
+        for t in progress_bar(range(ctx.clip.T), desc="export", unit="frame", enabled=ctx.progress):
             img = render_frame(model, t, hw, ctx.cfg.export.chunk)["image"]
             if not np.isfinite(img).all():
                 raise LayercamError(f"frame {t}: the model rendered non-finite irradiance; not writing it")

@@ -140,4 +140,4 @@ def fit_init_curve(tone: ToneMapper, slope: float, steps: int = 300, seed: int =
         opt.zero_grad()
         loss.backward()
         opt.step()
-    return float(loss)
+    return float(loss.detach())

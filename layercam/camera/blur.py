@@ -1,0 +1,260 @@
+"""Blur generator (paper Sec. 3.2): a learned, per-pixel, per-frame PSF applied to irradiance.
+
+For a pixel ``p_c`` of frame ``i`` the camera records the irradiance blurred by a point spread
+function, modelled as ``K = n * n`` samples of the sharp scene blended with weights:
+
+    P' = P + dP,   dP = O(p_c, i),   W = softmax(W(p_c, i)),   r' = sum_k w_k * r(P'_k)
+
+``P`` is the regular ``n x n`` patch of pixel offsets around ``p_c`` (:func:`patch_offsets_base`),
+``O`` the offset network (``max_offset * tanh``, so each offset component is bounded by ``s``;
+``s = 0`` keeps the fixed patch) and ``W`` the weight network (softmax). The blend runs in the
+linear irradiance domain but is computed in log space (:func:`apply_patch_blur`), so that
+``log2 r`` anywhere in ``[-40, 40]`` stays finite.
+
+As in kornia, building the kernel (:meth:`BlurGenerator.kernels`) is kept apart from applying it
+(:func:`apply_patch_blur`); :func:`sample_positions` turns pixel displacements into the scene's
+normalised coordinates (``x`` spans ``W`` pixels over ``[-1, 1]``, ``y`` spans ``H``).
+
+Example:
+    >>> import torch
+    >>> class Flat(torch.nn.Module):
+    ...     def forward(self, xy, t):
+    ...         return {"log2_r": xy.new_zeros(xy.shape[0], 3)}
+    >>> blur = BlurGenerator(3, 5.0, n_frames=4, frame_hw=(16, 16), width=16, depth=2)
+    >>> xy, t = torch.zeros(8, 2), torch.zeros(8, dtype=torch.long)
+    >>> blur(Flat(), xy, t).shape
+    torch.Size([8, 3])
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from torch import nn
+
+from layercam.scene.encodings import PositionalEncoding
+from layercam.scene.mlp import MLP
+
+__all__ = ["patch_offsets_base", "sample_positions", "apply_patch_blur", "BlurGenerator"]
+
+_LN2 = math.log(2.0)
+LOGIT_BOUND = 1e4  # weight logits are clamped to +-this before the softmax
+_TINY = 1e-30  # floor on weights before their log (gradients stay finite where a weight is 0)
+
+
+def patch_offsets_base(n: int, device=None, dtype=torch.float32) -> torch.Tensor:
+    """Regular ``n x n`` grid of pixel offsets centred at 0 with 1 px spacing: ``(n*n, 2)``, x-y order.
+
+    Row-major (``y`` outer, ``x`` inner), so index ``n*n // 2`` is the centre ``(0, 0)`` for odd ``n``.
+
+    >>> patch_offsets_base(3)[4]
+    tensor([0., 0.])
+    """
+    if isinstance(n, bool) or not isinstance(n, int) or n < 1:
+        raise ValueError(f"patch size n must be an integer >= 1, got {n!r}")
+    r = torch.arange(n, device=device, dtype=dtype) - (n - 1) / 2.0
+    ys, xs = torch.meshgrid(r, r, indexing="ij")
+    return torch.stack([xs.flatten(), ys.flatten()], dim=1)
+
+
+def sample_positions(xy: torch.Tensor, offsets_px: torch.Tensor, frame_hw: tuple[int, int]) -> torch.Tensor:
+    """Patch centres ``xy (N, 2)`` (normalised) + displacements ``offsets_px (N, K, 2)`` (pixels).
+
+    Returns ``(N, K, 2)`` normalised positions: ``dx_norm = 2 * dx_px / W``, ``dy_norm = 2 * dy_px / H``.
+    """
+    if xy.ndim != 2 or xy.shape[1] != 2:
+        raise ValueError(f"sample_positions expects xy (N, 2), got {tuple(xy.shape)}")
+    if offsets_px.ndim != 3 or offsets_px.shape[0] != xy.shape[0] or offsets_px.shape[2] != 2:
+        raise ValueError(f"sample_positions expects offsets (N, K, 2) with N={xy.shape[0]}, got {tuple(offsets_px.shape)}")
+    h, w = frame_hw
+    scale = offsets_px.new_tensor([2.0 / w, 2.0 / h])
+    return xy[:, None, :].to(offsets_px.dtype) + offsets_px * scale
+
+
+def _apply_log_weights(log2_r_patch: torch.Tensor, log_w: torch.Tensor) -> torch.Tensor:
+    """``log2 sum_k exp(log_w_k) 2^{log2_r_k}`` over ``K``: ``(N, K, C), (N, K) -> (N, C)`` in float32."""
+    z = log2_r_patch.float() * _LN2 + log_w.float()[:, :, None]
+    return torch.logsumexp(z, dim=1) / _LN2
+
+
+def apply_patch_blur(log2_r_patch: torch.Tensor, weights: torch.Tensor) -> torch.Tensor:
+    """Blend a patch of log2 irradiances with non-negative weights, in the linear domain.
+
+    ``r' = sum_k w_k * 2^{log2_r_k}``, returned as ``log2 r'``; computed as a logsumexp of
+    ``log2_r_k * ln 2 + ln w_k`` so that ``log2 r`` of +-40 (or more) stays finite. Weights of 0
+    drop their sample (floored at 1e-30 inside the log, so gradients stay finite).
+
+    Args:
+        log2_r_patch: ``(N, K, C)`` log2 irradiance of the ``K`` samples (C is 3 for RGB).
+        weights: ``(N, K)`` non-negative blend weights (a PSF sums to 1, not required here).
+
+    Returns:
+        ``(N, C)`` log2 of the blended irradiance, in the dtype of ``log2_r_patch``.
+
+    >>> lr = torch.log2(torch.tensor([[[1.0], [3.0]]]))
+    >>> round(torch.exp2(apply_patch_blur(lr, torch.tensor([[0.5, 0.5]]))).item(), 4)
+    2.0
+    """
+    if log2_r_patch.ndim != 3:
+        raise ValueError(f"apply_patch_blur expects log2_r_patch (N, K, C), got {tuple(log2_r_patch.shape)}")
+    if weights.shape != log2_r_patch.shape[:2]:
+        raise ValueError(f"apply_patch_blur expects weights (N, K) = {tuple(log2_r_patch.shape[:2])}, got {tuple(weights.shape)}")
+    log_w = torch.log(weights.float().clamp_min(_TINY))
+    return _apply_log_weights(log2_r_patch, log_w).to(log2_r_patch.dtype)
+
+
+class BlurGenerator(nn.Module):
+    """The paper's blur generator: offset net ``O`` and weight net ``W`` on ``(x, y, frame)``.
+
+    Both nets take ``PE(x, y)`` (``pe_freqs`` frequencies), a learned per-frame embedding
+    (``embed_dim``; the paper's image index: each image gets its own blur pattern) and, when
+    ``use_depth``, a per-pixel depth ``(N, 1)``; each is an MLP of ``depth`` hidden layers of
+    ``width`` (paper: 4 x 64).
+
+    * ``O`` outputs ``K * 2`` pixel offsets ``max_offset * tanh(.)``; its last layer is zero so the
+      start is the plain ``n x n`` patch. With ``max_offset == 0`` there is no ``O`` (fixed patch).
+    * ``W`` outputs ``K`` logits (clamped to +-1e4) -> softmax; its last layer starts at zero with a
+      bias on the centre logit so the centre sample holds ``init_centre_weight`` (near-sharp start).
+
+    Args:
+        n: patch size (odd), ``K = n * n`` samples per pixel.
+        max_offset: ``s``, bound on each offset component in pixels (0 = fixed patch).
+        n_frames: number of frames (images) with their own embedding.
+        frame_hw: ``(H, W)`` of the frames in pixels (for pixel -> normalised units).
+        width, depth: hidden width and number of hidden layers of both nets.
+    """
+
+    def __init__(
+        self,
+        n: int,
+        max_offset: float,
+        n_frames: int,
+        frame_hw: tuple[int, int],
+        width: int = 64,
+        depth: int = 4,
+        *,
+        embed_dim: int = 8,
+        pe_freqs: int = 4,
+        use_depth: bool = False,
+        init_centre_weight: float = 0.9,
+    ):
+        super().__init__()
+        if isinstance(n, bool) or not isinstance(n, int) or n < 1 or n % 2 == 0:
+            raise ValueError(f"blur patch size n must be an odd integer >= 1, got {n!r}")
+        if not math.isfinite(float(max_offset)) or max_offset < 0:
+            raise ValueError(f"max_offset must be a finite number >= 0, got {max_offset!r}")
+        if n_frames < 1:
+            raise ValueError(f"n_frames must be >= 1, got {n_frames}")
+        h, w = (int(v) for v in frame_hw)
+        if h < 1 or w < 1:
+            raise ValueError(f"frame_hw must be (H, W) >= 1, got {frame_hw!r}")
+        if not 0.0 < init_centre_weight < 1.0 and not (n == 1 and init_centre_weight == 1.0):
+            raise ValueError(f"init_centre_weight must be in (0, 1), got {init_centre_weight}")
+        self.n, self.K = n, n * n
+        self.max_offset = float(max_offset)
+        self.n_frames = int(n_frames)
+        self.frame_hw = (h, w)
+        self.use_depth = bool(use_depth)
+        self.register_buffer("base", patch_offsets_base(n), persistent=False)
+        self.embedding = nn.Parameter(torch.randn(self.n_frames, embed_dim) * 0.5)
+        self.pe = PositionalEncoding(2, pe_freqs)
+        in_dim = self.pe.out_dim + embed_dim + int(self.use_depth)
+        self.offset_net = MLP(in_dim, self.K * 2, width, depth, zero_last=True) if self.max_offset > 0 else None
+        self.weight_net = MLP(in_dim, self.K, width, depth, zero_last=True)
+        with torch.no_grad():
+            if self.K > 1:
+                # softmax([b, 0, ..., 0])[centre] = e^b / (e^b + K - 1) = init_centre_weight
+                b = math.log(init_centre_weight / (1 - init_centre_weight) * (self.K - 1))
+                self.weight_net.last.bias[self.K // 2] = b
+
+    # -- kernel ------------------------------------------------------------------------------
+    def frame_embedding(self, t: torch.Tensor | None = None, t_blur: torch.Tensor | None = None) -> torch.Tensor:
+        """Per-sample embedding ``(N, embed_dim)``: by long frame index ``t (N,)``, or by a float frame
+        coordinate ``t_blur (N,)`` (linear interpolation between neighbouring frames, clamped to range)."""
+        if t_blur is None:
+            if t is None:
+                raise ValueError("frame_embedding needs t or t_blur")
+            if t.is_floating_point():
+                raise ValueError("t must be an integer frame index; pass float frame coordinates as t_blur")
+            return self.embedding[t]
+        tb = t_blur.float().clamp(0, self.n_frames - 1)
+        i0 = tb.floor().long().clamp(0, self.n_frames - 1)
+        i1 = (i0 + 1).clamp(max=self.n_frames - 1)
+        frac = (tb - i0.float())[:, None]
+        return self.embedding[i0] * (1 - frac) + self.embedding[i1] * frac
+
+    def _inputs(self, xy: torch.Tensor, t: torch.Tensor | None, depth: torch.Tensor | None, t_blur: torch.Tensor | None) -> torch.Tensor:
+        n = xy.shape[0]
+        if xy.ndim != 2 or xy.shape[1] != 2:
+            raise ValueError(f"BlurGenerator expects xy (N, 2), got {tuple(xy.shape)}")
+        if t is not None and t.shape != (n,):
+            raise ValueError(f"BlurGenerator expects t (N,) with N={n}, got {tuple(t.shape)}")
+        if t_blur is not None and t_blur.shape != (n,):
+            raise ValueError(f"BlurGenerator expects t_blur (N,) with N={n}, got {tuple(t_blur.shape)}")
+        feats = [self.pe(xy.float()), self.frame_embedding(t, t_blur)]
+        if self.use_depth:
+            if depth is None or depth.shape != (n, 1):
+                got = None if depth is None else tuple(depth.shape)
+                raise ValueError(f"this BlurGenerator was built with use_depth=True: pass depth (N, 1) with N={n}, got {got}")
+            feats.append(depth.float())
+        return torch.cat(feats, dim=1)
+
+    def _kernel(self, xy, t, depth=None, t_blur=None) -> tuple[torch.Tensor, torch.Tensor]:
+        """``(displacements px (N, K, 2), log weights (N, K))``, float32."""
+        h = self._inputs(xy, t, depth, t_blur)
+        disp = self.base.expand(h.shape[0], -1, -1)
+        if self.offset_net is not None:
+            off = self.max_offset * torch.tanh(self.offset_net(h).float())
+            disp = disp + off.view(-1, self.K, 2)
+        logits = self.weight_net(h).float().clamp(-LOGIT_BOUND, LOGIT_BOUND)
+        return disp, torch.log_softmax(logits, dim=1)
+
+    def kernels(self, xy: torch.Tensor, t: torch.Tensor | None = None, *, depth: torch.Tensor | None = None, t_blur: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        """The PSF at ``M`` pixels: ``xy (M, 2)`` normalised, ``t (M,)`` long (or ``t_blur (M,)`` float).
+
+        Returns ``(offsets (M, K, 2), weights (M, K))``: each sample's displacement from the pixel
+        centre in pixels (the base patch plus the learned offset, x-y order) and its softmax
+        weight (rows sum to 1).
+        """
+        disp, log_w = self._kernel(xy, t, depth, t_blur)
+        return disp, log_w.exp()
+
+    # -- apply -------------------------------------------------------------------------------
+    def forward(
+        self,
+        scene: nn.Module,
+        xy: torch.Tensor,
+        t: torch.Tensor,
+        out: dict | None = None,
+        *,
+        depth: torch.Tensor | None = None,
+        t_blur: torch.Tensor | None = None,
+    ) -> torch.Tensor:
+        """Blurry ``log2 r' (N, 3)`` at patch centres ``xy (N, 2)`` of frames ``t (N,)``.
+
+        ``scene(xy (M, 2), t (M,))`` must return ``{"log2_r": (M, 3)}``; it is called once on all
+        ``N * K`` sample positions. ``out`` (the scene's output at ``xy``) is reused for the centre
+        sample when the patch is fixed (``max_offset == 0``). ``t_blur (N,)`` (float) replaces ``t``
+        for the blur nets only (focus interpolation); ``depth (N, 1)`` when built ``use_depth``.
+        """
+        n = xy.shape[0]
+        disp, log_w = self._kernel(xy, t, depth, t_blur)
+        pos = sample_positions(xy.float(), disp, self.frame_hw)  # (N, K, 2)
+        c = self.K // 2
+        if self.offset_net is None and out is not None and self.K > 1:
+            keep = torch.arange(self.K, device=xy.device) != c  # centre already rendered in `out`
+            others = pos[:, keep].reshape(-1, 2)
+            lr = scene(others, t.repeat_interleave(self.K - 1))["log2_r"].float().view(n, self.K - 1, -1)
+            centre = out["log2_r"].float()[:, None]
+            patch = torch.cat([lr[:, :c], centre, lr[:, c:]], dim=1)
+        else:
+            patch = scene(pos.reshape(-1, 2), t.repeat_interleave(self.K))["log2_r"].float().view(n, self.K, -1)
+        return _apply_log_weights(patch, log_w)
+
+    def regularisers(self) -> dict:
+        """Extra already-weighted loss terms: none (the paper adds none for the blur generator)."""
+        return {}
+
+    def extra_repr(self) -> str:
+        return f"n={self.n}, max_offset={self.max_offset:g}, n_frames={self.n_frames}, frame_hw={self.frame_hw}, use_depth={self.use_depth}"

@@ -1,0 +1,46 @@
+"""Shared fixtures: tiny synthetic clips and a tiny preset so that end-to-end runs take seconds."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+SHARED_DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
+
+# settings that make any preset train in a second or two on a 16x16..32x32 clip
+TINY = [
+    "train.steps=60",
+    "train.batch=512",
+    "train.bootstrap_steps=10",
+    "train.checkpoint_every=20",
+    "scene.grid_levels=3",
+    "scene.grid_max_res=32",
+    "scene.atlas_width=16",
+    "scene.deform_width=16",
+    "tone.width=16",
+    "flow.method=dis_fast",
+]
+
+
+@pytest.fixture(scope="session")
+def shared_data() -> Path:
+    if not SHARED_DATA.exists():
+        pytest.skip(f"shared captures not found at {SHARED_DATA} (they live beside the checkout)")
+    return SHARED_DATA
+
+
+@pytest.fixture
+def tiny_scene():
+    from layercam import synth
+
+    return synth.pan_hdr(frames=4, size=(32, 32), ev_step=3.0, seed=1)
+
+
+@pytest.fixture
+def tiny_exposures(tiny_scene):
+    from layercam.io import Exposures
+
+    log2 = np.log2(tiny_scene.exposure_times / tiny_scene.exposure_times.min())
+    return Exposures(log2, "none", (np.arange(len(log2)) % 2), "alt", "test: known")

@@ -19,7 +19,7 @@ Re-running a command with the same input and settings skips finished stages; Ctr
 training and the same command again resumes from the last checkpoint."""
 
 
-def _common_model_args(p: argparse.ArgumentParser) -> None:
+def common_model_args(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group("settings")
     g.add_argument("--preset", default="balanced", help="speed/quality preset: fast, balanced, quality, paper, or a .toml file (default: balanced)")
     g.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE", help="override one setting, e.g. train.steps=500 (repeatable)")
@@ -34,7 +34,7 @@ def _common_model_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--quiet", action="store_true", help="no progress bars or messages")
 
 
-def _input_args(p: argparse.ArgumentParser, exposures_default: str | None) -> None:
+def input_args(p: argparse.ArgumentParser, exposures_default: str | None) -> None:
     p.add_argument("inputs", nargs="+", help="a video (mp4, mov, avi, mkv), a folder of frames, or image files")
     p.add_argument("--out", help="run folder (default: runs/<input name>)")
     g = p.add_argument_group("input")
@@ -46,25 +46,23 @@ def _input_args(p: argparse.ArgumentParser, exposures_default: str | None) -> No
     g.add_argument("--masks", help="folder of foreground masks, one PNG per frame (two-layer scenes)")
 
 
+COMMAND_MODULES = ["hdr_video", "demo"]  # each layercam/commands/<name>.py has register(sub) and run(args)
+
+
 def build_parser() -> argparse.ArgumentParser:
+    import importlib
+
     p = argparse.ArgumentParser(prog="layercam", description="Recover what the camera lost: sharp, all-in-focus, linear HDR frames from videos and photo stacks, by learning a layered scene and an implicit camera model per clip.", epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--version", action="version", version="layercam 0.1.0")
     sub = p.add_subparsers(dest="command", metavar="COMMAND")
-
-    h = sub.add_parser("hdr-video", help="alternating-exposure video -> linear HDR EXR frames + preview", description="Alternating-exposure (or any varying-exposure) video to linear HDR: hdr/frame_00000.exr, preview.mp4, crf.json/png, report.json, checkpoint.pt.", epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
-    _input_args(h, "alt")
-    _common_model_args(h)
-
-    d = sub.add_parser("demo", help="run hdr-video on a built-in synthetic clip and score it against ground truth")
-    d.add_argument("--out", default="runs/demo", help="run folder (default: runs/demo)")
-    d.add_argument("--frames", type=int, default=24)
-    d.add_argument("--size", type=int, default=128, help="frame height and width")
-    d.add_argument("--ev-step", type=float, default=3.0)
-    _common_model_args(d)
+    for name in COMMAND_MODULES:
+        mod = importlib.import_module(f"layercam.commands.{name}")
+        sp = mod.register(sub)
+        sp.set_defaults(_run=mod.run)
     return p
 
 
-def _load_cfg(args):
+def load_cfg(args):
     from layercam.config import load_config
 
     overrides = list(args.overrides)
@@ -75,7 +73,7 @@ def _load_cfg(args):
     return load_config(args.preset, overrides)
 
 
-def _spec_overrides(args) -> dict:
+def spec_overrides(args) -> dict:
     return {
         "layers": args.layers,
         "tone_mapper": args.tone_mapper,
@@ -85,63 +83,23 @@ def _spec_overrides(args) -> dict:
     }
 
 
-def _default_out(inputs: list[str]) -> Path:
+def default_out(inputs: list[str]) -> Path:
     first = Path(inputs[0])
     return Path("runs") / (first.stem if first.suffix else first.name or "run")
 
 
-def cmd_hdr_video(args) -> int:
-    from layercam.io import load_clip, parse_exposures
-    from layercam.pipelines.tasks import run_task
+def load_masks(folder: str, clip):
+    from layercam.io.masks import load_masks as _load
 
-    cfg = _load_cfg(args)
-    clip = load_clip(args.inputs if len(args.inputs) > 1 else args.inputs[0], max_frames=args.max_frames, stride=args.stride, resize=args.resize)
-    exposures = parse_exposures(args.exposures, clip, args.ev_step)
-    masks = _load_masks(args.masks, clip) if args.masks else None
-    out = Path(args.out) if args.out else _default_out(args.inputs)
-    ctx = run_task("hdr-video", clip, exposures, cfg, out, _spec_overrides(args), masks=masks, progress=not args.quiet)
-    _finish(ctx)
-    return 0
+    return _load(folder, clip)
 
 
-def _load_masks(folder: str, clip):
-    from layercam.io.masks import load_masks
-
-    return load_masks(folder, clip)
-
-
-def _finish(ctx) -> None:
+def finish(ctx) -> None:
+    """One closing line: where the outputs are and how training ended."""
     if ctx.progress:
         tr = ctx.results.get("train", {})
         fl = tr.get("final_loss") or {}
         print(f"done: {ctx.run_dir}  (train {tr.get('steps')} steps, final loss {fl.get('total', float('nan')):.4g})")
-
-
-def cmd_demo(args) -> int:
-    import numpy as np
-
-    from layercam import synth
-    from layercam.io import Exposures
-    from layercam.pipelines.evaluate import EvaluateStage
-    from layercam.pipelines.tasks import run_task
-
-    cfg = _load_cfg(args)
-    scene = synth.pan_hdr(frames=args.frames, size=(args.size, args.size), ev_step=args.ev_step, seed=0)
-    log2 = np.log2(scene.exposure_times / scene.exposure_times.min())
-    phase = (np.arange(len(log2)) % 2).astype(np.int64)
-    exposures = Exposures(log2, "none", phase, f"alt (ev-step {args.ev_step}, known)", f"synthetic: exposures alternate by {args.ev_step} EV")
-    ctx = run_task("demo", scene.clip, exposures, cfg, Path(args.out), _spec_overrides(args), progress=not args.quiet, extra={"scene": scene}, extra_stages=[EvaluateStage()])
-    ev = ctx.results["evaluate"]
-    rows = [("layercam (" + cfg.preset + ")", ev["metrics"])] + [(k, v) for k, v in ev["baselines"].items()]
-    print("\nHDR against ground truth (one scale per channel aligned):")
-    print(f"  {'method':<22} {'PSNR-mu':>8} {'PSNR-L':>8} {'SSIM-mu':>8} {'wall s':>8}")
-    for name, m in rows:
-        print(f"  {name:<22} {m['psnr_mu']:>8.2f} {m['psnr_l']:>8.2f} {m['ssim_mu']:>8.3f} {m.get('wall_s', float('nan')):>8.1f}")
-    print(f"outputs: {ctx.run_dir}")
-    return 0
-
-
-COMMANDS = {"hdr-video": cmd_hdr_video, "demo": cmd_demo}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -151,7 +109,7 @@ def main(argv: list[str] | None = None) -> int:
         parser.print_help()
         return 0
     try:
-        return COMMANDS[args.command](args)
+        return args._run(args)
     except LayercamError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2

@@ -46,7 +46,7 @@ def input_args(p: argparse.ArgumentParser, exposures_default: str | None) -> Non
     g.add_argument("--masks", help="folder of foreground masks, one PNG per frame (two-layer scenes)")
 
 
-COMMAND_MODULES = ["hdr_video", "demo"]  # each layercam/commands/<name>.py has register(sub) and run(args)
+COMMAND_MODULES = ["hdr_video", "demo", "bench", "deblur_video", "fuse_stack", "render", "batch"]  # each layercam/commands/<name>.py has register(sub) and run(args)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -105,6 +105,7 @@ def finish(ctx) -> None:
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    args._argv = list(sys.argv[1:] if argv is None else argv)  # for commands that re-launch themselves (--nproc)
     if not args.command:
         parser.print_help()
         return 0

@@ -86,7 +86,7 @@ class TrainConfig:
     grid_lr: float = 2e-2           # learning rate of dense grid tables
     lr_decay: float = 0.1           # final lr factor (cosine)
     seed: int = 0
-    autocast: str = "none"          # "none" | "bf16" (scene fields only)
+    autocast: str = "auto"          # "auto" (bf16 mixed precision on a GPU, fp32 on the CPU) | "none" | "bf16"
     compile: bool = False
     checkpoint_every: int = 500
     device: str = "cpu"

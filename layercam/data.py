@@ -38,19 +38,32 @@ class PixelSampler:
             self.fw_ok = to(fw_ok, torch.bool) if fw_ok is not None else torch.ones(self.fw.shape[:3], dtype=torch.bool, device=self.device)
             self.bw_ok = to(bw_ok, torch.bool) if bw_ok is not None else torch.ones(self.bw.shape[:3], dtype=torch.bool, device=self.device)
         self.masks = torch.as_tensor(masks, dtype=torch.float32, device=self.device) if masks is not None else None
-        self.gen = torch.Generator(device="cpu").manual_seed(seed)
+        # the generator lives where the data does, so that a batch is drawn without host transfers
+        self.seed, self.draws = int(seed), 0
+        self.gen = torch.Generator(device=self.device).manual_seed(self.seed)
 
     def state_dict(self) -> dict:
-        return {"gen": self.gen.get_state()}
+        return {"gen": self.gen.get_state(), "seed": self.seed, "draws": self.draws}
 
     def load_state_dict(self, s: dict) -> None:
-        self.gen.set_state(s["gen"])
+        """Continues the saved stream. A state saved by another stream (another data-parallel
+        rank's seed) or on another device type reseeds this one deterministically instead."""
+        self.draws = int(s.get("draws", 0))
+        if s.get("seed", self.seed) == self.seed:
+            try:
+                self.gen.set_state(s["gen"])
+                return
+            except RuntimeError:  # e.g. a CUDA generator state loaded on the CPU
+                pass
+        self.gen.manual_seed(self.seed + 7919 * self.draws)
 
     def sample(self, n: int) -> dict:
         g = self.gen
-        t = torch.randint(0, self.T, (n,), generator=g).to(self.device)
-        y = torch.randint(0, self.H, (n,), generator=g).to(self.device)
-        x = torch.randint(0, self.W, (n,), generator=g).to(self.device)
+        self.draws += 1
+        dev = self.device
+        t = torch.randint(0, self.T, (n,), generator=g, device=dev)
+        y = torch.randint(0, self.H, (n,), generator=g, device=dev)
+        x = torch.randint(0, self.W, (n,), generator=g, device=dev)
         batch = {
             "t": t,
             "xy": normalise_xy(x.float(), y.float(), self.W, self.H),
@@ -59,7 +72,7 @@ class PixelSampler:
         if self.masks is not None:
             batch["mask"] = self.masks[t, y, x]
         if self.has_flow:
-            forward = torch.rand(n, generator=g).to(self.device) < 0.5
+            forward = torch.rand(n, generator=g, device=dev) < 0.5
             forward = torch.where(t == self.T - 1, torch.zeros_like(forward), forward)
             forward = torch.where(t == 0, torch.ones_like(forward), forward)
             ti = torch.where(forward, t, t - 1).clamp(0, self.T - 2)

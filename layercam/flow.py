@@ -30,6 +30,7 @@ __all__ = [
 ]
 
 FLOW_METHODS = ("dis_ultrafast", "dis_fast", "dis_medium")
+_DIS_MIN = 16  # OpenCV DIS needs frames of at least about 12 px; smaller ones are edge-padded
 NORMALISERS = ("rank", "equalize", "clahe", "rank_clahe", "grey")
 _LUMA = np.array([0.299, 0.587, 0.114], np.float64)
 
@@ -158,11 +159,14 @@ def compute_flow(
     if t < 2:
         return fw, bw
     dis = _dis(method)
-    prev = normalise_for_flow(f[0], normaliser)
+    # DIS refuses frames smaller than its patches: edge-pad tiny frames to _DIS_MIN, crop the flow
+    ph, pw = max(_DIS_MIN - h, 0), max(_DIS_MIN - w, 0)
+    pad = lambda g: np.pad(g, ((0, ph), (0, pw)), mode="edge") if ph or pw else g  # noqa: E731
+    prev = pad(normalise_for_flow(f[0], normaliser))
     for i in _progress(range(t - 1), t - 1, progress, f"flow ({method})"):
-        nxt = normalise_for_flow(f[i + 1], normaliser)
-        fw[i] = dis.calc(prev, nxt, None)
-        bw[i] = dis.calc(nxt, prev, None)
+        nxt = pad(normalise_for_flow(f[i + 1], normaliser))
+        fw[i] = dis.calc(prev, nxt, None)[:h, :w]
+        bw[i] = dis.calc(nxt, prev, None)[:h, :w]
         prev = nxt
     return fw, bw
 

@@ -8,15 +8,17 @@ import torch
 def color_loss(pred: torch.Tensor, target: torch.Tensor, mode: str = "plain", lo: float = 1.0 / 255, hi: float = 254.0 / 255) -> torch.Tensor:
     """Colour reconstruction (paper Eq. 9), ``(N, 3)`` each.
 
-    mode "plain": MSE. mode "one_sided": a target at or below ``lo`` only says "at most", at or above
-    ``hi`` only "at least", so the error counts there only when the prediction is on the wrong side.
+    mode "plain": MSE. mode "one_sided": a target at or below ``lo`` only says "the value is at most
+    ``lo``", at or above ``hi`` only "at least ``hi``", so there the error is measured against the
+    threshold and counts only on the wrong side of it: ``max(pred - lo, 0)`` and ``min(pred - hi, 0)``.
+    (Measuring against the target itself would keep penalising a clipped pixel at 1.0 fully, since a
+    sigmoid tone curve never reaches 1.)
     """
     err = pred.float() - target.float()
     if mode == "one_sided":
-        under = target <= lo
-        over = target >= hi
-        err = torch.where(under, err.clamp_min(0.0), err)
-        err = torch.where(over, err.clamp_max(0.0), err)
+        t = target.float()
+        err = torch.where(t <= lo, (pred.float() - lo).clamp_min(0.0), err)
+        err = torch.where(t >= hi, (pred.float() - hi).clamp_max(0.0), err)
     elif mode != "plain":
         raise ValueError(f"unknown colour loss mode {mode!r}")
     return (err**2).mean()

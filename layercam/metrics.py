@@ -24,6 +24,7 @@ __all__ = [
     "PSNR_CAP",
     "align_scale",
     "hdr_metrics",
+    "highlight_psnr_mu",
     "iou",
     "ldr_metrics",
     "mu_law",
@@ -232,3 +233,20 @@ def iou(mask_pred, mask_gt) -> float:
     if union == 0:
         return 1.0
     return float(np.logical_and(a, b).sum() / union)
+
+
+def highlight_psnr_mu(pred_hdr, gt_hdr, mask, mu: float = 5000.0, align: bool = True) -> float:
+    """PSNR-mu restricted to the pixels of ``mask`` (bool ``(H,W)`` / ``(T,H,W)`` or the full shape),
+    e.g. the highlights clipped in some exposure. Alignment and normalisation are those of
+    :func:`psnr_mu` over the whole image; only the error is averaged over the mask."""
+    p, g, ok = _normalise_hdr(pred_hdr, gt_hdr, align)
+    m = np.asarray(mask, dtype=bool)
+    if m.shape == g.shape[:-1]:
+        m = m[..., None]
+    try:
+        sel = np.broadcast_to(m, g.shape) & np.broadcast_to(ok, g.shape)
+    except ValueError:
+        raise MetricInputError(f"mask shape {m.shape} does not fit {g.shape}") from None
+    if not sel.any():
+        raise MetricInputError("highlight mask selects no pixel")
+    return _psnr_masked(mu_law(p, mu), mu_law(g, mu), sel, 1.0)

@@ -71,7 +71,7 @@ class ImplicitCameraModel(nn.Module):
         if w["flow"] > 0 and "xy_match" in batch:
             m = self.scene.mappings(batch["xy_match"], batch["t_match"])
             terms["flow"] = w["flow"] * sum(
-                losses.flow_loss(uv, uvm, batch["match_ok"]) for uv, uvm in zip(out["uv"], m["uv"])
+                losses.flow_loss(uv, uvm, ok) for uv, uvm, ok in zip(out["uv"], m["uv"], self._layer_flow_weights(out, batch["match_ok"]))
             )
             if w["alpha_flow"] > 0 and out["alpha"] is not None:
                 terms["alpha_flow"] = w["alpha_flow"] * losses.alpha_flow_loss(out["alpha"], m["alpha"], batch["match_ok"])
@@ -101,6 +101,15 @@ class ImplicitCameraModel(nn.Module):
         if self.blur is not None:
             terms.update({k: v for k, v in self.blur.regularisers().items()})
         return terms
+
+    @staticmethod
+    def _layer_flow_weights(out: dict, ok: torch.Tensor) -> list:
+        """Each layer's flow term counts where that layer is seen (Kasten et al.): weights
+        ``ok * (1 - alpha)`` and ``ok * alpha`` (alpha detached), or ``ok`` for one layer."""
+        if out["alpha"] is None:
+            return [ok] * len(out["uv"])
+        a = out["alpha"].detach().squeeze(-1)
+        return [ok.float() * (1 - a), ok.float() * a]
 
     def param_groups(self, lr: float, grid_lr: float) -> list[dict]:
         grid, dh, expo, other = [], [], [], []

@@ -2,8 +2,12 @@
 
 Schedules are callbacks (nerfstudio's shape), called before each step with the step index:
 :class:`FlowDecay` (the paper's flow weight decaying to 0) and :class:`BootstrapPhase`.
-Guards: a non-finite loss or gradient skips the step and halves the learning rate; after
+Guards: a non-finite loss or gradient (or a gradient norm that overflows) skips the step, halves
+the learning rate and logs an event in the history (``report.json`` "train.events"); after
 ``max_bad_steps`` in a row training stops with a clear error, keeping the last good checkpoint.
+A periodic checkpoint is written only once the model it holds has produced a finite loss and
+gradient on the next batch, and only when every parameter and optimiser moment is finite, so a
+kept checkpoint is never a poisoned one.
 Ctrl-C saves a checkpoint; the same command resumes from it.
 """
 
@@ -17,6 +21,7 @@ from pathlib import Path
 
 import torch
 
+from layercam import distributed
 from layercam.config import TrainConfig
 from layercam.errors import LayercamError
 
@@ -74,6 +79,7 @@ class Trainer:
         self.callbacks = list(callbacks)
         self.progress, self.desc = progress, desc
         self.opt = torch.optim.Adam(model.param_groups(cfg.lr, cfg.grid_lr), betas=(0.9, 0.99), eps=1e-12 if False else 1e-15)
+        self.loss_fn = distributed.loss_fn(model)  # model.loss_dict, through DDP inside a process group
         self.base_lrs = [g["lr"] for g in self.opt.param_groups]
         self.lr_scale = 1.0
         self.step = 0
@@ -92,12 +98,30 @@ class Trainer:
             "bad_total": self.bad_total,
         }
 
-    def save(self) -> None:
+    def finite_state(self) -> bool:
+        """True when every parameter and every optimiser moment is finite (worth checkpointing)."""
+        with torch.no_grad():
+            tensors = list(self.model.parameters()) + [
+                v for st in self.opt.state.values() for v in st.values() if torch.is_tensor(v) and v.is_floating_point()
+            ]
+            return all(bool(torch.isfinite(v).all()) for v in tensors)
+
+    def save(self, sampler_state: dict | None = None) -> bool:
+        """Write the checkpoint atomically; refuses (keeping the previous one) a non-finite state."""
         if self.ckpt_path is None:
-            return
+            return False
+        if not distributed.is_main():
+            return True  # rank 0 writes it (all ranks hold the same model)
+        if not self.finite_state():
+            self.history.append({"step": self.step, "event": "non-finite parameters: checkpoint not written, previous one kept"})
+            return False
+        state = self.state()
+        if sampler_state is not None:
+            state["sampler"] = sampler_state
         tmp = self.ckpt_path.with_name(self.ckpt_path.name + ".tmp")
-        torch.save(self.state(), tmp)
+        torch.save(state, tmp)
         tmp.replace(self.ckpt_path)
+        return True
 
     def try_resume(self) -> int:
         if self.ckpt_path is None or not self.ckpt_path.exists():
@@ -118,8 +142,10 @@ class Trainer:
             g["lr"] = base * cos * self.lr_scale
 
     def _autocast(self):
-        if self.cfg.autocast == "bf16":
-            return torch.autocast(self.sampler.device.type, dtype=torch.bfloat16)
+        dev = self.sampler.device
+        auto = self.cfg.autocast == "auto" and dev.type == "cuda" and torch.cuda.is_bf16_supported()
+        if self.cfg.autocast == "bf16" or auto:  # "auto": bf16 mixed precision on a GPU, fp32 on the CPU
+            return torch.autocast(dev.type, dtype=torch.bfloat16)
         return contextlib.nullcontext()
 
     def fit(self) -> TrainResult:
@@ -133,45 +159,49 @@ class Trainer:
         bad_run = 0
         params = [p for g in self.opt.param_groups for p in g["params"]]
         last: dict = {}
+        pending_save = False  # a checkpoint is due; written once the model passes the next step's checks
         try:
             while self.step < self.cfg.steps:
                 for cb in self.callbacks:
                     cb.on_step(self, self.step)
                 self._set_lr()
+                sampler_state = self.sampler.state_dict() if pending_save else None
                 batch = self.sampler.sample(self.cfg.batch)
                 with self._autocast():
-                    terms = self.model.loss_dict(batch)
+                    terms = self.loss_fn(batch)
                 loss = sum(terms.values())
                 self.opt.zero_grad(set_to_none=True)
-                ok = bool(torch.isfinite(loss))
-                if ok:
-                    loss.backward()
-                    ok = all(p.grad is None or bool(torch.isfinite(p.grad).all()) for p in params)
-                if not ok:
+                bad = self._check(loss, terms, params)
+                if bad:
                     bad_run += 1
                     self.bad_total += 1
                     self.lr_scale *= 0.5
-                    self.history.append({"step": self.step, "event": "non-finite loss or gradient: step skipped, lr halved"})
+                    self.history.append({"step": self.step, "event": f"{bad}: step skipped, lr halved (x{self.lr_scale:g})"})
                     if bad_run >= self.cfg.max_bad_steps:
-                        raise LayercamError(
-                            f"training diverged: {bad_run} non-finite steps in a row at step {self.step}"
-                            + (f"; last good checkpoint kept at {self.ckpt_path}" if self.ckpt_path else "")
+                        err = LayercamError(
+                            f"training diverged: {bad_run} non-finite steps in a row at step {self.step} ({bad}); "
+                            + self._kept_message()
+                            + "; try a lower train.lr or train.autocast=none"
                         )
+                        err.events = [h for h in self.history if "event" in h][-20:]
+                        raise err
                     self.step += 1
                     continue
                 bad_run = 0
+                if pending_save:
+                    pending_save = not self.save(sampler_state)
                 self.opt.step()
                 self.step += 1
                 if self.step % 25 == 0 or self.step == self.cfg.steps or self.step == 1:
                     last = {k: float(v.detach()) for k, v in terms.items()}
-                    last["total"] = float(loss)
+                    last["total"] = float(loss.detach())
                     self.history.append({"step": self.step, **last})
                     if bar is not None:
                         bar.set_postfix(loss=f"{last['total']:.4g}")
                 if bar is not None:
                     bar.update(1)
                 if self.ckpt_path and self.cfg.checkpoint_every and self.step % self.cfg.checkpoint_every == 0:
-                    self.save()
+                    pending_save = True
         except KeyboardInterrupt:
             self.save()
             if bar is not None:
@@ -179,5 +209,27 @@ class Trainer:
             raise
         if bar is not None:
             bar.close()
+        if not self.finite_state():
+            raise LayercamError(f"training ended with non-finite parameters at step {self.step}; " + self._kept_message())
         self.save()
         return TrainResult(self.step, time.perf_counter() - t0, self.history, last, self.bad_total, resumed)
+
+    @staticmethod
+    def _check(loss: torch.Tensor, terms: dict, params: list) -> str:
+        """Backpropagates a finite loss; returns "" when the step is good, else what went wrong."""
+        if not bool(torch.isfinite(loss.detach())):
+            names = [k for k, v in terms.items() if not bool(torch.isfinite(v.detach()).all())]
+            return f"non-finite loss ({', '.join(names) or 'total'})"
+        loss.backward()
+        grads = [p.grad for p in params if p.grad is not None]
+        if grads and not bool(torch.isfinite(torch.nn.utils.get_total_norm(grads))):
+            return "non-finite gradient norm"
+        return ""
+
+    def _kept_message(self) -> str:
+        if self.ckpt_path is None:
+            return "no checkpoint path was given"
+        if not self.ckpt_path.exists():
+            return "no good checkpoint had been written yet"
+        step = torch.load(self.ckpt_path, map_location="cpu", weights_only=False).get("step")
+        return f"last good checkpoint (step {step}) kept at {self.ckpt_path}"

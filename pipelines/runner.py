@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from layercam import distributed
 from layercam.config import Config, config_hash
 from layercam.errors import LayercamError
 from layercam.io.atomic import atomic_write, ensure_writable_dir
@@ -77,6 +78,7 @@ def run_stages(ctx: Context, stages: list[Stage]) -> Context:
     ensure_writable_dir(ctx.run_dir)
     cache = ensure_writable_dir(ctx.run_dir / "cache")
     inkey = input_key(ctx)
+    main = distributed.is_main()  # with torch.distributed: rank 0 runs a stage, the others read its result
     for st in stages:
         missing = [d for d in st.deps if d not in ctx.keys]
         if missing:
@@ -86,22 +88,33 @@ def run_stages(ctx: Context, stages: list[Stage]) -> Context:
         out = cache / f"{st.name}-{key}"
         ctx.keys[st.name], ctx.dirs[st.name] = key, out
         done = out / "done.json"
+        alone = not getattr(st, "all_ranks", False)  # only data-parallel stages (training) run on every rank
+        if alone and not main:
+            distributed.barrier()  # until rank 0 has run this stage or found it cached
+            if not done.exists():
+                raise LayercamError(f"stage {st.name}: rank 0 did not leave a result in {out}")
         if done.exists():
             summary = json.loads(done.read_text())
             ctx.results[st.name] = st.load(ctx, out, summary)
             ctx.times[st.name] = {"seconds": 0.0, "cached": True, "original_seconds": summary.get("_seconds")}
             ctx.say(f"[{st.name}] cached ({out.name})")
+            if alone and main:
+                distributed.barrier()
             continue
         out.mkdir(parents=True, exist_ok=True)
-        (out / "settings.json").write_text(json.dumps(material, indent=1, default=str))
+        if main:
+            (out / "settings.json").write_text(json.dumps(material, indent=1, default=str))
         t0 = time.perf_counter()
         summary = st.run(ctx, out)
         secs = time.perf_counter() - t0
         summary["_seconds"] = secs
-        atomic_write(done, lambda p: p.write_text(json.dumps(summary, indent=1, default=_json_default)))
+        if main:
+            atomic_write(done, lambda p: p.write_text(json.dumps(summary, indent=1, default=_json_default)))
         ctx.results[st.name] = st.load(ctx, out, summary)
         ctx.times[st.name] = {"seconds": round(secs, 3), "cached": False}
         ctx.say(f"[{st.name}] done in {secs:.1f} s")
+        if alone and main:
+            distributed.barrier()
     return ctx
 
 

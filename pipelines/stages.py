@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 from pathlib import Path
@@ -97,7 +98,12 @@ class BootstrapStage(Stage):
 
     def key_material(self, ctx):
         s = ctx.cfg.scene
-        return {"bootstrap": s.bootstrap, "layers": ctx.spec.layers, "init_slope": ctx.cfg.tone.init_slope, "tone": ctx.spec.tone_mapper}
+        d = {"bootstrap": s.bootstrap, "layers": ctx.spec.layers, "init_slope": ctx.cfg.tone.init_slope, "tone": ctx.spec.tone_mapper}
+        if ctx.spec.layers > 1:
+            from layercam import segment
+
+            d["foreground"] = {"how": segment.FOREGROUND_BOOTSTRAP, "segment": segment.SEGMENT_VERSION}
+        return d
 
     def run(self, ctx, out):
         clip = ctx.clip
@@ -113,15 +119,29 @@ class BootstrapStage(Stage):
         else:
             raise LayercamError(f"unknown scene.bootstrap {ctx.cfg.scene.bootstrap!r} (flow | identity)")
         h0 = [atlas_mappings(H, W, bg)]
-        if ctx.spec.layers > 1:
-            h0.append(atlas_mappings(H, W, np.stack([np.eye(3)] * T)))
+        fg = {}
+        if ctx.spec.layers > 1:  # foreground: user masks, else motion segmentation of the flow
+            from layercam import segment
+
+            fg = segment.foreground_bootstrap(clip.frames, fl, ctx.masks)
+            h0.append(fg["h0"])
+            if fg["computed"]:
+                segment.save_masks(out, fg["masks"])
+                ctx.say(f"[bootstrap] motion masks (no --masks given): mean coverage {fg['masks'].mean():.3f}, saved in {out / 'masks'}")
         h0 = np.stack(h0)
         init_log2 = initial_log2(clip.frames, ctx.exposures.log2_dt, ctx.cfg.tone.init_slope, ctx.spec.tone_mapper)
         np.save(out / "h0.npy", h0)
-        return {"how": how, "init_log2": init_log2, "layers": int(h0.shape[0])}
+        res = {"how": how, "init_log2": init_log2, "layers": int(h0.shape[0])}
+        if fg:
+            res["foreground"] = {"how": fg["how"], "masks": "motion segmentation" if fg["computed"] else ("given" if fg["masks"] is not None else "none"), **fg["info"]}
+        return res
 
     def load(self, ctx, out, summary):
-        return {**summary, "h0": np.load(out / "h0.npy")}
+        res = {**summary, "h0": np.load(out / "h0.npy")}
+        if (out / "masks.npz").exists():
+            with np.load(out / "masks.npz") as z:
+                res["masks"] = z["masks"].astype(np.float32)
+        return res
 
 
 def initial_log2(frames: np.ndarray, log2_dt: np.ndarray, slope: float, tone: str) -> float:
@@ -141,6 +161,7 @@ class TrainStage(Stage):
     name = "train"
     deps = ("flow", "bootstrap")
     version = 1
+    all_ranks = True  # data-parallel under torch.distributed (layercam/distributed.py)
 
     def key_material(self, ctx):
         d = ctx.cfg.section_dict("scene", "tone", "blur", "loss", "train")
@@ -152,6 +173,7 @@ class TrainStage(Stage):
     def run(self, ctx, out):
         import torch
 
+        from layercam import distributed
         from layercam.camera.tone import fit_init_curve
         from layercam.data import PixelSampler
         from layercam.render import build_model, save_run_model
@@ -163,24 +185,30 @@ class TrainStage(Stage):
         model = build_model(cfg, ctx.spec, meta)
         if ctx.spec.tone_mapper == "learned" and not cfg.tone.monotone:
             fit_init_curve(model.tone, cfg.tone.init_slope, seed=cfg.train.seed)
-        if ctx.masks is not None and model.scene.alpha is not None:
+        masks = ctx.masks if ctx.masks is not None else ctx.results["bootstrap"].get("masks")  # given, else motion masks
+        if masks is not None and model.scene.alpha is not None:
             model.weights["alpha_mask"] = 1.0
         fl = load_flow(ctx) if ctx.spec.flow_loss else None
         dev = resolve_device(cfg.train.device)
         model.to(dev)
         sampler = PixelSampler(
             ctx.clip.frames, *(fl[k] for k in ("fw", "bw", "fw_ok", "bw_ok")) if fl else (None,) * 4,
-            masks=ctx.masks, device=dev, seed=cfg.train.seed,
+            masks=masks, device=dev, seed=distributed.rank_seed(cfg.train.seed),
         )
         callbacks = [FlowDecay(cfg.loss.flow, cfg.loss.flow_decay_end), BootstrapPhase(cfg.train.bootstrap_steps)]
-        trainer = Trainer(model, sampler, cfg.train, out / "ckpt.pt", callbacks, progress=ctx.progress, desc=f"{ctx.task} train")
+        callbacks += [make(model) for make in ctx.extra.get("train_callbacks", [])]  # e.g. the benchmark's quality probe
+        tcfg = dataclasses.replace(cfg.train, batch=distributed.rank_batch(cfg.train.batch))  # each rank's share
+        trainer = Trainer(model, sampler, tcfg, out / "ckpt.pt", callbacks, progress=ctx.progress, desc=f"{ctx.task} train")
         if (out / "ckpt.pt").exists():
             ctx.say(f"[train] resuming from {out / 'ckpt.pt'}")
         res = trainer.fit()
-        save_run_model(out / "model.pt", model, meta)
+        if distributed.is_main():
+            save_run_model(out / "model.pt", model, meta)
         losses = [h for h in res.history if "total" in h]
         return {
             "steps": res.steps,
+            "processes": distributed.world_size(),
+            "device": str(dev),
             "seconds_this_session": round(res.seconds, 2),
             "steps_per_s": round((res.steps - res.resumed_from) / max(res.seconds, 1e-9), 2),
             "resumed_from": res.resumed_from,
@@ -264,6 +292,7 @@ class ExportStage(Stage):
         run = ctx.run_dir
         set_aside_previous(run, self.outputs, ctx.keys[self.name], ctx.say)
         model, meta = load_trained(ctx)
+        model.to(resolve_device(ctx.cfg.train.device))  # render where it trained (GPU when there is one)
         hw = (ctx.clip.H, ctx.clip.W)
         hdr_dir = run / "hdr"
         hdr_dir.mkdir(exist_ok=True)
@@ -272,17 +301,23 @@ class ExportStage(Stage):
             img = render_frame(model, t, hw, ctx.cfg.export.chunk)["image"]
             if not np.isfinite(img).all():
                 raise LayercamError(f"frame {t}: the model rendered non-finite irradiance; not writing it")
-            write_exr(hdr_dir / f"frame_{t:05d}.exr", img, half=ctx.cfg.export.half)
             frames.append(img)
         hdr = np.stack(frames)
+        # half floats stop at 65504: a clip brighter than that is written as float32 (all frames alike)
+        half = bool(ctx.cfg.export.half) and float(hdr.max()) <= 65504.0
+        if half != ctx.cfg.export.half:
+            ctx.say(f"[export] irradiance reaches {float(hdr.max()):.3g}, beyond half floats: EXRs written as float32")
+        for t, img in enumerate(frames):
+            write_exr(hdr_dir / f"frame_{t:05d}.exr", img, half=half)
         np.save(out / "hdr_stats.npy", np.array([hdr.min(), hdr.max(), hdr.mean()]))
         preview, stats = tonemap_display(hdr)
         fps = ctx.cfg.export.preview_fps or float(ctx.clip.fps or 24.0)
         write_video(run / "preview.mp4", preview, fps=fps)
+        model.cpu()
         write_crf(run, model)
         save_run_model(run / "checkpoint.pt", model, meta)
         (run / "export_key.txt").write_text(ctx.keys[self.name])
-        return {"frames": int(ctx.clip.T), "hdr_min": float(hdr.min()), "hdr_max": float(hdr.max()), "display": stats}
+        return {"frames": int(ctx.clip.T), "hdr_min": float(hdr.min()), "hdr_max": float(hdr.max()), "exr": "half" if half else "float32", "display": stats}
 
 
 def write_crf(run: Path, model) -> None:

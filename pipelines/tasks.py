@@ -6,28 +6,43 @@ import platform
 import time
 from pathlib import Path
 
-from layercam import analyse
+from layercam import analyse, distributed
+from layercam.errors import LayercamError
 from layercam.pipelines.runner import Context, run_stages, write_json
 from layercam.pipelines.stages import BootstrapStage, ExportStage, FlowStage, TrainStage
 
 
 def stages_for(task: str) -> list:
-    return [FlowStage(), BootstrapStage(), TrainStage(), ExportStage()]
+    from layercam.pipelines.blur_export import EXPORTS
+
+    return [FlowStage(), BootstrapStage(), TrainStage(), EXPORTS.get(task, ExportStage)()]
 
 
 def run_task(task: str, clip, exposures, cfg, run_dir: Path, overrides: dict | None = None, masks=None, progress: bool = True, extra: dict | None = None, extra_stages: list | None = None) -> Context:
     """Analyse ``clip``, run the task's stages into ``run_dir`` and write ``report.json``."""
     t0 = time.perf_counter()
-    spec = analyse.decide(clip, exposures, task, overrides, cfg)
-    ctx = Context(run_dir=Path(run_dir), clip=clip, exposures=exposures, cfg=cfg, spec=spec, task=task, masks=masks, progress=progress, extra=extra or {})
+    ctx = Context(run_dir=Path(run_dir), clip=clip, exposures=exposures, cfg=cfg, spec=None, task=task, masks=masks, progress=progress, extra=extra or {})
     ctx.say(f"layercam {task}: {clip.T} frames {clip.W}x{clip.H} from {clip.source}; preset {cfg.preset}")
-    ctx.say("model chosen:\n" + analyse.format_table(spec))
-    run_stages(ctx, stages_for(task) + list(extra_stages or []))
+    stages = stages_for(task) + list(extra_stages or [])
+    try:
+        # flow first: the analysis reads it to decide what the model needs
+        run_stages(ctx, stages[:1])
+        from layercam.pipelines.stages import load_flow
+
+        ctx.extra["measures"] = analyse.measure(clip, exposures, load_flow(ctx))
+        ctx.spec = analyse.decide(clip, exposures, task, overrides, cfg, ctx.extra["measures"])
+        ctx.say("model chosen:\n" + analyse.format_table(ctx.spec))
+        run_stages(ctx, stages[1:])
+    except LayercamError as e:
+        if getattr(e, "events", None) is not None:  # training stopped: say why in report_failed.json
+            write_report(ctx, time.perf_counter() - t0, "report_failed.json", {"error": str(e), "train": {"stopped": True, "events": e.events}})
+        raise
+    (ctx.run_dir / "report_failed.json").unlink(missing_ok=True)
     write_report(ctx, time.perf_counter() - t0)
     return ctx
 
 
-def write_report(ctx: Context, wall: float) -> dict:
+def write_report(ctx: Context, wall: float, name: str = "report.json", extra: dict | None = None) -> dict:
     import torch
 
     train = dict(ctx.results.get("train", {}))
@@ -36,7 +51,7 @@ def write_report(ctx: Context, wall: float) -> dict:
         "task": ctx.task,
         "input": {"source": str(ctx.clip.source), "frames": ctx.clip.T, "width": ctx.clip.W, "height": ctx.clip.H, "fps": ctx.clip.fps, "bit_depth": ctx.clip.bit_depth},
         "exposures": {"spec": ctx.exposures.spec, "reason": ctx.exposures.reason, "log2_dt_given": ctx.exposures.log2_dt.tolist(), "learn": ctx.exposures.learn},
-        "analysis": ctx.spec.to_dict(),
+        "analysis": {**(ctx.spec.to_dict() if ctx.spec else {}), "measures": ctx.extra.get("measures")},
         "settings": ctx.cfg.to_dict(),
         "stages": ctx.times,
         "wall_seconds": round(wall, 2),
@@ -47,6 +62,8 @@ def write_report(ctx: Context, wall: float) -> dict:
         "baselines": ctx.results.get("evaluate", {}).get("baselines"),
         "machine": {"python": platform.python_version(), "torch": torch.__version__, "threads": torch.get_num_threads(), "cpu": platform.processor() or platform.machine()},
         "cache_keys": ctx.keys,
+        **(extra or {}),
     }
-    write_json(ctx.run_dir / "report.json", rep)
+    if distributed.is_main():  # with torch.distributed, rank 0 reports
+        write_json(ctx.run_dir / name, rep)
     return rep

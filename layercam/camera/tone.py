@@ -87,9 +87,11 @@ class ToneMapper(nn.Module):
         return torch.stack(out, dim=1)
 
     def forward(self, z: torch.Tensor) -> torch.Tensor:
-        if self.lut and z.shape[0] > self.lut:
-            return torch.sigmoid(self._lut_logits(z))
-        return torch.sigmoid(self.logits(z))
+        # the curve runs in float32 even under autocast: bf16 would quantise it to ~2^-9
+        with torch.autocast(z.device.type, enabled=False):
+            if self.lut and z.shape[0] > self.lut:
+                return torch.sigmoid(self._lut_logits(z))
+            return torch.sigmoid(self.logits(z))
 
     def _lut_logits(self, z: torch.Tensor) -> torch.Tensor:
         """Fast path: evaluate the MLPs on ``lut`` knots over ``[-LUT_RANGE, LUT_RANGE]`` stops and

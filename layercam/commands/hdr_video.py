@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from layercam import distributed
 from layercam.cli import EPILOG, common_model_args, default_out, finish, input_args, load_cfg, load_masks, spec_overrides
 
 
@@ -12,18 +13,24 @@ def register(sub) -> argparse.ArgumentParser:
     h = sub.add_parser("hdr-video", help="alternating-exposure video -> linear HDR EXR frames + preview", description="Alternating-exposure (or any varying-exposure) video to linear HDR: hdr/frame_00000.exr, preview.mp4, crf.json/png, report.json, checkpoint.pt.", epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
     input_args(h, "alt")
     common_model_args(h)
+    distributed.add_args(h)
     return h
 
 
 def run(args) -> int:
     from layercam.io import load_clip, parse_exposures
+    from layercam.pipelines.stages import resolve_device
     from layercam.pipelines.tasks import run_task
 
     cfg = load_cfg(args)
-    clip = load_clip(args.inputs if len(args.inputs) > 1 else args.inputs[0], max_frames=args.max_frames, stride=args.stride, resize=args.resize)
-    exposures = parse_exposures(args.exposures, clip, args.ev_step)
-    masks = load_masks(args.masks, clip) if args.masks else None
-    out = Path(args.out) if args.out else default_out(args.inputs)
-    ctx = run_task("hdr-video", clip, exposures, cfg, out, spec_overrides(args), masks=masks, progress=not args.quiet)
-    finish(ctx)
+    device = resolve_device(cfg.train.device)  # a missing GPU is said before any work
+    if distributed.launch_requested(args):
+        return distributed.launch(args, device)
+    with distributed.session(device):  # joins the process group under torchrun, else nothing
+        clip = load_clip(args.inputs if len(args.inputs) > 1 else args.inputs[0], max_frames=args.max_frames, stride=args.stride, resize=args.resize)
+        exposures = parse_exposures(args.exposures, clip, args.ev_step)
+        masks = load_masks(args.masks, clip) if args.masks else None
+        out = Path(args.out) if args.out else default_out(args.inputs)
+        ctx = run_task("hdr-video", clip, exposures, cfg, out, spec_overrides(args), masks=masks, progress=not args.quiet and distributed.is_main())
+        finish(ctx)
     return 0

@@ -32,7 +32,7 @@ class AtlasField(nn.Module):
             self.mlp.last.bias.fill_(init_log2)
 
     def forward(self, uv: torch.Tensor) -> torch.Tensor:
-        out = self.mlp(self.enc(uv))
+        out = self.mlp(self.enc(uv.float()))  # half-precision coordinates are promoted
         return out.float().clamp(-LOG2_R_BOUND, LOG2_R_BOUND)
 
 
@@ -74,10 +74,10 @@ class Deformation(nn.Module):
             raise ValueError(f"unknown deformation {self.kind!r} (homography | mlp)")
 
     def bootstrap_target(self, xy: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
-        return apply_homography(self.h0[t], xy)
+        return apply_homography(self.h0[t], xy.float())
 
     def forward(self, xy: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
-        tn = _t_norm(t, self.n_frames)
+        xy, tn = xy.float(), _t_norm(t, self.n_frames)  # half-precision coordinates are promoted
         if self.kind == "mlp":
             return torch.tanh(self.net(torch.cat([xy, tn], dim=1)).float())
         dh = torch.cat([self.dh, torch.zeros_like(self.dh[:, :1])], dim=1).view(-1, 3, 3)
@@ -96,7 +96,7 @@ class AlphaField(nn.Module):
         self.net = MLP(self.pe.out_dim, 1, cfg.alpha_width, cfg.alpha_depth)
 
     def logits(self, xy: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
-        return self.net(self.pe(torch.cat([xy, _t_norm(t, self.n_frames)], dim=1))).float().clamp(-30, 30)
+        return self.net(self.pe(torch.cat([xy.float(), _t_norm(t, self.n_frames)], dim=1))).float().clamp(-30, 30)
 
     def forward(self, xy: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
         return torch.sigmoid(self.logits(xy, t))

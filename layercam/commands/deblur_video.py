@@ -1,0 +1,43 @@
+"""``layercam deblur-video``: a blurry, shaky video -> sharp frames in the input's tonality."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from layercam.cli import EPILOG, common_model_args, default_out, finish, input_args, load_cfg, load_masks, spec_overrides
+
+
+def register(sub) -> argparse.ArgumentParser:
+    d = sub.add_parser(
+        "deblur-video",
+        help="blurry, shaky video -> sharp frames (PNG + mp4), HDR EXR too when exposures vary",
+        description=(
+            "Fits the scene with the blur generator explaining each frame's blur, then renders every frame "
+            "through the learned tone mapper at the frame's own exposure with the blur generator dropped: "
+            "frames/frame_00000.png, deblurred.mp4, hdr/frame_00000.exr (only when exposures vary), "
+            "crf.json/png, psf.json (learned blur per frame), report.json, checkpoint.pt."
+        ),
+        epilog=EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    input_args(d, "none")
+    common_model_args(d)
+    return d
+
+
+def run(args) -> int:
+    from layercam.errors import LayercamError
+    from layercam.io import load_clip, parse_exposures
+    from layercam.pipelines.tasks import run_task
+
+    cfg = load_cfg(args)
+    clip = load_clip(args.inputs if len(args.inputs) > 1 else args.inputs[0], max_frames=args.max_frames, stride=args.stride, resize=args.resize)
+    if clip.T < 2:
+        raise LayercamError("deblur-video needs at least 2 frames (the blur of one frame is explained by the others)")
+    exposures = parse_exposures(args.exposures, clip, args.ev_step)
+    masks = load_masks(args.masks, clip) if args.masks else None
+    out = Path(args.out) if args.out else default_out(args.inputs)
+    ctx = run_task("deblur-video", clip, exposures, cfg, out, spec_overrides(args), masks=masks, progress=not args.quiet)
+    finish(ctx)
+    return 0

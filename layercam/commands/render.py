@@ -1,0 +1,218 @@
+"""``layercam render``: re-render a finished run with new camera settings.
+
+* ``--exposure EV``: every frame through the learned tone mapper at ``EV`` stops from the run's
+  reference exposure (the median of its frames' exposures), the blur generator dropped (sharp)
+  unless ``--keep-blur``.
+* ``--focus F``: one view through the blur generator at the fractional image index ``F`` (its
+  per-image embedding interpolated between the training images ``floor(F)`` and ``ceil(F)``), at
+  the exposure interpolated the same way (or at ``--exposure EV``).
+* ``--sweep exposure|focus``: a video (and its frames) of one view sweeping over ``--range``.
+
+Outputs go to ``RUN/render/`` (or ``--out``), each with a ``.json`` sidecar saying what it is.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+from pathlib import Path
+
+import numpy as np
+
+from layercam.errors import LayercamError
+
+EXAMPLES = """examples:
+  layercam render runs/clip --exposure +2            # every frame two stops brighter, sharp
+  layercam render runs/stack --focus 0.5             # focus half-way between images 0 and 1
+  layercam render runs/stack --sweep focus --steps 30
+  layercam render runs/clip --sweep exposure --range -4,4 --frame 10"""
+
+
+def register(sub) -> argparse.ArgumentParser:
+    r = sub.add_parser(
+        "render",
+        help="re-render a finished run at a new exposure or focus, or as a sweep video",
+        description="Re-renders a finished run (its checkpoint.pt) keeping parts of the learned camera: the tone mapper at a new exposure, the blur generator at an interpolated focus.",
+        epilog=EXAMPLES,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    r.add_argument("run", help="a finished layercam run folder (holds checkpoint.pt)")
+    r.add_argument("--exposure", type=float, metavar="EV", help="stops relative to the run's reference exposure (median of its frames')")
+    r.add_argument("--focus", type=float, metavar="F", help="fractional training-image index whose blur to render, e.g. 0.5")
+    r.add_argument("--sweep", choices=["exposure", "focus"], help="a video sweeping over exposure or focus")
+    r.add_argument("--range", dest="sweep_range", metavar="A,B", help="sweep range (default: -4,4 EV; focus: first,last image)")
+    r.add_argument("--steps", type=int, default=25, help="sweep steps (default 25)")
+    r.add_argument("--frame", type=int, help="the view for --focus and sweeps (default: the run's reference image, else the middle frame)")
+    r.add_argument("--keep-blur", action="store_true", help="exposure renders: keep each frame's learned blur")
+    r.add_argument("--fps", type=float, help="video frame rate (default: the input's for --exposure, 12 for sweeps)")
+    r.add_argument("--out", help="output folder (default: RUN/render)")
+    r.add_argument("--overwrite", action="store_true", help="replace earlier renders of the same name")
+    r.add_argument("--device", choices=["cpu", "cuda", "auto"], default="cpu")
+    r.add_argument("--quiet", action="store_true")
+    return r
+
+
+# -- rendering functions (used by the command and the tests) ----------------------------------------
+def reference_exposure(model) -> float:
+    """The run's reference exposure: the median log2 exposure of its frames."""
+    return float(np.median(model.exposure.values().detach().cpu().numpy()))
+
+
+def exposure_at(model, f: float) -> float:
+    """log2 exposure at a fractional frame index (linear between neighbouring frames)."""
+    v = model.exposure.values().detach().cpu().numpy().astype(np.float64)
+    return float(np.interp(f, np.arange(len(v)), v))
+
+
+def render_view(model, t: int, hw: tuple[int, int], log2_dt: float, t_blur: float | None = None, blur: bool = True, chunk: int = 65536) -> np.ndarray:
+    """Frame ``t``'s view through the camera: ``(H, W, 3)`` in ``[0, 1]``.
+
+    The tone mapper at ``log2_dt``; with ``blur`` (and a blur generator) the blur of the
+    fractional image index ``t_blur`` (default ``t``) is applied in irradiance first.
+    """
+    import torch
+
+    from layercam.data import pixel_grid
+
+    h, w = hw
+    dev = next(model.parameters()).device
+    use_blur = blur and model.blur is not None
+    step = max(1, chunk // (model.blur.K if use_blur else 1))
+    xy_all = pixel_grid(h, w, dev)
+    outs = []
+    with torch.no_grad():
+        for s in range(0, xy_all.shape[0], step):
+            xy = xy_all[s : s + step]
+            tt = torch.full((xy.shape[0],), int(t), dtype=torch.long, device=dev)
+            out = model.scene(xy, tt)
+            log2_r = out["log2_r"]
+            if use_blur:
+                tb = None if t_blur is None else torch.full((xy.shape[0],), float(t_blur), device=dev)
+                log2_r = model.blur(model.scene, xy, tt, out, t_blur=tb)
+            rgb = model.tone_map(log2_r, torch.full_like(log2_r[:, :1], float(log2_dt)))
+            outs.append(rgb.float().cpu())
+    return torch.cat(outs).view(h, w, 3).numpy()
+
+
+def exposure_frames(model, meta: dict, ev: float, keep_blur: bool = False, chunk: int = 65536) -> np.ndarray:
+    """Every frame at ``ev`` stops from the reference exposure: ``(T, H, W, 3)``."""
+    hw = tuple(meta["frame_hw"])
+    z = reference_exposure(model) + ev
+    return np.stack([render_view(model, t, hw, z, blur=keep_blur, chunk=chunk) for t in range(int(meta["n_frames"]))])
+
+
+def exposure_sweep(model, meta: dict, evs, frame: int, keep_blur: bool = False) -> np.ndarray:
+    """One view at each of ``evs`` (stops from the reference exposure): ``(N, H, W, 3)``."""
+    hw = tuple(meta["frame_hw"])
+    z0 = reference_exposure(model)
+    return np.stack([render_view(model, frame, hw, z0 + float(e), blur=keep_blur) for e in evs])
+
+
+def focus_sweep(model, meta: dict, fs, frame: int, ev: float | None = None) -> np.ndarray:
+    """One view with the blur of each fractional image index in ``fs``: ``(N, H, W, 3)``; at the
+    exposure interpolated at each ``f``, or at ``ev`` stops from the reference when given."""
+    hw = tuple(meta["frame_hw"])
+    out = []
+    for f in fs:
+        z = exposure_at(model, float(f)) if ev is None else reference_exposure(model) + ev
+        out.append(render_view(model, frame, hw, z, t_blur=float(f), blur=True))
+    return np.stack(out)
+
+
+# -- command -------------------------------------------------------------------------------------
+def _range(text: str | None, default: tuple[float, float]) -> tuple[float, float]:
+    if text is None:
+        return default
+    try:
+        a, b = (float(v) for v in text.replace(":", ",").split(","))
+    except ValueError:
+        raise LayercamError(f"--range expects two numbers A,B, got {text!r}") from None
+    if not (math.isfinite(a) and math.isfinite(b)):
+        raise LayercamError(f"--range must be finite, got {text!r}")
+    return a, b
+
+
+def _free(path: Path, overwrite: bool) -> Path:
+    if path.exists() and not overwrite:
+        raise LayercamError(f"{path} exists already; pass --overwrite or choose another --out")
+    return path
+
+
+def _check_ev(ev: float | None) -> None:
+    if ev is not None and not (math.isfinite(ev) and abs(ev) <= 24):
+        raise LayercamError(f"--exposure must be within +-24 stops, got {ev}")
+
+
+def run(args) -> int:
+    from layercam.io import write_png, write_video
+    from layercam.io.atomic import ensure_writable_dir
+    from layercam.pipelines.runner import write_json
+    from layercam.pipelines.stages import resolve_device
+    from layercam.render import load_run_model
+
+    if args.exposure is None and args.focus is None and args.sweep is None:
+        raise LayercamError("nothing to render: give --exposure EV, --focus F or --sweep exposure|focus")
+    _check_ev(args.exposure)
+    if args.steps < 2 or args.steps > 1000:
+        raise LayercamError(f"--steps must be between 2 and 1000, got {args.steps}")
+    model, meta = load_run_model(Path(args.run), resolve_device(args.device))
+    T = int(meta["n_frames"])
+    has_blur = model.blur is not None
+    if (args.focus is not None or args.sweep == "focus") and not has_blur:
+        raise LayercamError(f"{args.run}: this run has no blur generator (blur was off), so there is no focus to change")
+    if args.focus is not None and not (0 <= args.focus <= T - 1):
+        raise LayercamError(f"--focus must lie between 0 and {T - 1} (the training images' indices), got {args.focus}")
+    if args.frame is not None and not 0 <= args.frame < T:
+        raise LayercamError(f"--frame must be between 0 and {T - 1}, got {args.frame}")
+    default_view = int(meta.get("reference", (T - 1) // 2))
+    out = ensure_writable_dir(Path(args.out) if args.out else Path(args.run) / "render")
+    z0 = reference_exposure(model)
+    say = (lambda m: None) if args.quiet else print
+    base = {"run": str(args.run), "reference_log2_exposure": z0, "frame_log2_exposures": model.exposure.values().detach().cpu().tolist()}
+
+    if args.sweep == "exposure":
+        a, b = _range(args.sweep_range, (-4.0, 4.0))
+        _check_ev(a), _check_ev(b)
+        view = default_view if args.frame is None else args.frame
+        evs = np.linspace(a, b, args.steps)
+        video, folder = _free(out / "sweep_exposure.mp4", args.overwrite), out / "sweep_exposure"
+        imgs = exposure_sweep(model, meta, evs, view, args.keep_blur)
+        _write_steps(folder, imgs, write_png)
+        write_video(video, imgs, fps=args.fps or 12.0)
+        write_json(out / "sweep_exposure.json", {**base, "what": "exposure sweep", "view": view, "ev": evs.tolist(), "blur": args.keep_blur})
+        say(f"exposure sweep {a:+g}..{b:+g} EV of view {view}: {video}")
+    elif args.sweep == "focus":
+        a, b = _range(args.sweep_range, (0.0, float(T - 1)))
+        if not (0 <= min(a, b) and max(a, b) <= T - 1):
+            raise LayercamError(f"focus --range must lie within 0..{T - 1}, got {args.sweep_range}")
+        view = default_view if args.frame is None else args.frame
+        fs = np.linspace(a, b, args.steps)
+        video, folder = _free(out / "sweep_focus.mp4", args.overwrite), out / "sweep_focus"
+        imgs = focus_sweep(model, meta, fs, view, args.exposure)
+        _write_steps(folder, imgs, write_png)
+        write_video(video, imgs, fps=args.fps or 12.0)
+        write_json(out / "sweep_focus.json", {**base, "what": "focus sweep", "view": view, "focus": fs.tolist(), "exposure_ev": args.exposure})
+        say(f"focus sweep {a:g}..{b:g} of view {view}: {video}")
+    if args.focus is not None:
+        view = args.frame if args.frame is not None else (int(meta["reference"]) if "reference" in meta else int(round(args.focus)))
+        name = f"focus_{args.focus:.2f}" + ("" if args.exposure is None else f"_ev{args.exposure:+.2f}")
+        path = _free(out / f"{name}.png", args.overwrite)
+        img = focus_sweep(model, meta, [args.focus], view, args.exposure)[0]
+        write_png(path, img)
+        write_json(out / f"{name}.json", {**base, "what": "focus", "focus": args.focus, "view": view, "exposure_ev": args.exposure})
+        say(f"focus {args.focus:g} of view {view}: {path}")
+    elif args.exposure is not None and args.sweep is None:
+        folder = _free(out / f"exposure_{args.exposure:+.2f}", args.overwrite)
+        frames = exposure_frames(model, meta, args.exposure, args.keep_blur)
+        _write_steps(folder, frames, write_png, prefix="frame_", width=5)
+        if T > 1:
+            write_video(folder / "video.mp4", frames, fps=args.fps or float(meta.get("fps", 24.0)))
+        write_json(folder / "render.json", {**base, "what": "exposure", "ev": args.exposure, "log2_exposure": z0 + args.exposure, "blur": args.keep_blur})
+        say(f"{T} frames at {args.exposure:+g} EV: {folder}")
+    return 0
+
+
+def _write_steps(folder: Path, imgs: np.ndarray, write_png, prefix: str = "step_", width: int = 3) -> None:
+    folder.mkdir(parents=True, exist_ok=True)
+    for i, img in enumerate(imgs):
+        write_png(folder / f"{prefix}{i:0{width}d}.png", img)

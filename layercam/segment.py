@@ -1,0 +1,341 @@
+"""Motion segmentation without a detector: foreground masks from the cached optical flow.
+
+A pixel is foreground when its flow disagrees with the per-frame global (camera) homography
+fitted by RANSAC (:func:`layercam.flow.global_homographies`). Per frame the evidence is the
+*smaller* of the forward residual (flow to the next frame) and the backward residual (flow to the
+previous frame): a moving object disagrees in both directions, while the background it is about
+to cover (leading edge, forward flow ill-defined) or has just uncovered (trailing edge, backward
+flow ill-defined) disagrees in one only. The evidence is thresholded against the frame's own
+residual noise, averaged with its neighbours along the flow (temporal consistency), cleaned with
+morphology (open, close, fill holes, drop small components), and frames where the object stands
+still (no evidence) inherit their neighbours' masks along the flow.
+
+:func:`foreground_mappings` turns the masks into the foreground layer's bootstrap mapping: the
+object's own motion (a similarity per frame pair fitted to the flow inside the mask, chained to
+a reference frame), scaled so that the object fills the foreground atlas.
+
+Shapes: flows ``(T-1, H, W, 2)`` in pixels (``layercam.flow`` conventions), masks ``(T, H, W)``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from layercam.errors import LayercamError
+
+__all__ = ["SegmentConfig", "motion_evidence", "motion_masks", "clean_mask", "object_motion", "foreground_mappings"]
+
+
+@dataclass
+class SegmentConfig:
+    """Settings of :func:`motion_masks`. Distances in pixels of the clip being segmented.
+
+    ``abs_px``: a residual below this is never motion. ``k_sigma``: a residual must also exceed
+    the frame's robust residual level (median + k_sigma * 1.4826 MAD). ``window``: neighbours on
+    each side averaged along the flow. ``min_area``: components smaller than this fraction of the
+    frame are dropped, and so are those smaller than ``keep_fraction`` of the frame's largest.
+    ``still_fraction``: a frame whose mask is smaller than this fraction of the clip's median
+    area inherits its neighbours' masks (the object stood still).
+    """
+
+    abs_px: float = 0.5
+    k_sigma: float = 4.0
+    window: int = 2
+    vote: float = 0.4
+    min_area: float = 0.002
+    keep_fraction: float = 0.15
+    still_fraction: float = 0.3
+    grid: int = 48
+
+
+def _check_flows(fw, bw) -> tuple[np.ndarray, np.ndarray]:
+    f = np.asarray(fw, dtype=np.float32)
+    b = np.asarray(bw, dtype=np.float32)
+    if f.ndim != 4 or f.shape[-1] != 2 or b.shape != f.shape:
+        raise LayercamError(f"motion segmentation needs forward and backward flows (T-1,H,W,2), got {f.shape} and {b.shape}")
+    if f.shape[0] < 1:
+        raise LayercamError("motion segmentation needs at least two frames")
+    return f, b
+
+
+def _residual(flow_t: np.ndarray, hm: np.ndarray) -> np.ndarray:
+    from layercam.flow import _homography_flow
+
+    h, w = flow_t.shape[:2]
+    return np.linalg.norm(flow_t - _homography_flow(hm, h, w), axis=-1)
+
+
+def motion_evidence(fw, bw, homs=None, cfg: SegmentConfig | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Per-frame residual motion ``(T, H, W)`` (pixels) and its binary evidence ``(T, H, W)`` bool.
+
+    ``homs`` ``(T-1, 3, 3)``: frame t -> t+1 homographies (pixels); fitted when None.
+    """
+    from layercam.flow import global_homographies
+
+    cfg = cfg or SegmentConfig()
+    f, b = _check_flows(fw, bw)
+    n, h, w = f.shape[:3]
+    if homs is None:
+        homs = global_homographies(f, grid=cfg.grid)
+    homs = np.asarray(homs, dtype=np.float64)
+    if homs.shape != (n, 3, 3):
+        raise LayercamError(f"expected homographies ({n},3,3), got {homs.shape}")
+    fwd = [_residual(f[i], homs[i]) for i in range(n)]                   # at frame i
+    bwd = [_residual(b[i], np.linalg.inv(homs[i])) for i in range(n)]    # at frame i+1
+    res = np.empty((n + 1, h, w), np.float32)
+    for t in range(n + 1):
+        parts = ([fwd[t]] if t < n else []) + ([bwd[t - 1]] if t > 0 else [])
+        res[t] = np.minimum.reduce(parts) if len(parts) > 1 else parts[0]
+    ev = np.zeros(res.shape, bool)
+    for t in range(n + 1):
+        r = res[t]
+        med = float(np.median(r))
+        mad = float(np.median(np.abs(r - med))) * 1.4826
+        ev[t] = r > max(cfg.abs_px, med + cfg.k_sigma * mad)
+    return res, ev
+
+
+def _warp_to(mask_next: np.ndarray, flow_t: np.ndarray) -> np.ndarray:
+    from layercam.flow import warp
+
+    return warp(mask_next.astype(np.float32), flow_t, border="constant")
+
+
+def _temporal_vote(ev: np.ndarray, fw: np.ndarray, bw: np.ndarray, window: int) -> np.ndarray:
+    """Average of each frame's evidence with its neighbours' (up to ``window`` each side), brought
+    into its view along the chained flow. ``(T, H, W)`` float in [0, 1]."""
+    T = ev.shape[0]
+    acc = ev.astype(np.float32).copy()
+    cnt = np.ones(T, np.float32)
+    for t in range(T):
+        for k in range(1, window + 1):
+            if t + k >= T:
+                break
+            # bring frame t+k's evidence to frame t+k-1, ..., t
+            m = ev[t + k].astype(np.float32)
+            for j in range(t + k - 1, t - 1, -1):
+                m = _warp_to(m, fw[j])
+            acc[t] += m
+            cnt[t] += 1
+        for k in range(1, window + 1):
+            if t - k < 0:
+                break
+            m = ev[t - k].astype(np.float32)
+            for j in range(t - k, t):
+                m = _warp_to(m, bw[j])
+            acc[t] += m
+            cnt[t] += 1
+    return acc / cnt[:, None, None]
+
+
+def clean_mask(mask: np.ndarray, cfg: SegmentConfig | None = None) -> np.ndarray:
+    """Morphology on one ``(H, W)`` bool mask: open, close, fill holes, drop small components."""
+    import cv2
+
+    cfg = cfg or SegmentConfig()
+    h, w = mask.shape
+    m = mask.astype(np.uint8)
+    r = max(1, int(round(0.01 * min(h, w))))
+    ko = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
+    kc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (4 * r + 1, 4 * r + 1))
+    m = cv2.morphologyEx(m, cv2.MORPH_OPEN, ko)
+    m = cv2.morphologyEx(m, cv2.MORPH_CLOSE, kc)
+    # fill holes: background is what the border reaches
+    pad = np.pad(m, 1)
+    flood = pad.copy()
+    ff = np.zeros((h + 4, w + 4), np.uint8)
+    cv2.floodFill(flood, ff, (0, 0), 1)
+    holes = (flood[1:-1, 1:-1] == 0)
+    m = (m.astype(bool) | holes).astype(np.uint8)
+    n, lab, stats, _ = cv2.connectedComponentsWithStats(m, connectivity=8)
+    if n <= 1:
+        return np.zeros((h, w), bool)
+    areas = stats[1:, cv2.CC_STAT_AREA]
+    keep = (areas >= cfg.min_area * h * w) & (areas >= cfg.keep_fraction * areas.max())
+    return np.isin(lab, 1 + np.flatnonzero(keep))
+
+
+def _fill_still_frames(masks: np.ndarray, fw: np.ndarray, bw: np.ndarray, frac: float) -> tuple[np.ndarray, list[int]]:
+    """Frames with (almost) no mask inherit the nearest good neighbour's, carried along the flow."""
+    T = masks.shape[0]
+    area = masks.reshape(T, -1).sum(1)
+    ref = float(np.median(area[area > 0])) if (area > 0).any() else 0.0
+    if ref <= 0:
+        return masks, []
+    good = area >= frac * ref
+    out = masks.copy()
+    filled = []
+    for t in np.flatnonzero(~good):
+        cand = [(abs(s - t), s) for s in np.flatnonzero(good)]
+        if not cand:
+            break
+        _, s = min(cand)
+        m = masks[s].astype(np.float32)
+        if s > t:
+            for j in range(s - 1, t - 1, -1):
+                m = _warp_to(m, fw[j])
+        else:
+            for j in range(s, t):
+                m = _warp_to(m, bw[j])
+        out[t] = m > 0.5
+        filled.append(int(t))
+    return out, filled
+
+
+def motion_masks(fw, bw, homs=None, cfg: SegmentConfig | None = None) -> tuple[np.ndarray, dict]:
+    """Foreground masks of whatever moves on its own: ``(T, H, W)`` float32 in {0, 1}, and an info
+    dict (coverage per frame, frames filled from neighbours)."""
+    cfg = cfg or SegmentConfig()
+    f, b = _check_flows(fw, bw)
+    _, ev = motion_evidence(f, b, homs, cfg)
+    vote = _temporal_vote(ev, f, b, cfg.window) if cfg.window > 0 else ev.astype(np.float32)
+    masks = np.stack([clean_mask(v >= cfg.vote, cfg) for v in vote])
+    masks, filled = _fill_still_frames(masks, f, b, cfg.still_fraction)
+    masks = np.stack([clean_mask(m, cfg) for m in masks]) if filled else masks
+    cover = masks.reshape(len(masks), -1).mean(1)
+    info = {"coverage_mean": float(cover.mean()), "coverage_min": float(cover.min()), "coverage_max": float(cover.max()), "filled_from_neighbours": filled, "empty_frames": int((cover == 0).sum())}
+    return masks.astype(np.float32), info
+
+
+# --------------------------------------------------------------------------------------------
+# The foreground layer's bootstrap mapping
+# --------------------------------------------------------------------------------------------
+
+
+def object_motion(fw, masks, fw_ok=None, min_points: int = 12, seed: int = 0) -> np.ndarray:
+    """Per pair ``(T-1, 3, 3)``: a similarity (rotation, scale, shift; RANSAC) mapping frame t's
+    object pixels to frame t+1, fitted to the flow inside ``masks[t]``. Pairs with too few object
+    pixels fall back to the median flow inside the mask, or to the identity."""
+    import cv2
+
+    f = np.asarray(fw, dtype=np.float32)
+    n, h, w = f.shape[:3]
+    out = np.repeat(np.eye(3)[None], n, 0)
+    cv2.setRNGSeed(seed)
+    step = max(1, int(np.sqrt(h * w / 4000)))
+    for i in range(n):
+        sel = masks[i] > 0.5
+        if fw_ok is not None:
+            ok = sel & np.asarray(fw_ok[i], bool)
+            sel = ok if ok.sum() >= min_points else sel
+        ys, xs = np.nonzero(sel[::step, ::step])
+        ys, xs = ys * step, xs * step
+        if len(xs) < 3:
+            continue
+        d = f[i][ys, xs]
+        a = None
+        if len(xs) >= min_points:
+            src = np.stack([xs, ys], -1).astype(np.float32)
+            a, _ = cv2.estimateAffinePartial2D(src, src + d, method=cv2.RANSAC, ransacReprojThreshold=1.0, maxIters=2000, confidence=0.995)
+        if a is None or not np.all(np.isfinite(a)):
+            out[i][:2, 2] = np.median(d, axis=0)
+        else:
+            out[i][:2] = a
+    return out
+
+
+def foreground_mappings(h: int, w: int, masks: np.ndarray, fw=None, fw_ok=None, margin: float = 0.6, how: str = "object") -> tuple[np.ndarray, str]:
+    """The foreground layer's ``h0`` ``(T, 3, 3)``: normalised frame coordinates -> atlas uv.
+
+    how "object": the object's own chained motion (:func:`object_motion`) to the frame where the
+    mask is largest, scaled isotropically so that the union of the mapped masks fills
+    ``[-margin, margin]^2`` (the rest of the atlas is slack for what the masks missed).
+    how "identity": every frame maps the same way (the paper's start), whole frame in the atlas.
+    """
+    from layercam.pipelines.stages import atlas_mappings, chain_homographies, normalised_frame_matrix
+
+    T = masks.shape[0]
+    if how == "identity" or fw is None or T < 2 or masks.sum() == 0:
+        return atlas_mappings(h, w, np.stack([np.eye(3)] * T)), "identity"
+    if how != "object":
+        raise LayercamError(f"unknown foreground bootstrap {how!r} (object | identity)")
+    ref = int(np.argmax(masks.reshape(T, -1).sum(1)))
+    pix = chain_homographies(object_motion(fw, masks, fw_ok), ref)
+    pts = []
+    for t in range(T):
+        ys, xs = np.nonzero(masks[t] > 0.5)
+        if len(xs) == 0:
+            continue
+        p = pix[t] @ np.stack([xs + 0.5, ys + 0.5, np.ones_like(xs, dtype=np.float64)])
+        pts.append((p[:2] / p[2:]).T)
+    pts = np.concatenate(pts)
+    lo, hi = np.percentile(pts, 1, axis=0), np.percentile(pts, 99, axis=0)
+    centre, half = (lo + hi) / 2, max((hi - lo).max() / 2, 2.0)
+    s = margin / half
+    a = np.array([[s, 0, -s * centre[0]], [0, s, -s * centre[1]], [0, 0, 1]])
+    n_inv = np.linalg.inv(normalised_frame_matrix(h, w))
+    return np.stack([a @ m @ n_inv for m in pix]).astype(np.float32), f"object motion chained to frame {ref}"
+
+
+def grabcut_refine(frame: np.ndarray, mask: np.ndarray, iters: int = 4) -> np.ndarray:
+    """Tighten a motion mask ``(H, W)`` to the object's colour edges with GrabCut, seeded by the
+    mask: eroded mask = sure foreground, mask = probable foreground, a ring around it = probable
+    background, the rest = background. Flow-based masks overshoot the object by about a flow patch;
+    this pulls them back. Returns ``(H, W)`` bool (the input when GrabCut cannot run)."""
+    import cv2
+
+    m = np.asarray(mask) > 0.5
+    h, w = m.shape
+    if m.sum() < 16 or m.all():
+        return m
+    u8 = np.ascontiguousarray((np.clip(frame, 0, 1) * 255).astype(np.uint8)[..., ::-1])
+    r = max(2, int(round(0.03 * min(h, w))))
+    k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
+    mm = m.astype(np.uint8)
+    lab = np.full((h, w), cv2.GC_BGD, np.uint8)
+    lab[cv2.dilate(mm, k, iterations=2) > 0] = cv2.GC_PR_BGD
+    lab[m] = cv2.GC_PR_FGD
+    lab[cv2.erode(mm, k, iterations=2) > 0] = cv2.GC_FGD
+    bgd, fgd = np.zeros((1, 65), np.float64), np.zeros((1, 65), np.float64)
+    try:
+        cv2.grabCut(u8, lab, None, bgd, fgd, iters, cv2.GC_INIT_WITH_MASK)
+    except cv2.error:
+        return m
+    out = (lab == cv2.GC_FGD) | (lab == cv2.GC_PR_FGD)
+    return out if out.any() else m
+
+
+FOREGROUND_BOOTSTRAP = "object"   # the foreground layer's h0: "object" (own motion) | "identity"
+SEGMENT_VERSION = 1               # bump when motion_masks changes what it returns
+
+
+def foreground_bootstrap(frames: np.ndarray, flows: dict | None, masks: np.ndarray | None = None, how: str | None = None, cfg: SegmentConfig | None = None) -> dict:
+    """What a two-layer scene starts from: ``{"h0": (T, 3, 3), "masks": (T, H, W) | None,
+    "computed": bool, "how": str, "info": dict}``.
+
+    ``masks`` given by the user win; otherwise, with flow (``flows`` holds ``fw``, ``bw``,
+    ``fw_ok``, ``homs`` as the flow stage caches them), motion masks refined by GrabCut; with
+    neither (one frame), no masks and the identity mapping.
+    """
+    how = how or FOREGROUND_BOOTSTRAP
+    T, h, w = frames.shape[:3]
+    info: dict = {}
+    computed = False
+    if masks is None and flows is not None and T > 1:
+        fw, bw = flows["fw"].astype(np.float32), flows["bw"].astype(np.float32)
+        masks, info = motion_masks(fw, bw, flows.get("homs"), cfg)
+        masks = np.stack([grabcut_refine(frames[t], masks[t]) for t in range(T)]).astype(np.float32)
+        info["coverage_after_grabcut"] = float(masks.mean())
+        computed = True
+    fw = flows["fw"].astype(np.float32) if flows is not None and T > 1 else None
+    fw_ok = flows.get("fw_ok") if flows is not None else None
+    if masks is None:
+        h0, desc = foreground_mappings(h, w, np.zeros((T, h, w), np.float32), how="identity")
+    else:
+        h0, desc = foreground_mappings(h, w, masks, fw, fw_ok, how=how)
+    return {"h0": h0, "masks": masks, "computed": computed, "how": desc, "info": info}
+
+
+def save_masks(folder, masks: np.ndarray) -> None:
+    """``masks.npz`` (what training reads) and ``masks/frame_00000.png`` (to look at) in ``folder``."""
+    from pathlib import Path
+
+    from layercam.io import write_png
+
+    folder = Path(folder)
+    np.savez_compressed(folder / "masks.npz", masks=(np.asarray(masks) > 0.5))
+    (folder / "masks").mkdir(exist_ok=True)
+    for t, m in enumerate(masks):
+        write_png(folder / "masks" / f"frame_{t:05d}.png", (m > 0.5).astype(np.float32))

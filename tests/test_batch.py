@@ -1,0 +1,83 @@
+"""``layercam batch``: runs a manifest, goes on past a failed job, skips finished jobs when restarted,
+and runs again the job whose options changed."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from layercam.cli import main
+
+from conftest import TINY
+
+
+@pytest.fixture
+def clips(tmp_path):
+    from layercam import synth
+    from layercam.io import write_png
+
+    for name, seed in (("a", 1), ("b", 2)):
+        sc = synth.pan_hdr(frames=4, size=(32, 32), ev_step=3.0, seed=seed)
+        (tmp_path / "clips" / name).mkdir(parents=True)
+        for t, f in enumerate(sc.clip.frames):
+            write_png(tmp_path / "clips" / name / f"f{t}.png", f)
+    return tmp_path
+
+
+def _manifest(folder, b_extra: str = "") -> None:
+    opts = "--ev-step 3 --preset fast --quiet " + " ".join(f"--set {s}" for s in TINY)
+    (folder / "jobs.csv").write_text(
+        "command,input,output,options\n"
+        "# two clips and one that does not exist\n"
+        f"hdr-video,clips/a,runs/a,{opts}\n"
+        f'hdr-video,clips/b,runs/b,"{opts} {b_extra}"\n'
+        f"hdr-video,clips/missing,runs/missing,{opts}\n"
+    )
+
+
+def test_batch_runs_skips_and_restarts(clips, capsys):
+    _manifest(clips)
+    summary = clips / "summary.json"
+    assert main(["batch", str(clips / "jobs.csv"), "--summary", str(summary)]) == 1  # one job failed
+    out = capsys.readouterr().out
+    assert "2 done, 1 failed" in out
+    for name in ("a", "b"):
+        run = clips / "runs" / name
+        assert (run / "report.json").is_file() and (run / "batch_job.json").is_file()
+        assert len(list((run / "hdr").glob("*.exr"))) == 4
+    rows = {r["output"]: r for r in json.loads(summary.read_text())["jobs"]}
+    assert rows["runs/missing"]["status"] == "failed" and "missing" in rows["runs/missing"]["reason"]
+
+    # restarted: the finished jobs are skipped, the failed one is tried again
+    stamp = {n: (clips / "runs" / n / "report.json").stat().st_mtime_ns for n in ("a", "b")}
+    assert main(["batch", str(clips / "jobs.csv")]) == 1
+    out = capsys.readouterr().out
+    assert "2 skipped, 1 failed" in out
+    assert all((clips / "runs" / n / "report.json").stat().st_mtime_ns == stamp[n] for n in ("a", "b"))
+
+    # job b's options change (an export setting): b runs again, from its cached training; a is skipped
+    _manifest(clips, "--set export.preview_fps=5")
+    assert main(["batch", str(clips / "jobs.csv"), "--dry-run"]) == 0
+    assert "2 would run, 1 would skip" in capsys.readouterr().out
+    assert main(["batch", str(clips / "jobs.csv")]) == 1
+    out = capsys.readouterr().out
+    assert "1 done, 1 skipped, 1 failed" in out
+    rep = json.loads((clips / "runs" / "b" / "report.json").read_text())
+    assert rep["stages"]["train"]["cached"] and not rep["stages"]["export"]["cached"]
+
+
+def test_bad_manifest_is_one_line_exit_2(tmp_path, capsys):
+    m = tmp_path / "jobs.csv"
+    m.write_text("hdr-video,a.mp4,runs/a\nnot-a-command,b.mp4,runs/b\n")
+    assert main(["batch", str(m)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("error:") and "line 2" in err and "not-a-command" in err
+
+
+def test_bad_options_fail_that_job_only(tmp_path, capsys):
+    m = tmp_path / "jobs.csv"
+    m.write_text("hdr-video,a.mp4,runs/a,--no-such-option\nhdr-video,b.mp4,runs/b,--out elsewhere\n")
+    assert main(["batch", str(m), "--dry-run"]) == 1
+    out = capsys.readouterr().out
+    assert "no-such-option" in out and "output column" in out

@@ -147,7 +147,8 @@ def decide(clip, exposures, task: str, overrides: dict | None = None, cfg=None, 
     # blur: frames that are blurrier than the sharpest one by more than BLUR_SIGMA
     sigma = mm.get("max_blur_sigma", 0.0)
     if measures and sigma >= BLUR_SIGMA:
-        spec.blur = "5x5" if sigma >= BLUR_5X5_SIGMA else "3x3"
+        n = cfg.blur.n if cfg is not None else 3
+        spec.blur = "5x5" if sigma >= BLUR_5X5_SIGMA or n >= 5 else "3x3"
         spec.max_offset = float(min(max(math.ceil(OFFSET_PER_SIGMA * sigma), 2.0), 8.0))
         r["blur"] = f"frames up to {sigma:.1f} px (Gaussian sigma) blurrier than the sharpest"
         r["max_offset"] = f"{OFFSET_PER_SIGMA:g} x the largest relative blur, {spec.max_offset:.0f} px"

@@ -46,7 +46,7 @@ def input_args(p: argparse.ArgumentParser, exposures_default: str | None) -> Non
     g.add_argument("--masks", help="folder of foreground masks, one PNG per frame (two-layer scenes)")
 
 
-COMMAND_MODULES = ["hdr_video", "demo", "bench", "deblur_video", "fuse_stack", "render", "batch"]  # each layercam/commands/<name>.py has register(sub) and run(args)
+COMMAND_MODULES = ["hdr_video", "demo", "bench", "deblur_video", "fuse_stack", "render", "batch", "edit"]  # each layercam/commands/<name>.py has register(sub) and run(args)
 
 
 def build_parser() -> argparse.ArgumentParser:

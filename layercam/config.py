@@ -74,7 +74,6 @@ class LossConfig:
     rigidity: float = 0.01
     sparsity: float = 0.001
     alpha_flow: float = 1.0
-    exposure_prior: float = 0.0
 
 
 @dataclass
@@ -87,7 +86,7 @@ class TrainConfig:
     lr_decay: float = 0.1           # final lr factor (cosine)
     seed: int = 0
     autocast: str = "auto"          # "auto" (bf16 mixed precision on a GPU, fp32 on the CPU) | "none" | "bf16"
-    compile: bool = False
+    compile: bool = False          # torch.compile the atlas fields (opt-in: 10-30 s to compile)
     checkpoint_every: int = 500
     device: str = "cpu"
     max_bad_steps: int = 20

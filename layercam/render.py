@@ -104,3 +104,136 @@ def load_run_model(run_dir: Path, device: str = "cpu"):
     model.load_state_dict(ck["state"])
     model.eval()
     return model, ck
+
+
+# -- layers and atlases: what the atlas export and ``layercam edit`` share -------------------------
+@torch.no_grad()
+def render_mappings(model, t: int, hw: tuple[int, int], chunk: int = 65536) -> dict:
+    """Geometry of frame ``t`` only (no atlas, no camera): ``{"uv": [L x (H, W, 2)], "alpha": (H, W) | None}``."""
+    h, w = hw
+    dev = next(model.parameters()).device
+    xy_all = pixel_grid(h, w, dev)
+    uvs, alphas = [], []
+    for s in range(0, xy_all.shape[0], chunk):
+        xy = xy_all[s : s + chunk]
+        m = model.scene.mappings(xy, torch.full((xy.shape[0],), int(t), dtype=torch.long, device=dev))
+        uvs.append(torch.stack(m["uv"], 0).float().cpu())
+        if m["alpha"] is not None:
+            alphas.append(m["alpha"].float().cpu())
+    uv = torch.cat(uvs, 1).view(-1, h, w, 2).numpy()
+    return {"uv": list(uv), "alpha": torch.cat(alphas).view(h, w).numpy() if alphas else None}
+
+
+@torch.no_grad()
+def render_layers(model, t: int, hw: tuple[int, int], chunk: int = 65536) -> dict:
+    """Frame ``t`` per layer with the camera dropped: ``{"uv": [L x (H, W, 2)], "log2_r": [L x (H, W, 3)],
+    "alpha": (H, W) | None}`` (``alpha`` is layer 1's opacity; composite with :func:`composite_layers`)."""
+    h, w = hw
+    dev = next(model.parameters()).device
+    xy_all = pixel_grid(h, w, dev)
+    uvs, logs, alphas = [], [], []
+    for s in range(0, xy_all.shape[0], chunk):
+        xy = xy_all[s : s + chunk]
+        out = model.irradiance(xy, torch.full((xy.shape[0],), int(t), dtype=torch.long, device=dev))
+        uvs.append(torch.stack(out["uv"], 0).float().cpu())
+        logs.append(torch.stack(out["layer_log2_r"], 0).float().cpu())
+        if out["alpha"] is not None:
+            alphas.append(out["alpha"].float().cpu())
+    uv = torch.cat(uvs, 1).view(-1, h, w, 2).numpy()
+    lg = torch.cat(logs, 1).view(-1, h, w, 3).numpy()
+    return {"uv": list(uv), "log2_r": list(lg), "alpha": torch.cat(alphas).view(h, w).numpy() if alphas else None}
+
+
+def layer_weights(alpha: np.ndarray | None, n_layers: int, hw: tuple[int, int]) -> list[np.ndarray]:
+    """How much each layer is seen per pixel: ``[1 - alpha, alpha]``, or ``[1]`` for one layer."""
+    if alpha is None or n_layers == 1:
+        return [np.ones(hw, np.float32)]
+    return [1.0 - alpha, alpha]
+
+
+def composite_layers(layer_r: list[np.ndarray], alpha: np.ndarray | None) -> np.ndarray:
+    """Linear irradiance of the layers ``[L x (H, W, 3)]`` -> the frame's ``(H, W, 3)`` (as the scene
+    composites: ``alpha * r_1 + (1 - alpha) * r_0``)."""
+    if alpha is None or len(layer_r) == 1:
+        return layer_r[0]
+    a = alpha[..., None]
+    return a * layer_r[1] + (1.0 - a) * layer_r[0]
+
+
+def atlas_uv_grid(res: int, device="cpu") -> torch.Tensor:
+    """The atlas image grid: ``res x res`` pixel centres over ``[-1, 1]^2`` as ``(res*res, 2)`` uv,
+    row-major (row = v, column = u), the convention of ``grid_sample(align_corners=False)``."""
+    return pixel_grid(res, res, device)
+
+
+@torch.no_grad()
+def sample_atlas(model, layer: int, res: int, chunk: int = 65536) -> np.ndarray:
+    """Layer ``layer``'s atlas on :func:`atlas_uv_grid` -> ``(res, res, 3)`` log2 irradiance."""
+    dev = next(model.parameters()).device
+    uv = atlas_uv_grid(res, dev)
+    atlas = model.scene.atlases[layer]
+    out = [atlas(uv[s : s + chunk]).float().cpu() for s in range(0, uv.shape[0], chunk)]
+    return torch.cat(out).view(res, res, 3).numpy()
+
+
+def splat_coverage(uvs: list[np.ndarray], weights: list[np.ndarray], res: int, min_weight: float = 0.5) -> np.ndarray:
+    """Where frames map to in an atlas: ``(res, res)`` float in [0, 1].
+
+    ``uvs[i] (H, W, 2)`` and ``weights[i] (H, W)`` per frame (the layer's visibility); a pixel of the
+    atlas is covered when the summed weight landing in it reaches ``min_weight``. Small gaps (atlas
+    finer than the frames) are closed morphologically."""
+    import cv2
+
+    acc = np.zeros(res * res, np.float64)
+    for uv, w in zip(uvs, weights):
+        ij = np.floor((uv.reshape(-1, 2) + 1.0) * 0.5 * res).astype(np.int64)
+        wt = w.reshape(-1).astype(np.float64)
+        ok = (ij >= 0).all(1) & (ij < res).all(1) & (wt > 1e-3)
+        np.add.at(acc, ij[ok, 1] * res + ij[ok, 0], wt[ok])
+    cov = (acc.reshape(res, res) >= min_weight).astype(np.uint8)
+    k = np.ones((3, 3), np.uint8)
+    cov = cv2.morphologyEx(cov, cv2.MORPH_CLOSE, k)
+    return cov.astype(np.float32)
+
+
+def checker_overlay(frame: np.ndarray, uv: np.ndarray, weight: np.ndarray, cells: int = 16) -> np.ndarray:
+    """How a frame maps into an atlas: where ``weight (H, W)`` > 0.5 the frame ``(H, W, 3)`` is blended
+    with a checkerboard of ``cells x cells`` squares over the atlas, coloured by ``(u, v)``; elsewhere
+    the frame is darkened. Returns ``(H, W, 3)`` in [0, 1]."""
+    u, v = uv[..., 0], uv[..., 1]
+    parity = (np.floor((u + 1) * 0.5 * cells) + np.floor((v + 1) * 0.5 * cells)) % 2
+    col = np.stack([np.clip((u + 1) / 2, 0, 1), np.clip((v + 1) / 2, 0, 1), np.full_like(u, 0.5)], -1)
+    checker = col * (0.45 + 0.55 * parity[..., None])
+    on = (weight > 0.5)[..., None]
+    return np.clip(np.where(on, 0.45 * frame + 0.55 * checker, 0.35 * frame), 0, 1).astype(np.float32)
+
+
+@torch.no_grad()
+def tone_map_log2(model, log2_r: np.ndarray, log2_dt) -> np.ndarray:
+    """Through the learned camera (no blur): ``log2_r (..., 3)`` at exposure ``log2_dt`` (a float or an
+    array broadcastable to ``(..., 1)``) -> pixel values ``(..., 3)`` in [0, 1]."""
+    shp = log2_r.shape
+    z = torch.as_tensor(np.asarray(log2_r, np.float32).reshape(-1, 3))
+    dt = torch.as_tensor(np.broadcast_to(np.asarray(log2_dt, np.float32), shp[:-1] + (1,)).reshape(-1, 1).copy())
+    dev = next(model.parameters()).device
+    out = model.tone_map(z.to(dev), dt.to(dev)).float().cpu().numpy()
+    return out.reshape(shp)
+
+
+@torch.no_grad()
+def inverse_tone(model, rgb: np.ndarray, log2_dt: float, z_range: float = 24.0, knots: int = 4097) -> np.ndarray:
+    """Invert the learned camera at one exposure: pixel values ``(..., 3)`` -> log2 irradiance that the
+    tone mapper at ``log2_dt`` maps to them (per channel, by interpolating the monotone hull of the
+    curve on ``knots`` points over ``+-z_range`` stops). Values the curve never reaches (past its
+    clipping points, or beyond 1/255 and 254/255) are taken at the nearest reachable value."""
+    z = torch.linspace(-z_range, z_range, knots)
+    dev = next(model.parameters()).device
+    curve = model.tone.curve(z.to(dev)).float().cpu().numpy()  # (K, 3)
+    zs = z.numpy()
+    rgb = np.asarray(rgb, np.float32)
+    out = np.empty(rgb.shape, np.float32)
+    for c in range(3):
+        cv = np.maximum.accumulate(curve[:, c]) + np.arange(knots) * 1e-9  # strictly increasing
+        lo, hi = max(cv[0], 1.0 / 255), min(cv[-1], 254.0 / 255)
+        out[..., c] = np.interp(np.clip(rgb[..., c], lo, hi), cv, zs) - float(log2_dt)
+    return out

@@ -207,7 +207,9 @@ def motion_masks(fw, bw, homs=None, cfg: SegmentConfig | None = None) -> tuple[n
 def object_motion(fw, masks, fw_ok=None, min_points: int = 12, seed: int = 0) -> np.ndarray:
     """Per pair ``(T-1, 3, 3)``: a similarity (rotation, scale, shift; RANSAC) mapping frame t's
     object pixels to frame t+1, fitted to the flow inside ``masks[t]``. Pairs with too few object
-    pixels fall back to the median flow inside the mask, or to the identity."""
+    pixels fall back to the median flow inside the mask, or to the identity. Where the fit moves the
+    mask's centroid far from where the next mask's centroid is (the flow lost the object), the
+    pair's motion is the centroid shift instead."""
     import cv2
 
     f = np.asarray(fw, dtype=np.float32)
@@ -233,6 +235,15 @@ def object_motion(fw, masks, fw_ok=None, min_points: int = 12, seed: int = 0) ->
             out[i][:2, 2] = np.median(d, axis=0)
         else:
             out[i][:2] = a
+        nxt = masks[i + 1] > 0.5
+        if masks[i].sum() >= min_points and nxt.sum() >= min_points:
+            y0, x0 = np.nonzero(masks[i] > 0.5)
+            y1, x1 = np.nonzero(nxt)
+            c0, c1 = np.array([x0.mean(), y0.mean()]), np.array([x1.mean(), y1.mean()])
+            pred = out[i][:2, :2] @ c0 + out[i][:2, 2]
+            if np.linalg.norm(pred - c1) > max(1.5, 0.15 * np.sqrt(len(x0))):
+                out[i] = np.eye(3)
+                out[i][:2, 2] = c1 - c0
     return out
 
 

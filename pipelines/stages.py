@@ -191,6 +191,9 @@ class TrainStage(Stage):
         fl = load_flow(ctx) if ctx.spec.flow_loss else None
         dev = resolve_device(cfg.train.device)
         model.to(dev)
+        if cfg.train.compile:
+            for atlas in model.scene.atlases:
+                atlas.compile()
         sampler = PixelSampler(
             ctx.clip.frames, *(fl[k] for k in ("fw", "bw", "fw_ok", "bw_ok")) if fl else (None,) * 4,
             masks=masks, device=dev, seed=distributed.rank_seed(cfg.train.seed),

@@ -13,9 +13,10 @@ from layercam.pipelines.stages import BootstrapStage, ExportStage, FlowStage, Tr
 
 
 def stages_for(task: str) -> list:
+    from layercam.pipelines.atlas_export import AtlasStage
     from layercam.pipelines.blur_export import EXPORTS
 
-    return [FlowStage(), BootstrapStage(), TrainStage(), EXPORTS.get(task, ExportStage)()]
+    return [FlowStage(), BootstrapStage(), TrainStage(), EXPORTS.get(task, ExportStage)(), AtlasStage()]
 
 
 def run_task(task: str, clip, exposures, cfg, run_dir: Path, overrides: dict | None = None, masks=None, progress: bool = True, extra: dict | None = None, extra_stages: list | None = None) -> Context:

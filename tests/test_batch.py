@@ -41,10 +41,11 @@ def test_batch_runs_skips_and_restarts(clips, capsys):
     summary = clips / "summary.json"
     assert main(["batch", str(clips / "jobs.csv"), "--summary", str(summary)]) == 1  # one job failed
     out = capsys.readouterr().out
-    assert "2 done, 1 failed" in out
+    assert "2 done, 1 failed" in out, out
     for name in ("a", "b"):
         run = clips / "runs" / name
-        assert (run / "report.json").is_file() and (run / "batch_job.json").is_file()
+        log = (run / "batch.log").read_text() if (run / "batch.log").exists() else "no log"
+        assert (run / "report.json").is_file() and (run / "batch_job.json").is_file(), log[-3000:]
         assert len(list((run / "hdr").glob("*.exr"))) == 4
     rows = {r["output"]: r for r in json.loads(summary.read_text())["jobs"]}
     assert rows["runs/missing"]["status"] == "failed" and "missing" in rows["runs/missing"]["reason"]
@@ -53,8 +54,8 @@ def test_batch_runs_skips_and_restarts(clips, capsys):
     stamp = {n: (clips / "runs" / n / "report.json").stat().st_mtime_ns for n in ("a", "b")}
     assert main(["batch", str(clips / "jobs.csv")]) == 1
     out = capsys.readouterr().out
-    assert "2 skipped, 1 failed" in out
-    assert all((clips / "runs" / n / "report.json").stat().st_mtime_ns == stamp[n] for n in ("a", "b"))
+    assert "2 skipped, 1 failed" in out, out
+    assert {n: (clips / "runs" / n / "report.json").stat().st_mtime_ns for n in ("a", "b")} == stamp
 
     # job b's options change (an export setting): b runs again, from its cached training; a is skipped
     _manifest(clips, "--set export.preview_fps=5")
@@ -62,7 +63,7 @@ def test_batch_runs_skips_and_restarts(clips, capsys):
     assert "2 would run, 1 would skip" in capsys.readouterr().out
     assert main(["batch", str(clips / "jobs.csv")]) == 1
     out = capsys.readouterr().out
-    assert "1 done, 1 skipped, 1 failed" in out
+    assert "1 done, 1 skipped, 1 failed" in out, out
     rep = json.loads((clips / "runs" / "b" / "report.json").read_text())
     assert rep["stages"]["train"]["cached"] and not rep["stages"]["export"]["cached"]
 

@@ -318,7 +318,7 @@ def test_rigidity_and_gradient_losses_finite_on_degenerate_inputs():
     assert _finite(r, g)
 
 
-@props(12)
+@props(8)
 @given(
     ev=EV, layers=st.sampled_from([1, 2]), monotone=st.booleans(), clipped=st.sampled_from(["plain", "one_sided"]),
     blur=st.sampled_from(["off", "3x3"]), target=st.sampled_from(["black", "white", "random"]), autocast=st.sampled_from(["none", "bf16"]),
@@ -389,7 +389,7 @@ def test_initial_log2_finite_for_black_white_constant_frames(frames, value, log2
 
 
 @props(30)
-@given(hdr=hnp.arrays(np.float32, (2, 3, 3, 3), elements=st.one_of(st.sampled_from([0.0, 1e-30, 2.0**-40, 2.0**40, 3e38]), st.floats(0, 1e30, width=32))))
+@given(hdr=hnp.arrays(np.float32, (2, 3, 3, 3), elements=st.one_of(st.sampled_from([0.0, 1e-30, 2.0**-40, 2.0**40, 3e38]), st.floats(0, float(np.float32(1e30)), width=32))))
 def test_display_tonemap_finite_in_unit_interval(hdr):
     from layercam.render import tonemap_display
 

@@ -41,11 +41,15 @@ def _t_norm(t: torch.Tensor, n_frames: int) -> torch.Tensor:
 
 
 def apply_homography(h: torch.Tensor, xy: torch.Tensor) -> torch.Tensor:
-    """``h (N, 3, 3)``, ``xy (N, 2)`` -> ``(N, 2)``; the projective divide is guarded away from 0."""
-    p = torch.einsum("nij,nj->ni", h, torch.cat([xy, torch.ones_like(xy[:, :1])], dim=1))
-    w = p[:, 2:3]
-    w = torch.where(w.abs() < 1e-3, torch.full_like(w, 1e-3) * torch.sign(w + 1e-12), w)
-    return p[:, :2] / w
+    """``h (N, 3, 3)``, ``xy (N, 2)`` -> ``(N, 2)``; the projective divide is guarded away from 0.
+
+    Always float32, also under autocast (in bf16 a mapping would be off by ~2^-8 of the frame)."""
+    with torch.autocast(xy.device.type, enabled=False):
+        h, xy = h.float(), xy.float()
+        p = torch.einsum("nij,nj->ni", h, torch.cat([xy, torch.ones_like(xy[:, :1])], dim=1))
+        w = p[:, 2:3]
+        w = torch.where(w.abs() < 1e-3, torch.where(w < 0, -1e-3, 1e-3).to(w), w)  # sign(0) would give 0
+        return p[:, :2] / w
 
 
 class Deformation(nn.Module):

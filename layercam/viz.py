@@ -1,0 +1,364 @@
+"""Figures that look inside a trained run (used by ``notebooks/atlas_visualisation.ipynb``).
+
+Each ``*_figure`` function takes arrays (or a loaded model) and returns a
+:class:`matplotlib.figure.Figure` built without ``pyplot``: no global figure state, safe under the
+Agg backend and in headless kernels; Jupyter displays the returned figure, a script saves it with
+``fig.savefig(path)``. The arrays come from the library (``layercam.render``, the model's own
+modules); nothing here re-implements the model.
+
+Shapes: frames ``(T, H, W, 3)`` in ``[0, 1]``; alpha ``(T, H, W)``; uv ``(T, L, H, W, 2)`` in the
+atlas's ``[-1, 1]^2``; a CRF curve ``(K, 3)`` over ``z (K,)`` stops (``z = log2 r + log2 dt``).
+
+Example:
+    >>> import numpy as np
+    >>> fig = exposures_figure(np.array([0.0, 2.1, 0.0, 2.1]), truth=np.array([0.0, 2.0, 0.0, 2.0]))
+    >>> len(fig.axes)
+    1
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+
+import numpy as np
+
+__all__ = [
+    "LAYER_NAMES",
+    "atlas_coverage",
+    "checkerboard",
+    "uv_overlay",
+    "align_crf",
+    "atlas_figure",
+    "alpha_figure",
+    "uv_checker_figure",
+    "crf_figure",
+    "exposures_figure",
+    "kernels_figure",
+    "sweep_figure",
+]
+
+LAYER_NAMES = ("background", "foreground")
+_CHECK_COLOURS = (np.array([0.15, 0.35, 0.95]), np.array([0.98, 0.55, 0.1]))  # per layer
+
+
+def _figure(nrows: int, ncols: int, cell: tuple[float, float] = (2.2, 2.2), squeeze: bool = False, **kw):
+    """A pyplot-free figure and its ``(nrows, ncols)`` axes array."""
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(cell[0] * ncols, cell[1] * nrows), dpi=90, layout="constrained")
+    axes = fig.subplots(nrows, ncols, squeeze=squeeze, **kw)
+    return fig, axes
+
+
+def _image_axis(ax, img, title: str | None = None, **kw) -> None:
+    ax.imshow(np.clip(np.asarray(img, dtype=np.float32), 0, 1) if np.ndim(img) == 3 else img, interpolation="nearest", **kw)
+    ax.set_xticks([])
+    ax.set_yticks([])
+    if title:
+        ax.set_title(title, fontsize=8)
+
+
+def _pick(n: int, k: int) -> list[int]:
+    """``k`` evenly spread indices among ``n`` (all of them when ``n <= k``)."""
+    if n <= k:
+        return list(range(n))
+    return sorted({int(round(i)) for i in np.linspace(0, n - 1, k)})
+
+
+def _layer_name(i: int, n_layers: int) -> str:
+    return "single layer" if n_layers == 1 else (LAYER_NAMES[i] if i < len(LAYER_NAMES) else f"layer {i}")
+
+
+# -- arrays ----------------------------------------------------------------------------------------
+def checkerboard(uv: np.ndarray, n: int = 8) -> np.ndarray:
+    """``uv (..., 2)`` in ``[-1, 1]`` -> ``(...)`` float ``{0, 1}``: an ``n x n`` checkerboard over the atlas."""
+    uv = np.asarray(uv, dtype=np.float64)
+    if uv.shape[-1] != 2:
+        raise ValueError(f"checkerboard expects uv (..., 2), got {uv.shape}")
+    if n < 1:
+        raise ValueError(f"checkerboard needs n >= 1 squares, got {n}")
+    cells = np.floor((uv + 1.0) * 0.5 * n).astype(np.int64)
+    return ((cells[..., 0] + cells[..., 1]) % 2).astype(np.float32)
+
+
+def uv_overlay(frame: np.ndarray, uv: np.ndarray, alpha: np.ndarray | None = None, n: int = 8, mix: float = 0.5) -> np.ndarray:
+    """Each layer's atlas checkerboard warped onto ``frame (H, W, 3)``: ``(H, W, 3)`` in ``[0, 1]``.
+
+    ``uv (L, H, W, 2)`` are the layers' atlas coordinates at each pixel; layer 0's squares are blue,
+    layer 1's orange, composited with ``alpha (H, W)`` (the foreground's opacity) as the scene is.
+    ``mix`` is the checkerboard's share against the frame.
+    """
+    frame = np.asarray(frame, dtype=np.float32)
+    uv = np.asarray(uv)
+    if uv.ndim != 4 or uv.shape[1:3] != frame.shape[:2]:
+        raise ValueError(f"uv_overlay expects uv (L, H, W, 2) matching frame {frame.shape[:2]}, got {uv.shape}")
+    layers = []
+    for i in range(uv.shape[0]):
+        c = checkerboard(uv[i], n)[..., None]
+        col = _CHECK_COLOURS[i % len(_CHECK_COLOURS)]
+        layers.append(c * col + (1 - c) * np.ones(3))
+    pattern = layers[0]
+    if len(layers) > 1:
+        a = np.zeros(frame.shape[:2], np.float32) if alpha is None else np.asarray(alpha, dtype=np.float32)
+        pattern = a[..., None] * layers[1] + (1 - a[..., None]) * layers[0]
+    return np.clip((1 - mix) * frame + mix * pattern, 0, 1).astype(np.float32)
+
+
+def align_crf(z: np.ndarray, curve: np.ndarray, truth: Callable[[np.ndarray], np.ndarray], search: float = 24.0, step: float = 0.05) -> tuple[np.ndarray, np.ndarray]:
+    """A ground-truth CRF in the learned curve's units: ``(truth_curve (K, 3), shift (3,) stops)``.
+
+    The learned curve is ``c = T(log2 r + log2 dt)`` with irradiance known only up to a scale per
+    channel, so it matches the truth ``c = f(x)`` (``x`` exposed linear value) only after a shift
+    ``x = 2^(z + s)``. ``s`` is found per channel by least squares over the part of the learned
+    curve that is neither black nor saturated (``0.02 < c < 0.98``), searched on a ``step`` grid
+    within ``+-search`` stops. ``truth`` maps ``(N, 3)`` exposed values to ``(N, 3)`` pixel
+    values (e.g. ``lambda x: synth.crf_apply(x, "srgb")``).
+    """
+    z = np.asarray(z, dtype=np.float64)
+    curve = np.asarray(curve, dtype=np.float64)
+    if curve.shape != (z.shape[0], 3):
+        raise ValueError(f"align_crf expects curve (K, 3) over z (K,), got {curve.shape} and {z.shape}")
+    shifts = np.arange(-search, search + step / 2, step)
+    xs = np.exp2(z[None, :] + shifts[:, None])  # (S, K)
+    tv = np.asarray(truth(np.repeat(xs.reshape(-1, 1), 3, axis=1)), dtype=np.float64).reshape(len(shifts), len(z), 3)
+    best = np.zeros(3)
+    for c in range(3):
+        ok = (curve[:, c] > 0.02) & (curve[:, c] < 0.98)
+        if not ok.any():
+            ok = np.ones_like(ok)
+        err = ((tv[:, ok, c] - curve[None, ok, c]) ** 2).mean(axis=1)
+        best[c] = shifts[int(np.argmin(err))]
+    x = np.exp2(z[:, None] + best[None, :])
+    return np.asarray(truth(x), dtype=np.float64).reshape(len(z), 3), best
+
+
+def atlas_coverage(uv: np.ndarray, weight: np.ndarray | None = None, res: int = 32) -> np.ndarray:
+    """How much of an atlas the frames see: ``(res, res)`` in ``[0, 1]``, rows along ``v``.
+
+    ``uv (..., 2)`` in ``[-1, 1]`` (a layer's atlas coordinates at every pixel of every frame) and
+    ``weight (...)`` (that layer's opacity at the pixel: ``alpha`` for the foreground, ``1 - alpha``
+    for the background; 1 when None). Each texel holds the largest weight that lands in it, so
+    that ``res`` about the frames' size in pixels leaves no holes between neighbouring pixels.
+    """
+    uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
+    w = np.ones(len(uv)) if weight is None else np.asarray(weight, dtype=np.float64).reshape(-1)
+    if len(w) != len(uv):
+        raise ValueError(f"atlas_coverage: {len(uv)} uv points but {len(w)} weights")
+    ij = np.floor((uv + 1.0) * 0.5 * res).astype(np.int64)
+    ok = np.isfinite(uv).all(1) & (ij >= 0).all(1) & (ij < res).all(1)
+    cov = np.zeros(res * res)
+    np.maximum.at(cov, ij[ok, 1] * res + ij[ok, 0], np.clip(w[ok], 0, 1))
+    return cov.reshape(res, res).astype(np.float32)
+
+
+def _coverage_ok(coverage) -> bool:
+    return coverage is not None and len(coverage) > 0
+
+
+# -- figures ---------------------------------------------------------------------------------------
+def atlas_figure(atlases: Sequence[np.ndarray], coverage: Sequence[np.ndarray] | None = None, extent: tuple[float, float, float, float] = (-1, 1, 1, -1), titles: Sequence[str] | None = None):
+    """Each layer's atlas: one row per layer, columns atlas | coverage | atlas where covered.
+
+    ``atlases``: per layer an ``(R, R, 3)`` display image in ``[0, 1]`` (tonemapped irradiance sampled
+    on a uv grid). ``coverage``: per layer ``(R, R)`` in ``[0, 1]``, how much of each atlas texel the
+    frames see (the foreground weighted by alpha), or None for the atlas alone.
+    """
+    n = len(atlases)
+    if n == 0:
+        raise ValueError("atlas_figure needs at least one atlas")
+    has_cov = _coverage_ok(coverage)
+    if has_cov and len(coverage) != n:
+        raise ValueError(f"atlas_figure: {n} atlases but {len(coverage)} coverage maps")
+    cols = 3 if has_cov else 1
+    fig, axes = _figure(n, cols, cell=(2.6, 2.6))
+    for i in range(n):
+        name = titles[i] if titles else _layer_name(i, n)
+        img = np.clip(np.asarray(atlases[i], dtype=np.float32), 0, 1)
+        ax = axes[i, 0]
+        ax.imshow(img, extent=extent, interpolation="nearest")
+        ax.set_title(f"{name} atlas", fontsize=8)
+        ax.set_xlabel("u", fontsize=7)
+        ax.set_ylabel("v", fontsize=7)
+        ax.tick_params(labelsize=6)
+        if has_cov:
+            cov = np.clip(np.asarray(coverage[i], dtype=np.float32), 0, 1)
+            im = axes[i, 1].imshow(cov, extent=extent, cmap="magma", vmin=0, vmax=1, interpolation="nearest")
+            axes[i, 1].set_title(f"{name}: alpha coverage", fontsize=8)
+            axes[i, 1].tick_params(labelsize=6)
+            fig.colorbar(im, ax=axes[i, 1], shrink=0.8).ax.tick_params(labelsize=6)
+            shown = img * cov[..., None] + 0.5 * (1 - cov[..., None]) * (img.mean(-1, keepdims=True) * 0.3 + 0.35)
+            axes[i, 2].imshow(np.clip(shown, 0, 1), extent=extent, interpolation="nearest")
+            axes[i, 2].set_title(f"{name}: seen part ({(cov > 0.05).mean():.0%} of atlas)", fontsize=8)
+            axes[i, 2].tick_params(labelsize=6)
+    return fig
+
+
+def alpha_figure(alpha: np.ndarray | None, frames: np.ndarray | None = None, max_frames: int = 6, truth: np.ndarray | None = None):
+    """Alpha mattes over time: a row of frames (when given), a row of ``alpha (T, H, W)`` and, with
+    ``truth (T, H, W)`` (a ground-truth mask), a row of differences. A one-layer run (``alpha`` None)
+    gets a figure that says so."""
+    if alpha is None:
+        fig, axes = _figure(1, 1, cell=(4.0, 1.2))
+        axes[0, 0].axis("off")
+        axes[0, 0].text(0.5, 0.5, "one layer: no alpha matte (nothing moves on its own)", ha="center", va="center", fontsize=9)
+        return fig
+    alpha = np.asarray(alpha, dtype=np.float32)
+    if alpha.ndim != 3:
+        raise ValueError(f"alpha_figure expects alpha (T, H, W), got {alpha.shape}")
+    idx = _pick(alpha.shape[0], max_frames)
+    rows = [("frame", frames), ("alpha", alpha)] + ([("alpha - truth", truth)] if truth is not None else [])
+    rows = [r for r in rows if r[1] is not None]
+    fig, axes = _figure(len(rows), len(idx), cell=(1.8, 1.8))
+    for j, t in enumerate(idx):
+        for i, (name, arr) in enumerate(rows):
+            ax = axes[i, j]
+            if name == "frame":
+                _image_axis(ax, arr[t], f"frame {t}")
+            elif name == "alpha":
+                _image_axis(ax, alpha[t], f"alpha, mean {alpha[t].mean():.2f}", cmap="gray", vmin=0, vmax=1)
+            else:
+                _image_axis(ax, alpha[t] - np.asarray(arr[t], dtype=np.float32), "alpha - true mask", cmap="coolwarm", vmin=-1, vmax=1)
+    return fig
+
+
+def uv_checker_figure(frames: np.ndarray, uv: np.ndarray, alpha: np.ndarray | None = None, n: int = 8, max_frames: int = 6):
+    """The UV mapping: each layer's atlas checkerboard warped onto the frames.
+
+    ``uv (T, L, H, W, 2)``. Row 1: the composite overlay (blue squares: background atlas, orange:
+    foreground, mixed by ``alpha (T, H, W)``); then one row per layer with that layer's squares
+    alone. Squares that stay put on the scene content while the camera moves mean the mapping
+    follows the content.
+    """
+    frames = np.asarray(frames, dtype=np.float32)
+    uv = np.asarray(uv)
+    if uv.ndim != 5 or uv.shape[0] != frames.shape[0]:
+        raise ValueError(f"uv_checker_figure expects uv (T, L, H, W, 2) for {frames.shape[0]} frames, got {uv.shape}")
+    L = uv.shape[1]
+    idx = _pick(frames.shape[0], max_frames)
+    rows = 1 + (L if L > 1 else 0)
+    fig, axes = _figure(rows, len(idx), cell=(1.8, 1.8))
+    for j, t in enumerate(idx):
+        a = None if alpha is None else alpha[t]
+        _image_axis(axes[0, j], uv_overlay(frames[t], uv[t], a, n), f"frame {t}: uv checker")
+        if L > 1:
+            for i in range(L):
+                _image_axis(axes[1 + i, j], uv_overlay(frames[t], uv[t][i : i + 1], None, n), f"{_layer_name(i, L)} uv")
+    return fig
+
+
+def crf_figure(z: np.ndarray, curve: np.ndarray, truth: np.ndarray | None = None, shift: np.ndarray | None = None, data_range: tuple[float, float] | None = None):
+    """Per-channel CRF: one panel per R, G, B with the learned curve ``(K, 3)`` over ``z`` stops and,
+    when known, the ground truth ``(K, 3)`` (already aligned, see :func:`align_crf`; ``shift`` is
+    then printed in the legend). ``data_range`` shades the stops that the clip's pixels cover."""
+    z = np.asarray(z, dtype=np.float64)
+    curve = np.asarray(curve, dtype=np.float64)
+    if curve.shape != (z.shape[0], 3):
+        raise ValueError(f"crf_figure expects curve (K, 3) over z (K,), got {curve.shape} and {z.shape}")
+    fig, axes = _figure(1, 3, cell=(2.6, 2.3), sharey=True)
+    for c, (name, col) in enumerate(zip("RGB", ("tab:red", "tab:green", "tab:blue"))):
+        ax = axes[0, c]
+        if data_range is not None:
+            ax.axvspan(*data_range, color="0.9", zorder=0, label="seen in the clip")
+        ax.plot(z, curve[:, c], color=col, lw=1.6, label="learned")
+        if truth is not None:
+            lab = "ground truth" + ("" if shift is None else f" ({shift[c]:+.2f} stops)")
+            ax.plot(z, np.asarray(truth)[:, c], color="k", ls="--", lw=1.0, label=lab)
+            rmse = float(np.sqrt(np.mean((np.asarray(truth)[:, c] - curve[:, c]) ** 2)))
+            ax.set_title(f"{name}: RMSE {rmse:.3f}", fontsize=8)
+        else:
+            ax.set_title(name, fontsize=8)
+        ax.set_xlabel("log2 r + log2 dt (stops)", fontsize=7)
+        ax.grid(alpha=0.3)
+        ax.tick_params(labelsize=6)
+        ax.legend(fontsize=6, loc="upper left")
+    axes[0, 0].set_ylabel("pixel value", fontsize=7)
+    return fig
+
+
+def exposures_figure(learned: np.ndarray, given: np.ndarray | None = None, truth: np.ndarray | None = None, kind: str = ""):
+    """Per-frame log2 exposure: the learned (or given, when fixed) values, the starting values the
+    run was given, and the ground truth when known (all relative to frame 0)."""
+    learned = np.asarray(learned, dtype=np.float64).reshape(-1)
+    t = np.arange(len(learned))
+    fig, axes = _figure(1, 1, cell=(max(3.5, 0.35 * len(t)), 2.4))
+    ax = axes[0, 0]
+    if truth is not None:
+        tr = np.asarray(truth, dtype=np.float64).reshape(-1)
+        ax.plot(t, tr - tr[0], "s", mfc="none", mec="k", ms=9, label="ground truth")
+    if given is not None:
+        g = np.asarray(given, dtype=np.float64).reshape(-1)
+        ax.plot(t, g - g[0], "x", color="0.5", ms=7, label="start (given / measured)")
+    ax.plot(t, learned - learned[0], "o-", color="tab:purple", ms=5, lw=1, label="model" + (f" ({kind})" if kind else ""))
+    ax.set_xlabel("frame", fontsize=7)
+    ax.set_ylabel("log2 exposure rel. frame 0 (EV)", fontsize=7)
+    ax.set_xticks(t)
+    ax.tick_params(labelsize=6)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=6)
+    return fig
+
+
+def kernels_figure(offsets: np.ndarray | None, weights: np.ndarray | None, pixels: np.ndarray | None = None, frame: np.ndarray | None = None, labels: Sequence[str] | None = None, max_offset: float | None = None):
+    """The blur generator's PSFs at a few pixels (``model.blur.kernels(xy, t)``).
+
+    ``offsets (M, K, 2)`` pixel displacements (x, y) and ``weights (M, K)`` of each kernel; each
+    panel shows the samples as discs of area proportional to the weight, coloured by weight, with
+    the pixel's own 1-px patch grid for scale (and, with ``max_offset``, the dotted square the
+    offsets are bounded by); ``+`` marks the kernel's weighted centre. ``pixels (M, 2)`` (x, y
+    pixel coordinates) are marked on ``frame (H, W, 3)`` in a first panel. A run without a blur generator (``offsets`` None) gets
+    a figure that says so.
+    """
+    if offsets is None or weights is None:
+        fig, axes = _figure(1, 1, cell=(4.0, 1.2))
+        axes[0, 0].axis("off")
+        axes[0, 0].text(0.5, 0.5, "no blur generator in this run (blur off): the camera is sharp", ha="center", va="center", fontsize=9)
+        return fig
+    offsets = np.asarray(offsets, dtype=np.float32)
+    weights = np.asarray(weights, dtype=np.float32)
+    if offsets.ndim != 3 or offsets.shape[2] != 2 or weights.shape != offsets.shape[:2]:
+        raise ValueError(f"kernels_figure expects offsets (M, K, 2) and weights (M, K), got {offsets.shape} and {weights.shape}")
+    M, K = weights.shape
+    extra = frame is not None
+    fig, axes = _figure(1, M + int(extra), cell=(1.9, 2.0))
+    if extra:
+        ax = axes[0, 0]
+        _image_axis(ax, frame, "pixels")
+        if pixels is not None:
+            for m, (x, y) in enumerate(np.asarray(pixels)):
+                ax.plot([x], [y], "o", mfc="none", mec="yellow", ms=7)
+                ax.text(x + 1.0, y - 1.0, str(m), color="yellow", fontsize=7)
+    n = int(round(np.sqrt(K)))
+    grid = np.arange(n) - (n - 1) / 2
+    bound = None if max_offset is None else (n - 1) / 2 + float(max_offset)  # where samples can reach
+    lim = max(float(np.abs(offsets).max()) + 0.6, 1.6, 0.0 if bound is None else bound + 0.3)
+    for m in range(M):
+        ax = axes[0, m + int(extra)]
+        for g in grid:
+            ax.axhline(g, color="0.85", lw=0.5, zorder=0)
+            ax.axvline(g, color="0.85", lw=0.5, zorder=0)
+        if bound is not None:
+            ax.plot([-bound, bound, bound, -bound, -bound], [-bound, -bound, bound, bound, -bound], ls=":", color="0.5", lw=0.8)
+        sc = ax.scatter(offsets[m, :, 0], offsets[m, :, 1], s=600 * weights[m] / max(float(weights.max()), 1e-6) + 2, c=weights[m], cmap="viridis", vmin=0, vmax=1, edgecolors="k", linewidths=0.3)
+        cx, cy = (weights[m][:, None] * offsets[m]).sum(0)
+        ax.plot([cx], [cy], "+", color="red", ms=8)
+        ax.set_xlim(-lim, lim)
+        ax.set_ylim(lim, -lim)
+        ax.set_aspect("equal")
+        ax.tick_params(labelsize=6)
+        title = labels[m] if labels else f"pixel {m}"
+        ax.set_title(f"{title}\ncentre w {weights[m, K // 2]:.2f}", fontsize=7)
+    fig.colorbar(sc, ax=axes[0, -1], shrink=0.8, label="weight").ax.tick_params(labelsize=6)
+    return fig
+
+
+def sweep_figure(images: np.ndarray, evs: Sequence[float], title: str = "EV"):
+    """An exposure (or focus) sweep: ``images (N, H, W, 3)`` in ``[0, 1]`` side by side, each titled
+    with its value in ``evs`` and its share of clipped pixels."""
+    images = np.asarray(images, dtype=np.float32)
+    if images.ndim != 4 or len(evs) != images.shape[0]:
+        raise ValueError(f"sweep_figure expects images (N, H, W, 3) and N values, got {images.shape} and {len(evs)}")
+    fig, axes = _figure(1, images.shape[0], cell=(1.7, 1.9))
+    for j, (img, ev) in enumerate(zip(images, evs)):
+        clipped = float(((img >= 0.99) | (img <= 0.01)).any(-1).mean())
+        _image_axis(axes[0, j], img, f"{title} {float(ev):+.1f}\n{clipped:.0%} clipped")
+    return fig

@@ -1,0 +1,238 @@
+# ---
+# jupyter:
+#   jupytext:
+#     formats: ipynb,py:percent
+#     text_representation:
+#       extension: .py
+#       format_name: percent
+#       format_version: '1.3'
+#   kernelspec:
+#     display_name: Python 3
+#     language: python
+#     name: python3
+# ---
+
+# %% [markdown]
+# # Looking inside a layercam run
+#
+# A trained run is a scene model (one atlas per layer, each with a deformation that maps frames
+# into it, and an alpha matte that composites two layers) seen through an implicit camera (a tone
+# mapper, per-frame exposures and a blur generator). This notebook draws each part:
+#
+# 1. each layer's **atlas** (tonemapped) and how much of it the frames see (**alpha coverage**);
+# 2. the **alpha mattes** over time;
+# 3. the **UV mapping** as a checkerboard warped onto the frames;
+# 4. the per-channel **camera response (CRF)**, against the ground truth when it is known;
+# 5. the **exposures** of the frames;
+# 6. the **blur generator's kernels** at a few pixels;
+# 7. an **exposure sweep** re-rendered through the learned camera.
+#
+# Give a finished run folder in `RUN` (or the environment variable `LAYERCAM_RUN`); left as `None`,
+# the notebook trains a tiny run on a synthetic clip first (about half a minute on a laptop CPU),
+# where the ground truth is known. The tiny run is forced to two layers and a 3x3 blur generator so
+# that every section has something to show; its pictures are 32x32 and its training is short, so
+# expect the shapes, not the quality, of a real run.
+
+# %% tags=["parameters"]
+import os
+
+RUN = os.environ.get("LAYERCAM_RUN") or None  # a finished run folder (holds checkpoint.pt); None: train a tiny one
+CRF_TRUTH = os.environ.get("LAYERCAM_CRF_TRUTH") or None  # a layercam.synth CRF name ("srgb", "mixed", ...) when known
+FIGURE_DIR = os.environ.get("LAYERCAM_FIGURE_DIR") or None  # also save every figure as PNG here
+ATLAS_RES = 96  # atlas sampling grid, texels per side
+SWEEP_EV = [-4, -2, 0, 2, 4]  # exposure sweep, stops from the run's reference exposure
+
+# %%
+# %matplotlib inline
+import json
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+from IPython.display import display
+
+from layercam import render, synth, viz
+from layercam.data import normalise_xy
+
+FIGURES = {}  # name -> figure, in the order drawn
+
+
+def show(name, fig):
+    """Display a figure, keep it in FIGURES and, with FIGURE_DIR, save it as PNG."""
+    FIGURES[name] = fig
+    if FIGURE_DIR:
+        Path(FIGURE_DIR).mkdir(parents=True, exist_ok=True)
+        fig.savefig(Path(FIGURE_DIR) / f"{len(FIGURES):02d}_{name}.png")
+    display(fig)
+
+
+# %% [markdown]
+# ## The run
+#
+# Without a run folder: a synthetic clip (`synth.moving_object`: a textured blob moving on its own
+# over a panning HDR background, alternating exposures, a different S-shaped response per channel)
+# goes through the `hdr-video` pipeline with the fast preset shrunk to a few seconds of training.
+# The exposure ratio is learned (`"alt"` without an EV step), so the exposure plot has something to
+# compare with the truth.
+
+# %%
+scene = None
+if RUN is None:
+    from layercam.config import load_config
+    from layercam.io import parse_exposures
+    from layercam.pipelines.tasks import run_task
+
+    scene = synth.moving_object(frames=6, size=(32, 32), ev_step=2.0, crf="mixed", seed=2)
+    exposures = parse_exposures("alt", scene.clip)  # ratio learned from a measured start
+    tiny = [
+        "train.steps=120", "train.batch=256", "train.bootstrap_steps=20", "train.checkpoint_every=1000",
+        "scene.grid_levels=3", "scene.grid_max_res=32", "scene.atlas_width=16", "scene.deform_width=16",
+        "scene.alpha_width=16", "tone.width=16", "blur.width=16", "blur.depth=2", "flow.method=dis_fast",
+    ]
+    RUN = Path(tempfile.mkdtemp(prefix="layercam_notebook_")) / "run"
+    t0 = time.perf_counter()
+    run_task("hdr-video", scene.clip, exposures, load_config("fast", tiny), RUN,
+             overrides={"layers": 2, "blur": "3x3", "max_offset": 2.0}, progress=False)
+    print(f"trained a tiny run in {time.perf_counter() - t0:.1f} s: {RUN}")
+    CRF_TRUTH = scene.crf
+
+RUN = Path(RUN)
+model, meta = render.load_run_model(RUN)
+report = json.loads((RUN / "report.json").read_text()) if (RUN / "report.json").exists() else {}
+T, (H, W) = int(meta["n_frames"]), tuple(meta["frame_hw"])
+print(f"{RUN}: task {meta.get('task')}, {T} frames of {W}x{H} from {meta.get('source')}")
+for key in ("layers", "tone_mapper", "exposures", "blur", "max_offset", "flow_loss"):
+    print(f"  {key:12s} {model.spec.to_dict()[key]!s:10s} {model.spec.reasons.get(key, '')}")
+if report.get("metrics"):
+    print("  metrics:", report["metrics"])
+
+# %% [markdown]
+# Every frame rendered once: linear HDR with the camera dropped (`what="hdr"`, which also returns
+# each layer's `uv` and the alpha matte) and the frame as the camera would record it
+# (`what="ldr"`, the learned tone mapper at the frame's own exposure, sharp).
+
+# %%
+renders = [render.render_frame(model, t, (H, W)) for t in range(T)]
+hdr = np.stack([r["image"] for r in renders])  # (T, H, W, 3) linear
+uv = np.stack([np.stack(r["uv"]) for r in renders])  # (T, L, H, W, 2)
+alpha = None if renders[0]["alpha"] is None else np.stack([r["alpha"] for r in renders])  # (T, H, W)
+ldr = np.stack([render.render_frame(model, t, (H, W), what="ldr")["image"] for t in range(T)])
+_, display_stats = render.tonemap_display(hdr)  # one tonemap for the whole clip and its atlases
+L = uv.shape[1]
+print(f"{L} layer(s); irradiance {hdr.min():.3g}..{hdr.max():.3g}")
+
+# %% [markdown]
+# ## 1. Atlases and their alpha coverage
+#
+# Each layer's atlas field sampled on a `ATLAS_RES`^2 grid over its `[-1, 1]^2` uv square,
+# tonemapped like the clip. Coverage: the largest opacity with which any frame's pixel lands on a
+# texel (alpha for the foreground, 1 - alpha for the background); texels no frame sees (dark in the
+# coverage map, greyed in the third column) hold whatever the field extrapolates there.
+
+# %%
+g = torch.linspace(-1, 1, ATLAS_RES)
+vv, uu = torch.meshgrid(g, g, indexing="ij")
+uv_grid = torch.stack([uu.flatten(), vv.flatten()], 1)
+with torch.no_grad():
+    atlas_hdr = [torch.exp2(model.scene.atlases[i](uv_grid)).view(ATLAS_RES, ATLAS_RES, 3).numpy() for i in range(L)]
+atlas_img = [render.tonemap_display(a, display_stats)[0] for a in atlas_hdr]
+layer_weight = [np.ones_like(hdr[..., 0])] if alpha is None else [1 - alpha, alpha]
+coverage = [viz.atlas_coverage(uv[:, i], layer_weight[i], res=max(H, W)) for i in range(L)]
+show("atlases", viz.atlas_figure(atlas_img, coverage))
+
+# %% [markdown]
+# ## 2. Alpha mattes over time
+#
+# The foreground's opacity in each frame (white: foreground), under the model's re-render of the
+# frame; with a synthetic clip, a third row shows alpha minus the true object mask (red: alpha too
+# high, blue: too low).
+
+# %%
+truth_mask = None if scene is None or scene.fg_mask is None else scene.fg_mask.astype(np.float32)
+show("alpha_mattes", viz.alpha_figure(alpha, ldr, truth=truth_mask))
+
+# %% [markdown]
+# ## 3. The UV mapping as a warped checkerboard
+#
+# A checkerboard drawn on each atlas, looked up through each frame's uv: blue squares are the
+# background atlas, orange the foreground, mixed by alpha. Squares that travel with the content as
+# the camera pans (and with the object as it moves) mean that the mapping follows the scene.
+
+# %%
+show("uv_checkerboard", viz.uv_checker_figure(ldr, uv, alpha, n=8))
+
+# %% [markdown]
+# ## 4. Camera response per channel
+#
+# The learned tone mapper `T(log2 r + log2 dt)` per channel. The irradiance of a run is known only
+# up to a scale, so a known ground-truth CRF (`synth.crf_apply`) is shifted along the stops axis to
+# fit the learned curve (the shift is printed in the legend); the shaded span is the range of
+# `log2 r + log2 dt` that the clip's pixels actually reach: outside it, the curve is a guess.
+
+# %%
+z = torch.linspace(-12, 12, 241)
+curve = model.tone.curve(z).numpy()
+z_seen = np.log2(np.maximum(hdr, 1e-12)) + model.exposure.values().detach().numpy()[:, None, None, None]
+seen = tuple(np.percentile(z_seen, [1, 99]))
+crf_truth, crf_shift = (None, None)
+if CRF_TRUTH:
+    crf_truth, crf_shift = viz.align_crf(z.numpy(), curve, lambda x: synth.crf_apply(x, CRF_TRUTH))
+show("crf", viz.crf_figure(z.numpy(), curve, crf_truth, crf_shift, data_range=seen))
+
+# %% [markdown]
+# ## 5. Exposures
+#
+# Each frame's log2 exposure as the model uses it, relative to frame 0: learned when the run learns
+# them (here one EV ratio between the two alternating phases, from a start measured on the
+# frames), otherwise the given values; the ground truth when the clip is synthetic.
+
+# %%
+learned_ev = model.exposure.values().detach().numpy()
+truth_ev = None if scene is None else np.log2(scene.exposure_times)
+show("exposures", viz.exposures_figure(learned_ev, given=np.asarray(meta["log2_dt"]), truth=truth_ev, kind=model.exposure.learn))
+
+# %% [markdown]
+# ## 6. The blur generator's kernels
+#
+# `model.blur.kernels(xy, t)` at four pixels of the middle frame: each of the `n x n` samples is a
+# disc at its displacement from the pixel (in pixels; the light grid is the base patch, the dotted
+# square the reach of the learned offsets), its area and colour the sample's weight. A sharp
+# camera keeps nearly all the weight on the centre sample.
+
+# %%
+t_mid = T // 2
+px = np.array([[W // 4, H // 4], [3 * W // 4, H // 4], [W // 4, 3 * H // 4], [3 * W // 4, 3 * H // 4]], dtype=np.float32)
+offsets = weights = None
+if model.blur is not None:
+    xy = normalise_xy(torch.from_numpy(px[:, 0]), torch.from_numpy(px[:, 1]), W, H)
+    with torch.no_grad():
+        offsets, weights = (a.numpy() for a in model.blur.kernels(xy, torch.full((len(px),), t_mid, dtype=torch.long)))
+labels = [f"({x:.0f}, {y:.0f}) frame {t_mid}" for x, y in px]
+show("blur_kernels", viz.kernels_figure(offsets, weights, px, ldr[t_mid], labels, max_offset=float(model.spec.max_offset)))
+
+# %% [markdown]
+# ## 7. Exposure sweep
+#
+# The middle frame re-rendered through the learned tone mapper at `SWEEP_EV` stops from the run's
+# reference exposure (the median of its frames'), the blur dropped: what the camera would have
+# recorded with a shorter or longer exposure. The titles give each image's share of clipped pixels.
+
+# %%
+z0 = float(np.median(learned_ev))
+sweep = np.stack([render.render_frame(model, t_mid, (H, W), what="ldr", log2_dt=z0 + ev)["image"] for ev in SWEEP_EV])
+show("exposure_sweep", viz.sweep_figure(sweep, SWEEP_EV))
+
+# %% [markdown]
+# ## What was drawn
+#
+# The figures above, with a last check that every rendered array is finite and that brighter
+# exposures never give darker pictures (the tone mapper is meant to be monotone).
+
+# %%
+for i, (name, fig) in enumerate(FIGURES.items(), 1):
+    print(f"{i}. {name}: {len(fig.axes)} panels")
+assert list(FIGURES) == ["atlases", "alpha_mattes", "uv_checkerboard", "crf", "exposures", "blur_kernels", "exposure_sweep"]
+assert all(np.isfinite(a).all() for a in (hdr, ldr, uv, sweep, curve, *atlas_hdr))
+assert np.all(np.diff(sweep.mean(axis=(1, 2, 3))) >= -1e-3), "exposure sweep got darker with more exposure"

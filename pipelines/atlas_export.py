@@ -1,0 +1,173 @@
+"""Atlas outputs: what each layer of the scene looks like, and how the frames map into it.
+
+Written into the run folder by :class:`AtlasStage` (after the export stage):
+
+* ``atlases/layer{k}.exr`` — layer k's atlas as linear irradiance, sampled on a ``res x res`` grid of
+  pixel centres over ``uv`` in ``[-1, 1]^2`` (row = v, column = u; ``grid_sample`` with
+  ``align_corners=False``).
+* ``atlases/layer{k}.png`` — the same atlas as the camera would record it at the clip's middle
+  exposure (the learned tone mapper at ``log2_dt_png``), 8-bit RGBA; alpha = coverage, the part of
+  the atlas that some frame maps to (weighted by the layer's visibility). This is the image to paint
+  on for ``layercam edit``: the edit's colours are read back through the inverse of the same camera.
+* ``atlases/layer{k}_uv.mp4`` — each input frame with a checkerboard of the atlas coordinates over
+  the pixels where the layer is seen.
+* ``atlases/layer{k}_alpha.mp4`` (two layers) — the layer's opacity per frame.
+* ``alpha/frame_00000.png`` (two layers) — the foreground's (layer 1) alpha as 8-bit mattes.
+* ``atlases/atlas.json`` — grid sizes, the exposure of the PNGs, file names; ``atlases/key.txt``
+  marks which settings made them (outputs of other settings are moved to ``previous/``).
+"""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import numpy as np
+
+from layercam.errors import LayercamError
+from layercam.pipelines.runner import Stage, write_json
+
+ATLAS_OUTPUTS = ["atlases", "alpha"]
+ATLAS_MIN_RES, ATLAS_MAX_RES = 32, 2048
+
+
+def atlas_resolution(uv: np.ndarray, weight: np.ndarray, lo: int = ATLAS_MIN_RES, hi: int = ATLAS_MAX_RES) -> int:
+    """Atlas grid size at which one frame pixel is about one atlas pixel: from the median spacing of
+    neighbouring pixels' ``uv (H, W, 2)`` where the layer is seen (``weight (H, W)`` > 0.5)."""
+    dx = np.linalg.norm(uv[:, 1:] - uv[:, :-1], axis=-1)
+    dy = np.linalg.norm(uv[1:] - uv[:-1], axis=-1)
+    on_x = (weight[:, 1:] > 0.5) & (weight[:, :-1] > 0.5)
+    on_y = (weight[1:] > 0.5) & (weight[:-1] > 0.5)
+    d = np.concatenate([dx[on_x], dy[on_y]]) if (on_x.sum() + on_y.sum()) > 8 else np.concatenate([dx.ravel(), dy.ravel()])
+    step = float(np.median(d)) if d.size else 2.0 / lo
+    return int(np.clip(np.ceil(2.0 / max(step, 1e-6)), lo, hi))
+
+
+def write_rgba_png(path: Path, rgb: np.ndarray, alpha: np.ndarray) -> None:
+    """8-bit RGBA PNG from ``rgb (H, W, 3)`` and ``alpha (H, W)`` in [0, 1], atomically."""
+    import cv2
+
+    from layercam.io import atomic_write
+
+    q = np.round(np.clip(np.concatenate([rgb[..., ::-1], alpha[..., None]], -1), 0, 1) * 255).astype(np.uint8)
+
+    def _write(tmp: Path) -> None:
+        ok, enc = cv2.imencode(".png", np.ascontiguousarray(q))
+        if not ok:
+            raise LayercamError(f"PNG encoding failed for {path}")
+        enc.tofile(str(tmp))
+
+    atomic_write(Path(path), _write)
+
+
+def png_exposure(model) -> float:
+    """The exposure at which atlas PNGs are rendered and edits are read back: the median of the
+    clip's log2 exposures (the reference exposure of ``layercam render``)."""
+    return float(np.median(model.exposure.values().detach().float().cpu().numpy()))
+
+
+def export_atlases(model, run_dir: Path, frames: np.ndarray, fps: float = 24.0, chunk: int = 65536, progress: bool = False, key: str = "") -> dict:
+    """Writes the files listed in this module's docstring into ``run_dir``; returns a summary."""
+    from layercam.io import write_exr, write_png, write_video
+    from layercam.progress import bar as progress_bar
+    from layercam.render import checker_overlay, layer_weights, render_mappings, sample_atlas, splat_coverage, tone_map_log2
+
+    run_dir = Path(run_dir)
+    T, H, W = frames.shape[:3]
+    L = model.scene.n_layers
+    adir = run_dir / "atlases"
+    adir.mkdir(parents=True, exist_ok=True)
+    uvs: list[list[np.ndarray]] = [[] for _ in range(L)]
+    wts: list[list[np.ndarray]] = [[] for _ in range(L)]
+    overlays: list[list[np.ndarray]] = [[] for _ in range(L)]
+    alphas = []
+    for t in progress_bar(range(T), desc="atlases", unit="frame", enabled=progress):
+        m = render_mappings(model, t, (H, W), chunk)
+        ws = layer_weights(m["alpha"], L, (H, W))
+        if m["alpha"] is not None:
+            alphas.append(m["alpha"])
+        for k in range(L):
+            uvs[k].append(m["uv"][k])
+            wts[k].append(ws[k])
+            overlays[k].append(checker_overlay(frames[t], m["uv"][k], ws[k]))
+    log2_dt = png_exposure(model)
+    mid = T // 2
+    layers = []
+    for k in range(L):
+        res = atlas_resolution(uvs[k][mid], wts[k][mid])
+        log2_r = sample_atlas(model, k, res, chunk)
+        cov = splat_coverage(uvs[k], wts[k], res)
+        write_exr(adir / f"layer{k}.exr", np.exp2(log2_r).astype(np.float32), half=False)
+        write_rgba_png(adir / f"layer{k}.png", tone_map_log2(model, log2_r, log2_dt), cov)
+        write_video(adir / f"layer{k}_uv.mp4", np.stack(overlays[k]), fps=fps)
+        entry = {"layer": k, "res": res, "exr": f"layer{k}.exr", "png": f"layer{k}.png", "uv_video": f"layer{k}_uv.mp4", "coverage": float(cov.mean())}
+        if alphas:
+            write_video(adir / f"layer{k}_alpha.mp4", np.stack(wts[k]), fps=fps)
+            entry["alpha_video"] = f"layer{k}_alpha.mp4"
+        layers.append(entry)
+    if alphas:
+        (run_dir / "alpha").mkdir(exist_ok=True)
+        for t, a in enumerate(alphas):
+            write_png(run_dir / "alpha" / f"frame_{t:05d}.png", a)
+    info = {
+        "layers": layers,
+        "uv_grid": "res x res pixel centres over [-1, 1]^2; row = v, column = u (grid_sample, align_corners=False)",
+        "log2_dt_png": log2_dt,
+        "png_space": "the learned camera (tone mapper) at log2_dt_png; alpha = coverage",
+        "exr_space": "linear irradiance (camera dropped)",
+        "foreground_alpha": "alpha/frame_*.png" if alphas else None,
+        "frames": T,
+        "frame_hw": [H, W],
+    }
+    write_json(adir / "atlas.json", info)
+    (adir / "key.txt").write_text(key)
+    return {"layers": [{k: v for k, v in e.items() if k in ("layer", "res", "coverage")} for e in layers], "alpha_mattes": len(alphas)}
+
+
+def set_aside_atlases(run_dir: Path, key: str, export_key: str, say) -> None:
+    """Outputs of earlier settings are moved to ``previous/<their export key>/`` (where the export
+    stage puts the rest of them), never overwritten; outputs from something else stop the run."""
+    run_dir = Path(run_dir)
+    marker = run_dir / "atlases" / "key.txt"
+    present = [n for n in ATLAS_OUTPUTS if (run_dir / n).exists()]
+    if not present:
+        return
+    if not marker.exists():
+        raise LayercamError(f"{run_dir} already holds {present[0]} from something else; choose another --out")
+    old = marker.read_text().strip()
+    if old == key:
+        return
+    old_export = (run_dir / "atlases" / "export_key.txt")
+    tag = old_export.read_text().strip() if old_export.exists() else f"atlas-{old}"
+    if tag == export_key:  # same export, other atlas settings
+        tag = f"{tag}-atlas-{old}"
+    dest = run_dir / "previous" / tag
+    dest.mkdir(parents=True, exist_ok=True)
+    for n in present:
+        target = dest / n
+        if target.exists():
+            target = dest / f"{n}-{old}"
+        shutil.move(str(run_dir / n), str(target))
+    say(f"settings changed: earlier atlases moved to {dest}")
+
+
+class AtlasStage(Stage):
+    """Per layer the atlas (EXR, PNG with coverage), alpha and UV-overlay videos, alpha mattes."""
+
+    name = "atlas"
+    deps = ("train", "export")
+    version = 1
+
+    def key_material(self, ctx):
+        return {"min_res": ATLAS_MIN_RES, "max_res": ATLAS_MAX_RES, "chunk": ctx.cfg.export.chunk}
+
+    def run(self, ctx, out):
+        from layercam.pipelines.stages import load_trained
+
+        key = ctx.keys[self.name]
+        set_aside_atlases(ctx.run_dir, key, ctx.keys.get("export", ""), ctx.say)
+        model, _ = load_trained(ctx)
+        fps = ctx.cfg.export.preview_fps or float(ctx.clip.fps or 24.0)
+        summary = export_atlases(model, ctx.run_dir, ctx.clip.frames, fps=fps, chunk=ctx.cfg.export.chunk, progress=ctx.progress, key=key)
+        (ctx.run_dir / "atlases" / "export_key.txt").write_text(ctx.keys.get("export", ""))
+        return summary

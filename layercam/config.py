@@ -61,6 +61,7 @@ class BlurConfig:
     max_offset: float = 5.0
     width: int = 64
     depth: int = 4
+    init_centre_weight: float = 0.2  # start blurry: a near-sharp start (0.9) lets the scene absorb the blur
 
 
 @dataclass

@@ -31,7 +31,7 @@ class ImplicitCameraModel(nn.Module):
         if spec.blur != "off":
             from layercam.camera.blur import BlurGenerator
 
-            self.blur = BlurGenerator(spec.blur_n, spec.max_offset, h0.shape[1], frame_hw, cfg.blur.width, cfg.blur.depth)
+            self.blur = BlurGenerator(spec.blur_n, spec.max_offset, h0.shape[1], frame_hw, cfg.blur.width, cfg.blur.depth, init_centre_weight=cfg.blur.init_centre_weight)
         lc = cfg.loss
         self.weights = {
             "color": lc.color,

@@ -6,8 +6,9 @@ Agg backend and in headless kernels; Jupyter displays the returned figure, a scr
 ``fig.savefig(path)``. The arrays come from the library (``layercam.render``, the model's own
 modules); nothing here re-implements the model.
 
-Shapes: frames ``(T, H, W, 3)`` in ``[0, 1]``; alpha ``(T, H, W)``; uv ``(T, L, H, W, 2)`` in the
-atlas's ``[-1, 1]^2``; a CRF curve ``(K, 3)`` over ``z (K,)`` stops (``z = log2 r + log2 dt``).
+Shapes: frames ``(T, H, W, 3)`` in ``[0, 1]``; alpha ``(T, H, W)``; atlases ``(R, R, 3)`` over
+``uv`` in ``[-1, 1]^2`` (row = v, column = u, as :func:`layercam.render.sample_atlas`); a CRF
+curve ``(K, 3)`` over ``z (K,)`` stops (``z = log2 r + log2 dt``).
 
 Example:
     >>> import numpy as np
@@ -24,9 +25,6 @@ import numpy as np
 
 __all__ = [
     "LAYER_NAMES",
-    "atlas_coverage",
-    "checkerboard",
-    "uv_overlay",
     "align_crf",
     "atlas_figure",
     "alpha_figure",
@@ -38,7 +36,6 @@ __all__ = [
 ]
 
 LAYER_NAMES = ("background", "foreground")
-_CHECK_COLOURS = (np.array([0.15, 0.35, 0.95]), np.array([0.98, 0.55, 0.1]))  # per layer
 
 
 def _figure(nrows: int, ncols: int, cell: tuple[float, float] = (2.2, 2.2), squeeze: bool = False, **kw):
@@ -70,40 +67,6 @@ def _layer_name(i: int, n_layers: int) -> str:
 
 
 # -- arrays ----------------------------------------------------------------------------------------
-def checkerboard(uv: np.ndarray, n: int = 8) -> np.ndarray:
-    """``uv (..., 2)`` in ``[-1, 1]`` -> ``(...)`` float ``{0, 1}``: an ``n x n`` checkerboard over the atlas."""
-    uv = np.asarray(uv, dtype=np.float64)
-    if uv.shape[-1] != 2:
-        raise ValueError(f"checkerboard expects uv (..., 2), got {uv.shape}")
-    if n < 1:
-        raise ValueError(f"checkerboard needs n >= 1 squares, got {n}")
-    cells = np.floor((uv + 1.0) * 0.5 * n).astype(np.int64)
-    return ((cells[..., 0] + cells[..., 1]) % 2).astype(np.float32)
-
-
-def uv_overlay(frame: np.ndarray, uv: np.ndarray, alpha: np.ndarray | None = None, n: int = 8, mix: float = 0.5) -> np.ndarray:
-    """Each layer's atlas checkerboard warped onto ``frame (H, W, 3)``: ``(H, W, 3)`` in ``[0, 1]``.
-
-    ``uv (L, H, W, 2)`` are the layers' atlas coordinates at each pixel; layer 0's squares are blue,
-    layer 1's orange, composited with ``alpha (H, W)`` (the foreground's opacity) as the scene is.
-    ``mix`` is the checkerboard's share against the frame.
-    """
-    frame = np.asarray(frame, dtype=np.float32)
-    uv = np.asarray(uv)
-    if uv.ndim != 4 or uv.shape[1:3] != frame.shape[:2]:
-        raise ValueError(f"uv_overlay expects uv (L, H, W, 2) matching frame {frame.shape[:2]}, got {uv.shape}")
-    layers = []
-    for i in range(uv.shape[0]):
-        c = checkerboard(uv[i], n)[..., None]
-        col = _CHECK_COLOURS[i % len(_CHECK_COLOURS)]
-        layers.append(c * col + (1 - c) * np.ones(3))
-    pattern = layers[0]
-    if len(layers) > 1:
-        a = np.zeros(frame.shape[:2], np.float32) if alpha is None else np.asarray(alpha, dtype=np.float32)
-        pattern = a[..., None] * layers[1] + (1 - a[..., None]) * layers[0]
-    return np.clip((1 - mix) * frame + mix * pattern, 0, 1).astype(np.float32)
-
-
 def align_crf(z: np.ndarray, curve: np.ndarray, truth: Callable[[np.ndarray], np.ndarray], search: float = 24.0, step: float = 0.05) -> tuple[np.ndarray, np.ndarray]:
     """A ground-truth CRF in the learned curve's units: ``(truth_curve (K, 3), shift (3,) stops)``.
 
@@ -132,65 +95,54 @@ def align_crf(z: np.ndarray, curve: np.ndarray, truth: Callable[[np.ndarray], np
     return np.asarray(truth(x), dtype=np.float64).reshape(len(z), 3), best
 
 
-def atlas_coverage(uv: np.ndarray, weight: np.ndarray | None = None, res: int = 32) -> np.ndarray:
-    """How much of an atlas the frames see: ``(res, res)`` in ``[0, 1]``, rows along ``v``.
-
-    ``uv (..., 2)`` in ``[-1, 1]`` (a layer's atlas coordinates at every pixel of every frame) and
-    ``weight (...)`` (that layer's opacity at the pixel: ``alpha`` for the foreground, ``1 - alpha``
-    for the background; 1 when None). Each texel holds the largest weight that lands in it, so
-    that ``res`` about the frames' size in pixels leaves no holes between neighbouring pixels.
-    """
-    uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
-    w = np.ones(len(uv)) if weight is None else np.asarray(weight, dtype=np.float64).reshape(-1)
-    if len(w) != len(uv):
-        raise ValueError(f"atlas_coverage: {len(uv)} uv points but {len(w)} weights")
-    ij = np.floor((uv + 1.0) * 0.5 * res).astype(np.int64)
-    ok = np.isfinite(uv).all(1) & (ij >= 0).all(1) & (ij < res).all(1)
-    cov = np.zeros(res * res)
-    np.maximum.at(cov, ij[ok, 1] * res + ij[ok, 0], np.clip(w[ok], 0, 1))
-    return cov.reshape(res, res).astype(np.float32)
-
-
-def _coverage_ok(coverage) -> bool:
-    return coverage is not None and len(coverage) > 0
-
-
 # -- figures ---------------------------------------------------------------------------------------
-def atlas_figure(atlases: Sequence[np.ndarray], coverage: Sequence[np.ndarray] | None = None, extent: tuple[float, float, float, float] = (-1, 1, 1, -1), titles: Sequence[str] | None = None):
-    """Each layer's atlas: one row per layer, columns atlas | coverage | atlas where covered.
+def atlas_figure(atlases: Sequence[np.ndarray], coverage: Sequence[np.ndarray] | None = None, camera: Sequence[np.ndarray] | None = None, titles: Sequence[str] | None = None):
+    """Each layer's atlas over its ``[-1, 1]^2`` uv square, one row per layer.
 
-    ``atlases``: per layer an ``(R, R, 3)`` display image in ``[0, 1]`` (tonemapped irradiance sampled
-    on a uv grid). ``coverage``: per layer ``(R, R)`` in ``[0, 1]``, how much of each atlas texel the
-    frames see (the foreground weighted by alpha), or None for the atlas alone.
+    Columns: ``atlases`` (per layer an ``(R, R, 3)`` display image in ``[0, 1]``, e.g. the linear
+    atlas through :func:`layercam.render.tonemap_display`); ``coverage`` (per layer ``(R', R')`` in
+    ``[0, 1]``, the part of the atlas that some frame sees, :func:`layercam.render.splat_coverage`);
+    ``camera`` (per layer ``(R, R, 3)``, the atlas as the camera records it, greyed where
+    ``coverage`` is 0: what ``atlases/layer{k}.png`` holds). Absent columns are left out.
     """
     n = len(atlases)
     if n == 0:
         raise ValueError("atlas_figure needs at least one atlas")
-    has_cov = _coverage_ok(coverage)
-    if has_cov and len(coverage) != n:
-        raise ValueError(f"atlas_figure: {n} atlases but {len(coverage)} coverage maps")
-    cols = 3 if has_cov else 1
-    fig, axes = _figure(n, cols, cell=(2.6, 2.6))
+    for name, arr in (("coverage", coverage), ("camera", camera)):
+        if arr is not None and len(arr) != n:
+            raise ValueError(f"atlas_figure: {n} atlases but {len(arr)} {name} images")
+    cols = 1 + (coverage is not None) + (camera is not None)
+    fig, axes = _figure(n, cols, cell=(2.6, 2.5))
+    ext = (-1, 1, 1, -1)  # row = v (downwards), column = u
     for i in range(n):
         name = titles[i] if titles else _layer_name(i, n)
-        img = np.clip(np.asarray(atlases[i], dtype=np.float32), 0, 1)
-        ax = axes[i, 0]
-        ax.imshow(img, extent=extent, interpolation="nearest")
-        ax.set_title(f"{name} atlas", fontsize=8)
-        ax.set_xlabel("u", fontsize=7)
-        ax.set_ylabel("v", fontsize=7)
-        ax.tick_params(labelsize=6)
-        if has_cov:
+        panels = [(f"{name} atlas (tonemapped)", np.clip(np.asarray(atlases[i], dtype=np.float32), 0, 1), {})]
+        cov = None
+        if coverage is not None:
             cov = np.clip(np.asarray(coverage[i], dtype=np.float32), 0, 1)
-            im = axes[i, 1].imshow(cov, extent=extent, cmap="magma", vmin=0, vmax=1, interpolation="nearest")
-            axes[i, 1].set_title(f"{name}: alpha coverage", fontsize=8)
-            axes[i, 1].tick_params(labelsize=6)
-            fig.colorbar(im, ax=axes[i, 1], shrink=0.8).ax.tick_params(labelsize=6)
-            shown = img * cov[..., None] + 0.5 * (1 - cov[..., None]) * (img.mean(-1, keepdims=True) * 0.3 + 0.35)
-            axes[i, 2].imshow(np.clip(shown, 0, 1), extent=extent, interpolation="nearest")
-            axes[i, 2].set_title(f"{name}: seen part ({(cov > 0.05).mean():.0%} of atlas)", fontsize=8)
-            axes[i, 2].tick_params(labelsize=6)
+            panels.append((f"{name}: coverage {cov.mean():.0%}", cov, {"cmap": "magma", "vmin": 0, "vmax": 1}))
+        if camera is not None:
+            img = np.clip(np.asarray(camera[i], dtype=np.float32), 0, 1)
+            if cov is not None:
+                c = _resize_nearest(cov, img.shape[:2])[..., None]
+                img = img * c + (1 - c) * (0.25 + 0.25 * img.mean(-1, keepdims=True))
+            panels.append((f"{name} through the camera", img, {}))
+        for j, (title, img, kw) in enumerate(panels):
+            ax = axes[i, j]
+            ax.imshow(img, extent=ext, interpolation="nearest", **kw)
+            ax.set_title(title, fontsize=8)
+            ax.set_xlabel("u", fontsize=7, labelpad=1)
+            ax.set_ylabel("v", fontsize=7, labelpad=1)
+            ax.tick_params(labelsize=6)
     return fig
+
+
+def _resize_nearest(img: np.ndarray, hw: tuple[int, int]) -> np.ndarray:
+    """``(h, w)`` -> ``(H, W)`` by nearest texel (coverage and atlas grids may differ in size)."""
+    h, w = img.shape[:2]
+    ys = np.minimum((np.arange(hw[0]) + 0.5) * h / hw[0], h - 1).astype(int)
+    xs = np.minimum((np.arange(hw[1]) + 0.5) * w / hw[1], w - 1).astype(int)
+    return img[ys][:, xs]
 
 
 def alpha_figure(alpha: np.ndarray | None, frames: np.ndarray | None = None, max_frames: int = 6, truth: np.ndarray | None = None):
@@ -221,28 +173,25 @@ def alpha_figure(alpha: np.ndarray | None, frames: np.ndarray | None = None, max
     return fig
 
 
-def uv_checker_figure(frames: np.ndarray, uv: np.ndarray, alpha: np.ndarray | None = None, n: int = 8, max_frames: int = 6):
-    """The UV mapping: each layer's atlas checkerboard warped onto the frames.
+def uv_checker_figure(overlays: Sequence[np.ndarray], frame_index: Sequence[int] | None = None, max_frames: int = 6):
+    """The UV mapping: per layer, a checkerboard over its atlas warped onto the frames.
 
-    ``uv (T, L, H, W, 2)``. Row 1: the composite overlay (blue squares: background atlas, orange:
-    foreground, mixed by ``alpha (T, H, W)``); then one row per layer with that layer's squares
-    alone. Squares that stay put on the scene content while the camera moves mean the mapping
-    follows the content.
+    ``overlays``: per layer ``(T, H, W, 3)`` frames with the checkerboard drawn where the layer is
+    seen (:func:`layercam.render.checker_overlay`: squares coloured by ``(u, v)``, the frame
+    darkened elsewhere). One row per layer, up to ``max_frames`` frames spread over the clip.
+    Squares that travel with the content (and with the object as it moves) mean that the mapping
+    follows the scene.
     """
-    frames = np.asarray(frames, dtype=np.float32)
-    uv = np.asarray(uv)
-    if uv.ndim != 5 or uv.shape[0] != frames.shape[0]:
-        raise ValueError(f"uv_checker_figure expects uv (T, L, H, W, 2) for {frames.shape[0]} frames, got {uv.shape}")
-    L = uv.shape[1]
-    idx = _pick(frames.shape[0], max_frames)
-    rows = 1 + (L if L > 1 else 0)
-    fig, axes = _figure(rows, len(idx), cell=(1.8, 1.8))
-    for j, t in enumerate(idx):
-        a = None if alpha is None else alpha[t]
-        _image_axis(axes[0, j], uv_overlay(frames[t], uv[t], a, n), f"frame {t}: uv checker")
-        if L > 1:
-            for i in range(L):
-                _image_axis(axes[1 + i, j], uv_overlay(frames[t], uv[t][i : i + 1], None, n), f"{_layer_name(i, L)} uv")
+    L = len(overlays)
+    if L == 0:
+        raise ValueError("uv_checker_figure needs at least one layer")
+    T = np.asarray(overlays[0]).shape[0]
+    idx = _pick(T, max_frames)
+    fig, axes = _figure(L, len(idx), cell=(1.8, 1.9))
+    for i in range(L):
+        for j, t in enumerate(idx):
+            label = t if frame_index is None else frame_index[t]
+            _image_axis(axes[i, j], overlays[i][t], f"{_layer_name(i, L)}, frame {label}")
     return fig
 
 

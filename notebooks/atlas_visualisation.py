@@ -39,7 +39,7 @@ import os
 RUN = os.environ.get("LAYERCAM_RUN") or None  # a finished run folder (holds checkpoint.pt); None: train a tiny one
 CRF_TRUTH = os.environ.get("LAYERCAM_CRF_TRUTH") or None  # a layercam.synth CRF name ("srgb", "mixed", ...) when known
 FIGURE_DIR = os.environ.get("LAYERCAM_FIGURE_DIR") or None  # also save every figure as PNG here
-ATLAS_RES = 96  # atlas sampling grid, texels per side
+ATLAS_RES = None  # atlas grid, texels per side; None: about one texel per frame pixel, as the run's atlases/
 SWEEP_EV = [-4, -2, 0, 2, 4]  # exposure sweep, stops from the run's reference exposure
 
 # %%
@@ -55,6 +55,7 @@ from IPython.display import display
 
 from layercam import render, synth, viz
 from layercam.data import normalise_xy
+from layercam.pipelines.atlas_export import atlas_resolution, png_exposure
 
 FIGURES = {}  # name -> figure, in the order drawn
 
@@ -84,6 +85,7 @@ if RUN is None:
     from layercam.io import parse_exposures
     from layercam.pipelines.tasks import run_task
 
+    torch.set_num_threads(1)  # tensors this small gain nothing from threads, and a busy machine punishes them
     scene = synth.moving_object(frames=6, size=(32, 32), ev_step=2.0, crf="mixed", seed=2)
     exposures = parse_exposures("alt", scene.clip)  # ratio learned from a measured start
     tiny = [
@@ -116,31 +118,33 @@ if report.get("metrics"):
 # %%
 renders = [render.render_frame(model, t, (H, W)) for t in range(T)]
 hdr = np.stack([r["image"] for r in renders])  # (T, H, W, 3) linear
-uv = np.stack([np.stack(r["uv"]) for r in renders])  # (T, L, H, W, 2)
+uv = [np.stack([r["uv"][k] for r in renders]) for k in range(model.scene.n_layers)]  # per layer (T, H, W, 2)
 alpha = None if renders[0]["alpha"] is None else np.stack([r["alpha"] for r in renders])  # (T, H, W)
 ldr = np.stack([render.render_frame(model, t, (H, W), what="ldr")["image"] for t in range(T)])
+L = len(uv)
+visible = [np.stack(w) for w in zip(*(render.layer_weights(None if alpha is None else alpha[t], L, (H, W)) for t in range(T)))]
 _, display_stats = render.tonemap_display(hdr)  # one tonemap for the whole clip and its atlases
-L = uv.shape[1]
 print(f"{L} layer(s); irradiance {hdr.min():.3g}..{hdr.max():.3g}")
 
 # %% [markdown]
 # ## 1. Atlases and their alpha coverage
 #
-# Each layer's atlas field sampled on a `ATLAS_RES`^2 grid over its `[-1, 1]^2` uv square,
-# tonemapped like the clip. Coverage: the largest opacity with which any frame's pixel lands on a
-# texel (alpha for the foreground, 1 - alpha for the background); texels no frame sees (dark in the
-# coverage map, greyed in the third column) hold whatever the field extrapolates there.
+# Each layer's atlas field sampled on a grid over its `[-1, 1]^2` uv square (as `atlases/` of the
+# run holds it, at about one atlas texel per frame pixel), shown three ways: tonemapped like the
+# HDR preview; its coverage, the part some frame sees with the layer's opacity (alpha for the
+# foreground, 1 - alpha for the background); and through the learned camera at the reference
+# exposure, greyed where no frame looks (there the field only extrapolates).
 
 # %%
-g = torch.linspace(-1, 1, ATLAS_RES)
-vv, uu = torch.meshgrid(g, g, indexing="ij")
-uv_grid = torch.stack([uu.flatten(), vv.flatten()], 1)
-with torch.no_grad():
-    atlas_hdr = [torch.exp2(model.scene.atlases[i](uv_grid)).view(ATLAS_RES, ATLAS_RES, 3).numpy() for i in range(L)]
-atlas_img = [render.tonemap_display(a, display_stats)[0] for a in atlas_hdr]
-layer_weight = [np.ones_like(hdr[..., 0])] if alpha is None else [1 - alpha, alpha]
-coverage = [viz.atlas_coverage(uv[:, i], layer_weight[i], res=max(H, W)) for i in range(L)]
-show("atlases", viz.atlas_figure(atlas_img, coverage))
+ref_ev = png_exposure(model)  # the median of the frames' log2 exposures
+atlas_img, camera_img, coverage = [], [], []
+for k in range(L):
+    res = ATLAS_RES or atlas_resolution(uv[k][T // 2], visible[k][T // 2])
+    log2_atlas = render.sample_atlas(model, k, res)  # (res, res, 3)
+    atlas_img.append(render.tonemap_display(np.exp2(log2_atlas), display_stats)[0])
+    camera_img.append(render.tone_map_log2(model, log2_atlas, ref_ev))
+    coverage.append(render.splat_coverage(list(uv[k]), list(visible[k]), res))
+show("atlases", viz.atlas_figure(atlas_img, coverage, camera_img))
 
 # %% [markdown]
 # ## 2. Alpha mattes over time
@@ -156,12 +160,14 @@ show("alpha_mattes", viz.alpha_figure(alpha, ldr, truth=truth_mask))
 # %% [markdown]
 # ## 3. The UV mapping as a warped checkerboard
 #
-# A checkerboard drawn on each atlas, looked up through each frame's uv: blue squares are the
-# background atlas, orange the foreground, mixed by alpha. Squares that travel with the content as
-# the camera pans (and with the object as it moves) mean that the mapping follows the scene.
+# A checkerboard drawn on each atlas (squares coloured by their `(u, v)`), looked up through each
+# frame's mapping and laid over the frame where the layer is seen (elsewhere the frame is
+# darkened); one row per layer. Squares that travel with the content as the camera pans, and with
+# the object as it moves, mean that the mapping follows the scene.
 
 # %%
-show("uv_checkerboard", viz.uv_checker_figure(ldr, uv, alpha, n=8))
+overlays = [np.stack([render.checker_overlay(ldr[t], uv[k][t], visible[k][t], cells=8) for t in range(T)]) for k in range(L)]
+show("uv_checkerboard", viz.uv_checker_figure(overlays))
 
 # %% [markdown]
 # ## 4. Camera response per channel
@@ -174,12 +180,12 @@ show("uv_checkerboard", viz.uv_checker_figure(ldr, uv, alpha, n=8))
 # %%
 z = torch.linspace(-12, 12, 241)
 curve = model.tone.curve(z).numpy()
-z_seen = np.log2(np.maximum(hdr, 1e-12)) + model.exposure.values().detach().numpy()[:, None, None, None]
-seen = tuple(np.percentile(z_seen, [1, 99]))
+z_clip = np.log2(np.maximum(hdr, 1e-12)) + model.exposure.values().detach().numpy()[:, None, None, None]
+z_range = tuple(np.percentile(z_clip, [1, 99]))
 crf_truth, crf_shift = (None, None)
 if CRF_TRUTH:
     crf_truth, crf_shift = viz.align_crf(z.numpy(), curve, lambda x: synth.crf_apply(x, CRF_TRUTH))
-show("crf", viz.crf_figure(z.numpy(), curve, crf_truth, crf_shift, data_range=seen))
+show("crf", viz.crf_figure(z.numpy(), curve, crf_truth, crf_shift, data_range=z_range))
 
 # %% [markdown]
 # ## 5. Exposures
@@ -216,12 +222,11 @@ show("blur_kernels", viz.kernels_figure(offsets, weights, px, ldr[t_mid], labels
 # ## 7. Exposure sweep
 #
 # The middle frame re-rendered through the learned tone mapper at `SWEEP_EV` stops from the run's
-# reference exposure (the median of its frames'), the blur dropped: what the camera would have
+# reference exposure (`ref_ev`, the median of its frames'), the blur dropped: what the camera would have
 # recorded with a shorter or longer exposure. The titles give each image's share of clipped pixels.
 
 # %%
-z0 = float(np.median(learned_ev))
-sweep = np.stack([render.render_frame(model, t_mid, (H, W), what="ldr", log2_dt=z0 + ev)["image"] for ev in SWEEP_EV])
+sweep = np.stack([render.render_frame(model, t_mid, (H, W), what="ldr", log2_dt=ref_ev + ev)["image"] for ev in SWEEP_EV])
 show("exposure_sweep", viz.sweep_figure(sweep, SWEEP_EV))
 
 # %% [markdown]
@@ -234,5 +239,5 @@ show("exposure_sweep", viz.sweep_figure(sweep, SWEEP_EV))
 for i, (name, fig) in enumerate(FIGURES.items(), 1):
     print(f"{i}. {name}: {len(fig.axes)} panels")
 assert list(FIGURES) == ["atlases", "alpha_mattes", "uv_checkerboard", "crf", "exposures", "blur_kernels", "exposure_sweep"]
-assert all(np.isfinite(a).all() for a in (hdr, ldr, uv, sweep, curve, *atlas_hdr))
+assert all(np.isfinite(a).all() for a in (hdr, ldr, sweep, curve, *uv, *atlas_img, *camera_img, *coverage))
 assert np.all(np.diff(sweep.mean(axis=(1, 2, 3))) >= -1e-3), "exposure sweep got darker with more exposure"

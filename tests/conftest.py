@@ -44,3 +44,21 @@ def tiny_exposures(tiny_scene):
 
     log2 = np.log2(tiny_scene.exposure_times / tiny_scene.exposure_times.min())
     return Exposures(log2, "none", (np.arange(len(log2)) % 2), "alt", "test: known")
+
+
+@pytest.fixture(scope="session")
+def two_layer_run(tmp_path_factory):
+    """A tiny two-layer hdr-video run on ``synth.moving_object`` (48x48, 6 frames) with the foreground
+    found by motion segmentation (no masks given); shared by tests/test_layers.py and test_edit.py."""
+    from layercam import synth
+    from layercam.config import load_config
+    from layercam.io import Exposures
+    from layercam.pipelines.tasks import run_task
+
+    scene = synth.moving_object(frames=6, size=(48, 48), seed=0, object_radius=0.25)
+    log2 = np.log2(scene.exposure_times / scene.exposure_times.min())
+    exposures = Exposures(log2, "none", (np.arange(len(log2)) % 2), "alt", "test: known")
+    run = tmp_path_factory.mktemp("layers") / "run"
+    cfg = load_config("fast", TINY + ["train.steps=120", "train.bootstrap_steps=50"])
+    ctx = run_task("hdr-video", scene.clip, exposures, cfg, run, {"layers": 2}, progress=False)
+    return {"scene": scene, "run": run, "ctx": ctx, "exposures": exposures, "cfg": cfg}

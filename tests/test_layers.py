@@ -1,0 +1,101 @@
+"""Two-layer scenes: the foreground found without a detector, alpha separating it, atlas outputs."""
+
+from __future__ import annotations
+
+import copy
+import json
+import shutil
+
+import numpy as np
+import torch
+
+from layercam import metrics
+from layercam.io import read_exr, read_image, read_video
+
+
+def test_two_layer_run_separates_the_moving_object(two_layer_run):
+    scene, run, ctx = two_layer_run["scene"], two_layer_run["run"], two_layer_run["ctx"]
+    T = scene.clip.T
+    rep = json.loads((run / "report.json").read_text())
+    assert rep["analysis"]["layers"] == 2
+    fl = rep["train"]["final_loss"]
+    assert all(np.isfinite(v) for v in fl.values()) and rep["train"]["bad_steps"] == 0
+    # no --masks: the bootstrap computed motion masks and kept them in its cache folder
+    boot = ctx.dirs["bootstrap"]
+    assert ctx.results["bootstrap"]["foreground"]["masks"] == "motion segmentation"
+    assert (boot / "masks.npz").is_file() and len(list((boot / "masks").glob("frame_*.png"))) == T
+    for t in range(T):
+        hdr = read_exr(run / "hdr" / f"frame_{t:05d}.exr")
+        assert np.isfinite(hdr).all() and (hdr >= 0).all()
+    # alpha mattes: one 8-bit PNG per frame, and they find the object
+    mattes = sorted((run / "alpha").glob("frame_*.png"))
+    assert len(mattes) == T
+    ious = [metrics.iou(read_image(p)[..., 0] > 0.5, scene.fg_mask[t]) for t, p in enumerate(mattes)]
+    assert np.mean(ious) > 0.5, ious
+
+
+def test_atlas_outputs_per_layer(two_layer_run):
+    run, T = two_layer_run["run"], two_layer_run["scene"].clip.T
+    import cv2
+
+    info = json.loads((run / "atlases" / "atlas.json").read_text())
+    assert [e["layer"] for e in info["layers"]] == [0, 1]
+    for e in info["layers"]:
+        k, res = e["layer"], e["res"]
+        exr = read_exr(run / "atlases" / f"layer{k}.exr")
+        assert exr.shape == (res, res, 3) and np.isfinite(exr).all() and (exr > 0).all()
+        png = cv2.imread(str(run / "atlases" / f"layer{k}.png"), cv2.IMREAD_UNCHANGED)
+        assert png.shape == (res, res, 4)
+        cov = png[..., 3] > 127
+        assert 0.02 < cov.mean() < 1.0, (k, cov.mean())  # frames cover part of the atlas, not all of it
+        for name in (f"layer{k}_uv.mp4", f"layer{k}_alpha.mp4"):
+            frames, _ = read_video(run / "atlases" / name)
+            assert len(frames) == T
+    # the foreground atlas is covered where the object maps, i.e. much less than the background's
+    assert info["layers"][1]["coverage"] < info["layers"][0]["coverage"]
+
+
+def test_changed_export_setting_sets_earlier_atlases_aside(two_layer_run, tmp_path):
+    from layercam.pipelines.tasks import run_task
+
+    run = tmp_path / "run"
+    shutil.copytree(two_layer_run["run"], run)
+    old_key = (run / "atlases" / "key.txt").read_text()
+    cfg = copy.deepcopy(two_layer_run["cfg"])
+    cfg.export.half = False
+    ctx = run_task("hdr-video", two_layer_run["scene"].clip, two_layer_run["exposures"], cfg, run, {"layers": 2}, progress=False)
+    assert ctx.times["train"]["cached"] and not ctx.times["atlas"]["cached"]
+    assert (run / "atlases" / "key.txt").read_text() != old_key
+    kept = list((run / "previous").glob("*/atlases/key.txt"))
+    assert kept and kept[0].read_text() == old_key
+    assert len(list(kept[0].parent.parent.glob("alpha/frame_*.png"))) == two_layer_run["scene"].clip.T
+
+
+def test_one_layer_atlas_export_has_no_alpha(tmp_path):
+    from layercam.config import load_config
+    from layercam.pipelines.atlas_export import export_atlases
+    from layercam.render import build_model
+    from layercam.spec import ModelSpec
+
+    cfg = load_config("fast", ["scene.grid_levels=2", "scene.grid_max_res=16"])
+    h0 = np.stack([np.stack([np.eye(3, dtype=np.float32) * [0.8, 0.8, 1]] * 3)])
+    model = build_model(cfg, ModelSpec(layers=1, tone_mapper="fixed"), {"h0": h0, "log2_dt": np.zeros(3, np.float32), "init_log2": -2.0, "frame_hw": (16, 16)})
+    frames = np.random.default_rng(0).uniform(0, 1, (3, 16, 16, 3)).astype(np.float32)
+    summary = export_atlases(model, tmp_path, frames, fps=10)
+    assert [e["layer"] for e in summary["layers"]] == [0] and summary["alpha_mattes"] == 0
+    assert (tmp_path / "atlases" / "layer0.exr").is_file() and (tmp_path / "atlases" / "layer0_uv.mp4").is_file()
+    assert not (tmp_path / "alpha").exists() and not (tmp_path / "atlases" / "layer0_alpha.mp4").exists()
+    # identity mapping scaled by 0.8: frames cover the middle 80% of the atlas
+    cov = summary["layers"][0]["coverage"]
+    assert 0.5 < cov < 0.8
+
+
+def test_flow_loss_counts_each_layer_where_it_is_seen():
+    from layercam.model import ImplicitCameraModel
+
+    ok = torch.tensor([True, True, False])
+    alpha = torch.tensor([[0.0], [0.75], [1.0]])
+    w = ImplicitCameraModel._layer_flow_weights({"alpha": alpha, "uv": [None, None]}, ok)
+    assert torch.allclose(w[0], torch.tensor([1.0, 0.25, 0.0])) and torch.allclose(w[1], torch.tensor([0.0, 0.75, 0.0]))
+    one = ImplicitCameraModel._layer_flow_weights({"alpha": None, "uv": [None]}, ok)
+    assert len(one) == 1 and torch.equal(one[0], ok)

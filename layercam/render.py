@@ -64,7 +64,7 @@ def tonemap_display(hdr: np.ndarray, stats: dict | None = None) -> tuple[np.ndar
         white = float(np.percentile(lum_f, 99.9)) / max(lavg, 1e-12) * 0.18 if lum_f.size else 1.0
         stats = {"log_avg": lavg, "white": max(white, 1e-3)}
     scale = 0.18 / max(stats["log_avg"], 1e-12)
-    l = lum * scale
+    l = np.minimum(lum * scale, 1e15)  # guard: l * l below overflows float32 past ~1e19 (NaN -> black)
     ld = l * (1 + l / stats["white"] ** 2) / (1 + l)
     ratio = np.where(lum > 1e-12, ld / np.maximum(lum, 1e-12), 0.0)
     out = np.clip(hdr * ratio[..., None], 0, 1)
@@ -182,17 +182,26 @@ def splat_coverage(uvs: list[np.ndarray], weights: list[np.ndarray], res: int, m
     ``uvs[i] (H, W, 2)`` and ``weights[i] (H, W)`` per frame (the layer's visibility); a pixel of the
     atlas is covered when the summed weight landing in it reaches ``min_weight``. Small gaps (atlas
     finer than the frames) are closed morphologically."""
-    import cv2
-
     acc = np.zeros(res * res, np.float64)
     for uv, w in zip(uvs, weights):
-        ij = np.floor((uv.reshape(-1, 2) + 1.0) * 0.5 * res).astype(np.int64)
-        wt = w.reshape(-1).astype(np.float64)
-        ok = (ij >= 0).all(1) & (ij < res).all(1) & (wt > 1e-3)
-        np.add.at(acc, ij[ok, 1] * res + ij[ok, 0], wt[ok])
+        splat_add(acc, uv, w, res)
+    return coverage_from_splat(acc, res, min_weight)
+
+
+def splat_add(acc: np.ndarray, uv: np.ndarray, weight: np.ndarray, res: int) -> None:
+    """Adds one frame's ``weight (H, W)`` at its atlas coordinates ``uv (H, W, 2)`` into ``acc (res*res,)``."""
+    ij = np.floor((uv.reshape(-1, 2) + 1.0) * 0.5 * res).astype(np.int64)
+    wt = weight.reshape(-1).astype(np.float64)
+    ok = (ij >= 0).all(1) & (ij < res).all(1) & (wt > 1e-3)
+    acc += np.bincount(ij[ok, 1] * res + ij[ok, 0], weights=wt[ok], minlength=res * res)
+
+
+def coverage_from_splat(acc: np.ndarray, res: int, min_weight: float = 0.5) -> np.ndarray:
+    """``acc`` of :func:`splat_add` -> coverage ``(res, res)`` in {0, 1}, small gaps closed."""
+    import cv2
+
     cov = (acc.reshape(res, res) >= min_weight).astype(np.uint8)
-    k = np.ones((3, 3), np.uint8)
-    cov = cv2.morphologyEx(cov, cv2.MORPH_CLOSE, k)
+    cov = cv2.morphologyEx(cov, cv2.MORPH_CLOSE, np.ones((3, 3), np.uint8))
     return cov.astype(np.float32)
 
 

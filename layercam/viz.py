@@ -147,19 +147,22 @@ def _resize_nearest(img: np.ndarray, hw: tuple[int, int]) -> np.ndarray:
 
 def alpha_figure(alpha: np.ndarray | None, frames: np.ndarray | None = None, max_frames: int = 6, truth: np.ndarray | None = None):
     """Alpha mattes over time: a row of frames (when given), a row of ``alpha (T, H, W)`` and, with
-    ``truth (T, H, W)`` (a ground-truth mask), a row of differences. A one-layer run (``alpha`` None)
-    gets a figure that says so."""
+    ``truth (T, H, W)`` (a ground-truth mask), a row of ``alpha - truth`` titled with the IoU of
+    ``alpha > 0.5``. A one-layer run (``alpha`` None) gets a figure that says so."""
     if alpha is None:
         fig, axes = _figure(1, 1, cell=(4.0, 1.2))
         axes[0, 0].axis("off")
         axes[0, 0].text(0.5, 0.5, "one layer: no alpha matte (nothing moves on its own)", ha="center", va="center", fontsize=9)
         return fig
+    from layercam.metrics import iou
+
     alpha = np.asarray(alpha, dtype=np.float32)
     if alpha.ndim != 3:
         raise ValueError(f"alpha_figure expects alpha (T, H, W), got {alpha.shape}")
+    if truth is not None and np.shape(truth) != alpha.shape:
+        raise ValueError(f"alpha_figure: truth {np.shape(truth)} does not match alpha {alpha.shape}")
     idx = _pick(alpha.shape[0], max_frames)
-    rows = [("frame", frames), ("alpha", alpha)] + ([("alpha - truth", truth)] if truth is not None else [])
-    rows = [r for r in rows if r[1] is not None]
+    rows = [r for r in (("frame", frames), ("alpha", alpha), ("truth", truth)) if r[1] is not None]
     fig, axes = _figure(len(rows), len(idx), cell=(1.8, 1.8))
     for j, t in enumerate(idx):
         for i, (name, arr) in enumerate(rows):
@@ -169,7 +172,8 @@ def alpha_figure(alpha: np.ndarray | None, frames: np.ndarray | None = None, max
             elif name == "alpha":
                 _image_axis(ax, alpha[t], f"alpha, mean {alpha[t].mean():.2f}", cmap="gray", vmin=0, vmax=1)
             else:
-                _image_axis(ax, alpha[t] - np.asarray(arr[t], dtype=np.float32), "alpha - true mask", cmap="coolwarm", vmin=-1, vmax=1)
+                gt = np.asarray(arr[t], dtype=np.float32)
+                _image_axis(ax, alpha[t] - gt, f"alpha - true mask\nIoU {iou(alpha[t] > 0.5, gt > 0.5):.2f}", cmap="coolwarm", vmin=-1, vmax=1)
     return fig
 
 
@@ -212,8 +216,9 @@ def crf_figure(z: np.ndarray, curve: np.ndarray, truth: np.ndarray | None = None
         if truth is not None:
             lab = "ground truth" + ("" if shift is None else f" ({shift[c]:+.2f} stops)")
             ax.plot(z, np.asarray(truth)[:, c], color="k", ls="--", lw=1.0, label=lab)
-            rmse = float(np.sqrt(np.mean((np.asarray(truth)[:, c] - curve[:, c]) ** 2)))
-            ax.set_title(f"{name}: RMSE {rmse:.3f}", fontsize=8)
+            inside = np.ones(len(z), bool) if data_range is None else (z >= data_range[0]) & (z <= data_range[1])
+            rmse = float(np.sqrt(np.mean((np.asarray(truth)[inside, c] - curve[inside, c]) ** 2)))
+            ax.set_title(f"{name}: RMSE {rmse:.3f}" + ("" if data_range is None else " where seen"), fontsize=8)
         else:
             ax.set_title(name, fontsize=8)
         ax.set_xlabel("log2 r + log2 dt (stops)", fontsize=7)
@@ -302,12 +307,12 @@ def kernels_figure(offsets: np.ndarray | None, weights: np.ndarray | None, pixel
 
 def sweep_figure(images: np.ndarray, evs: Sequence[float], title: str = "EV"):
     """An exposure (or focus) sweep: ``images (N, H, W, 3)`` in ``[0, 1]`` side by side, each titled
-    with its value in ``evs`` and its share of clipped pixels."""
+    with its value in ``evs`` and its share of clipped pixels (a channel above 0.98 or below 0.02)."""
     images = np.asarray(images, dtype=np.float32)
     if images.ndim != 4 or len(evs) != images.shape[0]:
         raise ValueError(f"sweep_figure expects images (N, H, W, 3) and N values, got {images.shape} and {len(evs)}")
     fig, axes = _figure(1, images.shape[0], cell=(1.7, 1.9))
     for j, (img, ev) in enumerate(zip(images, evs)):
-        clipped = float(((img >= 0.99) | (img <= 0.01)).any(-1).mean())
+        clipped = float(((img > 0.98) | (img < 0.02)).any(-1).mean())
         _image_axis(axes[0, j], img, f"{title} {float(ev):+.1f}\n{clipped:.0%} clipped")
     return fig

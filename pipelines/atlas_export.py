@@ -70,16 +70,21 @@ def export_atlases(model, run_dir: Path, frames: np.ndarray, fps: float = 24.0, 
     """Writes the files listed in this module's docstring into ``run_dir``; returns a summary."""
     from layercam.io import write_exr, write_png, write_video
     from layercam.progress import bar as progress_bar
-    from layercam.render import checker_overlay, layer_weights, render_mappings, sample_atlas, splat_coverage, tone_map_log2
+    from layercam.render import checker_overlay, coverage_from_splat, layer_weights, render_mappings, sample_atlas, splat_add, tone_map_log2
 
     run_dir = Path(run_dir)
     T, H, W = frames.shape[:3]
     L = model.scene.n_layers
     adir = run_dir / "atlases"
     adir.mkdir(parents=True, exist_ok=True)
-    uvs: list[list[np.ndarray]] = [[] for _ in range(L)]
-    wts: list[list[np.ndarray]] = [[] for _ in range(L)]
-    overlays: list[list[np.ndarray]] = [[] for _ in range(L)]
+    mid = T // 2
+    m = render_mappings(model, mid, (H, W), chunk)
+    ws = layer_weights(m["alpha"], L, (H, W))
+    res = [atlas_resolution(m["uv"][k], ws[k]) for k in range(L)]
+    acc = [np.zeros(r * r, np.float64) for r in res]
+    to8 = lambda x: np.round(np.clip(x, 0, 1) * 255).astype(np.uint8)  # noqa: E731 - videos kept as 8-bit
+    overlays = [np.empty((T, H, W, 3), np.uint8) for _ in range(L)]
+    seen = [np.empty((T, H, W), np.uint8) for _ in range(L)]
     alphas = []
     for t in progress_bar(range(T), desc="atlases", unit="frame", enabled=progress):
         m = render_mappings(model, t, (H, W), chunk)
@@ -87,22 +92,20 @@ def export_atlases(model, run_dir: Path, frames: np.ndarray, fps: float = 24.0, 
         if m["alpha"] is not None:
             alphas.append(m["alpha"])
         for k in range(L):
-            uvs[k].append(m["uv"][k])
-            wts[k].append(ws[k])
-            overlays[k].append(checker_overlay(frames[t], m["uv"][k], ws[k]))
+            splat_add(acc[k], m["uv"][k], ws[k], res[k])
+            overlays[k][t] = to8(checker_overlay(frames[t], m["uv"][k], ws[k]))
+            seen[k][t] = to8(ws[k])
     log2_dt = png_exposure(model)
-    mid = T // 2
     layers = []
     for k in range(L):
-        res = atlas_resolution(uvs[k][mid], wts[k][mid])
-        log2_r = sample_atlas(model, k, res, chunk)
-        cov = splat_coverage(uvs[k], wts[k], res)
+        log2_r = sample_atlas(model, k, res[k], chunk)
+        cov = coverage_from_splat(acc[k], res[k])
         write_exr(adir / f"layer{k}.exr", np.exp2(log2_r).astype(np.float32), half=False)
         write_rgba_png(adir / f"layer{k}.png", tone_map_log2(model, log2_r, log2_dt), cov)
-        write_video(adir / f"layer{k}_uv.mp4", np.stack(overlays[k]), fps=fps)
-        entry = {"layer": k, "res": res, "exr": f"layer{k}.exr", "png": f"layer{k}.png", "uv_video": f"layer{k}_uv.mp4", "coverage": float(cov.mean())}
+        write_video(adir / f"layer{k}_uv.mp4", overlays[k], fps=fps)
+        entry = {"layer": k, "res": res[k], "exr": f"layer{k}.exr", "png": f"layer{k}.png", "uv_video": f"layer{k}_uv.mp4", "coverage": float(cov.mean())}
         if alphas:
-            write_video(adir / f"layer{k}_alpha.mp4", np.stack(wts[k]), fps=fps)
+            write_video(adir / f"layer{k}_alpha.mp4", seen[k], fps=fps)
             entry["alpha_video"] = f"layer{k}_alpha.mp4"
         layers.append(entry)
     if alphas:

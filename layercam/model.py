@@ -26,7 +26,7 @@ class ImplicitCameraModel(nn.Module):
         self.frame_hw = frame_hw
         self.scene = LayeredScene(cfg.scene, h0, init_log2)
         self.exposure = ExposureField(log2_dt, exposure_learn if spec.exposures == "learned" else "none", phase)
-        self.tone = ToneMapper(cfg.tone.width, cfg.tone.depth, cfg.tone.monotone, lut=cfg.tone.lut) if spec.tone_mapper == "learned" else FixedTone()
+        self.tone = ToneMapper(cfg.tone.width, cfg.tone.depth, cfg.tone.monotone, lut=cfg.tone.lut, init_slope=cfg.tone.init_slope) if spec.tone_mapper == "learned" else FixedTone()
         self.blur = None
         if spec.blur != "off":
             from layercam.camera.blur import BlurGenerator

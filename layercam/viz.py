@@ -1,10 +1,11 @@
 """Figures that look inside a trained run (used by ``notebooks/atlas_visualisation.ipynb``).
 
-Each ``*_figure`` function takes arrays (or a loaded model) and returns a
-:class:`matplotlib.figure.Figure` built without ``pyplot``: no global figure state, safe under the
-Agg backend and in headless kernels; Jupyter displays the returned figure, a script saves it with
-``fig.savefig(path)``. The arrays come from the library (``layercam.render``, the model's own
-modules); nothing here re-implements the model.
+Each ``*_figure`` function takes arrays and returns a :class:`matplotlib.figure.Figure` built
+without ``pyplot``: no global figure state, safe under the Agg backend and in headless kernels;
+Jupyter displays the returned figure, a script saves it with ``fig.savefig(path)``. The arrays come from a loaded run through the library
+(``layercam.render``: ``render_frame``, ``sample_atlas``, ``splat_coverage``, ``checker_overlay``;
+``model.tone.curve``, ``model.exposure.values``, ``model.blur.kernels``); nothing here
+re-implements the model.
 
 Shapes: frames ``(T, H, W, 3)`` in ``[0, 1]``; alpha ``(T, H, W)``; atlases ``(R, R, 3)`` over
 ``uv`` in ``[-1, 1]^2`` (row = v, column = u, as :func:`layercam.render.sample_atlas`); a CRF

@@ -51,7 +51,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from IPython.display import display
+from IPython.display import Image, display
 
 from layercam import render, synth, viz
 from layercam.data import normalise_xy
@@ -61,12 +61,14 @@ FIGURES = {}  # name -> figure, in the order drawn
 
 
 def show(name, fig):
-    """Display a figure, keep it in FIGURES and, with FIGURE_DIR, save it as PNG."""
+    """Display a figure and keep it in FIGURES; with FIGURE_DIR, save it as PNG and show that file."""
     FIGURES[name] = fig
-    if FIGURE_DIR:
-        Path(FIGURE_DIR).mkdir(parents=True, exist_ok=True)
-        fig.savefig(Path(FIGURE_DIR) / f"{len(FIGURES):02d}_{name}.png")
-    display(fig)
+    if not FIGURE_DIR:
+        return display(fig)
+    path = Path(FIGURE_DIR) / f"{len(FIGURES):02d}_{name}.png"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path)
+    display(Image(filename=str(path)))  # the saved picture: drawn once, not twice
 
 
 # %% [markdown]
@@ -91,7 +93,7 @@ if RUN is None:
     scene = synth.moving_object(frames=6, size=(32, 32), ev_step=2.0, crf="mixed", seed=0, object_radius=0.25)
     exposures = parse_exposures("alt", scene.clip)  # ratio learned from a measured start
     tiny = [
-        "train.steps=120", "train.batch=256", "train.bootstrap_steps=50", "train.checkpoint_every=1000",
+        "train.steps=100", "train.batch=256", "train.lr=1e-2", "train.bootstrap_steps=50", "train.checkpoint_every=1000",
         "scene.grid_levels=3", "scene.grid_max_res=32", "scene.atlas_width=16", "scene.deform_width=16",
         "tone.width=16", "blur.width=16", "blur.depth=2", "flow.method=dis_fast",
     ]
@@ -194,12 +196,17 @@ show("crf", viz.crf_figure(z.numpy(), curve, crf_truth, crf_shift, data_range=z_
 #
 # Each frame's log2 exposure as the model uses it, relative to frame 0: learned when the run learns
 # them (here one EV ratio between the two alternating phases, from a start measured on the
-# frames), otherwise the given values; the ground truth when the clip is synthetic.
+# frames), otherwise the given values; the ground truth when the clip is synthetic. The frames alone
+# cannot tell the true exposures from ratios `k` times larger together with a response curve
+# stretched `k` times along the stops axis (and irradiance raised to the power `k`): a short run
+# that lands on too large a ratio shows a correspondingly wider curve in section 4.
 
 # %%
 learned_ev = model.exposure.values().detach().numpy()
 truth_ev = None if scene is None else np.log2(scene.exposure_times)
 show("exposures", viz.exposures_figure(learned_ev, given=np.asarray(meta["log2_dt"]), truth=truth_ev, kind=model.exposure.learn))
+if truth_ev is not None:
+    print(f"exposure range: model {np.ptp(learned_ev):.2f} EV, truth {np.ptp(truth_ev):.2f} EV")
 
 # %% [markdown]
 # ## 6. The blur generator's kernels

@@ -30,18 +30,24 @@ class ToneMapper(nn.Module):
     """``z (N, 3) -> c (N, 3)`` in ``(0, 1)``; channel ``k`` of ``z`` goes through MLP ``k``.
 
     ``monotone=True`` makes each curve monotone by construction: the output is a sigmoid of a
-    cumulative sum of positive (softplus) increments on a knot grid over ``[-z_max, z_max]``,
-    linearly interpolated (the paper instead penalises negative slopes with its gradient loss).
+    cumulative sum of positive increments ``softplus(INC_GAIN * inc)`` on a knot grid over
+    ``[-z_max, z_max]``, linearly interpolated (the paper instead penalises negative slopes with its
+    gradient loss). It starts as :func:`init_curve` with ``init_slope``; ``INC_GAIN`` lets Adam move
+    a knot's slope as fast as the MLP moves its curve (with gain 1 a sharp knee is out of reach in a
+    few hundred steps).
     """
 
-    def __init__(self, width: int = 64, depth: int = 2, monotone: bool = False, z_max: float = 24.0, knots: int = 97, lut: int = 0):
+    INC_GAIN = 10.0
+
+    def __init__(self, width: int = 64, depth: int = 2, monotone: bool = False, z_max: float = 24.0, knots: int = 97, lut: int = 0, init_slope: float = 0.6):
         super().__init__()
         self.monotone = monotone
         self.lut = lut if not monotone else 0
         if monotone:
             self.z_max = z_max
             self.register_buffer("knots", torch.linspace(-z_max, z_max, knots))
-            self.inc = nn.Parameter(torch.full((3, knots - 1), -2.0))
+            step = init_slope * math.log(2) * 2 * z_max / (knots - 1)  # logit rise per knot of init_curve
+            self.inc = nn.Parameter(torch.full((3, knots - 1), math.log(math.expm1(step)) / self.INC_GAIN))
             self.offset = nn.Parameter(torch.zeros(3))
             return
         dims = [1] + [width] * depth + [1]
@@ -71,7 +77,7 @@ class ToneMapper(nn.Module):
         return x.squeeze(-1).t()
 
     def _monotone_logits(self, z: torch.Tensor) -> torch.Tensor:
-        step = torch.nn.functional.softplus(self.inc)  # (3, K-1) > 0
+        step = torch.nn.functional.softplus(self.inc * self.INC_GAIN)  # (3, K-1) >= 0
         cum = torch.cat([torch.zeros_like(step[:, :1]), torch.cumsum(step, dim=1)], dim=1)  # (3, K)
         cum = cum - cum[:, cum.shape[1] // 2 : cum.shape[1] // 2 + 1] + self.offset[:, None]
         k = self.knots

@@ -288,3 +288,38 @@ def test_one_sided_loss_measures_clipped_pixels_against_the_threshold():
     # on the wrong side of the threshold it still costs (and plain MSE always does)
     assert float(losses.color_loss(torch.tensor([[0.9, 0.003, 0.5]]), target, "one_sided")) > 0
     assert float(losses.color_loss(torch.tensor([[0.998, 0.003, 0.5]]), target, "plain")) > 0
+
+
+def test_highlight_psnr_mu_restricts_psnr_mu_to_the_mask():
+    from layercam import metrics
+
+    rng = np.random.default_rng(0)
+    gt = rng.random((2, 8, 8, 3)).astype(np.float32) * 4
+    pred = gt.copy()
+    pred[:, :2] *= 1.3  # wrong only in the top quarter (the median alignment keeps the rest exact)
+    top = np.zeros((2, 8, 8), bool)
+    top[:, :2] = True
+    assert metrics.highlight_psnr_mu(pred, gt, np.ones_like(top)) == pytest.approx(metrics.psnr_mu(pred, gt))
+    assert metrics.highlight_psnr_mu(pred, gt, top) < metrics.psnr_mu(pred, gt) < metrics.highlight_psnr_mu(pred, gt, ~top)
+    with pytest.raises(metrics.MetricInputError):
+        metrics.highlight_psnr_mu(pred, gt, np.zeros_like(top))
+
+
+@pytest.mark.slow
+def test_one_sided_loss_improves_clipped_highlights(tmp_path):
+    """synth.pan_hdr at +5 EV (29% of the pixels clip in the long exposure), fast preset: PSNR-mu over
+    the pixels clipped in some exposure, plain MSE against the one-sided loss (measured: 32.6 -> 33.8 dB)."""
+    from layercam import metrics, synth
+
+    scene = synth.pan_hdr(frames=8, size=(64, 64), ev_step=5.0, seed=0)
+    log2 = np.log2(scene.exposure_times / scene.exposure_times.min())
+    ex = Exposures(log2, "none", np.arange(8) % 2, "alt", "test")
+    white = 1.0 / (scene.meta["gain"] * scene.exposure_times.max())
+    clipped = (scene.hdr >= white).any(-1)
+    hl = {}
+    for mode in ("plain", "one_sided"):
+        cfg = load_config("fast", ["flow.method=dis_fast", f"loss.clipped={mode}"])
+        run_task("hdr-video", scene.clip, ex, cfg, tmp_path / mode, progress=False)
+        pred = np.stack([read_exr(tmp_path / mode / "hdr" / f"frame_{t:05d}.exr") for t in range(8)])
+        hl[mode] = metrics.highlight_psnr_mu(pred, scene.hdr, clipped)
+    assert hl["one_sided"] > hl["plain"] + 0.5, hl

@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from hypothesis import HealthCheck, assume, given, settings
+from hypothesis import HealthCheck, assume, example, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
@@ -430,22 +430,29 @@ def _frames(content: str, t: int, hw: tuple[int, int], value: float) -> np.ndarr
     return rng.random(shape).astype(np.float32)
 
 
-def _load_grey16(frames: np.ndarray, d: Path):
+def _load_png16(frames: np.ndarray, d: Path, grey: bool):
     from layercam.io import load_clip, write_png
 
     for i, f in enumerate(frames):
-        write_png(d / f"f{i:02d}.png", f.mean(-1), bit_depth=16)  # (H, W) grey, 16 bit
+        write_png(d / f"f{i:02d}.png", f.mean(-1) if grey else f, bit_depth=16)  # (H, W) grey or RGB, 16 bit
     clip = load_clip(d)
     assert clip.bit_depth == 16 and clip.frames.shape == frames.shape
-    assert np.allclose(clip.frames[..., 0], clip.frames[..., 2])
+    assert np.allclose(clip.frames, frames.mean(-1, keepdims=True) if grey else frames, atol=1e-4)
     return clip
 
 
-@props(8)
+# the named extremes always run; hypothesis adds random combinations on top
+@example(hw=(1, 1), t=1, content="black", value=0.0, ev=0, learn=False, monotone=False, clipped="plain", autocast="none")
+@example(hw=(1, 1), t=3, content="white", value=0.0, ev=-12, learn=False, monotone=True, clipped="one_sided", autocast="none")
+@example(hw=(2, 3), t=2, content="constant", value=0.5, ev=12, learn=True, monotone=False, clipped="plain", autocast="bf16")
+@example(hw=(5, 7), t=3, content="grey16", value=0.0, ev=12, learn=False, monotone=True, clipped="plain", autocast="none")
+@example(hw=(7, 5), t=2, content="rgb16", value=0.0, ev=-12, learn=False, monotone=False, clipped="one_sided", autocast="bf16")
+@example(hw=(2, 3), t=2, content="white", value=0.0, ev=12, learn=False, monotone=False, clipped="plain", autocast="none")
+@props(6)
 @given(
     hw=SIZES,
     t=st.integers(1, 3),
-    content=st.sampled_from(["black", "white", "constant", "random", "grey16"]),
+    content=st.sampled_from(["black", "white", "constant", "random", "grey16", "rgb16"]),
     value=st.floats(0, 1),
     ev=st.integers(-12, 12),
     learn=st.booleans(),
@@ -458,15 +465,15 @@ def test_end_to_end_tiny_clips_export_finite_hdr_and_monotone_curves(hw, t, cont
     from layercam.config import load_config
     from layercam.pipelines.tasks import run_task
 
-    frames = _frames("random" if content == "grey16" else content, t, hw, value)
+    frames = _frames("random" if content.endswith("16") else content, t, hw, value)
     log2 = np.where(np.arange(t) % 2 == 1, float(ev), 0.0)
     learn = learn and t > 1
     cfg = load_config("fast", E2E + [f"tone.monotone={monotone}", f"loss.clipped={clipped}", f"train.autocast={autocast}"])
     with tempfile.TemporaryDirectory() as d:
         d = Path(d)
-        if content == "grey16":
+        if content.endswith("16"):
             (d / "in").mkdir()
-            clip = _load_grey16(frames, d / "in")
+            clip = _load_png16(frames, d / "in", grey=content == "grey16")
         else:
             clip = Clip(frames=frames, source=f"test:{content}", names=[f"{i}" for i in range(t)])
         ex = Exposures(log2, "ratio" if learn else "none", np.arange(t) % 2, "alt", "test")

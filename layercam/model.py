@@ -90,9 +90,7 @@ class ImplicitCameraModel(nn.Module):
             if w["sparsity"] > 0:
                 terms["sparsity"] = w["sparsity"] * losses.sparsity_loss(out["alpha"])
             if w["alpha_mask"] > 0 and "mask" in batch:
-                terms["alpha_mask"] = w["alpha_mask"] * torch.nn.functional.binary_cross_entropy(
-                    out["alpha"].squeeze(-1).clamp(1e-5, 1 - 1e-5), batch["mask"]
-                )
+                terms["alpha_mask"] = w["alpha_mask"] * losses.mask_loss(out["alpha"], batch["mask"])
         if w["rigidity"] > 0 and self.cfg.scene.deformation == "homography" and self.scene.n_layers > 1:
             xy, t = batch["xy"][:1024], batch["t"][:1024]
             terms["rigidity"] = w["rigidity"] * sum(

@@ -63,6 +63,25 @@ class BootstrapPhase(Callback):
 
 
 @dataclass
+class MaskTaper(Callback):
+    """Alpha against its bootstrap masks: full weight during the first ``steps``, then decaying
+    linearly to 0 at ``end`` (a fraction of training, the flow decay's end), instead of stopping at
+    once: on DAVIS libby the alpha field had not yet taken the mask's shape after 100 steps."""
+
+    steps: int
+    end: float
+    key: str = "alpha_mask"
+    start: float | None = None
+
+    def on_step(self, trainer, step):
+        if self.start is None:
+            self.start = trainer.model.weights.get(self.key, 0.0)
+        stop = max(int(self.end * trainer.cfg.steps), self.steps + 1)
+        k = 1.0 if step < self.steps else max(0.0, 1.0 - (step - self.steps) / (stop - self.steps))
+        trainer.model.weights[self.key] = self.start * k
+
+
+@dataclass
 class TrainResult:
     steps: int
     seconds: float

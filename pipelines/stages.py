@@ -168,6 +168,8 @@ class TrainStage(Stage):
         d["train"].pop("checkpoint_every", None)
         d["train"].pop("device", None)
         d["spec"] = ctx.spec.key_dict()
+        if ctx.spec.layers > 1:
+            d["alpha_masks"] = "balanced BCE, tapered"  # how bootstrap masks train alpha (issue 3)
         return d
 
     def run(self, ctx, out):
@@ -177,7 +179,7 @@ class TrainStage(Stage):
         from layercam.camera.tone import fit_init_curve
         from layercam.data import PixelSampler
         from layercam.render import build_model, save_run_model
-        from layercam.train import BootstrapPhase, FlowDecay, Trainer
+        from layercam.train import BootstrapPhase, FlowDecay, MaskTaper, Trainer
 
         cfg = ctx.cfg
         torch.manual_seed(cfg.train.seed)
@@ -198,7 +200,7 @@ class TrainStage(Stage):
             ctx.clip.frames, *(fl[k] for k in ("fw", "bw", "fw_ok", "bw_ok")) if fl else (None,) * 4,
             masks=masks, device=dev, seed=distributed.rank_seed(cfg.train.seed),
         )
-        callbacks = [FlowDecay(cfg.loss.flow, cfg.loss.flow_decay_end), BootstrapPhase(cfg.train.bootstrap_steps)]
+        callbacks = [FlowDecay(cfg.loss.flow, cfg.loss.flow_decay_end), BootstrapPhase(cfg.train.bootstrap_steps, keys=("bootstrap",)), MaskTaper(cfg.train.bootstrap_steps, cfg.loss.flow_decay_end)]
         callbacks += [make(model) for make in ctx.extra.get("train_callbacks", [])]  # e.g. the benchmark's quality probe
         tcfg = dataclasses.replace(cfg.train, batch=distributed.rank_batch(cfg.train.batch))  # each rank's share
         trainer = Trainer(model, sampler, tcfg, out / "ckpt.pt", callbacks, progress=ctx.progress, desc=f"{ctx.task} train")

@@ -13,12 +13,20 @@ def register(sub) -> argparse.ArgumentParser:
     b.add_argument("--presets", default="fast,balanced,quality,paper", help="comma-separated presets")
     b.add_argument("--quick", action="store_true", help="tiny scenes and a few steps: a smoke test, not a measurement")
     b.add_argument("--threads", type=int, default=2, help="torch threads per job")
+    b.add_argument("--table", choices=["presets", "analysis"], default="presets", help="presets: the speed/quality trade (default); analysis: the analysed model against the full model on each synthetic family")
+    b.add_argument("--preset", default="fast", help="preset for --table analysis (default: fast)")
     b.add_argument("--quiet", action="store_true")
     return b
 
 
 def run(args) -> int:
-    from layercam.bench import run_bench
+    from layercam.bench import run_analysis_table, run_bench
+
+    if args.table == "analysis":
+        rows = run_analysis_table(Path(args.out), args.preset, args.quick, progress=not args.quiet)
+        if not args.quiet:
+            print(f"wrote {Path(args.out) / 'analysis_table.md'} ({len(rows)} rows)")
+        return 0
 
     rows = run_bench(Path(args.out), [s for s in args.scenes.split(",") if s], [p for p in args.presets.split(",") if p], quick=args.quick, progress=not args.quiet, threads=args.threads)
     if not args.quiet:

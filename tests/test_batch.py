@@ -36,7 +36,8 @@ def _manifest(folder, b_extra: str = "") -> None:
     )
 
 
-def test_batch_runs_skips_and_restarts(clips, capsys):
+def test_batch_runs_skips_and_restarts(clips, capsys, monkeypatch):
+    monkeypatch.setenv("OMP_NUM_THREADS", "1")  # the jobs are processes of their own; one thread each is plenty here
     _manifest(clips)
     summary = clips / "summary.json"
     assert main(["batch", str(clips / "jobs.csv"), "--summary", str(summary)]) == 1  # one job failed

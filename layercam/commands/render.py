@@ -17,8 +17,6 @@ import argparse
 import math
 from pathlib import Path
 
-import numpy as np
-
 from layercam.errors import LayercamError
 
 EXAMPLES = """examples:
@@ -55,16 +53,20 @@ def register(sub) -> argparse.ArgumentParser:
 # -- rendering functions (used by the command and the tests) ----------------------------------------
 def reference_exposure(model) -> float:
     """The run's reference exposure: the median log2 exposure of its frames."""
+    import numpy as np
+
     return float(np.median(model.exposure.values().detach().cpu().numpy()))
 
 
 def exposure_at(model, f: float) -> float:
     """log2 exposure at a fractional frame index (linear between neighbouring frames)."""
+    import numpy as np
+
     v = model.exposure.values().detach().cpu().numpy().astype(np.float64)
     return float(np.interp(f, np.arange(len(v)), v))
 
 
-def render_view(model, t: int, hw: tuple[int, int], log2_dt: float, t_blur: float | None = None, blur: bool = True, chunk: int = 65536) -> np.ndarray:
+def render_view(model, t: int, hw: tuple[int, int], log2_dt: float, t_blur: float | None = None, blur: bool = True, chunk: int = 65536):
     """Frame ``t``'s view through the camera: ``(H, W, 3)`` in ``[0, 1]``.
 
     The tone mapper at ``log2_dt``; with ``blur`` (and a blur generator) the blur of the
@@ -94,23 +96,29 @@ def render_view(model, t: int, hw: tuple[int, int], log2_dt: float, t_blur: floa
     return torch.cat(outs).view(h, w, 3).numpy()
 
 
-def exposure_frames(model, meta: dict, ev: float, keep_blur: bool = False, chunk: int = 65536) -> np.ndarray:
+def exposure_frames(model, meta: dict, ev: float, keep_blur: bool = False, chunk: int = 65536):
     """Every frame at ``ev`` stops from the reference exposure: ``(T, H, W, 3)``."""
+    import numpy as np
+
     hw = tuple(meta["frame_hw"])
     z = reference_exposure(model) + ev
     return np.stack([render_view(model, t, hw, z, blur=keep_blur, chunk=chunk) for t in range(int(meta["n_frames"]))])
 
 
-def exposure_sweep(model, meta: dict, evs, frame: int, keep_blur: bool = False) -> np.ndarray:
+def exposure_sweep(model, meta: dict, evs, frame: int, keep_blur: bool = False):
     """One view at each of ``evs`` (stops from the reference exposure): ``(N, H, W, 3)``."""
+    import numpy as np
+
     hw = tuple(meta["frame_hw"])
     z0 = reference_exposure(model)
     return np.stack([render_view(model, frame, hw, z0 + float(e), blur=keep_blur) for e in evs])
 
 
-def focus_sweep(model, meta: dict, fs, frame: int, ev: float | None = None) -> np.ndarray:
+def focus_sweep(model, meta: dict, fs, frame: int, ev: float | None = None):
     """One view with the blur of each fractional image index in ``fs``: ``(N, H, W, 3)``; at the
     exposure interpolated at each ``f``, or at ``ev`` stops from the reference when given."""
+    import numpy as np
+
     hw = tuple(meta["frame_hw"])
     out = []
     for f in fs:
@@ -144,6 +152,8 @@ def _check_ev(ev: float | None) -> None:
 
 
 def run(args) -> int:
+    import numpy as np
+
     from layercam.io import write_png, write_video
     from layercam.io.atomic import ensure_writable_dir
     from layercam.pipelines.runner import write_json
@@ -212,7 +222,7 @@ def run(args) -> int:
     return 0
 
 
-def _write_steps(folder: Path, imgs: np.ndarray, write_png, prefix: str = "step_", width: int = 3) -> None:
+def _write_steps(folder: Path, imgs, write_png, prefix: str = "step_", width: int = 3) -> None:
     folder.mkdir(parents=True, exist_ok=True)
     for i, img in enumerate(imgs):
         write_png(folder / f"{prefix}{i:0{width}d}.png", img)

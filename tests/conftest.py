@@ -2,12 +2,23 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 SHARED_DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
+
+# Tests use tiny tensors: one thread is as fast, and it does not collapse when the machine is
+# oversubscribed (OpenMP spin-waits made 2-thread runs 10-20x slower on a loaded 2-core box).
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+try:
+    import torch
+
+    torch.set_num_threads(1)
+except ImportError:  # pragma: no cover
+    pass
 
 # settings that make any preset train in a second or two on a 16x16..32x32 clip
 TINY = [

@@ -22,6 +22,9 @@ from layercam.spec import ModelSpec
 class ImplicitCameraModel(nn.Module):
     def __init__(self, cfg: Config, spec: ModelSpec, h0: torch.Tensor, log2_dt: np.ndarray, exposure_learn: str = "none", phase=None, init_log2: float = 0.0, frame_hw: tuple[int, int] = (1, 1)):
         super().__init__()
+        from layercam.render import resolve_sizes
+
+        cfg = resolve_sizes(cfg, {"h0": h0.detach().cpu().numpy(), "frame_hw": frame_hw})
         self.cfg, self.spec = cfg, spec
         self.frame_hw = frame_hw
         self.scene = LayeredScene(cfg.scene, h0, init_log2)

@@ -109,7 +109,6 @@ def resolve_sizes(cfg, meta: dict):
 def build_model(cfg, spec: ModelSpec, meta: dict):
     from layercam.model import ImplicitCameraModel
 
-    cfg = resolve_sizes(cfg, meta)
     return ImplicitCameraModel(
         cfg, spec, torch.as_tensor(np.asarray(meta["h0"]), dtype=torch.float32), np.asarray(meta["log2_dt"], dtype=np.float32),
         meta.get("exposure_learn", "none"), None if meta.get("phase") is None else np.asarray(meta["phase"]),

@@ -138,7 +138,7 @@ class DeblurExportStage(Stage):
         if with_hdr:
             (run / "hdr").mkdir(exist_ok=True)
         bits = 16 if ctx.clip.bit_depth > 8 else 8
-        frames, hdr_max = [], 0.0
+        frames, hdr = [], []
         for t in progress_bar(range(ctx.clip.T), desc="export", unit="frame", enabled=ctx.progress):
             ldr = render_frame(model, t, hw, ctx.cfg.export.chunk, what="ldr", blur=False)["image"]
             if not np.isfinite(ldr).all():
@@ -146,9 +146,10 @@ class DeblurExportStage(Stage):
             write_png(run / "frames" / f"frame_{t:05d}.png", ldr, bit_depth=bits)
             frames.append(ldr)
             if with_hdr:
-                img = render_frame(model, t, hw, ctx.cfg.export.chunk)["image"]
-                _write_hdr(run / "hdr" / f"frame_{t:05d}.exr", img, ctx.cfg.export.half)
-                hdr_max = max(hdr_max, float(img.max()))
+                hdr.append(render_frame(model, t, hw, ctx.cfg.export.chunk)["image"])
+        hdr_max = max((float(h.max()) for h in hdr), default=0.0)
+        for t, img in enumerate(hdr):  # one EXR type for the whole clip: half floats stop at 65504
+            _write_hdr(run / "hdr" / f"frame_{t:05d}.exr", img, ctx.cfg.export.half and hdr_max < 6e4)
         frames = np.stack(frames)
         np.save(out / "deblurred.npy", frames.astype(np.float32))
         fps = ctx.cfg.export.preview_fps or float(ctx.clip.fps or 24.0)

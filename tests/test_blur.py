@@ -318,3 +318,23 @@ def test_in_model():
     terms = model.loss_dict({"xy": xy, "t": t, "rgb": torch.rand(H * W, 3)})
     sum(terms.values()).backward()
     assert model.blur.weight_net.last.weight.grad is not None
+
+
+def test_centre_psf_removes_the_shift():
+    """``centre_psf``: whatever the nets output, each PSF's weighted centre is its pixel, so the
+    offsets can blur but not warp; with a fixed patch (s = 0) it changes nothing."""
+    b = make(s=3.0, centre_psf=True)
+    with torch.no_grad():
+        b.offset_net.last.bias.normal_(0, 3)
+        b.weight_net.last.weight.normal_(0, 1)
+    xy, t = pixel_xy(), torch.randint(0, 2, (H * W,))
+    off, w = b.kernels(xy, t)
+    centre = (w[:, :, None] * off).sum(1)
+    assert torch.allclose(centre, torch.zeros_like(centre), atol=1e-5)
+    assert (off - b.base).abs().max() > 0.5  # the patch still moves and spreads
+    out = b(Field(), xy, t)
+    out.sum().backward()
+    assert torch.isfinite(out).all() and b.weight_net.last.weight.grad.abs().sum() > 0
+    fixed = make(s=0.0, centre_psf=True)
+    off0, _ = fixed.kernels(xy, t)
+    assert torch.equal(off0, fixed.base.expand(H * W, -1, -1))

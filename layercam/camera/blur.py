@@ -116,6 +116,11 @@ class BlurGenerator(nn.Module):
       start is the plain ``n x n`` patch. With ``max_offset == 0`` there is no ``O`` (fixed patch).
     * ``W`` outputs ``K`` logits (clamped to +-1e4) -> softmax; its last layer starts at zero with a
       bias on the centre logit so the centre sample holds ``init_centre_weight`` (near-sharp start).
+    * ``centre_psf`` (learned offsets only): the displacements are moved by minus their weighted
+      mean, so every PSF is centred on its pixel. The offsets then cannot act as a per-pixel warp
+      (which the scene's deformation already is, so without it a trained model may shift or
+      memorise instead of blurring), and the sharp render stays registered with the input.
+      Displacements then stay within ``2 * max_offset + n`` px of the pixel.
 
     Args:
         n: patch size (odd), ``K = n * n`` samples per pixel.
@@ -138,6 +143,7 @@ class BlurGenerator(nn.Module):
         pe_freqs: int = 4,
         use_depth: bool = False,
         init_centre_weight: float = 0.9,
+        centre_psf: bool = False,
     ):
         super().__init__()
         if isinstance(n, bool) or not isinstance(n, int) or n < 1 or n % 2 == 0:
@@ -156,6 +162,7 @@ class BlurGenerator(nn.Module):
         self.n_frames = int(n_frames)
         self.frame_hw = (h, w)
         self.use_depth = bool(use_depth)
+        self.centre_psf = bool(centre_psf)
         self.register_buffer("base", patch_offsets_base(n), persistent=False)
         self.embedding = nn.Parameter(torch.randn(self.n_frames, embed_dim) * 0.5)
         self.pe = PositionalEncoding(2, pe_freqs)
@@ -207,8 +214,10 @@ class BlurGenerator(nn.Module):
         if self.offset_net is not None:
             off = self.max_offset * torch.tanh(self.offset_net(h).float())
             disp = disp + off.view(-1, self.K, 2)
-        logits = self.weight_net(h).float().clamp(-LOGIT_BOUND, LOGIT_BOUND)
-        return disp, torch.log_softmax(logits, dim=1)
+        log_w = torch.log_softmax(self.weight_net(h).float().clamp(-LOGIT_BOUND, LOGIT_BOUND), dim=1)
+        if self.centre_psf and self.offset_net is not None:
+            disp = disp - (log_w.exp()[:, :, None] * disp).sum(1, keepdim=True)
+        return disp, log_w
 
     def kernels(self, xy: torch.Tensor, t: torch.Tensor | None = None, *, depth: torch.Tensor | None = None, t_blur: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
         """The PSF at ``M`` pixels: ``xy (M, 2)`` normalised, ``t (M,)`` long (or ``t_blur (M,)`` float).
@@ -257,4 +266,4 @@ class BlurGenerator(nn.Module):
         return {}
 
     def extra_repr(self) -> str:
-        return f"n={self.n}, max_offset={self.max_offset:g}, n_frames={self.n_frames}, frame_hw={self.frame_hw}, use_depth={self.use_depth}"
+        return f"n={self.n}, max_offset={self.max_offset:g}, n_frames={self.n_frames}, frame_hw={self.frame_hw}, use_depth={self.use_depth}, centre_psf={self.centre_psf}"

@@ -88,13 +88,31 @@ def atlas_mappings(h: int, w: int, pixel_maps: np.ndarray, margin: float = 0.9) 
     return np.stack([a @ m @ n_inv for m in pixel_maps]).astype(np.float32)
 
 
+# A clip whose chained flow homographies move no frame corner by this much is registered by the
+# identity: between frames of different focus or exposure such small homographies are mostly flow
+# noise (up to 1 px on an aligned synthetic focus/exposure stack), and a wrong sub-pixel
+# registration lets the scene store each frame apart instead of the blur generator explaining it.
+STATIC_CORNER_PX = 1.5
+
+
+def max_corner_shift(pixel_maps: np.ndarray, h: int, w: int) -> float:
+    """Largest displacement (px) of a frame corner under the per-frame maps ``(T, 3, 3)``."""
+    c = np.array([[0, 0, 1], [w, 0, 1], [0, h, 1], [w, h, 1]], dtype=np.float64).T
+    d = 0.0
+    for m in pixel_maps:
+        p = m @ c
+        d = max(d, float(np.abs(p[:2] / p[2:] - c[:2]).max()))
+    return d
+
+
 class BootstrapStage(Stage):
-    """Starting point of the scene: each layer's mapping into its atlas (chained flow homographies
-    or the paper's identity), the atlas's initial log irradiance, and foreground masks for alpha."""
+    """Starting point of the scene: each layer's mapping into its atlas (chained flow homographies,
+    the identity when they move the frames by less than ``STATIC_CORNER_PX``, or the paper's
+    identity), the atlas's initial log irradiance, and foreground masks for alpha."""
 
     name = "bootstrap"
     deps = ("flow",)
-    version = 1
+    version = 2
 
     def key_material(self, ctx):
         s = ctx.cfg.scene
@@ -113,6 +131,10 @@ class BootstrapStage(Stage):
         if ctx.cfg.scene.bootstrap == "flow" and fl is not None:
             bg = chain_homographies(fl["homs"].astype(np.float64), ref)
             how = f"chained flow homographies to frame {ref}"
+            moved = max_corner_shift(bg, H, W)
+            if moved < STATIC_CORNER_PX:  # flow between differently focused/exposed frames: noise
+                bg = np.stack([np.eye(3)] * T)
+                how = f"identity: the flow homographies move no frame corner by {STATIC_CORNER_PX} px (at most {moved:.2f} px)"
         elif ctx.cfg.scene.bootstrap in ("flow", "identity"):
             bg = np.stack([np.eye(3)] * T)
             how = "identity"

@@ -8,7 +8,11 @@ to cover (leading edge, forward flow ill-defined) or has just uncovered (trailin
 flow ill-defined) disagrees in one only. The evidence is thresholded against the frame's own
 residual noise, averaged with its neighbours along the flow (temporal consistency), cleaned with
 morphology (open, close, fill holes, drop small components), and frames where the object stands
-still (no evidence) inherit their neighbours' masks along the flow.
+still (no evidence) inherit their neighbours' masks along the flow. :func:`foreground_bootstrap`
+then tightens each mask to the object's colour edges with GrabCut (flow masks overshoot by about a
+DIS patch). Measured mean IoU with the true masks: ``synth.moving_object`` 64x64 seeds 0-2, 0.78-0.88
+after GrabCut (0.58 -> 0.68 over 8 clips of 64x64 / 96x128 with DIS fast); DAVIS libby at 214x120,
+0.31 flow-only, 0.37 with GrabCut (parallax of the trees and fence in front, the dog partly hidden).
 
 :func:`foreground_mappings` turns the masks into the foreground layer's bootstrap mapping: the
 object's own motion (a similarity per frame pair fitted to the flow inside the mask, chained to
@@ -34,7 +38,8 @@ class SegmentConfig:
 
     ``abs_px``: a residual below this is never motion. ``k_sigma``: a residual must also exceed
     the frame's robust residual level (median + k_sigma * 1.4826 MAD). ``window``: neighbours on
-    each side averaged along the flow. ``min_area``: components smaller than this fraction of the
+    each side averaged along the flow; ``vote``: the averaged evidence that makes a pixel
+    foreground. ``grid``: flow samples per side for the homography fit. ``min_area``: components smaller than this fraction of the
     frame are dropped, and so are those smaller than ``keep_fraction`` of the frame's largest.
     ``still_fraction``: a frame whose mask is smaller than this fraction of the clip's median
     area inherits its neighbours' masks (the object stood still).

@@ -62,7 +62,7 @@ class BlurConfig:
     width: int = 64
     depth: int = 4
     init_centre_weight: float = 0.2  # start blurry: a near-sharp start (0.9) lets the scene absorb the blur
-    centre_psf: bool = True         # PSFs centred on their pixel: offsets blur, never warp
+    zero_mean_offsets: bool = True  # a patch's offsets shape it but cannot translate it (no warp)
 
 
 @dataclass

@@ -34,7 +34,7 @@ class ImplicitCameraModel(nn.Module):
         if spec.blur != "off":
             from layercam.camera.blur import BlurGenerator
 
-            self.blur = BlurGenerator(spec.blur_n, spec.max_offset, h0.shape[1], frame_hw, cfg.blur.width, cfg.blur.depth, init_centre_weight=cfg.blur.init_centre_weight, centre_psf=cfg.blur.centre_psf)
+            self.blur = BlurGenerator(spec.blur_n, spec.max_offset, h0.shape[1], frame_hw, cfg.blur.width, cfg.blur.depth, init_centre_weight=cfg.blur.init_centre_weight, zero_mean_offsets=cfg.blur.zero_mean_offsets)
         lc = cfg.loss
         self.weights = {
             "color": lc.color,

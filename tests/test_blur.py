@@ -320,21 +320,24 @@ def test_in_model():
     assert model.blur.weight_net.last.weight.grad is not None
 
 
-def test_centre_psf_removes_the_shift():
-    """``centre_psf``: whatever the nets output, each PSF's weighted centre is its pixel, so the
-    offsets can blur but not warp; with a fixed patch (s = 0) it changes nothing."""
-    b = make(s=3.0, centre_psf=True)
+def test_zero_mean_offsets_cannot_translate_the_patch():
+    """``zero_mean_offsets``: whatever the offset net outputs, a patch's mean displacement is its
+    pixel, so the offsets can shape and spread the patch but not shift it; s = 0 is unchanged."""
+    b = make(s=3.0, zero_mean_offsets=True)
     with torch.no_grad():
         b.offset_net.last.bias.normal_(0, 3)
-        b.weight_net.last.weight.normal_(0, 1)
+        b.offset_net.last.weight.normal_(0, 1)
     xy, t = pixel_xy(), torch.randint(0, 2, (H * W,))
     off, w = b.kernels(xy, t)
-    centre = (w[:, :, None] * off).sum(1)
-    assert torch.allclose(centre, torch.zeros_like(centre), atol=1e-5)
-    assert (off - b.base).abs().max() > 0.5  # the patch still moves and spreads
+    assert torch.allclose(off.mean(1), torch.zeros(H * W, 2), atol=1e-5)
+    learned = off - b.base
+    assert learned.abs().max() > 0.5 and learned.abs().max() <= 6.0 + 1e-5  # moves, within 2 s
     out = b(Field(), xy, t)
     out.sum().backward()
-    assert torch.isfinite(out).all() and b.weight_net.last.weight.grad.abs().sum() > 0
-    fixed = make(s=0.0, centre_psf=True)
-    off0, _ = fixed.kernels(xy, t)
-    assert torch.equal(off0, fixed.base.expand(H * W, -1, -1))
+    assert torch.isfinite(out).all() and b.offset_net.last.weight.grad.abs().sum() > 0
+    plain = make(s=3.0)
+    with torch.no_grad():
+        plain.offset_net.last.bias.fill_(2.0)
+    assert plain.kernels(xy, t)[0].mean(1).abs().min() > 1.0  # without it the patch translates
+    fixed = make(s=0.0, zero_mean_offsets=True)
+    assert torch.equal(fixed.kernels(xy, t)[0], fixed.base.expand(H * W, -1, -1))

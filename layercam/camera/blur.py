@@ -116,11 +116,13 @@ class BlurGenerator(nn.Module):
       start is the plain ``n x n`` patch. With ``max_offset == 0`` there is no ``O`` (fixed patch).
     * ``W`` outputs ``K`` logits (clamped to +-1e4) -> softmax; its last layer starts at zero with a
       bias on the centre logit so the centre sample holds ``init_centre_weight`` (near-sharp start).
-    * ``centre_psf`` (learned offsets only): the displacements are moved by minus their weighted
-      mean, so every PSF is centred on its pixel. The offsets then cannot act as a per-pixel warp
-      (which the scene's deformation already is, so without it a trained model may shift or
-      memorise instead of blurring), and the sharp render stays registered with the input.
-      Displacements then stay within ``2 * max_offset + n`` px of the pixel.
+    * ``zero_mean_offsets``: the ``K`` learned offsets of a patch have zero mean, so they shape and
+      spread the patch but cannot translate it: the offsets cannot act as a per-pixel warp (the
+      scene's deformation is one already), which otherwise lets a trained model shift the whole
+      PSF (the sharp render then lands pixels away from the input) or store each frame apart instead
+      of blurring. Each offset then stays within ``2 * max_offset``. (Subtracting the *weighted*
+      mean instead, which centres the PSF exactly, makes a delta on any of the ``K`` samples an
+      identity PSF; training then often collapsed there.)
 
     Args:
         n: patch size (odd), ``K = n * n`` samples per pixel.
@@ -143,7 +145,7 @@ class BlurGenerator(nn.Module):
         pe_freqs: int = 4,
         use_depth: bool = False,
         init_centre_weight: float = 0.9,
-        centre_psf: bool = False,
+        zero_mean_offsets: bool = False,
     ):
         super().__init__()
         if isinstance(n, bool) or not isinstance(n, int) or n < 1 or n % 2 == 0:
@@ -162,7 +164,7 @@ class BlurGenerator(nn.Module):
         self.n_frames = int(n_frames)
         self.frame_hw = (h, w)
         self.use_depth = bool(use_depth)
-        self.centre_psf = bool(centre_psf)
+        self.zero_mean_offsets = bool(zero_mean_offsets)
         self.register_buffer("base", patch_offsets_base(n), persistent=False)
         self.embedding = nn.Parameter(torch.randn(self.n_frames, embed_dim) * 0.5)
         self.pe = PositionalEncoding(2, pe_freqs)
@@ -212,11 +214,11 @@ class BlurGenerator(nn.Module):
         h = self._inputs(xy, t, depth, t_blur)
         disp = self.base.expand(h.shape[0], -1, -1)
         if self.offset_net is not None:
-            off = self.max_offset * torch.tanh(self.offset_net(h).float())
-            disp = disp + off.view(-1, self.K, 2)
+            off = (self.max_offset * torch.tanh(self.offset_net(h).float())).view(-1, self.K, 2)
+            if self.zero_mean_offsets:
+                off = off - off.mean(1, keepdim=True)
+            disp = disp + off
         log_w = torch.log_softmax(self.weight_net(h).float().clamp(-LOGIT_BOUND, LOGIT_BOUND), dim=1)
-        if self.centre_psf and self.offset_net is not None:
-            disp = disp - (log_w.exp()[:, :, None] * disp).sum(1, keepdim=True)
         return disp, log_w
 
     def kernels(self, xy: torch.Tensor, t: torch.Tensor | None = None, *, depth: torch.Tensor | None = None, t_blur: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
@@ -266,4 +268,4 @@ class BlurGenerator(nn.Module):
         return {}
 
     def extra_repr(self) -> str:
-        return f"n={self.n}, max_offset={self.max_offset:g}, n_frames={self.n_frames}, frame_hw={self.frame_hw}, use_depth={self.use_depth}, centre_psf={self.centre_psf}"
+        return f"n={self.n}, max_offset={self.max_offset:g}, n_frames={self.n_frames}, frame_hw={self.frame_hw}, use_depth={self.use_depth}, zero_mean_offsets={self.zero_mean_offsets}"

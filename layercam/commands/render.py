@@ -185,11 +185,8 @@ def run(args) -> int:
         _check_ev(a), _check_ev(b)
         view = default_view if args.frame is None else args.frame
         evs = np.linspace(a, b, args.steps)
-        video, folder = _free(out / "sweep_exposure.mp4", args.overwrite), out / "sweep_exposure"
-        imgs = exposure_sweep(model, meta, evs, view, args.keep_blur)
-        _write_steps(folder, imgs, write_png)
-        write_video(video, imgs, fps=args.fps or 12.0)
-        write_json(out / "sweep_exposure.json", {**base, "what": "exposure sweep", "view": view, "ev": evs.tolist(), "blur": args.keep_blur})
+        video = _free(out / "sweep_exposure.mp4", args.overwrite)
+        _write_sweep(out, "exposure", exposure_sweep(model, meta, evs, view, args.keep_blur), args.fps, {**base, "what": "exposure sweep", "view": view, "ev": evs.tolist(), "blur": args.keep_blur})
         say(f"exposure sweep {a:+g}..{b:+g} EV of view {view}: {video}")
     elif args.sweep == "focus":
         a, b = _range(args.sweep_range, (0.0, float(T - 1)))
@@ -197,11 +194,8 @@ def run(args) -> int:
             raise LayercamError(f"focus --range must lie within 0..{T - 1}, got {args.sweep_range}")
         view = default_view if args.frame is None else args.frame
         fs = np.linspace(a, b, args.steps)
-        video, folder = _free(out / "sweep_focus.mp4", args.overwrite), out / "sweep_focus"
-        imgs = focus_sweep(model, meta, fs, view, args.exposure)
-        _write_steps(folder, imgs, write_png)
-        write_video(video, imgs, fps=args.fps or 12.0)
-        write_json(out / "sweep_focus.json", {**base, "what": "focus sweep", "view": view, "focus": fs.tolist(), "exposure_ev": args.exposure})
+        video = _free(out / "sweep_focus.mp4", args.overwrite)
+        _write_sweep(out, "focus", focus_sweep(model, meta, fs, view, args.exposure), args.fps, {**base, "what": "focus sweep", "view": view, "focus": fs.tolist(), "exposure_ev": args.exposure})
         say(f"focus sweep {a:g}..{b:g} of view {view}: {video}")
     if args.focus is not None:
         view = args.frame if args.frame is not None else (int(meta["reference"]) if "reference" in meta else int(round(args.focus)))
@@ -220,6 +214,16 @@ def run(args) -> int:
         write_json(folder / "render.json", {**base, "what": "exposure", "ev": args.exposure, "log2_exposure": z0 + args.exposure, "blur": args.keep_blur})
         say(f"{T} frames at {args.exposure:+g} EV: {folder}")
     return 0
+
+
+def _write_sweep(out: Path, kind: str, imgs, fps: float | None, info: dict) -> None:
+    """``sweep_{kind}.mp4``, its steps as PNGs in ``sweep_{kind}/`` and ``sweep_{kind}.json``."""
+    from layercam.io import write_png, write_video
+    from layercam.pipelines.runner import write_json
+
+    _write_steps(out / f"sweep_{kind}", imgs, write_png)
+    write_video(out / f"sweep_{kind}.mp4", imgs, fps=fps or 12.0)
+    write_json(out / f"sweep_{kind}.json", info)
 
 
 def _write_steps(folder: Path, imgs, write_png, prefix: str = "step_", width: int = 3) -> None:

@@ -1,0 +1,67 @@
+"""``layercam bench``: the --quick smoke test of both tables, and the speed-up arithmetic.
+
+Speed goals are measured by the benchmark itself (README, docs/bench/); nothing here asserts a time."""
+
+from __future__ import annotations
+
+import csv
+import json
+
+import numpy as np
+import pytest
+
+from layercam.bench import run_analysis_table, speedups, time_to_reach
+from layercam.cli import main
+
+
+def test_time_to_reach_interpolates_and_gives_up():
+    curve = [{"train_s": 10.0, "psnr_mu": 20.0}, {"train_s": 20.0, "psnr_mu": 30.0}]
+    assert time_to_reach(curve, 25.0) == pytest.approx(15.0)
+    assert time_to_reach(curve, 15.0) == 10.0  # reached by the first probe: its time (an upper bound)
+    assert time_to_reach(curve, 31.0) is None
+
+
+def test_speedups_against_the_paper_curve():
+    curves = {
+        ("pan", "paper"): [{"train_s": 100.0, "psnr_mu": 20.0}, {"train_s": 200.0, "psnr_mu": 25.0}],
+        ("pan", "fast"): [{"train_s": 1.0, "psnr_mu": 22.0}, {"train_s": 2.0, "psnr_mu": 30.0}],
+        ("pan", "slow"): [{"train_s": 500.0, "psnr_mu": 24.0}],
+    }
+    s = speedups(curves, [])["pan"]
+    assert s["target_psnr_mu"] == 25.0 and s["paper_s"] == 200.0
+    assert s["fast"]["seconds"] == pytest.approx(1.375) and s["fast"]["speedup"] == pytest.approx(200 / 1.375)
+    assert s["slow"]["seconds"] is None and s["slow"]["speedup"] is None
+
+
+def test_quick_bench_writes_csv_plot_and_speedups(tmp_path, capsys):
+    out = tmp_path / "bench"
+    assert main(["bench", "--quick", "--out", str(out), "--presets", "fast,paper", "--threads", "1"]) == 0
+    rows = list(csv.DictReader(open(out / "bench.csv")))
+    assert [(r["method"], r["preset"]) for r in rows] == [("debevec", ""), ("layercam", "fast"), ("layercam", "paper")]
+    for r in rows:
+        assert np.isfinite(float(r["psnr_mu"])) and float(r["wall_s"]) > 0 and float(r["peak_mem_mb"]) > 0
+    assert all(float(r["steps_per_s"]) > 0 for r in rows[1:])
+    assert (out / "bench.png").stat().st_size > 1000
+    sp = json.loads((out / "speedups.json").read_text())
+    assert "fast" in sp["pan"]
+    assert "PSNR-mu" in capsys.readouterr().out
+
+
+def test_unknown_bench_scene_is_one_line_error(tmp_path, capsys):
+    assert main(["bench", "--quick", "--out", str(tmp_path / "b"), "--scenes", "nope"]) == 2
+    err = capsys.readouterr().err
+    assert "unknown bench scene" in err and len(err.strip().splitlines()) == 1
+
+
+def test_quick_analysis_table_chosen_against_full(tmp_path):
+    rows = run_analysis_table(tmp_path / "an", quick=True, families=["static", "shake"], progress=False)
+    by = {(r["family"], r["variant"]): r for r in rows}
+    assert set(by) == {("static", "chosen"), ("static", "full"), ("shake", "chosen"), ("shake", "full")}
+    # the analysis keeps the static, single-exposure, sharp clip minimal; the full model is forced
+    assert by["static", "chosen"]["layers"] == 1 and by["static", "chosen"]["blur"] == "off"
+    assert by["static", "chosen"]["tone_mapper"] == "fixed"
+    assert by["static", "full"]["layers"] == 2 and by["static", "full"]["blur"] == "5x5"
+    assert by["shake", "chosen"]["blur"] != "off"
+    assert all(np.isfinite(r["value"]) and r["reasons"] for r in rows)
+    md = (tmp_path / "an" / "analysis_table.md").read_text()
+    assert md.count("\n") == 2 + len(rows)

@@ -353,9 +353,20 @@ def run_analysis_table(out: Path, preset: str = "fast", quick: bool = False, fam
             rows.append(r)
             if progress:
                 print(f"{name:>7} {variant:>6}: layers {r['layers']} tone {r['tone_mapper']:<7} blur {r['blur']:<4} flow {str(r['flow_loss']):<5} {r['metric']} {r['value']:6.2f}  {r['wall_s']:6.1f} s")
-    (out / "analysis_table.json").write_text(json.dumps(rows, indent=1))
+    write_analysis_table(out, rows)
+    return rows
+
+
+def write_analysis_table(out: Path, rows: list[dict]) -> None:
+    """``analysis_table.json`` and the markdown table ``analysis_table.md``."""
+    from layercam.io.atomic import atomic_write
+
+    def text(path: Path, body: str) -> None:
+        atomic_write(path, lambda p: p.write_text(body))
+
+    text(out / "analysis_table.json", json.dumps(rows, indent=1))
     md = ["| scene | model | layers | tone mapper | blur (s) | flow loss | quality | wall s |", "|---|---|---|---|---|---|---|---|"]
     for r in rows:
-        md.append(f"| {r['family']} | {r['variant']} | {r['layers']} | {r['tone_mapper']} | {r['blur']} ({r['max_offset']:g}) | {'on' if r['flow_loss'] else 'off'} | {r['metric']} {r['value']:.2f} | {r['wall_s']:.1f} |")
-    (out / "analysis_table.md").write_text("\n".join(md) + "\n")
-    return rows
+        blur = "off" if r["blur"] == "off" else f"{r['blur']} ({r['max_offset']:g})"
+        md.append(f"| {r['family']} | {r['variant']} | {r['layers']} | {r['tone_mapper']} | {blur} | {'on' if r['flow_loss'] else 'off'} | {r['metric']} {r['value']:.2f} | {r['wall_s']:.1f} |")
+    text(out / "analysis_table.md", "\n".join(md) + "\n")

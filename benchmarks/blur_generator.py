@@ -30,7 +30,8 @@ from layercam.io.clip import Clip
 from layercam.pipelines.blur_export import DeblurEvaluateStage, FuseEvaluateStage
 from layercam.pipelines.tasks import run_task
 
-VARIANTS = {"off": {"blur": "off"}, "s0": {"blur": "3x3", "max_offset": 0.0}, "s5": {"blur": "3x3", "max_offset": 5.0}, "s5n5": {"blur": "5x5", "max_offset": 5.0}}
+VARIANTS = {"off": {"blur": "off"}, "s0": {"blur": "3x3", "max_offset": 0.0}, "s5": {"blur": "3x3", "max_offset": 5.0}, "s5n5": {"blur": "5x5", "max_offset": 5.0},
+            "s5nf": {"blur": "3x3", "max_offset": 5.0, "flow_loss": False}}  # nf: no flow loss
 
 
 def shake(a) -> dict:

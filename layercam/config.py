@@ -26,7 +26,7 @@ class SceneConfig:
     pe_freqs: int = 7               # positional-encoding frequencies (paper: 7)
     grid_levels: int = 6            # dense grid levels, resolutions geometric from min to max
     grid_min_res: int = 16
-    grid_max_res: int = 0           # 0: derived from the atlas's extent in pixels (see render.resolve_sizes)
+    grid_max_res: int = 0           # 0: derived from the atlas's extent in pixels (see model.resolve_sizes)
     grid_features: int = 4
     atlas_width: int = 64           # atlas MLP width / depth (paper: 512 x 4)
     atlas_depth: int = 2

@@ -109,7 +109,7 @@ def _check_frames(frames) -> np.ndarray:
     return f
 
 
-def _dis(method: str, shape: tuple[int, int] | None = None):
+def _dis(method: str, shape: tuple[int, int]):
     import cv2
 
     preset = {
@@ -118,13 +118,12 @@ def _dis(method: str, shape: tuple[int, int] | None = None):
         "dis_medium": cv2.DISOpticalFlow_PRESET_MEDIUM,
     }[method]
     dis = cv2.DISOpticalFlow_create(preset)
-    if shape is not None:
-        # The presets start at 1/4 (fast) or 1/2 (medium) resolution: on small frames an object a
-        # few tens of pixels wide then vanishes and its flow is the background's (dis_fast on a
-        # 96x96 clip measured 0.5 px on an object moving 4.8 px against the background; at full
-        # resolution 2.0). Keep the finest level at least _DIS_FINEST_MIN px on the short side.
-        fits = max(int(np.floor(np.log2(max(min(shape), 1) / _DIS_FINEST_MIN))), 0)
-        dis.setFinestScale(min(dis.getFinestScale(), fits))
+    # The presets start at 1/4 (fast) or 1/2 (medium) resolution: on small frames an object a few
+    # tens of pixels wide then vanishes and its flow is the background's (dis_fast on a 96x96 clip
+    # measured 0.5 px on an object moving 4.8 px against the background; at full resolution 2.0).
+    # Keep the finest level at least _DIS_FINEST_MIN px on the short side.
+    fits = max(int(np.floor(np.log2(max(min(shape), 1) / _DIS_FINEST_MIN))), 0)
+    dis.setFinestScale(min(dis.getFinestScale(), fits))
     return dis
 
 

@@ -79,33 +79,6 @@ def save_run_model(path: Path, model, meta: dict) -> None:
     tmp.replace(path)
 
 
-def atlas_pixels(h0: np.ndarray, frame_hw: tuple[int, int]) -> float:
-    """How many frame pixels span the atlas's ``[-1, 1]`` side, from the bootstrap mappings
-    ``h0 (L, T, 3, 3)``: the largest over layers and frames of 2 / (uv step of one pixel)."""
-    h, w = frame_hw
-    h0 = np.asarray(h0, dtype=np.float64).reshape(-1, 3, 3)
-    p0 = h0 @ np.array([0.0, 0.0, 1.0])
-    px = h0 @ np.array([2.0 / w, 0.0, 1.0])
-    py = h0 @ np.array([0.0, 2.0 / h, 1.0])
-    uv0, uvx, uvy = (p[:, :2] / p[:, 2:] for p in (p0, px, py))
-    step = np.minimum(np.linalg.norm(uvx - uv0, axis=1), np.linalg.norm(uvy - uv0, axis=1))
-    return float(2.0 / max(step.min(), 1e-6))
-
-
-def resolve_sizes(cfg, meta: dict):
-    """Sizes derived in code: ``scene.grid_max_res = 0`` means the power of two at or above the
-    atlas's extent in frame pixels (one grid cell per pixel at the finest level), 32..2048."""
-    if cfg.scene.grid_max_res <= 0:
-        import copy
-        import math
-
-        cfg = copy.deepcopy(cfg)
-        px = atlas_pixels(meta["h0"], tuple(meta["frame_hw"]))
-        cfg.scene.grid_max_res = int(min(max(2 ** math.ceil(math.log2(max(px, 2.0))), 32), 2048))
-        cfg.scene.grid_min_res = min(cfg.scene.grid_min_res, cfg.scene.grid_max_res)
-    return cfg
-
-
 def build_model(cfg, spec: ModelSpec, meta: dict):
     from layercam.model import ImplicitCameraModel
 

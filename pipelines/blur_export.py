@@ -27,7 +27,7 @@ import numpy as np
 
 from layercam.errors import LayercamError
 from layercam.pipelines.runner import Context, Stage, set_aside_previous, write_json
-from layercam.pipelines.stages import load_trained, resolve_device, write_crf
+from layercam.pipelines.stages import load_trained, resolve_device, write_crf, write_hdr_set
 
 DEBLUR_OUTPUTS = ["frames", "deblurred.mp4", "hdr", "crf.json", "crf.png", "checkpoint.pt", "report.json", "psf.json"]
 FUSE_OUTPUTS = ["fused.exr", "fused.png", "crf.json", "crf.png", "checkpoint.pt", "report.json", "psf.json"]
@@ -103,14 +103,6 @@ def _finish_export(ctx: Context, model, meta: dict, extra_meta: dict | None = No
     return {"psf": psf}
 
 
-def _write_hdr(path, img: np.ndarray, half: bool) -> None:
-    from layercam.io import write_exr
-
-    if not np.isfinite(img).all():
-        raise LayercamError(f"{path.name}: the model rendered non-finite irradiance; not writing it")
-    write_exr(path, img, half=half and float(img.max()) < 6e4)
-
-
 class DeblurExportStage(Stage):
     """deblur-video: sharp frames in the input's tonality (the tone mapper at each frame's own
     exposure, the blur generator dropped), ``deblurred.mp4``, and ``hdr/`` EXRs when exposures vary."""
@@ -147,9 +139,8 @@ class DeblurExportStage(Stage):
             frames.append(ldr)
             if with_hdr:
                 hdr.append(render_frame(model, t, hw, ctx.cfg.export.chunk)["image"])
+        write_hdr_set([run / "hdr" / f"frame_{t:05d}.exr" for t in range(len(hdr))], hdr, ctx.cfg.export.half, ctx.say)
         hdr_max = max((float(h.max()) for h in hdr), default=0.0)
-        for t, img in enumerate(hdr):  # one EXR type for the whole clip: half floats stop at 65504
-            _write_hdr(run / "hdr" / f"frame_{t:05d}.exr", img, ctx.cfg.export.half and hdr_max < 6e4)
         frames = np.stack(frames)
         np.save(out / "deblurred.npy", frames.astype(np.float32))
         fps = ctx.cfg.export.preview_fps or float(ctx.clip.fps or 24.0)
@@ -184,7 +175,7 @@ class FuseExportStage(Stage):
         hw = (ctx.clip.H, ctx.clip.W)
         ref = reference_frame(ctx)
         hdr = render_frame(model, ref, hw, ctx.cfg.export.chunk)["image"]
-        _write_hdr(run / "fused.exr", hdr, ctx.cfg.export.half)
+        write_hdr_set([run / "fused.exr"], [hdr], ctx.cfg.export.half, ctx.say)
         np.save(out / "fused.npy", hdr.astype(np.float32))
         if ctx.spec.tone_mapper == "fixed":
             # one exposure: show the sharp image as the camera would have recorded it

@@ -98,11 +98,8 @@ STATIC_CORNER_PX = 1.5
 def max_corner_shift(pixel_maps: np.ndarray, h: int, w: int) -> float:
     """Largest displacement (px) of a frame corner under the per-frame maps ``(T, 3, 3)``."""
     c = np.array([[0, 0, 1], [w, 0, 1], [0, h, 1], [w, h, 1]], dtype=np.float64).T
-    d = 0.0
-    for m in pixel_maps:
-        p = m @ c
-        d = max(d, float(np.abs(p[:2] / p[2:] - c[:2]).max()))
-    return d
+    p = np.asarray(pixel_maps, dtype=np.float64) @ c  # (T, 3, 4)
+    return float(np.abs(p[:, :2] / p[:, 2:] - c[:2]).max(initial=0.0))
 
 
 class BootstrapStage(Stage):
@@ -182,7 +179,7 @@ class TrainStage(Stage):
 
     name = "train"
     deps = ("flow", "bootstrap")
-    version = 1
+    version = 2  # 2: alpha trained on bootstrap masks with balanced BCE, tapered (MaskTaper)
     all_ranks = True  # data-parallel under torch.distributed (layercam/distributed.py)
 
     def key_material(self, ctx):
@@ -190,8 +187,6 @@ class TrainStage(Stage):
         d["train"].pop("checkpoint_every", None)
         d["train"].pop("device", None)
         d["spec"] = ctx.spec.key_dict()
-        if ctx.spec.layers > 1:
-            d["alpha_masks"] = "balanced BCE, tapered"  # how bootstrap masks train alpha (issue 3)
         return d
 
     def run(self, ctx, out):
@@ -312,7 +307,7 @@ class ExportStage(Stage):
         return ctx.cfg.section_dict("export")
 
     def run(self, ctx, out):
-        from layercam.io import write_exr, write_video
+        from layercam.io import write_video
         from layercam.progress import bar as progress_bar
         from layercam.render import render_frame, save_run_model, tonemap_display
 
@@ -323,19 +318,9 @@ class ExportStage(Stage):
         hw = (ctx.clip.H, ctx.clip.W)
         hdr_dir = run / "hdr"
         hdr_dir.mkdir(exist_ok=True)
-        frames = []
-        for t in progress_bar(range(ctx.clip.T), desc="export", unit="frame", enabled=ctx.progress):
-            img = render_frame(model, t, hw, ctx.cfg.export.chunk)["image"]
-            if not np.isfinite(img).all():
-                raise LayercamError(f"frame {t}: the model rendered non-finite irradiance; not writing it")
-            frames.append(img)
+        frames = [render_frame(model, t, hw, ctx.cfg.export.chunk)["image"] for t in progress_bar(range(ctx.clip.T), desc="export", unit="frame", enabled=ctx.progress)]
+        half = write_hdr_set([hdr_dir / f"frame_{t:05d}.exr" for t in range(len(frames))], frames, ctx.cfg.export.half, ctx.say)
         hdr = np.stack(frames)
-        # half floats stop at 65504: a clip brighter than that is written as float32 (all frames alike)
-        half = bool(ctx.cfg.export.half) and float(hdr.max()) <= 65504.0
-        if half != ctx.cfg.export.half:
-            ctx.say(f"[export] irradiance reaches {float(hdr.max()):.3g}, beyond half floats: EXRs written as float32")
-        for t, img in enumerate(frames):
-            write_exr(hdr_dir / f"frame_{t:05d}.exr", img, half=half)
         np.save(out / "hdr_stats.npy", np.array([hdr.min(), hdr.max(), hdr.mean()]))
         preview, stats = tonemap_display(hdr)
         fps = ctx.cfg.export.preview_fps or float(ctx.clip.fps or 24.0)
@@ -345,6 +330,24 @@ class ExportStage(Stage):
         save_run_model(run / "checkpoint.pt", model, meta)
         (run / "export_key.txt").write_text(ctx.keys[self.name])
         return {"frames": int(ctx.clip.T), "hdr_min": float(hdr.min()), "hdr_max": float(hdr.max()), "exr": "half" if half else "float32", "display": stats}
+
+
+def write_hdr_set(paths: list[Path], images: list[np.ndarray], half: bool, say=None) -> bool:
+    """Write linear HDR images as EXR, all of one type: half floats stop at 65504, so a set brighter
+    than that is written as float32. Refuses (one line) before writing anything non-finite.
+    Returns whether half floats were used."""
+    from layercam.io import write_exr
+
+    for p, img in zip(paths, images):
+        if not np.isfinite(img).all():
+            raise LayercamError(f"{p.name}: the model rendered non-finite irradiance; not writing it")
+    peak = max((float(img.max()) for img in images), default=0.0)
+    use_half = bool(half) and peak <= 65504.0
+    if use_half != bool(half) and say:
+        say(f"[export] irradiance reaches {peak:.3g}, beyond half floats: EXRs written as float32")
+    for p, img in zip(paths, images):
+        write_exr(p, img, half=use_half)
+    return use_half
 
 
 def write_crf(run: Path, model) -> None:

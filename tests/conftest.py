@@ -33,6 +33,8 @@ TINY = [
     "tone.width=16",
     "flow.method=dis_fast",
 ]
+# ... and a small blur generator
+SMALL_BLUR = ["blur.width=16", "blur.depth=2"]
 
 
 @pytest.fixture(scope="session")

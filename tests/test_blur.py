@@ -14,15 +14,6 @@ from layercam.camera.blur import BlurGenerator, apply_patch_blur, patch_offsets_
 H = W = 8
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _one_thread():
-    """Tiny tensors: one intra-op thread is faster, and far faster on a busy 2-core machine."""
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
-
-
 class Field(nn.Module):
     """A fixed sharp scene with LayeredScene's call signature: ``(xy, t) -> {"log2_r": (N, 3)}``.
 

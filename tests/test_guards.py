@@ -19,15 +19,6 @@ from layercam.train import Trainer
 from conftest import TINY
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _one_thread():
-    """Tiny tensors: one thread is faster, and on a shared 2-core machine 2 threads can be 20x slower."""
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
-
-
 # ------------------------------------------------------------------------------------------
 # the trainer's guard on a toy model (fast, exact)
 # ------------------------------------------------------------------------------------------

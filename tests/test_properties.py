@@ -40,15 +40,6 @@ from conftest import TINY
 _EXPLORE = bool(os.environ.get("LAYERCAM_EXPLORE"))
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _one_thread():
-    """Tiny tensors: one thread is faster, and on a shared 2-core machine 2 threads can be 20x slower."""
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
-
-
 def props(n: int):
     """Settings for a property: ``n`` examples (x10 when exploring), no deadline, no database."""
     return settings(

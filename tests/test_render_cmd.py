@@ -11,21 +11,7 @@ import pytest
 from layercam.cli import main
 from layercam.io import read_image
 
-from conftest import TINY
-
-SMALL_BLUR = ["blur.width=16", "blur.depth=2"]
-
-
-@pytest.fixture(autouse=True, scope="module")
-def _one_thread():
-    """Tiny tensors on a shared 2-core machine: one intra-op thread is several times faster."""
-    import torch
-
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
-
+from conftest import SMALL_BLUR, TINY
 
 @pytest.fixture(scope="module")
 def stack_run(tmp_path_factory):

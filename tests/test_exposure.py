@@ -78,6 +78,8 @@ def test_cycle_none_and_learn():
     e = parse_exposures("-2,0,2", clip)
     np.testing.assert_allclose(e.log2_dt, [0, 2, 4, 0, 2])
     assert e.learn == "none" and list(e.phase) == [0, 1, 2, 0, 1]
+    with pytest.raises(LayercamError, match="has 6 entries for 5 frames"):
+        parse_exposures("0,1,2,3,4,5", clip)
     for spec in (None, "none", "single"):
         s = parse_exposures(spec, clip)
         assert s.count_distinct == 1 and not s.log2_dt.any() and s.learn == "none"

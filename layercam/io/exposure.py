@@ -223,6 +223,8 @@ def _cycle(clip: Clip, spec: str) -> Exposures:
     if not evs:
         raise LayercamError(f"empty exposure cycle {spec!r}")
     n = len(evs)
+    if n > clip.T:
+        raise LayercamError(f"exposure cycle {spec!r} has {n} entries for {clip.T} frames (at most one per frame)")
     phase = _frame_phase(clip, n)
     log2 = np.asarray(evs, dtype=np.float64)[phase]
     return Exposures(

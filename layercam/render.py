@@ -74,8 +74,12 @@ def tonemap_display(hdr: np.ndarray, stats: dict | None = None) -> tuple[np.ndar
 
 # -- a run's model on disk -----------------------------------------------------------------------
 def save_run_model(path: Path, model, meta: dict) -> None:
+    """Write ``{"state", **meta}`` atomically; ``cfg`` is the model's own, with the sizes derived in
+    code (``model.resolve_sizes``) filled in, so a later change to that derivation cannot change
+    the shapes a saved run is rebuilt with."""
     tmp = Path(path).with_name(Path(path).name + ".tmp")
-    torch.save({"state": model.state_dict(), **meta}, tmp)
+    extra = {"cfg": model.cfg.to_dict()} if hasattr(model, "cfg") else {}
+    torch.save({"state": model.state_dict(), **meta, **extra}, tmp)
     tmp.replace(path)
 
 
@@ -89,6 +93,18 @@ def build_model(cfg, spec: ModelSpec, meta: dict):
     )
 
 
+def saved_grid_sizes(cfg, state: dict):
+    """``cfg`` with ``scene.grid_min_res/grid_max_res`` read from a saved dense grid when the saved
+    config left them to be derived (``grid_max_res = 0``, runs saved before the derived sizes were
+    stored), so the run is rebuilt with the shapes it was trained with."""
+    if cfg.scene.grid_max_res > 0 or cfg.scene.encoding != "grid":
+        return cfg
+    sizes = [v.shape[-1] for k, v in state.items() if k.startswith("scene.atlases.0.enc.grids.")]
+    if sizes:
+        cfg.scene.grid_min_res, cfg.scene.grid_max_res = int(min(sizes)), int(max(sizes))
+    return cfg
+
+
 def load_run_model(run_dir: Path, device: str = "cpu"):
     """``run_dir/checkpoint.pt`` -> ``(model, meta)`` ready to render."""
     path = Path(run_dir) / "checkpoint.pt"
@@ -98,7 +114,7 @@ def load_run_model(run_dir: Path, device: str = "cpu"):
         ck = torch.load(path, map_location=device, weights_only=False)
     except Exception as e:  # noqa: BLE001 - any unreadable checkpoint is a user-facing error
         raise LayercamError(f"{path}: cannot read checkpoint ({e.__class__.__name__})") from None
-    cfg = config_from_dict(ck["cfg"])
+    cfg = saved_grid_sizes(config_from_dict(ck["cfg"]), ck["state"])
     spec = ModelSpec(**{k: v for k, v in ck["spec"].items()})
     model = build_model(cfg, spec, ck)
     model.load_state_dict(ck["state"])

@@ -158,7 +158,9 @@ class Trainer:
         frac = self.step / max(self.cfg.steps, 1)
         cos = self.cfg.lr_decay + (1 - self.cfg.lr_decay) * 0.5 * (1 + math.cos(math.pi * frac))
         for g, base in zip(self.opt.param_groups, self.base_lrs):
-            g["lr"] = base * cos * self.lr_scale
+            # a group with "start" (a fraction of training) stays frozen until then (Adam's moments
+            # still gather, so its first steps are well scaled)
+            g["lr"] = base * cos * self.lr_scale if frac >= g.get("start", 0.0) else 0.0
 
     def _autocast(self):
         dev = self.sampler.device

@@ -179,7 +179,7 @@ class TrainStage(Stage):
 
     name = "train"
     deps = ("flow", "bootstrap")
-    version = 2  # 2: alpha trained on bootstrap masks with balanced BCE, tapered (MaskTaper)
+    version = 3  # 2: alpha trained on bootstrap masks with balanced BCE, tapered (MaskTaper); 3: grid at most one cell per pixel with a blur generator
     all_ranks = True  # data-parallel under torch.distributed (layercam/distributed.py)
 
     def key_material(self, ctx):
@@ -281,11 +281,11 @@ def load_trained(ctx: Context):
     import torch
 
     from layercam.config import config_from_dict
-    from layercam.render import build_model
+    from layercam.render import build_model, saved_grid_sizes
     from layercam.spec import ModelSpec
 
     ck = torch.load(ctx.results["train"]["model_path"], map_location="cpu", weights_only=False)
-    model = build_model(config_from_dict(ck["cfg"]), ModelSpec(**ck["spec"]), ck)
+    model = build_model(saved_grid_sizes(config_from_dict(ck["cfg"]), ck["state"]), ModelSpec(**ck["spec"]), ck)
     model.load_state_dict(ck["state"])
     model.eval()
     return model, ck

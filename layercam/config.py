@@ -35,6 +35,7 @@ class SceneConfig:
     deform_depth: int = 2
     deform_pe_freqs: int = 4
     residual_scale: float = 0.05    # bound of the residual deformation, atlas units
+    residual: str = "auto"          # the residual warp: auto (off for a static one-layer scene) | on | off
     bootstrap: str = "flow"         # "flow" (chained homographies of the cached flow) | "identity" (paper)
     alpha_width: int = 64
     alpha_depth: int = 3
@@ -78,6 +79,7 @@ class LossConfig:
     rigidity: float = 0.01
     sparsity: float = 0.001
     alpha_flow: float = 1.0
+    psf_centre: float = 1e-3        # weight on the blur PSF's squared centroid (px^2): the PSF blurs, the deformation moves
 
 
 @dataclass
@@ -202,6 +204,8 @@ def load_config(preset: str = "balanced", overrides: list[str] | None = None) ->
             raise LayercamError(f"--set expects key=value, got {item!r}")
         k, v = item.split("=", 1)
         cfg.set(k.strip(), v.strip())
+    if cfg.scene.residual not in ("auto", "on", "off"):
+        raise LayercamError(f"scene.residual must be auto, on or off, got {cfg.scene.residual!r}")
     if not 0.0 <= cfg.blur.warmup < 1.0:
         raise LayercamError(f"blur.warmup is a fraction of training in [0, 1), got {cfg.blur.warmup}")
     return cfg

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import json
 import math
@@ -109,7 +110,7 @@ class BootstrapStage(Stage):
 
     name = "bootstrap"
     deps = ("flow",)
-    version = 2
+    version = 3  # 3: reports "static" (identity because nothing moved)
 
     def key_material(self, ctx):
         s = ctx.cfg.scene
@@ -125,6 +126,7 @@ class BootstrapStage(Stage):
         T, H, W = clip.T, clip.H, clip.W
         fl = load_flow(ctx)
         ref = T // 2
+        static = False
         if ctx.cfg.scene.bootstrap == "flow" and fl is not None:
             bg = chain_homographies(fl["homs"].astype(np.float64), ref)
             how = f"chained flow homographies to frame {ref}"
@@ -132,6 +134,7 @@ class BootstrapStage(Stage):
             if moved < STATIC_CORNER_PX:  # flow between differently focused/exposed frames: noise
                 bg = np.stack([np.eye(3)] * T)
                 how = f"identity: the flow homographies move no frame corner by {STATIC_CORNER_PX} px (at most {moved:.2f} px)"
+                static = True
         elif ctx.cfg.scene.bootstrap in ("flow", "identity"):
             bg = np.stack([np.eye(3)] * T)
             how = "identity"
@@ -150,7 +153,7 @@ class BootstrapStage(Stage):
         h0 = np.stack(h0)
         init_log2 = initial_log2(clip.frames, ctx.exposures.log2_dt, ctx.cfg.tone.init_slope, ctx.spec.tone_mapper)
         np.save(out / "h0.npy", h0)
-        res = {"how": how, "init_log2": init_log2, "layers": int(h0.shape[0])}
+        res = {"how": how, "init_log2": init_log2, "layers": int(h0.shape[0]), "static": static}
         if fg:
             res["foreground"] = {"how": fg["how"], "masks": "motion segmentation" if fg["computed"] else ("given" if fg["masks"] is not None else "none"), **fg["info"]}
         return res
@@ -198,10 +201,12 @@ class TrainStage(Stage):
         from layercam.render import build_model, save_run_model
         from layercam.train import BootstrapPhase, FlowDecay, MaskTaper, Trainer
 
-        cfg = ctx.cfg
+        cfg = with_residual(ctx)
         torch.manual_seed(cfg.train.seed)
         meta = model_meta(ctx)
         model = build_model(cfg, ctx.spec, meta)
+        if cfg.scene.residual_scale == 0 and ctx.cfg.scene.residual_scale > 0:
+            ctx.say("[train] static one-layer scene: per-frame homographies only, no residual warp (scene.residual=on keeps it)")
         if ctx.spec.tone_mapper == "learned" and not cfg.tone.monotone:
             fit_init_curve(model.tone, cfg.tone.init_slope, seed=cfg.train.seed)
         masks = ctx.masks if ctx.masks is not None else ctx.results["bootstrap"].get("masks")  # given, else motion masks
@@ -254,6 +259,20 @@ def resolve_device(name: str) -> str:
     if name == "cuda" and not torch.cuda.is_available():
         raise LayercamError("--device cuda asked for, but torch sees no CUDA device")
     return name
+
+
+def with_residual(ctx: Context):
+    """``ctx.cfg`` with ``scene.residual_scale = 0`` where the residual warp is off: always for
+    ``scene.residual = off``; for ``auto`` when the bootstrap found the frames static (identity) and
+    the scene has one layer. A static stack has nothing for a free per-pixel warp to follow, and one
+    fitted its blur with it (9-image focus x exposure stack: 38.6 dB PSNR-mu without, 36.5 with)."""
+    cfg, mode = ctx.cfg, ctx.cfg.scene.residual
+    off = mode == "off" or (mode == "auto" and ctx.spec.layers == 1 and ctx.results["bootstrap"].get("static", False))
+    if not off or cfg.scene.deformation != "homography" or cfg.scene.residual_scale == 0:
+        return cfg
+    cfg = copy.deepcopy(cfg)
+    cfg.scene.residual_scale = 0.0
+    return cfg
 
 
 def model_meta(ctx: Context) -> dict:

@@ -106,3 +106,26 @@ def test_saved_run_keeps_its_grid_sizes(tmp_path):
     xy = torch.rand(7, 2) * 2 - 1
     t = torch.zeros(7, dtype=torch.long)
     assert torch.allclose(loaded(xy, t)["rgb"], model.eval()(xy, t)["rgb"])
+
+
+@pytest.mark.parametrize("mode,expect_residual", [("auto", False), ("on", True)])
+def test_static_stack_drops_the_residual_warp(tmp_path, mode, expect_residual):
+    """A static one-layer stack (identity bootstrap): with scene.residual=auto the deformation is
+    the per-frame homographies only; =on keeps the residual MLP. The saved run rebuilds the same."""
+    from layercam import synth
+    from layercam.io import Exposures
+    from layercam.pipelines.tasks import run_task
+
+    from conftest import SMALL_BLUR, TINY
+
+    sc = synth.mfme_stack(size=(64, 64), focus_settings=2, exposures_ev=(0.0,), planes=2, seed=3)
+    exp = Exposures(np.zeros(2), "none", None, "none", "single")
+    cfg = load_config("fast", TINY + SMALL_BLUR + ["train.steps=20", f"scene.residual={mode}"])
+    ctx = run_task("fuse-stack", sc.clip, exp, cfg, tmp_path / "run", {"layers": 1}, progress=False)
+    assert ctx.results["bootstrap"]["static"] is True
+    model, ck = load_run_model(tmp_path / "run")
+    d = model.scene.deformations[0]
+    assert (d.residual_scale > 0) == expect_residual
+    assert (ck["cfg"]["scene"]["residual_scale"] > 0) == expect_residual
+    with pytest.raises(LayercamError, match="scene.residual"):
+        load_config("fast", ["scene.residual=maybe"])

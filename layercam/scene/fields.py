@@ -86,6 +86,8 @@ class Deformation(nn.Module):
             return torch.tanh(self.net(torch.cat([xy, tn], dim=1)).float())
         dh = torch.cat([self.dh, torch.zeros_like(self.dh[:, :1])], dim=1).view(-1, 3, 3)
         uv = apply_homography(self.h0[t] + dh[t], xy)
+        if self.residual_scale == 0:  # homographies only
+            return uv
         res = self.residual(self.pe(torch.cat([xy, tn], dim=1))).float()
         return uv + self.residual_scale * torch.tanh(res)
 

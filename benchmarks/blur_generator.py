@@ -1,7 +1,7 @@
 """The blur generator's numbers on synthetic scenes with ground truth (issue 4).
 
     python benchmarks/blur_generator.py shake [--size 64 --frames 8 --blur 8 --variants s5,s0,off]
-    python benchmarks/blur_generator.py mfme  [--size 64 --subsets 3,9 --variants s5,off]
+    python benchmarks/blur_generator.py mfme  [--size 64 --subsets 3,9 --variants s5,off --seeds 0,1,2]
 
 shake: camera-shake clip (``synth.shake_blur``); PSNR/SSIM of the deblurred frames and of the blurry
 input against the sharp frames, "raw" and "aligned" (each frame at its best shift within 3 px), and
@@ -65,17 +65,23 @@ def mfme(a) -> dict:
         clip = Clip(scene.clip.frames[idx], "synthetic:mfme_stack", [scene.clip.names[i] for i in idx], meta={"kind": "synthetic"})
         e = Exposures(ev[idx] - ev[idx].min(), "none", None, "times", "synthetic: known times")
         for v in a.variants.split(","):
-            cfg = load_config(a.preset, a.set)
-            t0 = time.time()
-            extra = {"scene": scene, "focus_index": fidx[idx], "times": scene.exposure_times[idx],
-                     "full_stack": (scene.clip.frames, scene.exposure_times, fidx), "reference": "middle"}
-            ctx = run_task("fuse-stack", clip, e, cfg, a.out / f"mfme_{sub}_{v}", {**VARIANTS[v], "layers": 1}, progress=False,
-                           extra=extra, extra_stages=[FuseEvaluateStage()])
-            r = ctx.results["evaluate"]
-            print(f"{sub} images, {v}: {time.time() - t0:.0f} s  layercam {r['metrics']}")
-            for k, b in r["baselines"].items():
-                print(f"    {k}: {b}")
-            out[f"{sub}_{v}"] = {"seconds": round(time.time() - t0, 1), **r}
+            for seed in a.seeds:
+                cfg = load_config(a.preset, a.set + [f"train.seed={seed}"])
+                t0 = time.time()
+                extra = {"scene": scene, "focus_index": fidx[idx], "times": scene.exposure_times[idx],
+                         "full_stack": (scene.clip.frames, scene.exposure_times, fidx), "reference": "middle"}
+                tag = f"mfme_{sub}_{v}" + (f"_seed{seed}" if seed else "")
+                ctx = run_task("fuse-stack", clip, e, cfg, a.out / tag, {**VARIANTS[v], "layers": 1}, progress=False,
+                               extra=extra, extra_stages=[FuseEvaluateStage()])
+                r = ctx.results["evaluate"]
+                print(f"{sub} images, {v}, seed {seed}: {time.time() - t0:.0f} s  layercam {r['metrics']}", flush=True)
+                for k, b in r["baselines"].items():
+                    print(f"    {k}: {b}")
+                out[f"{sub}_{v}" + (f"_seed{seed}" if seed else "")] = {"seconds": round(time.time() - t0, 1), **r}
+            if len(a.seeds) > 1:
+                vals = [out[f"{sub}_{v}" + (f"_seed{s}" if s else "")]["metrics"]["psnr_mu"] for s in a.seeds]
+                out[f"{sub}_{v}_seeds"] = {"seeds": a.seeds, "psnr_mu": vals, "mean": float(np.mean(vals)), "std": float(np.std(vals))}
+                print(f"{sub} images, {v}: PSNR-mu over seeds {a.seeds}: mean {np.mean(vals):.2f}, std {np.std(vals):.2f}")
     return out
 
 
@@ -89,9 +95,11 @@ def main() -> None:
     ap.add_argument("--subsets", default="3,9")
     ap.add_argument("--variants", default=None, help="comma-separated: s5, s0, off, s5n5")
     ap.add_argument("--preset", default="fast")
+    ap.add_argument("--seeds", default="0", help="mfme: comma-separated training seeds (mean and std reported)")
     ap.add_argument("--set", action="append", default=[])
     a = ap.parse_args()
     a.variants = a.variants or ("s5,s0,off" if a.what == "shake" else "s5,off")
+    a.seeds = [int(v) for v in a.seeds.split(",")]
     torch.set_num_threads(1)
     a.out.mkdir(parents=True, exist_ok=True)
     res = shake(a) if a.what == "shake" else mfme(a)

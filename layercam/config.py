@@ -64,6 +64,7 @@ class BlurConfig:
     depth: int = 4
     init_centre_weight: float = 0.2  # start blurry: a near-sharp start (0.9) lets the scene absorb the blur
     zero_mean_offsets: bool = True  # a patch's offsets shape it but cannot translate it (no warp)
+    centre: str = "auto"            # PSFs centred on their pixel: auto (a static one-layer scene) | on | off
     warmup: float = 0.2             # fraction of training with the PSFs held at their start: the scene first
                                     # takes shape; blur nets trained from step 0 collapse every PSF to a delta within 25 steps
 
@@ -79,7 +80,6 @@ class LossConfig:
     rigidity: float = 0.01
     sparsity: float = 0.001
     alpha_flow: float = 1.0
-    psf_centre: float = 1e-3        # weight on the blur PSF's squared centroid (px^2): the PSF blurs, the deformation moves
 
 
 @dataclass
@@ -206,6 +206,8 @@ def load_config(preset: str = "balanced", overrides: list[str] | None = None) ->
         cfg.set(k.strip(), v.strip())
     if cfg.scene.residual not in ("auto", "on", "off"):
         raise LayercamError(f"scene.residual must be auto, on or off, got {cfg.scene.residual!r}")
+    if cfg.blur.centre not in ("auto", "on", "off"):
+        raise LayercamError(f"blur.centre must be auto, on or off, got {cfg.blur.centre!r}")
     if not 0.0 <= cfg.blur.warmup < 1.0:
         raise LayercamError(f"blur.warmup is a fraction of training in [0, 1), got {cfg.blur.warmup}")
     return cfg

@@ -69,7 +69,7 @@ class ImplicitCameraModel(nn.Module):
         if spec.blur != "off":
             from layercam.camera.blur import BlurGenerator
 
-            self.blur = BlurGenerator(spec.blur_n, spec.max_offset, h0.shape[1], frame_hw, cfg.blur.width, cfg.blur.depth, init_centre_weight=cfg.blur.init_centre_weight, zero_mean_offsets=cfg.blur.zero_mean_offsets)
+            self.blur = BlurGenerator(spec.blur_n, spec.max_offset, h0.shape[1], frame_hw, cfg.blur.width, cfg.blur.depth, init_centre_weight=cfg.blur.init_centre_weight, zero_mean_offsets=cfg.blur.zero_mean_offsets, centre_exact=cfg.blur.centre == "on")
         lc = cfg.loss
         self.weights = {
             "color": lc.color,
@@ -81,7 +81,6 @@ class ImplicitCameraModel(nn.Module):
             "sparsity": lc.sparsity if spec.layers > 1 else 0.0,
             "alpha_flow": lc.alpha_flow if spec.layers > 1 and spec.flow_loss else 0.0,
             "alpha_mask": 0.0,
-            "psf_centre": lc.psf_centre if spec.blur != "off" else 0.0,
         }
 
     # -- rendering ---------------------------------------------------------------------------
@@ -136,13 +135,6 @@ class ImplicitCameraModel(nn.Module):
                 losses.rigidity_loss(d, xy, t, 2.0 / max(self.frame_hw)) for d in self.scene.deformations
             )
         if self.blur is not None:
-            if w["psf_centre"] > 0:
-                # A shift shared by the PSF and the deformation is invisible to the colour loss; left
-                # free, the PSFs of a real clip drifted 7 px (the sharp frames then land 7 px off).
-                xy, t = batch["xy"][:1024], batch["t"][:1024]
-                disp, wts = self.blur.kernels(xy, t)
-                centre = (wts[:, :, None] * disp).sum(1)
-                terms["psf_centre"] = w["psf_centre"] * (centre**2).sum(1).mean()
             terms.update({k: v for k, v in self.blur.regularisers().items()})
         return terms
 

@@ -111,7 +111,8 @@ def test_saved_run_keeps_its_grid_sizes(tmp_path):
 @pytest.mark.parametrize("mode,expect_residual", [("auto", False), ("on", True)])
 def test_static_stack_drops_the_residual_warp(tmp_path, mode, expect_residual):
     """A static one-layer stack (identity bootstrap): with scene.residual=auto the deformation is
-    the per-frame homographies only; =on keeps the residual MLP. The saved run rebuilds the same."""
+    the per-frame homographies only; =on keeps the residual MLP. blur.centre=auto centres its PSFs.
+    The saved run rebuilds the same."""
     from layercam import synth
     from layercam.io import Exposures
     from layercam.pipelines.tasks import run_task
@@ -127,5 +128,27 @@ def test_static_stack_drops_the_residual_warp(tmp_path, mode, expect_residual):
     d = model.scene.deformations[0]
     assert (d.residual_scale > 0) == expect_residual
     assert (ck["cfg"]["scene"]["residual_scale"] > 0) == expect_residual
+    assert ck["cfg"]["blur"]["centre"] == "on" and model.blur.centre_exact
+    disp, w = model.blur.kernels(torch.rand(50, 2) * 2 - 1, torch.randint(0, 2, (50,)))
+    assert torch.allclose((w[:, :, None] * disp).sum(1), torch.zeros(50, 2), atol=1e-4)
     with pytest.raises(LayercamError, match="scene.residual"):
         load_config("fast", ["scene.residual=maybe"])
+    with pytest.raises(LayercamError, match="blur.centre"):
+        load_config("fast", ["blur.centre=maybe"])
+
+
+def test_moving_clip_keeps_psf_shift_free(tmp_path):
+    """A clip whose camera moves (a pan, not static): blur.centre=auto resolves to off, residual kept."""
+    from layercam import synth
+    from layercam.io import Exposures
+    from layercam.pipelines.tasks import run_task
+
+    from conftest import SMALL_BLUR, TINY
+
+    sc = synth.pan_hdr(frames=3, size=(48, 48), ev_step=0.0, seed=0)  # pans 1.5 to 3 px a frame
+    cfg = load_config("fast", TINY + SMALL_BLUR + ["train.steps=10"])
+    ctx = run_task("deblur-video", sc.clip, Exposures(np.zeros(3), "none", None, "none", "single"), cfg, tmp_path / "run", {"layers": 1, "blur": "3x3"}, progress=False)
+    assert ctx.results["bootstrap"]["static"] is False
+    model, ck = load_run_model(tmp_path / "run")
+    assert ck["cfg"]["blur"]["centre"] == "off" and not model.blur.centre_exact
+    assert model.scene.deformations[0].residual_scale > 0

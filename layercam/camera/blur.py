@@ -120,9 +120,11 @@ class BlurGenerator(nn.Module):
       spread the patch but cannot translate it: the offsets cannot act as a per-pixel warp (the
       scene's deformation is one already), which otherwise lets a trained model shift the whole
       PSF (the sharp render then lands pixels away from the input) or store each frame apart instead
-      of blurring. Each offset then stays within ``2 * max_offset``. (Subtracting the *weighted*
-      mean instead, which centres the PSF exactly, makes a delta on any of the ``K`` samples an
-      identity PSF; training then often collapsed there.)
+      of blurring. Each offset then stays within ``2 * max_offset``.
+    * ``centre_exact``: the displacements are moved by minus their *weighted* mean, so each PSF's
+      centre of mass is its pixel (the weights cannot shift it either). Right for defocus, where the
+      scene does not move; a delta on any sample is then an identity PSF, which trained from step
+      0 on a grid finer than the pixels collapsed there (the model's warm-up and grid cap avoid it).
 
     Args:
         n: patch size (odd), ``K = n * n`` samples per pixel.
@@ -146,6 +148,7 @@ class BlurGenerator(nn.Module):
         use_depth: bool = False,
         init_centre_weight: float = 0.9,
         zero_mean_offsets: bool = False,
+        centre_exact: bool = False,
     ):
         super().__init__()
         if isinstance(n, bool) or not isinstance(n, int) or n < 1 or n % 2 == 0:
@@ -165,6 +168,7 @@ class BlurGenerator(nn.Module):
         self.frame_hw = (h, w)
         self.use_depth = bool(use_depth)
         self.zero_mean_offsets = bool(zero_mean_offsets)
+        self.centre_exact = bool(centre_exact)
         self.register_buffer("base", patch_offsets_base(n), persistent=False)
         self.embedding = nn.Parameter(torch.randn(self.n_frames, embed_dim) * 0.5)
         self.pe = PositionalEncoding(2, pe_freqs)
@@ -219,6 +223,8 @@ class BlurGenerator(nn.Module):
                 off = off - off.mean(1, keepdim=True)
             disp = disp + off
         log_w = torch.log_softmax(self.weight_net(h).float().clamp(-LOGIT_BOUND, LOGIT_BOUND), dim=1)
+        if self.centre_exact:  # every PSF's weighted centre on its pixel
+            disp = disp - (log_w.exp()[:, :, None] * disp).sum(1, keepdim=True)
         return disp, log_w
 
     def kernels(self, xy: torch.Tensor, t: torch.Tensor | None = None, *, depth: torch.Tensor | None = None, t_blur: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:

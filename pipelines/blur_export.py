@@ -63,7 +63,9 @@ def psf_summary(model, hw: tuple[int, int], grid: int = 24) -> dict | None:
     """Per frame, the learned PSF on a ``grid x grid`` lattice of pixels, averaged: ``spread_px``
     (weighted RMS distance of the samples from their weighted centre: 0 for a sharp frame, about
     ``L / sqrt(12)`` for a straight blur of length ``L``), ``centre_weight`` and ``shift_px`` (the
-    length of the PSF's weighted centre). None when the model has no blur generator."""
+    length of the PSF's weighted centre). The lattice leaves out a border as wide as the patch can
+    reach (``n // 2 + 2 s`` px, at most a quarter of the frame): there samples fall outside the
+    frame and nothing constrains the PSF. None when the model has no blur generator."""
     import torch
 
     from layercam.data import normalise_xy
@@ -71,8 +73,10 @@ def psf_summary(model, hw: tuple[int, int], grid: int = 24) -> dict | None:
     if model.blur is None:
         return None
     h, w = hw
-    ys = torch.linspace(0, h - 1, min(grid, h)).round()
-    xs = torch.linspace(0, w - 1, min(grid, w)).round()
+    reach = model.blur.n // 2 + 2 * model.blur.max_offset
+    my, mx = (int(min(reach, (v - 1) // 4)) for v in (h, w))
+    ys = torch.linspace(my, h - 1 - my, min(grid, h - 2 * my)).round()
+    xs = torch.linspace(mx, w - 1 - mx, min(grid, w - 2 * mx)).round()
     yy, xx = torch.meshgrid(ys, xs, indexing="ij")
     xy = normalise_xy(xx.flatten(), yy.flatten(), w, h)
     dev = next(model.parameters()).device

@@ -64,22 +64,22 @@ def mfme(a) -> dict:
         idx = [0, 4, 8] if sub == "3" else list(range(9))
         clip = Clip(scene.clip.frames[idx], "synthetic:mfme_stack", [scene.clip.names[i] for i in idx], meta={"kind": "synthetic"})
         e = Exposures(ev[idx] - ev[idx].min(), "none", None, "times", "synthetic: known times")
+        extra = {"scene": scene, "focus_index": fidx[idx], "times": scene.exposure_times[idx],
+                 "full_stack": (scene.clip.frames, scene.exposure_times, fidx), "reference": "middle"}
         for v in a.variants.split(","):
+            key = {seed: f"{sub}_{v}" + (f"_seed{seed}" if seed else "") for seed in a.seeds}  # seed 0 keeps the plain name
             for seed in a.seeds:
                 cfg = load_config(a.preset, a.set + [f"train.seed={seed}"])
                 t0 = time.time()
-                extra = {"scene": scene, "focus_index": fidx[idx], "times": scene.exposure_times[idx],
-                         "full_stack": (scene.clip.frames, scene.exposure_times, fidx), "reference": "middle"}
-                tag = f"mfme_{sub}_{v}" + (f"_seed{seed}" if seed else "")
-                ctx = run_task("fuse-stack", clip, e, cfg, a.out / tag, {**VARIANTS[v], "layers": 1}, progress=False,
+                ctx = run_task("fuse-stack", clip, e, cfg, a.out / f"mfme_{key[seed]}", {**VARIANTS[v], "layers": 1}, progress=False,
                                extra=extra, extra_stages=[FuseEvaluateStage()])
                 r = ctx.results["evaluate"]
                 print(f"{sub} images, {v}, seed {seed}: {time.time() - t0:.0f} s  layercam {r['metrics']}", flush=True)
                 for k, b in r["baselines"].items():
                     print(f"    {k}: {b}")
-                out[f"{sub}_{v}" + (f"_seed{seed}" if seed else "")] = {"seconds": round(time.time() - t0, 1), **r}
+                out[key[seed]] = {"seconds": round(time.time() - t0, 1), **r}
             if len(a.seeds) > 1:
-                vals = [out[f"{sub}_{v}" + (f"_seed{s}" if s else "")]["metrics"]["psnr_mu"] for s in a.seeds]
+                vals = [out[key[s]]["metrics"]["psnr_mu"] for s in a.seeds]
                 out[f"{sub}_{v}_seeds"] = {"seeds": a.seeds, "psnr_mu": vals, "mean": float(np.mean(vals)), "std": float(np.std(vals))}
                 print(f"{sub} images, {v}: PSNR-mu over seeds {a.seeds}: mean {np.mean(vals):.2f}, std {np.std(vals):.2f}")
     return out
@@ -93,7 +93,7 @@ def main() -> None:
     ap.add_argument("--frames", type=int, default=8)
     ap.add_argument("--blur", type=float, default=8.0, help="shake: longest blur path (px)")
     ap.add_argument("--subsets", default="3,9")
-    ap.add_argument("--variants", default=None, help="comma-separated: s5, s0, off, s5n5")
+    ap.add_argument("--variants", default=None, help="comma-separated: " + ", ".join(VARIANTS))
     ap.add_argument("--preset", default="fast")
     ap.add_argument("--seeds", default="0", help="mfme: comma-separated training seeds (mean and std reported)")
     ap.add_argument("--set", action="append", default=[])

@@ -114,12 +114,16 @@ def load_run_model(run_dir: Path, device: str = "cpu"):
         ck = torch.load(path, map_location=device, weights_only=False)
     except Exception as e:  # noqa: BLE001 - any unreadable checkpoint is a user-facing error
         raise LayercamError(f"{path}: cannot read checkpoint ({e.__class__.__name__})") from None
+    return model_from_checkpoint(ck), ck
+
+
+def model_from_checkpoint(ck: dict):
+    """The model a saved ``{"state", "cfg", "spec", ...}`` dict describes, weights loaded, in eval mode."""
     cfg = saved_grid_sizes(config_from_dict(ck["cfg"]), ck["state"])
-    spec = ModelSpec(**{k: v for k, v in ck["spec"].items()})
-    model = build_model(cfg, spec, ck)
+    model = build_model(cfg, ModelSpec(**ck["spec"]), ck)
     model.load_state_dict(ck["state"])
     model.eval()
-    return model, ck
+    return model
 
 
 # -- layers and atlases: what the atlas export and ``layercam edit`` share -------------------------

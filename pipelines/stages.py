@@ -306,15 +306,10 @@ def model_meta(ctx: Context) -> dict:
 def load_trained(ctx: Context):
     import torch
 
-    from layercam.config import config_from_dict
-    from layercam.render import build_model, saved_grid_sizes
-    from layercam.spec import ModelSpec
+    from layercam.render import model_from_checkpoint
 
     ck = torch.load(ctx.results["train"]["model_path"], map_location="cpu", weights_only=False)
-    model = build_model(saved_grid_sizes(config_from_dict(ck["cfg"]), ck["state"]), ModelSpec(**ck["spec"]), ck)
-    model.load_state_dict(ck["state"])
-    model.eval()
-    return model, ck
+    return model_from_checkpoint(ck), ck
 
 
 HDR_VIDEO_OUTPUTS = ["hdr", "preview.mp4", "crf.json", "crf.png", "checkpoint.pt", "report.json"]

@@ -56,7 +56,8 @@ class Deformation(nn.Module):
     """``(xy, t) -> uv``. Starts from a per-frame bootstrap mapping ``h0 (T, 3, 3)``.
 
     kind "homography": ``uv = (h0_t + dh_t)(xy) + s * tanh(residual(PE(x, y, t)))`` with the
-    per-frame correction ``dh`` and the residual MLP both starting at zero (fast, exact at start).
+    per-frame correction ``dh`` and the residual MLP both starting at zero (fast, exact at start);
+    no residual MLP when ``s = 0``.
     kind "mlp" (paper): ``uv = tanh(MLP(x, y, t))``, fitted to ``h0`` during the bootstrap steps.
     """
 
@@ -69,9 +70,11 @@ class Deformation(nn.Module):
         self.register_buffer("h0", h0.float().clone())
         if self.kind == "homography":
             self.dh = nn.Parameter(torch.zeros(self.n_frames, 8))
-            self.pe = PositionalEncoding(3, cfg.deform_pe_freqs)
-            self.residual = MLP(self.pe.out_dim, 2, cfg.deform_width, cfg.deform_depth, zero_last=True)
             self.residual_scale = cfg.residual_scale
+            self.residual = None  # residual_scale = 0: the per-frame homographies only
+            if self.residual_scale > 0:
+                self.pe = PositionalEncoding(3, cfg.deform_pe_freqs)
+                self.residual = MLP(self.pe.out_dim, 2, cfg.deform_width, cfg.deform_depth, zero_last=True)
         elif self.kind == "mlp":
             self.net = MLP(3, 2, cfg.deform_width, cfg.deform_depth)
         else:
@@ -86,7 +89,7 @@ class Deformation(nn.Module):
             return torch.tanh(self.net(torch.cat([xy, tn], dim=1)).float())
         dh = torch.cat([self.dh, torch.zeros_like(self.dh[:, :1])], dim=1).view(-1, 3, 3)
         uv = apply_homography(self.h0[t] + dh[t], xy)
-        if self.residual_scale == 0:  # homographies only
+        if self.residual is None:
             return uv
         res = self.residual(self.pe(torch.cat([xy, tn], dim=1))).float()
         return uv + self.residual_scale * torch.tanh(res)

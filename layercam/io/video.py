@@ -64,8 +64,11 @@ def read_video(
         "-i", str(p), "-map", "0:v:0", "-f", "rawvideo", "-pix_fmt", "rgb24", "-",
     ]  # fmt: skip
     frames: list[np.ndarray] = []
-    with tempfile.TemporaryFile() as log:
-        proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=log)
+    # ffmpeg writes its log through the file description it inherits, whose offset it shares with
+    # ours: seeking it to read would make ffmpeg overwrite the header we wait for (seen as a flaky
+    # "not a video" on a loaded machine). So the log is written in append mode and read apart.
+    with tempfile.NamedTemporaryFile(mode="ab") as sink, open(sink.name, "rb") as log:
+        proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=sink)
         try:
             # The output stream header is logged before the first frame reaches the pipe.
             deadline = time.monotonic() + 60.0

@@ -24,7 +24,7 @@ import numpy as np
 import torch
 
 from layercam import synth
-from layercam.config import load_config
+from layercam.config import load_config, model_overrides
 from layercam.io import Exposures
 from layercam.io.clip import Clip
 from layercam.pipelines.blur_export import DeblurEvaluateStage, FuseEvaluateStage
@@ -42,9 +42,9 @@ def shake(a) -> dict:
     print("blur lengths (px)", np.round(lengths, 2).tolist(), "largest: frame", big)
     out = {"blur_length": np.asarray(lengths).tolist(), "largest": big}
     for v in a.variants.split(","):
-        cfg = load_config(a.preset, a.set)
+        cfg = load_config(a.preset, model_overrides(layers=1, **VARIANTS[v]) + a.set)
         t0 = time.time()
-        ctx = run_task("deblur-video", scene.clip, exp, cfg, a.out / f"shake_{v}", {**VARIANTS[v], "layers": 1}, progress=False,
+        ctx = run_task("deblur-video", scene.clip, exp, cfg, a.out / f"shake_{v}", progress=False,
                        extra={"scene": scene}, extra_stages=[DeblurEvaluateStage()])
         ev = ctx.results["evaluate"]
         pf, pa = ev["raw"]["per_frame"], ev["aligned"]["per_frame"]
@@ -69,9 +69,9 @@ def mfme(a) -> dict:
         for v in a.variants.split(","):
             key = {seed: f"{sub}_{v}" + (f"_seed{seed}" if seed else "") for seed in a.seeds}  # seed 0 keeps the plain name
             for seed in a.seeds:
-                cfg = load_config(a.preset, a.set + [f"train.seed={seed}"])
+                cfg = load_config(a.preset, model_overrides(layers=1, **VARIANTS[v]) + a.set + [f"train.seed={seed}"])
                 t0 = time.time()
-                ctx = run_task("fuse-stack", clip, e, cfg, a.out / f"mfme_{key[seed]}", {**VARIANTS[v], "layers": 1}, progress=False,
+                ctx = run_task("fuse-stack", clip, e, cfg, a.out / f"mfme_{key[seed]}", progress=False,
                                extra=extra, extra_stages=[FuseEvaluateStage()])
                 r = ctx.results["evaluate"]
                 print(f"{sub} images, {v}, seed {seed}: {time.time() - t0:.0f} s  layercam {r['metrics']}", flush=True)

@@ -13,7 +13,7 @@ import math
 
 import numpy as np
 
-from layercam.spec import ModelSpec
+from layercam.config import AUTO, Config
 
 # thresholds of the rules (each documented where it is used)
 IND_MOTION_PX = 1.5          # residual flow (px) beyond which a pixel moves on its own
@@ -110,85 +110,138 @@ def measure(clip, exposures, flow: dict | None) -> dict:
     return m
 
 
-TASK_BLUR = {"deblur-video": "3x3", "fuse-stack": "3x3"}
+TASK_BLUR = ("deblur-video", "fuse-stack")  # tasks that ask for the blur to be explained
+MODEL_KEYS = ("layers", "tone_mapper", "exposures", "blur", "max_offset", "flow_loss")  # what the analysis reports
 
 
-def decide(clip, exposures, task: str, overrides: dict | None = None, cfg=None, measures: dict | None = None) -> ModelSpec:
-    """Choose layers, tone mapper, exposures, blur (+ max offset) and flow loss for ``clip``.
-
-    ``overrides`` maps ModelSpec field names to forced values (``None`` entries are ignored).
-    Without ``measures`` (no flow yet) only the exposure-based decisions are informed.
+def decide(cfg: Config, clip, exposures, task: str, measures: dict | None = None) -> tuple[Config, dict]:
+    """The analysis's choices written into a copy of ``cfg``: each ``auto`` of the ``model`` section
+    (layers, tone mapper, exposures, blur generator, flow loss) and of the blur generator's ``n``
+    and ``max_offset``; returns ``(cfg, reasons)``, one measured reason per choice. A value that is
+    not ``auto`` (a flag such as ``--layers 2``, or ``--set``) is kept and its reason says so.
+    Without ``measures`` (no flow yet) only the exposure-based choices are informed.
     """
-    o = {k: v for k, v in (overrides or {}).items() if v is not None}
+    cfg = cfg.copy()
+    m, b = cfg.model, cfg.blur
     mm = measures or {}
-    spec = ModelSpec()
-    r = spec.reasons
+    r: dict = {}
+
+    def forced(key: str, value) -> bool:
+        if value == AUTO:
+            return False
+        r[key.split(".")[1]] = f"forced ({key}={value})"
+        return True
 
     # layers: a second layer only when something moves against the camera's global motion
     pairs = mm.get("independent_pairs", 0.0)
     frac = mm.get("independent_motion_frac", 0.0)
-    if clip.T > 1 and pairs >= IND_MOTION_PAIRS:
-        spec.layers = 2
-        r["layers"] = f"independent motion in {pairs:.0%} of frame pairs (median {frac:.1%} of pixels beyond {IND_MOTION_PX} px of the global homography)"
-    else:
-        spec.layers = 1
-        r["layers"] = f"no independent motion (in {pairs:.0%} of pairs)" if measures else "one layer (no flow measured)"
+    if not forced("model.layers", m.layers):
+        if clip.T > 1 and pairs >= IND_MOTION_PAIRS:
+            m.layers = 2
+            r["layers"] = f"independent motion in {pairs:.0%} of frame pairs (median {frac:.1%} of pixels beyond {IND_MOTION_PX} px of the global homography)"
+        else:
+            m.layers = 1
+            r["layers"] = f"no independent motion (in {pairs:.0%} of pairs)" if measures else "one layer (no flow measured)"
 
     # tone mapper: a response curve is only identifiable from more than one exposure
     n_exp = exposures.count_distinct
     learned = exposures.learn != "none"
-    if n_exp > 1 or learned:
-        spec.tone_mapper = "learned"
-        r["tone_mapper"] = f"{n_exp} distinct exposures" + (" (learned)" if learned else "")
-    else:
-        spec.tone_mapper = "fixed"
-        r["tone_mapper"] = "one exposure: no response curve can be learned, sRGB assumed"
-    spec.exposures = "learned" if learned else "given"
-    r["exposures"] = exposures.reason
+    if not forced("model.tone_mapper", m.tone_mapper):
+        if n_exp > 1 or learned:
+            m.tone_mapper = "learned"
+            r["tone_mapper"] = f"{n_exp} distinct exposures" + (" (learned)" if learned else "")
+        else:
+            m.tone_mapper = "fixed"
+            r["tone_mapper"] = "one exposure: no response curve can be learned, sRGB assumed"
+    if m.exposures == "learned" and not learned:
+        m.exposures, r["exposures"] = "given", "exposures were given; nothing to learn"
+    elif not forced("model.exposures", m.exposures):
+        m.exposures, r["exposures"] = ("learned" if learned else "given"), exposures.reason
 
     # blur: frames that are blurrier than the sharpest one by more than BLUR_SIGMA
     sigma = mm.get("max_blur_sigma", 0.0)
-    if measures and sigma >= BLUR_SIGMA:
-        n = cfg.blur.n if cfg is not None else 3
-        spec.blur = "5x5" if sigma >= BLUR_5X5_SIGMA or n >= 5 else "3x3"
-        spec.max_offset = float(min(max(math.ceil(OFFSET_PER_SIGMA * sigma), 2.0), 8.0))
-        r["blur"] = f"frames up to {sigma:.1f} px (Gaussian sigma) blurrier than the sharpest"
-        r["max_offset"] = f"{OFFSET_PER_SIGMA:g} x the largest relative blur, {spec.max_offset:.0f} px"
-    elif task in TASK_BLUR:  # the task asks for the blur to be explained; the global measure misses
-        # uniform blur and focus that differs by region (8 px shake reads as 0.7, a Lytro pair as 0.7)
-        spec.blur = TASK_BLUR[task]
-        spec.max_offset = float(cfg.blur.max_offset) if cfg is not None else 5.0
-        r["blur"] = f"task {task}" + (f" (measured relative blur {sigma:.1f} px)" if measures else " (no measurement)")
-        r["max_offset"] = "preset"
-    else:
-        spec.blur = "off"
-        r["blur"] = f"sharp input: relative blur {sigma:.1f} px < {BLUR_SIGMA}" if measures else "no blur expected"
-        spec.max_offset = float(cfg.blur.max_offset) if cfg is not None else 5.0
-        r["max_offset"] = "unused (blur off)"
+    measured = bool(measures) and sigma >= BLUR_SIGMA
+    if not forced("model.blur", m.blur):
+        if measured:
+            m.blur, r["blur"] = "on", f"frames up to {sigma:.1f} px (Gaussian sigma) blurrier than the sharpest"
+        elif task in TASK_BLUR:  # the task asks for the blur to be explained; the global measure misses
+            # uniform blur and focus that differs by region (8 px shake reads as 0.7, a Lytro pair as 0.7)
+            m.blur = "on"
+            r["blur"] = f"task {task}" + (f" (measured relative blur {sigma:.1f} px)" if measures else " (no measurement)")
+        else:
+            m.blur = "off"
+            r["blur"] = f"sharp input: relative blur {sigma:.1f} px < {BLUR_SIGMA}" if measures else "no blur expected"
+    if not forced("blur.n", b.n):
+        b.n = 5 if measured and sigma >= BLUR_5X5_SIGMA else 3
+    if not forced("blur.max_offset", b.max_offset):
+        if m.blur == "off":
+            b.max_offset, r["max_offset"] = 5.0, "unused (blur off)"
+        elif measured:
+            b.max_offset = float(min(max(math.ceil(OFFSET_PER_SIGMA * sigma), 2.0), 8.0))
+            r["max_offset"] = f"{OFFSET_PER_SIGMA:g} x the largest relative blur, {b.max_offset:.0f} px"
+        else:
+            b.max_offset, r["max_offset"] = 5.0, "default (nothing measured)"
 
     # flow loss: only helps when things move
     motion = mm.get("global_motion_px", 0.0)
-    if clip.T < 2:
-        spec.flow_loss = False
-        r["flow_loss"] = "a single frame has no neighbours"
-    elif measures and motion < STATIC_PX and spec.layers == 1:
-        spec.flow_loss = False
-        r["flow_loss"] = f"static scene (median flow {motion:.2f} px)"
-    else:
-        spec.flow_loss = True
-        r["flow_loss"] = f"median flow {motion:.2f} px" if measures else "more than one frame"
-
-    for k, v in o.items():
-        setattr(spec, k, v)
-        r[k] = f"forced by --{k.replace('_', '-')}"
-    if spec.exposures == "learned" and exposures.learn == "none":
-        spec.exposures = "given"
-        r["exposures"] = "exposures were given; nothing to learn"
-    return spec
+    if not forced("model.flow_loss", m.flow_loss):
+        if clip.T < 2:
+            m.flow_loss, r["flow_loss"] = False, "a single frame has no neighbours"
+        elif measures and motion < STATIC_PX and m.layers == 1:
+            m.flow_loss, r["flow_loss"] = False, f"static scene (median flow {motion:.2f} px)"
+        else:
+            m.flow_loss = True
+            r["flow_loss"] = f"median flow {motion:.2f} px" if measures else "more than one frame"
+    return cfg, r
 
 
-def format_table(spec: ModelSpec) -> str:
-    rows = [(k, str(getattr(spec, k)), spec.reasons.get(k, "")) for k in ("layers", "tone_mapper", "exposures", "blur", "max_offset", "flow_loss")]
+def model_summary(cfg: Config) -> dict:
+    """The decided model as the report and the analysis table show it: ``{"layers": 1, "blur":
+    "3x3" | "off", "max_offset": 5.0, ...}``."""
+    m, b = cfg.model, cfg.blur
+    return {"layers": m.layers, "tone_mapper": m.tone_mapper, "exposures": m.exposures, "blur": "off" if m.blur == "off" else f"{b.n}x{b.n}", "max_offset": b.max_offset, "flow_loss": m.flow_loss}
+
+
+def format_table(cfg: Config, reasons: dict) -> str:
+    s = model_summary(cfg)
+    rows = [(k, str(s[k]), reasons.get(k, "")) for k in MODEL_KEYS]
     w0 = max(len(a) for a, _, _ in rows)
     w1 = max(len(b) for _, b, _ in rows)
     return "\n".join(f"  {a:<{w0}}  {b:<{w1}}  {c}" for a, b, c in rows)
+
+
+def resolve_auto(cfg: Config, static: bool, h0, frame_hw: tuple[int, int]) -> Config:
+    """The settings left ``auto`` until the bootstrap has run, resolved in a copy of ``cfg``:
+
+    * a static one-layer scene (``static``: the bootstrap found the frames registered by the
+      identity) has no residual warp (``scene.residual`` -> ``off``, ``scene.residual_scale = 0``)
+      and PSFs centred on their pixel (``blur.centre`` -> ``on``); elsewhere the residual is on
+      and the centre free. A static stack has nothing for a free per-pixel warp or a PSF shift to
+      follow, and both were used to fit the images' blur instead (measured in the README). On moving
+      footage the shift stays free: centred, the PSFs of the Adobe240 triplet grew to 4 px on its
+      sharp background, which came out over-sharpened.
+    * ``scene.grid_max_res = 0``: the finest atlas grid level from the atlas's extent in frame
+      pixels (:func:`layercam.geometry.atlas_pixels` of the bootstrap mappings ``h0 (L, T, 3, 3)``),
+      within 32..2048: without a blur generator the power of two at or above it (at least one cell
+      per pixel); with one, the extent itself (at most one cell per pixel). The blur generator
+      samples the scene between pixels, so a finer grid lets the scene keep sub-pixel content that
+      each image's PSF reads on its own, fitting every image without one sharp scene (on the
+      3-image focus x exposure stack the PSFs collapsed to deltas at 1.8 cells per pixel).
+    """
+    from layercam.geometry import atlas_pixels
+
+    cfg = cfg.copy()
+    static = cfg.model.layers == 1 and bool(static)
+    if cfg.scene.residual == AUTO:
+        cfg.scene.residual = "off" if static else "on"
+    if cfg.scene.residual == "off" and cfg.scene.deformation == "homography":
+        cfg.scene.residual_scale = 0.0
+    if cfg.blur.centre == AUTO:
+        cfg.blur.centre = "on" if static else "off"
+    s = cfg.scene
+    if s.encoding == "grid" and s.grid_max_res == 0:
+        px = atlas_pixels(h0, frame_hw)
+        res = int(round(px)) if cfg.model.blur == "on" else 2 ** math.ceil(math.log2(max(px, 2.0)))
+        s.grid_max_res = int(min(max(res, 32), 2048))
+        s.grid_min_res = min(s.grid_min_res, s.grid_max_res)
+    return cfg

@@ -307,20 +307,21 @@ ANALYSIS_FAMILIES = {
     "shake": ("shake_blur", {"frames": 10, "size": (96, 96)}, {"frames": 3, "size": (24, 24)}, "deblur-video"),
     "mfme": ("mfme_stack", {"size": (96, 96)}, {"size": (24, 24)}, "fuse-stack"),
 }
-FULL_MODEL = {"layers": 2, "tone_mapper": "learned", "blur": "5x5", "max_offset": 5.0, "flow_loss": True}
+FULL_MODEL = {"layers": 2, "tone_mapper": "learned", "blur": "5x5", "max_offset": 5.0, "flow_loss": True}  # config.model_overrides
 
 
 def analysis_job(name: str, variant: str, out: Path, preset: str, quick: bool, overrides_cfg: list[str]) -> dict:
     """Train ``name`` with the analysed model (variant "chosen") or the full model ("full")."""
     from layercam import synth
-    from layercam.config import load_config
+    from layercam.analyse import model_summary
+    from layercam.config import load_config, model_overrides
     from layercam.pipelines.blur_export import DeblurEvaluateStage, FuseEvaluateStage
     from layercam.pipelines.evaluate import EvaluateStage
     from layercam.pipelines.tasks import run_task
 
     fam, kw, qkw, task = ANALYSIS_FAMILIES[name]
     scene = getattr(synth, fam)(**(qkw if quick else kw))
-    cfg = load_config(preset, overrides_cfg)
+    cfg = load_config(preset, (model_overrides(**FULL_MODEL) if variant == "full" else []) + list(overrides_cfg))
     extra = {"scene": scene, "baselines": []}
     if task == "hdr-video":
         ev = EvaluateStage()
@@ -330,14 +331,12 @@ def analysis_job(name: str, variant: str, out: Path, preset: str, quick: bool, o
         ev = FuseEvaluateStage()
         extra.update(focus_index=np.asarray(scene.meta["focus_index"]), times=np.asarray(scene.exposure_times))
     t0 = time.perf_counter()
-    ctx = run_task(task, scene.clip, scene_exposures(scene), cfg, out / name / variant, FULL_MODEL if variant == "full" else None, progress=False, extra=extra, extra_stages=[ev])
+    ctx = run_task(task, scene.clip, scene_exposures(scene), cfg, out / name / variant, progress=False, extra=extra, extra_stages=[ev])
     wall = sum(v["seconds"] for k, v in ctx.times.items() if k != "evaluate")
     m = ctx.results["evaluate"]["metrics"]
     metric, value = ("psnr_mu", m["psnr_mu"]) if "psnr_mu" in m else ("psnr", m["psnr"])
-    s = ctx.spec
-    return {"family": name, "variant": variant, "layers": s.layers, "tone_mapper": s.tone_mapper, "exposures": s.exposures, "blur": s.blur,
-            "max_offset": s.max_offset, "flow_loss": s.flow_loss, "metric": metric, "value": round(float(value), 2), "wall_s": round(wall, 1),
-            "total_s": round(time.perf_counter() - t0, 1), "reasons": s.reasons}
+    return {"family": name, "variant": variant, **model_summary(ctx.cfg), "metric": metric, "value": round(float(value), 2), "wall_s": round(wall, 1),
+            "total_s": round(time.perf_counter() - t0, 1), "reasons": ctx.reasons}
 
 
 def run_analysis_table(out: Path, preset: str = "fast", quick: bool = False, families: list[str] | None = None, progress: bool = True, overrides_cfg: list[str] | None = None) -> list[dict]:

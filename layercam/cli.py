@@ -63,24 +63,16 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def load_cfg(args):
-    from layercam.config import load_config
+    """The preset, then the model flags (``--layers`` ... as ``model.*``/``blur.*`` settings), the
+    shortcuts and each ``--set``: checked, one line and exit 2 on a bad value."""
+    from layercam.config import load_config, model_overrides
 
-    overrides = list(args.overrides)
+    overrides = model_overrides(args.layers, args.tone_mapper, args.blur, args.max_offset, args.flow_loss)
     if args.steps is not None:
         overrides.append(f"train.steps={args.steps}")
     if args.device:
         overrides.append(f"train.device={args.device}")
-    return load_config(args.preset, overrides)
-
-
-def spec_overrides(args) -> dict:
-    return {
-        "layers": args.layers,
-        "tone_mapper": args.tone_mapper,
-        "blur": args.blur,
-        "max_offset": args.max_offset,
-        "flow_loss": None if args.flow_loss is None else args.flow_loss == "on",
-    }
+    return load_config(args.preset, overrides + list(args.overrides))
 
 
 def default_out(inputs: list[str]) -> Path:

@@ -1,125 +1,214 @@
-"""Dataclass configs for every component and stage, presets as TOML files, ``--set key=value``.
+"""Typed settings: one dataclass per section, presets as TOML files, ``--set section.key=value``.
+
+Every field is typed (``int``, ``float``, ``bool``, ``str``, a ``Literal`` of choices, or a number
+or ``"auto"``) and carries its range in :func:`setting`; a value is converted and checked when it is
+set, and the whole config once more when it is loaded (:func:`load_config`) or a run starts, so a
+bad preset value or ``--set`` fails with one line before any work. NaN and infinities are refused
+everywhere.
 
 A preset (``configs/<name>.toml``, shipped inside the package as ``layercam.configs``) holds only
 the values that differ from the defaults below. ``load_config("fast", ["train.steps=500"])``
 returns a :class:`Config`; ``Config.section_dict("train")`` is what a stage hashes for its cache key.
+
+``"auto"`` values are decided per clip: the ``model`` section and the blur generator's ``n`` and
+``max_offset`` by :func:`layercam.analyse.decide` (from what the analysis measures), the static
+scene's ``scene.residual`` and ``blur.centre`` and the derived grid size by
+:func:`layercam.analyse.resolve_auto` (from the bootstrap). A model is built only from a config
+without ``auto`` left (:func:`unresolved`).
+
+>>> cfg = load_config("fast", ["train.steps=50", "model.layers=2"])
+>>> cfg.train.steps, cfg.model.layers, cfg.flow.method
+(50, 2, 'dis_fast')
+>>> load_config("fast", ["train.autocast=bogus"])
+Traceback (most recent call last):
+...
+layercam.errors.LayercamError: train.autocast: expected one of auto, none, bf16, got 'bogus'
 """
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import json
+import math
+import re
 import tomllib
+import types
+import typing
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 from layercam.errors import LayercamError
+
+AUTO = "auto"
+
+
+def setting(default: Any, lo: float | None = None, hi: float | None = None, *, above: float | None = None, below: float | None = None, check=None) -> Any:
+    """A dataclass field with a range: ``lo <= v <= hi``, ``v > above``, ``v < below`` (numbers;
+    ``"auto"`` is not range-checked) and ``check(v) -> str | None`` (a message when wrong)."""
+    return field(default=default, metadata={"lo": lo, "hi": hi, "above": above, "below": below, "check": check})
+
+
+def _odd(v) -> str | None:
+    return None if v == AUTO or v % 2 == 1 else "must be odd"
+
+
+def _device(v: str) -> str | None:
+    return None if re.fullmatch(r"auto|cpu|mps|cuda(:\d+)?", v) else "expected auto, cpu, cuda, cuda:N or mps"
+
+
+def _lut(v: int) -> str | None:
+    return None if v == 0 or v >= 2 else "must be 0 (off) or at least 2 knots"
+
+
+@dataclass
+class ModelConfig:
+    """What the model contains. ``auto``: decided by the analysis of the clip (``layercam.analyse``),
+    which writes its choice here; anything else forces the choice (``--layers``, ``--blur``, ...)."""
+
+    layers: Literal["auto", 1, 2] = AUTO              # 1 (static or rigid scene) or 2 (an object moves on its own)
+    tone_mapper: Literal["auto", "learned", "fixed"] = AUTO  # learned CRF, or the fixed sRGB curve (one exposure)
+    exposures: Literal["auto", "given", "learned"] = AUTO  # learned only when the exposure spec leaves some unknown
+    blur: Literal["auto", "on", "off"] = AUTO           # the blur generator (its shape: the blur section)
+    flow_loss: bool | Literal["auto"] = AUTO
 
 
 @dataclass
 class SceneConfig:
     """Scene model: deformation, atlas and alpha fields of each layer."""
 
-    encoding: str = "grid"          # atlas encoding: "grid" (dense multi-res 2D grids) | "pe" (paper)
-    pe_freqs: int = 7               # positional-encoding frequencies (paper: 7)
-    grid_levels: int = 6            # dense grid levels, resolutions geometric from min to max
-    grid_min_res: int = 16
-    grid_max_res: int = 0           # 0: derived from the atlas's extent in pixels (see model.resolve_sizes)
-    grid_features: int = 4
-    atlas_width: int = 64           # atlas MLP width / depth (paper: 512 x 4)
-    atlas_depth: int = 2
-    deformation: str = "homography"  # "homography" (per-frame homography + residual MLP) | "mlp" (paper)
-    deform_width: int = 64          # residual (homography) or full (mlp) deformation MLP (paper: 256 x 4)
-    deform_depth: int = 2
-    deform_pe_freqs: int = 4
-    residual_scale: float = 0.05    # bound of the residual deformation, atlas units
-    residual: str = "auto"          # the residual warp: auto (off for a static one-layer scene) | on | off
-    bootstrap: str = "flow"         # "flow" (chained homographies of the cached flow) | "identity" (paper)
-    alpha_width: int = 64
-    alpha_depth: int = 3
-    alpha_pe_freqs: int = 6
+    encoding: Literal["grid", "pe"] = "grid"  # atlas encoding: dense multi-res 2D grids | positional encoding (paper)
+    pe_freqs: int = setting(7, 0, 16)        # positional-encoding frequencies (paper: 7)
+    grid_levels: int = setting(6, 1, 16)     # dense grid levels, resolutions geometric from min to max
+    grid_min_res: int = setting(16, 2)
+    grid_max_res: int = setting(0, 0, 8192)  # 0: derived from the atlas's extent in pixels (analyse.resolve_auto)
+    grid_features: int = setting(4, 1)
+    atlas_width: int = setting(64, 1)        # atlas MLP width / depth (paper: 512 x 4)
+    atlas_depth: int = setting(2, 0)
+    deformation: Literal["homography", "mlp"] = "homography"  # per-frame homography + residual MLP | MLP (paper)
+    deform_width: int = setting(64, 1)       # residual (homography) or full (mlp) deformation MLP (paper: 256 x 4)
+    deform_depth: int = setting(2, 0)
+    deform_pe_freqs: int = setting(4, 0, 16)
+    residual_scale: float = setting(0.05, 0.0)  # bound of the residual deformation, atlas units
+    residual: Literal["auto", "on", "off"] = AUTO  # the residual warp: auto (off for a static one-layer scene)
+    bootstrap: Literal["flow", "identity"] = "flow"  # chained homographies of the cached flow | identity (paper)
+    alpha_width: int = setting(64, 1)
+    alpha_depth: int = setting(3, 0)
+    alpha_pe_freqs: int = setting(6, 0, 16)
 
 
 @dataclass
 class ToneConfig:
     """Tone mapper: three per-channel MLPs of log2 r' + log2 dt (paper: 2 layers of 128)."""
 
-    width: int = 64
-    depth: int = 2
+    width: int = setting(64, 1)
+    depth: int = setting(2, 0)
     monotone: bool = False          # monotone by construction (cumulative positive increments)
-    c0: float = 0.5                 # white-balance target T(0)
-    init_slope: float = 0.6         # initial curve sigmoid(init_slope * ln2 * z)
-    lut: int = 1024                 # evaluate the curves on this many knots and interpolate (0: per pixel, paper)
+    c0: float = setting(0.5, above=0.0, below=1.0)  # white-balance target T(0)
+    init_slope: float = setting(0.6, above=0.0)     # initial curve sigmoid(init_slope * ln2 * z)
+    lut: int = setting(1024, 0, check=_lut)  # evaluate the curves on this many knots and interpolate (0: per pixel, paper)
 
 
 @dataclass
 class BlurConfig:
     """Blur generator (paper Sec. 3.2): n x n patch, offsets bounded by max_offset pixels."""
 
-    n: int = 3
-    max_offset: float = 5.0
-    width: int = 64
-    depth: int = 4
-    init_centre_weight: float = 0.2  # start blurry: a near-sharp start (0.9) lets the scene absorb the blur
+    n: int | Literal["auto"] = setting(AUTO, 1, 15, check=_odd)  # auto: 5 when the frames are blurrier than 2.5 px, else 3
+    max_offset: float | Literal["auto"] = setting(AUTO, 0.0, 64.0)  # s, px; auto: from the measured blur, else 5
+    width: int = setting(64, 1)
+    depth: int = setting(4, 0)
+    init_centre_weight: float = setting(0.2, above=0.0, below=1.0)  # start blurry: a near-sharp start (0.9) lets the scene absorb the blur
     zero_mean_offsets: bool = True  # a patch's offsets shape it but cannot translate it (no warp)
-    centre: str = "auto"            # PSFs centred on their pixel: auto (a static one-layer scene) | on | off
-    warmup: float = 0.2             # fraction of training with the PSFs held at their start: the scene first
-                                    # takes shape; blur nets trained from step 0 collapse every PSF to a delta within 25 steps
+    centre: Literal["auto", "on", "off"] = AUTO  # PSFs centred on their pixel: auto (a static one-layer scene)
+    warmup: float = setting(0.2, 0.0, below=1.0)  # fraction of training with the PSFs held at their start: the scene first
+    # takes shape; blur nets trained from step 0 collapse every PSF to a delta within 25 steps
 
 
 @dataclass
 class LossConfig:
-    color: float = 1.0              # lambda_c
-    flow: float = 100.0             # lambda_f, decays linearly to 0 by flow_decay_end of training
-    flow_decay_end: float = 0.5
-    white_balance: float = 1.0      # lambda_w
-    gradient: float = 100.0         # lambda_g
-    clipped: str = "plain"          # "plain" MSE (paper) | "one_sided" at 0 / 1 pixels
-    rigidity: float = 0.01
-    sparsity: float = 0.001
-    alpha_flow: float = 1.0
+    color: float = setting(1.0, 0.0)        # lambda_c
+    flow: float = setting(100.0, 0.0)       # lambda_f, decays linearly to 0 by flow_decay_end of training
+    flow_decay_end: float = setting(0.5, 0.0, 1.0)
+    white_balance: float = setting(1.0, 0.0)  # lambda_w
+    gradient: float = setting(100.0, 0.0)   # lambda_g
+    clipped: Literal["plain", "one_sided"] = "plain"  # MSE (paper) | one-sided at 0 / 1 pixels
+    rigidity: float = setting(0.01, 0.0)
+    sparsity: float = setting(0.001, 0.0)
+    alpha_flow: float = setting(1.0, 0.0)
 
 
 @dataclass
 class TrainConfig:
-    steps: int = 2000
-    bootstrap_steps: int = 200      # deformation fit to its bootstrap mapping (paper: 10k)
-    batch: int = 8192               # pixels per step (paper: 30,000)
-    lr: float = 5e-3                # Adam learning rate of MLPs (paper: 1e-4)
-    grid_lr: float = 2e-2           # learning rate of dense grid tables
-    lr_decay: float = 0.1           # final lr factor (cosine)
-    seed: int = 0
-    autocast: str = "auto"          # "auto" (bf16 mixed precision on a GPU, fp32 on the CPU) | "none" | "bf16"
-    compile: bool = False          # torch.compile the atlas fields (opt-in: 10-30 s to compile)
-    checkpoint_every: int = 500
-    device: str = "cpu"
-    max_bad_steps: int = 20
+    steps: int = setting(2000, 1)
+    bootstrap_steps: int = setting(200, 0)  # deformation fit to its bootstrap mapping (paper: 10k)
+    batch: int = setting(8192, 1)           # pixels per step (paper: 30,000)
+    lr: float = setting(5e-3, above=0.0, hi=1.0)  # Adam learning rate of MLPs (paper: 1e-4)
+    grid_lr: float = setting(2e-2, above=0.0, hi=1.0)  # learning rate of dense grid tables
+    lr_decay: float = setting(0.1, 0.0, 1.0)  # final lr factor (cosine)
+    seed: int = setting(0, 0)
+    autocast: Literal["auto", "none", "bf16"] = AUTO  # bf16 mixed precision on a GPU, fp32 on the CPU
+    compile: bool = False                   # torch.compile the atlas fields (opt-in: 10-30 s to compile)
+    checkpoint_every: int = setting(500, 0)  # 0: only at the end (and on Ctrl-C)
+    device: str = setting("cpu", check=_device)
+    max_bad_steps: int = setting(20, 1)
 
 
 @dataclass
 class FlowConfig:
-    method: str = "dis_medium"      # "dis_fast" | "dis_medium" | "raft" (needs --raft-weights)
-    raft_weights: str = ""
+    method: Literal["dis_ultrafast", "dis_fast", "dis_medium", "raft", "raft_small", "raft_large"] = "dis_medium"
+    raft_weights: str = ""                  # a torchvision RAFT weights file (the raft methods need one)
+
+
+@dataclass
+class SegmentConfig:
+    """Motion segmentation of a two-layer clip (:func:`layercam.segment.motion_masks`) and the
+    foreground layer's bootstrap. Distances in pixels of the clip being segmented.
+
+    ``abs_px``: a residual below this is never motion. ``k_sigma``: a residual must also exceed
+    the frame's robust residual level (median + k_sigma * 1.4826 MAD). ``window``: neighbours on
+    each side averaged along the flow; ``vote``: the averaged evidence that makes a pixel
+    foreground. ``grid``: flow samples per side for the homography fit. ``min_area``: components
+    smaller than this fraction of the frame are dropped, and so are those smaller than
+    ``keep_fraction`` of the frame's largest. ``still_fraction``: a frame whose mask is smaller than
+    this fraction of the clip's median area inherits its neighbours' masks (the object stood still).
+    ``grabcut``: GrabCut iterations that tighten the masks to colour edges (0: off). ``foreground``:
+    the foreground layer's starting mapping, the object's own motion or the identity.
+    ``margin``: the part of the foreground atlas the masked object fills at the start.
+    """
+
+    abs_px: float = setting(0.5, 0.0)
+    k_sigma: float = setting(4.0, 0.0)
+    window: int = setting(2, 0, 16)
+    vote: float = setting(0.4, 0.0, 1.0)
+    min_area: float = setting(0.002, 0.0, 1.0)
+    keep_fraction: float = setting(0.15, 0.0, 1.0)
+    still_fraction: float = setting(0.3, 0.0, 1.0)
+    grid: int = setting(48, 2)
+    grabcut: int = setting(4, 0, 32)
+    foreground: Literal["object", "identity"] = "object"
+    margin: float = setting(0.6, above=0.0, hi=1.0)
 
 
 @dataclass
 class ExportConfig:
-    half: bool = True               # EXR half floats
-    preview_fps: float = 0.0        # 0: the input's frame rate
-    chunk: int = 65536
+    half: bool = True                       # EXR half floats
+    preview_fps: float = setting(0.0, 0.0, 1000.0)  # 0: the input's frame rate
+    chunk: int = setting(65536, 1)          # pixels rendered at once
 
 
 @dataclass
 class Config:
     preset: str = "balanced"
+    model: ModelConfig = field(default_factory=ModelConfig)
     scene: SceneConfig = field(default_factory=SceneConfig)
     tone: ToneConfig = field(default_factory=ToneConfig)
     blur: BlurConfig = field(default_factory=BlurConfig)
     loss: LossConfig = field(default_factory=LossConfig)
     train: TrainConfig = field(default_factory=TrainConfig)
     flow: FlowConfig = field(default_factory=FlowConfig)
+    segment: SegmentConfig = field(default_factory=SegmentConfig)
     export: ExportConfig = field(default_factory=ExportConfig)
 
     def section_dict(self, *names: str) -> dict:
@@ -129,48 +218,179 @@ class Config:
         return dataclasses.asdict(self)
 
     def set(self, key: str, value: Any) -> None:
-        """Set ``section.field`` from a string or a value, converting to the field's type."""
+        """Set ``section.field`` from a string or a value, converted to the field's type and checked."""
         parts = key.split(".")
         if len(parts) != 2:
             raise LayercamError(f"--set expects section.field=value, got {key!r}")
         sec, name = parts
-        if sec == "preset" or not hasattr(self, sec) or not dataclasses.is_dataclass(getattr(self, sec)):
+        if sec not in SECTIONS:
             raise LayercamError(f"unknown config section {sec!r} (one of {', '.join(SECTIONS)})")
         obj = getattr(self, sec)
-        fields = {f.name: f for f in dataclasses.fields(obj)}
-        if name not in fields:
-            raise LayercamError(f"unknown setting {key!r} (known: {', '.join(sorted(fields))})")
-        current = getattr(obj, name)
-        setattr(obj, name, _convert(value, type(current), key))
+        hints = _hints(type(obj))
+        if name not in hints:
+            raise LayercamError(f"unknown setting {key!r} (known: {', '.join(sorted(hints))})")
+        setattr(obj, name, check_value(key, value, hints[name], _meta(type(obj), name)))
+
+    def copy(self) -> "Config":
+        return copy.deepcopy(self)
 
 
-SECTIONS = ("scene", "tone", "blur", "loss", "train", "flow", "export")
+SECTIONS = tuple(f.name for f in dataclasses.fields(Config) if f.name != "preset")
 
 
-def _convert(value: Any, typ: type, key: str) -> Any:
-    if not isinstance(value, str):
-        if typ is float and isinstance(value, int):
-            return float(value)
-        if isinstance(value, typ):
+# -- conversion and checks -----------------------------------------------------------------------
+def _hints(cls) -> dict:
+    return typing.get_type_hints(cls)
+
+
+def _meta(cls, name: str) -> dict:
+    return next(f.metadata for f in dataclasses.fields(cls) if f.name == name)
+
+
+def _alternatives(hint) -> list:
+    """``int | Literal["auto"]`` -> ``[int, Literal["auto"]]``; a plain type -> ``[type]``."""
+    if typing.get_origin(hint) in (typing.Union, types.UnionType):
+        return list(typing.get_args(hint))
+    return [hint]
+
+
+def _describe(hint) -> str:
+    """``Literal["a", "b"]`` -> "one of a, b"; ``int | Literal["auto"]`` -> "an integer or auto"."""
+    kinds, choices = [], []
+    for alt in _alternatives(hint):
+        if typing.get_origin(alt) is Literal:
+            choices += [str(c) for c in typing.get_args(alt)]
+        else:
+            kinds.append({bool: "true/false (on/off)", int: "an integer", float: "a number", str: "text"}.get(alt, str(alt)))
+    if not kinds:
+        return "one of " + ", ".join(choices)
+    return " or ".join(kinds + choices)
+
+
+def _as(value: Any, typ) -> Any:
+    """``value`` (a string from ``--set`` or a TOML/JSON value) as ``typ``; ValueError when it is not."""
+    if typing.get_origin(typ) is Literal:
+        for c in typing.get_args(typ):
+            if value == c and type(value) is type(c):
+                return c
+            if isinstance(value, str) and str(c) == value.strip():
+                return c
+        raise ValueError
+    if typ is bool:
+        if isinstance(value, bool):
             return value
-        raise LayercamError(f"{key}: expected {typ.__name__}, got {value!r}")
-    try:
-        if typ is bool:
+        if isinstance(value, str):
             v = value.strip().lower()
             if v in ("1", "true", "yes", "on"):
                 return True
             if v in ("0", "false", "no", "off"):
                 return False
-            raise ValueError(value)
-        if typ is int:
-            return int(float(value)) if float(value).is_integer() else int(value)
-        if typ is float:
+        raise ValueError
+    if isinstance(value, bool):  # bool is an int to Python, never to a setting
+        raise ValueError
+    if typ is int:
+        if isinstance(value, int):
+            return value
+        if isinstance(value, float) and value.is_integer():
+            return int(value)
+        if isinstance(value, str):
+            f = float(value)
+            if f.is_integer():
+                return int(f)
+        raise ValueError
+    if typ is float:
+        if isinstance(value, (int, float)):
             return float(value)
-        return value
-    except ValueError:
-        raise LayercamError(f"{key}: cannot read {value!r} as {typ.__name__}") from None
+        if isinstance(value, str):
+            return float(value)
+        raise ValueError
+    if typ is str:
+        if isinstance(value, str):
+            return value
+        raise ValueError
+    raise ValueError
 
 
+def check_value(key: str, value: Any, hint, meta: dict | None = None) -> Any:
+    """``value`` converted to ``hint`` and checked against the field's range: one line on failure."""
+    meta = meta or {}
+    alts = sorted(_alternatives(hint), key=lambda a: typing.get_origin(a) is not Literal)  # choices first
+    for alt in alts:
+        try:
+            v = _as(value, alt)
+            break
+        except (ValueError, TypeError, OverflowError):
+            continue
+    else:
+        raise LayercamError(f"{key}: expected {_describe(hint)}, got {value!r}")
+    if isinstance(v, float) and not math.isfinite(v):
+        raise LayercamError(f"{key}: must be a finite number, got {value!r}")
+    if isinstance(v, (int, float)) and not isinstance(v, bool):
+        lo, hi, above, below = meta.get("lo"), meta.get("hi"), meta.get("above"), meta.get("below")
+        if lo is not None and v < lo:
+            raise LayercamError(f"{key}: must be >= {lo:g}, got {v:g}")
+        if hi is not None and v > hi:
+            raise LayercamError(f"{key}: must be <= {hi:g}, got {v:g}")
+        if above is not None and not v > above:
+            raise LayercamError(f"{key}: must be > {above:g}, got {v:g}")
+        if below is not None and not v < below:
+            raise LayercamError(f"{key}: must be < {below:g}, got {v:g}")
+    if meta.get("check") is not None:
+        msg = meta["check"](v)
+        if msg:
+            raise LayercamError(f"{key}: {msg}, got {value!r}")
+    return v
+
+
+def validate(cfg: Config) -> Config:
+    """Check every value of ``cfg`` (also those set in code) and the rules between them; returns it."""
+    for sec in SECTIONS:
+        obj = getattr(cfg, sec)
+        for name, hint in _hints(type(obj)).items():
+            check_value(f"{sec}.{name}", getattr(obj, name), hint, _meta(type(obj), name))
+    s = cfg.scene
+    if s.grid_max_res and s.grid_max_res < s.grid_min_res:
+        raise LayercamError(f"scene.grid_max_res ({s.grid_max_res}) must be 0 (derived) or at least scene.grid_min_res ({s.grid_min_res})")
+    if cfg.flow.method.startswith("raft") and not cfg.flow.raft_weights:
+        raise LayercamError(f"flow.method={cfg.flow.method} needs a weights file: --set flow.raft_weights=PATH")
+    return cfg
+
+
+def unresolved(cfg: Config) -> list[str]:
+    """The settings still ``auto`` (or 0 = derived) that a model needs decided."""
+    out = [f"model.{k}" for k, v in dataclasses.asdict(cfg.model).items() if v == AUTO]
+    out += [f"blur.{k}" for k in ("n", "max_offset", "centre") if getattr(cfg.blur, k) == AUTO]
+    if cfg.scene.residual == AUTO:
+        out.append("scene.residual")
+    if cfg.scene.encoding == "grid" and cfg.scene.grid_max_res == 0:
+        out.append("scene.grid_max_res")
+    return out
+
+
+def model_overrides(layers=None, tone_mapper=None, blur=None, max_offset=None, flow_loss=None) -> list[str]:
+    """The model choices of the command-line flags (``--layers 2 --blur 3x3 --max-offset 2
+    --flow-loss off``; ``None``: left to the analysis) as ``--set`` items."""
+    out = []
+    if layers is not None:
+        out.append(f"model.layers={layers}")
+    if tone_mapper is not None:
+        out.append(f"model.tone_mapper={tone_mapper}")
+    if blur is not None:
+        if blur == "off":
+            out.append("model.blur=off")
+        else:
+            m = re.fullmatch(r"(\d+)x\1", str(blur))
+            if not m:
+                raise LayercamError(f"blur must be off or NxN (3x3, 5x5), got {blur!r}")
+            out += ["model.blur=on", f"blur.n={m.group(1)}"]
+    if max_offset is not None:
+        out.append(f"blur.max_offset={max_offset}")
+    if flow_loss is not None:
+        out.append(f"model.flow_loss={'on' if flow_loss in (True, 'on') else 'off'}")
+    return out
+
+
+# -- presets -------------------------------------------------------------------------------------
 def preset_names() -> list[str]:
     return sorted(p.name[:-5] for p in resources.files("layercam.configs").iterdir() if p.name.endswith(".toml"))
 
@@ -191,26 +411,23 @@ def _read_preset(name: str) -> dict:
 
 
 def load_config(preset: str = "balanced", overrides: list[str] | None = None) -> Config:
-    """Defaults, then the preset file's values, then each ``section.field=value`` override."""
+    """Defaults, then the preset file's values, then each ``section.field=value`` override; checked."""
     cfg = Config(preset=Path(preset).stem if preset.endswith(".toml") else preset)
     data = _read_preset(preset)
     for sec, values in data.items():
         if not isinstance(values, dict):
             raise LayercamError(f"preset {preset}: top-level key {sec!r} must be a [section]")
         for k, v in values.items():
-            cfg.set(f"{sec}.{k}", v)
+            try:
+                cfg.set(f"{sec}.{k}", v)
+            except LayercamError as e:
+                raise LayercamError(f"preset {preset}: {e}") from None
     for item in overrides or []:
         if "=" not in item:
             raise LayercamError(f"--set expects key=value, got {item!r}")
         k, v = item.split("=", 1)
         cfg.set(k.strip(), v.strip())
-    if cfg.scene.residual not in ("auto", "on", "off"):
-        raise LayercamError(f"scene.residual must be auto, on or off, got {cfg.scene.residual!r}")
-    if cfg.blur.centre not in ("auto", "on", "off"):
-        raise LayercamError(f"blur.centre must be auto, on or off, got {cfg.blur.centre!r}")
-    if not 0.0 <= cfg.blur.warmup < 1.0:
-        raise LayercamError(f"blur.warmup is a fraction of training in [0, 1), got {cfg.blur.warmup}")
-    return cfg
+    return validate(cfg)
 
 
 def config_hash(obj: Any) -> str:
@@ -220,12 +437,11 @@ def config_hash(obj: Any) -> str:
 
 
 def config_from_dict(d: dict) -> Config:
-    """Inverse of :meth:`Config.to_dict` (unknown keys are ignored, for older runs)."""
+    """Inverse of :meth:`Config.to_dict`, checked; unknown keys are ignored (older runs)."""
     cfg = Config(preset=d.get("preset", "custom"))
     for sec in SECTIONS:
-        obj = getattr(cfg, sec)
-        names = {f.name for f in dataclasses.fields(obj)}
+        known = _hints(type(getattr(cfg, sec)))
         for k, v in (d.get(sec) or {}).items():
-            if k in names:
-                setattr(obj, k, v)
+            if k in known:
+                cfg.set(f"{sec}.{k}", v)
     return cfg

@@ -7,9 +7,6 @@ terms; the trainer only sums them. Loss weights live in ``self.weights`` so that
 
 from __future__ import annotations
 
-import copy
-import math
-
 import numpy as np
 import torch
 from torch import nn
@@ -17,69 +14,50 @@ from torch import nn
 from layercam import losses
 from layercam.camera.exposure import ExposureField
 from layercam.camera.tone import FixedTone, ToneMapper
-from layercam.config import Config
+from layercam.config import Config, unresolved
 from layercam.scene.layered import LayeredScene
-from layercam.spec import ModelSpec
-
-
-def atlas_pixels(h0: np.ndarray, frame_hw: tuple[int, int]) -> float:
-    """How many frame pixels span the atlas's ``[-1, 1]`` side, from the bootstrap mappings
-    ``h0 (L, T, 3, 3)``: the largest over layers and frames of 2 / (uv step of one pixel)."""
-    h, w = frame_hw
-    h0 = np.asarray(h0, dtype=np.float64).reshape(-1, 3, 3)
-    p0 = h0 @ np.array([0.0, 0.0, 1.0])
-    px = h0 @ np.array([2.0 / w, 0.0, 1.0])
-    py = h0 @ np.array([0.0, 2.0 / h, 1.0])
-    uv0, uvx, uvy = (p[:, :2] / p[:, 2:] for p in (p0, px, py))
-    step = np.minimum(np.linalg.norm(uvx - uv0, axis=1), np.linalg.norm(uvy - uv0, axis=1))
-    return float(2.0 / max(step.min(), 1e-6))
-
-
-def resolve_sizes(cfg: Config, h0: np.ndarray, frame_hw: tuple[int, int], blur: bool = False) -> Config:
-    """Sizes derived in code: ``scene.grid_max_res = 0`` means one grid cell per frame pixel at the
-    finest level, from the atlas's extent in frame pixels (:func:`atlas_pixels`), within 32..2048:
-
-    * without a blur generator, the power of two at or above that extent (at least one cell per pixel);
-    * with one, the extent itself (at most one cell per pixel). The blur generator samples the scene
-      between pixels, so a finer grid lets the scene keep sub-pixel content that each image's PSF
-      reads on its own, fitting every image without one sharp scene (measured on the 3-image MFME
-      stack, 64 px: 1.8 cells per pixel 30.3 dB PSNR-mu with the PSFs collapsed to deltas, 0.9
-      cells per pixel 35.3 dB with PSFs near the true discs).
-    """
-    if cfg.scene.grid_max_res > 0:
-        return cfg
-    cfg = copy.deepcopy(cfg)
-    px = atlas_pixels(h0, frame_hw)
-    res = int(round(px)) if blur else 2 ** math.ceil(math.log2(max(px, 2.0)))
-    cfg.scene.grid_max_res = int(min(max(res, 32), 2048))
-    cfg.scene.grid_min_res = min(cfg.scene.grid_min_res, cfg.scene.grid_max_res)
-    return cfg
 
 
 class ImplicitCameraModel(nn.Module):
-    def __init__(self, cfg: Config, spec: ModelSpec, h0: torch.Tensor, log2_dt: np.ndarray, exposure_learn: str = "none", phase=None, init_log2: float = 0.0, frame_hw: tuple[int, int] = (1, 1)):
+    """Scene + camera for one clip, built from a config whose ``auto`` settings are all decided
+    (:func:`layercam.analyse.decide` and :func:`layercam.analyse.resolve_auto`): the ``model``
+    section says which components exist, the others how they are built.
+
+    ``h0 (L, T, 3, 3)``: each layer's bootstrap mapping; ``log2_dt (T,)`` the given exposures,
+    ``exposure_learn``/``phase`` what of them is learned (``layercam.io.Exposures``);
+    ``init_log2`` the atlases' starting log2 irradiance; ``frame_hw`` the frames' ``(H, W)``.
+    """
+
+    def __init__(self, cfg: Config, h0: torch.Tensor, log2_dt: np.ndarray, exposure_learn: str = "none", phase=None, init_log2: float = 0.0, frame_hw: tuple[int, int] = (1, 1)):
         super().__init__()
-        cfg = resolve_sizes(cfg, h0.detach().cpu().numpy(), frame_hw, blur=spec.blur != "off")
-        self.cfg, self.spec = cfg, spec
+        todo = unresolved(cfg)
+        if todo:
+            raise ValueError(f"the model needs these settings decided first (layercam.analyse): {', '.join(todo)}")
+        m = cfg.model
+        if h0.shape[0] != m.layers:
+            raise ValueError(f"model.layers = {m.layers} but h0 holds {h0.shape[0]} layer mappings")
+        self.cfg = cfg
         self.frame_hw = frame_hw
         self.scene = LayeredScene(cfg.scene, h0, init_log2)
-        self.exposure = ExposureField(log2_dt, exposure_learn if spec.exposures == "learned" else "none", phase)
-        self.tone = ToneMapper(cfg.tone.width, cfg.tone.depth, cfg.tone.monotone, lut=cfg.tone.lut, init_slope=cfg.tone.init_slope) if spec.tone_mapper == "learned" else FixedTone()
+        self.exposure = ExposureField(log2_dt, exposure_learn if m.exposures == "learned" else "none", phase)
+        learned = m.tone_mapper == "learned"
+        self.tone = ToneMapper(cfg.tone.width, cfg.tone.depth, cfg.tone.monotone, lut=cfg.tone.lut, init_slope=cfg.tone.init_slope) if learned else FixedTone()
         self.blur = None
-        if spec.blur != "off":
+        if m.blur == "on":
             from layercam.camera.blur import BlurGenerator
 
-            self.blur = BlurGenerator(spec.blur_n, spec.max_offset, h0.shape[1], frame_hw, cfg.blur.width, cfg.blur.depth, init_centre_weight=cfg.blur.init_centre_weight, zero_mean_offsets=cfg.blur.zero_mean_offsets, centre_exact=cfg.blur.centre == "on")
+            b = cfg.blur
+            self.blur = BlurGenerator(b.n, b.max_offset, h0.shape[1], frame_hw, b.width, b.depth, init_centre_weight=b.init_centre_weight, zero_mean_offsets=b.zero_mean_offsets, centre_exact=b.centre == "on")
         lc = cfg.loss
         self.weights = {
             "color": lc.color,
-            "flow": lc.flow if spec.flow_loss else 0.0,
-            "white_balance": lc.white_balance if spec.tone_mapper == "learned" else 0.0,
-            "gradient": lc.gradient if spec.tone_mapper == "learned" and not cfg.tone.monotone else 0.0,
+            "flow": lc.flow if m.flow_loss else 0.0,
+            "white_balance": lc.white_balance if learned else 0.0,
+            "gradient": lc.gradient if learned and not cfg.tone.monotone else 0.0,
             "bootstrap": 1.0 if cfg.scene.deformation == "mlp" else 0.0,
             "rigidity": lc.rigidity,
-            "sparsity": lc.sparsity if spec.layers > 1 else 0.0,
-            "alpha_flow": lc.alpha_flow if spec.layers > 1 and spec.flow_loss else 0.0,
+            "sparsity": lc.sparsity if m.layers > 1 else 0.0,
+            "alpha_flow": lc.alpha_flow if m.layers > 1 and m.flow_loss else 0.0,
             "alpha_mask": 0.0,
         }
 

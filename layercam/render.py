@@ -1,17 +1,12 @@
 """Rendering a trained model with the camera dropped (sharp linear HDR) or kept (LDR re-renders),
-saving and loading a run's model, and the display tonemap used for previews."""
+and the display tonemap used for previews."""
 
 from __future__ import annotations
-
-from pathlib import Path
 
 import numpy as np
 import torch
 
-from layercam.config import config_from_dict
 from layercam.data import pixel_grid
-from layercam.errors import LayercamError
-from layercam.spec import ModelSpec
 
 
 @torch.no_grad()
@@ -70,60 +65,6 @@ def tonemap_display(hdr: np.ndarray, stats: dict | None = None) -> tuple[np.ndar
     out = np.clip(hdr * ratio[..., None], 0, 1)
     out = np.where(out <= 0.0031308, 12.92 * out, 1.055 * np.power(out, 1 / 2.4) - 0.055)
     return np.nan_to_num(np.clip(out, 0, 1)).astype(np.float32), stats
-
-
-# -- a run's model on disk -----------------------------------------------------------------------
-def save_run_model(path: Path, model, meta: dict) -> None:
-    """Write ``{"state", **meta}`` atomically; ``cfg`` is the model's own, with the sizes derived in
-    code (``model.resolve_sizes``) filled in, so a later change to that derivation cannot change
-    the shapes a saved run is rebuilt with."""
-    tmp = Path(path).with_name(Path(path).name + ".tmp")
-    extra = {"cfg": model.cfg.to_dict()} if hasattr(model, "cfg") else {}
-    torch.save({"state": model.state_dict(), **meta, **extra}, tmp)
-    tmp.replace(path)
-
-
-def build_model(cfg, spec: ModelSpec, meta: dict):
-    from layercam.model import ImplicitCameraModel
-
-    return ImplicitCameraModel(
-        cfg, spec, torch.as_tensor(np.asarray(meta["h0"]), dtype=torch.float32), np.asarray(meta["log2_dt"], dtype=np.float32),
-        meta.get("exposure_learn", "none"), None if meta.get("phase") is None else np.asarray(meta["phase"]),
-        float(meta["init_log2"]), tuple(meta["frame_hw"]),
-    )
-
-
-def saved_grid_sizes(cfg, state: dict):
-    """``cfg`` with ``scene.grid_min_res/grid_max_res`` read from a saved dense grid when the saved
-    config left them to be derived (``grid_max_res = 0``, runs saved before the derived sizes were
-    stored), so the run is rebuilt with the shapes it was trained with."""
-    if cfg.scene.grid_max_res > 0 or cfg.scene.encoding != "grid":
-        return cfg
-    sizes = [v.shape[-1] for k, v in state.items() if k.startswith("scene.atlases.0.enc.grids.")]
-    if sizes:
-        cfg.scene.grid_min_res, cfg.scene.grid_max_res = int(min(sizes)), int(max(sizes))
-    return cfg
-
-
-def load_run_model(run_dir: Path, device: str = "cpu"):
-    """``run_dir/checkpoint.pt`` -> ``(model, meta)`` ready to render."""
-    path = Path(run_dir) / "checkpoint.pt"
-    if not path.exists():
-        raise LayercamError(f"{run_dir}: no checkpoint.pt (is this a finished layercam run folder?)")
-    try:
-        ck = torch.load(path, map_location=device, weights_only=False)
-    except Exception as e:  # noqa: BLE001 - any unreadable checkpoint is a user-facing error
-        raise LayercamError(f"{path}: cannot read checkpoint ({e.__class__.__name__})") from None
-    return model_from_checkpoint(ck), ck
-
-
-def model_from_checkpoint(ck: dict):
-    """The model a saved ``{"state", "cfg", "spec", ...}`` dict describes, weights loaded, in eval mode."""
-    cfg = saved_grid_sizes(config_from_dict(ck["cfg"]), ck["state"])
-    model = build_model(cfg, ModelSpec(**ck["spec"]), ck)
-    model.load_state_dict(ck["state"])
-    model.eval()
-    return model
 
 
 # -- layers and atlases: what the atlas export and ``layercam edit`` share -------------------------

@@ -23,36 +23,12 @@ Shapes: flows ``(T-1, H, W, 2)`` in pixels (``layercam.flow`` conventions), mask
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
+from layercam.config import SegmentConfig
 from layercam.errors import LayercamError
 
 __all__ = ["SegmentConfig", "motion_evidence", "motion_masks", "clean_mask", "object_motion", "foreground_mappings"]
-
-
-@dataclass
-class SegmentConfig:
-    """Settings of :func:`motion_masks`. Distances in pixels of the clip being segmented.
-
-    ``abs_px``: a residual below this is never motion. ``k_sigma``: a residual must also exceed
-    the frame's robust residual level (median + k_sigma * 1.4826 MAD). ``window``: neighbours on
-    each side averaged along the flow; ``vote``: the averaged evidence that makes a pixel
-    foreground. ``grid``: flow samples per side for the homography fit. ``min_area``: components smaller than this fraction of the
-    frame are dropped, and so are those smaller than ``keep_fraction`` of the frame's largest.
-    ``still_fraction``: a frame whose mask is smaller than this fraction of the clip's median
-    area inherits its neighbours' masks (the object stood still).
-    """
-
-    abs_px: float = 0.5
-    k_sigma: float = 4.0
-    window: int = 2
-    vote: float = 0.4
-    min_area: float = 0.002
-    keep_fraction: float = 0.15
-    still_fraction: float = 0.3
-    grid: int = 48
 
 
 def _check_flows(fw, bw) -> tuple[np.ndarray, np.ndarray]:
@@ -260,7 +236,7 @@ def foreground_mappings(h: int, w: int, masks: np.ndarray, fw=None, fw_ok=None, 
     ``[-margin, margin]^2`` (the rest of the atlas is slack for what the masks missed).
     how "identity": every frame maps the same way (the paper's start), whole frame in the atlas.
     """
-    from layercam.pipelines.stages import atlas_mappings, chain_homographies, normalised_frame_matrix
+    from layercam.geometry import atlas_mappings, chain_homographies, fit_into_atlas
 
     T = masks.shape[0]
     if how == "identity" or fw is None or T < 2 or masks.sum() == 0:
@@ -278,11 +254,7 @@ def foreground_mappings(h: int, w: int, masks: np.ndarray, fw=None, fw_ok=None, 
         pts.append((p[:2] / p[2:]).T)
     pts = np.concatenate(pts)
     lo, hi = np.percentile(pts, 1, axis=0), np.percentile(pts, 99, axis=0)
-    centre, half = (lo + hi) / 2, max((hi - lo).max() / 2, 2.0)
-    s = margin / half
-    a = np.array([[s, 0, -s * centre[0]], [0, s, -s * centre[1]], [0, 0, 1]])
-    n_inv = np.linalg.inv(normalised_frame_matrix(h, w))
-    return np.stack([a @ m @ n_inv for m in pix]).astype(np.float32), f"object motion chained to frame {ref}"
+    return fit_into_atlas(pix, (lo + hi) / 2, max((hi - lo).max() / 2, 2.0), margin, h, w), f"object motion chained to frame {ref}"
 
 
 def grabcut_refine(frame: np.ndarray, mask: np.ndarray, iters: int = 4) -> np.ndarray:
@@ -313,11 +285,10 @@ def grabcut_refine(frame: np.ndarray, mask: np.ndarray, iters: int = 4) -> np.nd
     return out if out.any() else m
 
 
-FOREGROUND_BOOTSTRAP = "object"   # the foreground layer's h0: "object" (own motion) | "identity"
 SEGMENT_VERSION = 1               # bump when motion_masks changes what it returns
 
 
-def foreground_bootstrap(frames: np.ndarray, flows: dict | None, masks: np.ndarray | None = None, how: str | None = None, cfg: SegmentConfig | None = None) -> dict:
+def foreground_bootstrap(frames: np.ndarray, flows: dict | None, masks: np.ndarray | None = None, cfg: SegmentConfig | None = None) -> dict:
     """What a two-layer scene starts from: ``{"h0": (T, 3, 3), "masks": (T, H, W) | None,
     "computed": bool, "how": str, "info": dict}``.
 
@@ -325,22 +296,23 @@ def foreground_bootstrap(frames: np.ndarray, flows: dict | None, masks: np.ndarr
     ``fw_ok``, ``homs`` as the flow stage caches them), motion masks refined by GrabCut; with
     neither (one frame), no masks and the identity mapping.
     """
-    how = how or FOREGROUND_BOOTSTRAP
+    cfg = cfg or SegmentConfig()
     T, h, w = frames.shape[:3]
     info: dict = {}
     computed = False
     if masks is None and flows is not None and T > 1:
         fw, bw = flows["fw"].astype(np.float32), flows["bw"].astype(np.float32)
         masks, info = motion_masks(fw, bw, flows.get("homs"), cfg)
-        masks = np.stack([grabcut_refine(frames[t], masks[t]) for t in range(T)]).astype(np.float32)
-        info["coverage_after_grabcut"] = float(masks.mean())
+        if cfg.grabcut > 0:
+            masks = np.stack([grabcut_refine(frames[t], masks[t], cfg.grabcut) for t in range(T)]).astype(np.float32)
+            info["coverage_after_grabcut"] = float(masks.mean())
         computed = True
     fw = flows["fw"].astype(np.float32) if flows is not None and T > 1 else None
     fw_ok = flows.get("fw_ok") if flows is not None else None
     if masks is None:
         h0, desc = foreground_mappings(h, w, np.zeros((T, h, w), np.float32), how="identity")
     else:
-        h0, desc = foreground_mappings(h, w, masks, fw, fw_ok, how=how)
+        h0, desc = foreground_mappings(h, w, masks, fw, fw_ok, cfg.margin, how=cfg.foreground)
     return {"h0": h0, "masks": masks, "computed": computed, "how": desc, "info": info}
 
 

@@ -6,6 +6,7 @@
 #       extension: .py
 #       format_name: percent
 #       format_version: '1.3'
+#       jupytext_version: 1.19.6
 #   kernelspec:
 #     display_name: Python 3
 #     language: python
@@ -53,7 +54,7 @@ import numpy as np
 import torch
 from IPython.display import Image, display
 
-from layercam import render, synth, viz
+from layercam import analyse, checkpoint, render, synth, viz
 from layercam.data import normalise_xy
 from layercam.pipelines.atlas_export import atlas_resolution, png_exposure
 
@@ -85,7 +86,7 @@ def show(name, fig):
 # %%
 scene = None
 if RUN is None:
-    from layercam.config import load_config
+    from layercam.config import load_config, model_overrides
     from layercam.io import parse_exposures
     from layercam.pipelines.tasks import run_task
 
@@ -99,18 +100,19 @@ if RUN is None:
     ]
     RUN = Path(tempfile.mkdtemp(prefix="layercam_notebook_")) / "run"
     t0 = time.perf_counter()
-    run_task("hdr-video", scene.clip, exposures, load_config("fast", tiny), RUN,
-             overrides={"layers": 2, "blur": "3x3", "max_offset": 2.0}, masks=scene.fg_mask.astype(np.float32), progress=False)
+    cfg = load_config("fast", tiny + model_overrides(layers=2, blur="3x3", max_offset=2.0))
+    run_task("hdr-video", scene.clip, exposures, cfg, RUN, masks=scene.fg_mask.astype(np.float32), progress=False)
     print(f"trained a tiny run in {time.perf_counter() - t0:.1f} s: {RUN}")
     CRF_TRUTH = scene.crf
 
 RUN = Path(RUN)
-model, meta = render.load_run_model(RUN)
+model, meta = checkpoint.load_run_model(RUN)
 report = json.loads((RUN / "report.json").read_text()) if (RUN / "report.json").exists() else {}
 T, (H, W) = int(meta["n_frames"]), tuple(meta["frame_hw"])
 print(f"{RUN}: task {meta.get('task')}, {T} frames of {W}x{H} from {meta.get('source')}")
-for key in ("layers", "tone_mapper", "exposures", "blur", "max_offset", "flow_loss"):
-    print(f"  {key:12s} {model.spec.to_dict()[key]!s:10s} {model.spec.reasons.get(key, '')}")
+chosen = analyse.model_summary(model.cfg)
+for key in analyse.MODEL_KEYS:
+    print(f"  {key:12s} {chosen[key]!s:10s} {meta.get('reasons', {}).get(key, '')}")
 if report.get("metrics"):
     print("  metrics:", report["metrics"])
 
@@ -225,7 +227,7 @@ if model.blur is not None:
     with torch.no_grad():
         offsets, weights = (a.numpy() for a in model.blur.kernels(xy, torch.full((len(px),), t_mid, dtype=torch.long)))
 labels = [f"({x:.0f}, {y:.0f}) frame {t_mid}" for x, y in px]
-show("blur_kernels", viz.kernels_figure(offsets, weights, px, ldr[t_mid], labels, max_offset=float(model.spec.max_offset)))
+show("blur_kernels", viz.kernels_figure(offsets, weights, px, ldr[t_mid], labels, max_offset=float(model.cfg.blur.max_offset)))
 
 # %% [markdown]
 # ## 7. Exposure sweep

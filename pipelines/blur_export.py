@@ -94,7 +94,7 @@ def psf_summary(model, hw: tuple[int, int], grid: int = 24) -> dict | None:
 
 
 def _finish_export(ctx: Context, model, meta: dict, extra_meta: dict | None = None) -> dict:
-    from layercam.render import save_run_model
+    from layercam.checkpoint import save_run_model
 
     run = ctx.run_dir
     model.cpu()
@@ -181,7 +181,7 @@ class FuseExportStage(Stage):
         hdr = render_frame(model, ref, hw, ctx.cfg.export.chunk)["image"]
         write_hdr_set([run / "fused.exr"], [hdr], ctx.cfg.export.half, ctx.say)
         np.save(out / "fused.npy", hdr.astype(np.float32))
-        if ctx.spec.tone_mapper == "fixed":
+        if ctx.cfg.model.tone_mapper == "fixed":
             # one exposure: show the sharp image as the camera would have recorded it
             png = render_frame(model, ref, hw, ctx.cfg.export.chunk, what="ldr", blur=False)["image"]
             how = "fixed sRGB tone curve at the stack's exposure (input tonality)"

@@ -29,12 +29,13 @@ class Context:
     run_dir: Path
     clip: Any                       # layercam.io.Clip
     exposures: Any                  # layercam.io.Exposures
-    cfg: Config
-    spec: Any                       # layercam.spec.ModelSpec
+    cfg: Config                     # the model section and blur shape decided once the analysis has run
     task: str
     masks: Any = None               # (T, H, W) foreground masks or None
     progress: bool = True
     extra: dict = field(default_factory=dict)   # task inputs that are not settings (e.g. ground truth)
+    measures: dict | None = None    # what the analysis measured (layercam.analyse.measure)
+    reasons: dict = field(default_factory=dict)  # why the analysis decided each model setting
     results: dict = field(default_factory=dict)
     dirs: dict = field(default_factory=dict)
     keys: dict = field(default_factory=dict)

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import copy
 import dataclasses
 import json
 import math
@@ -55,52 +54,11 @@ def load_flow(ctx: Context) -> dict | None:
         return {k: z[k] for k in z.files}
 
 
-def normalised_frame_matrix(h: int, w: int) -> np.ndarray:
-    """Pixel coordinates -> normalised ``[-1, 1]`` coordinates (pixel centres at +0.5)."""
-    return np.array([[2.0 / w, 0, 1.0 / w - 1], [0, 2.0 / h, 1.0 / h - 1], [0, 0, 1]], dtype=np.float64)
-
-
-def chain_homographies(pair_h: np.ndarray, ref: int) -> np.ndarray:
-    """Per-pair ``H_t: frame t -> frame t+1`` (pixels) -> ``M_t: frame t -> frame ref`` (pixels)."""
-    n = len(pair_h) + 1
-    m = [np.eye(3) for _ in range(n)]
-    for t in range(ref - 1, -1, -1):
-        m[t] = m[t + 1] @ pair_h[t]
-    for t in range(ref + 1, n):
-        m[t] = m[t - 1] @ np.linalg.inv(pair_h[t - 1])
-    return np.stack([x / x[2, 2] for x in m])
-
-
-def atlas_mappings(h: int, w: int, pixel_maps: np.ndarray, margin: float = 0.9) -> np.ndarray:
-    """Per-frame pixel maps into a reference view -> ``(T, 3, 3)`` from normalised frame
-    coordinates to atlas ``uv``, scaled isotropically so that every frame lands inside
-    ``[-margin, margin]^2``."""
-    corners = np.array([[0, 0, 1], [w, 0, 1], [0, h, 1], [w, h, 1]], dtype=np.float64).T
-    pts = []
-    for m in pixel_maps:
-        p = m @ corners
-        pts.append((p[:2] / p[2:]).T)
-    pts = np.concatenate(pts)
-    lo, hi = pts.min(0), pts.max(0)
-    centre, half = (lo + hi) / 2, (hi - lo).max() / 2
-    s = margin / max(half, 1e-6)
-    a = np.array([[s, 0, -s * centre[0]], [0, s, -s * centre[1]], [0, 0, 1]])
-    n_inv = np.linalg.inv(normalised_frame_matrix(h, w))
-    return np.stack([a @ m @ n_inv for m in pixel_maps]).astype(np.float32)
-
-
 # A clip whose chained flow homographies move no frame corner by this much is registered by the
 # identity: between frames of different focus or exposure such small homographies are mostly flow
 # noise (up to 1 px on an aligned synthetic focus/exposure stack), and a wrong sub-pixel
 # registration lets the scene store each frame apart instead of the blur generator explaining it.
 STATIC_CORNER_PX = 1.5
-
-
-def max_corner_shift(pixel_maps: np.ndarray, h: int, w: int) -> float:
-    """Largest displacement (px) of a frame corner under the per-frame maps ``(T, 3, 3)``."""
-    c = np.array([[0, 0, 1], [w, 0, 1], [0, h, 1], [w, h, 1]], dtype=np.float64).T
-    p = np.asarray(pixel_maps, dtype=np.float64) @ c  # (T, 3, 4)
-    return float(np.abs(p[:, :2] / p[:, 2:] - c[:2]).max(initial=0.0))
 
 
 class BootstrapStage(Stage):
@@ -113,15 +71,17 @@ class BootstrapStage(Stage):
     version = 3  # 3: reports "static" (identity because nothing moved)
 
     def key_material(self, ctx):
-        s = ctx.cfg.scene
-        d = {"bootstrap": s.bootstrap, "layers": ctx.spec.layers, "init_slope": ctx.cfg.tone.init_slope, "tone": ctx.spec.tone_mapper}
-        if ctx.spec.layers > 1:
+        m = ctx.cfg.model
+        d = {"bootstrap": ctx.cfg.scene.bootstrap, "layers": m.layers, "init_slope": ctx.cfg.tone.init_slope, "tone": m.tone_mapper}
+        if m.layers > 1:
             from layercam import segment
 
-            d["foreground"] = {"how": segment.FOREGROUND_BOOTSTRAP, "segment": segment.SEGMENT_VERSION}
+            d["foreground"] = {**ctx.cfg.section_dict("segment"), "segment": segment.SEGMENT_VERSION}
         return d
 
     def run(self, ctx, out):
+        from layercam.geometry import atlas_mappings, chain_homographies, max_corner_shift
+
         clip = ctx.clip
         T, H, W = clip.T, clip.H, clip.W
         fl = load_flow(ctx)
@@ -135,23 +95,21 @@ class BootstrapStage(Stage):
                 bg = np.stack([np.eye(3)] * T)
                 how = f"identity: the flow homographies move no frame corner by {STATIC_CORNER_PX} px (at most {moved:.2f} px)"
                 static = True
-        elif ctx.cfg.scene.bootstrap in ("flow", "identity"):
+        else:
             bg = np.stack([np.eye(3)] * T)
             how = "identity"
-        else:
-            raise LayercamError(f"unknown scene.bootstrap {ctx.cfg.scene.bootstrap!r} (flow | identity)")
         h0 = [atlas_mappings(H, W, bg)]
         fg = {}
-        if ctx.spec.layers > 1:  # foreground: user masks, else motion segmentation of the flow
+        if ctx.cfg.model.layers > 1:  # foreground: user masks, else motion segmentation of the flow
             from layercam import segment
 
-            fg = segment.foreground_bootstrap(clip.frames, fl, ctx.masks)
+            fg = segment.foreground_bootstrap(clip.frames, fl, ctx.masks, ctx.cfg.segment)
             h0.append(fg["h0"])
             if fg["computed"]:
                 segment.save_masks(out, fg["masks"])
                 ctx.say(f"[bootstrap] motion masks (no --masks given): mean coverage {fg['masks'].mean():.3f}, saved in {out / 'masks'}")
         h0 = np.stack(h0)
-        init_log2 = initial_log2(clip.frames, ctx.exposures.log2_dt, ctx.cfg.tone.init_slope, ctx.spec.tone_mapper)
+        init_log2 = initial_log2(clip.frames, ctx.exposures.log2_dt, ctx.cfg.tone.init_slope, ctx.cfg.model.tone_mapper)
         np.save(out / "h0.npy", h0)
         res = {"how": how, "init_log2": init_log2, "layers": int(h0.shape[0]), "static": static}
         if fg:
@@ -186,10 +144,9 @@ class TrainStage(Stage):
     all_ranks = True  # data-parallel under torch.distributed (layercam/distributed.py)
 
     def key_material(self, ctx):
-        d = ctx.cfg.section_dict("scene", "tone", "blur", "loss", "train")
+        d = ctx.cfg.section_dict("model", "scene", "tone", "blur", "loss", "train")
         d["train"].pop("checkpoint_every", None)
         d["train"].pop("device", None)
-        d["spec"] = ctx.spec.key_dict()
         return d
 
     def run(self, ctx, out):
@@ -198,23 +155,25 @@ class TrainStage(Stage):
         from layercam import distributed
         from layercam.camera.tone import fit_init_curve
         from layercam.data import PixelSampler
-        from layercam.render import build_model, save_run_model
+        from layercam.analyse import resolve_auto
+        from layercam.checkpoint import build_model, save_run_model
         from layercam.train import BootstrapPhase, FlowDecay, MaskTaper, Trainer
 
-        cfg = static_scene_cfg(ctx)
+        boot = ctx.results["bootstrap"]
+        cfg = resolve_auto(ctx.cfg, boot.get("static", False), boot["h0"], (ctx.clip.H, ctx.clip.W))
         torch.manual_seed(cfg.train.seed)
         meta = model_meta(ctx)
-        model = build_model(cfg, ctx.spec, meta)
+        model = build_model(cfg, meta)
         if cfg.scene.residual_scale == 0 and ctx.cfg.scene.residual_scale > 0:
             ctx.say("[train] static one-layer scene: per-frame homographies only, no residual warp (scene.residual=on keeps it)")
         if model.blur is not None and ctx.cfg.blur.centre == "auto":
             ctx.say(f"[train] blur PSFs {'centred on their pixel (static scene)' if cfg.blur.centre == 'on' else 'free to shift (moving scene)'}; blur.centre=on|off overrides")
-        if ctx.spec.tone_mapper == "learned" and not cfg.tone.monotone:
+        if cfg.model.tone_mapper == "learned" and not cfg.tone.monotone:
             fit_init_curve(model.tone, cfg.tone.init_slope, seed=cfg.train.seed)
         masks = ctx.masks if ctx.masks is not None else ctx.results["bootstrap"].get("masks")  # given, else motion masks
         if masks is not None and model.scene.alpha is not None:
             model.weights["alpha_mask"] = 1.0
-        fl = load_flow(ctx) if ctx.spec.flow_loss else None
+        fl = load_flow(ctx) if cfg.model.flow_loss else None
         dev = resolve_device(cfg.train.device)
         model.to(dev)
         if cfg.train.compile:
@@ -263,32 +222,12 @@ def resolve_device(name: str) -> str:
     return name
 
 
-def static_scene_cfg(ctx: Context):
-    """``ctx.cfg`` with what a static one-layer scene (the bootstrap found the frames static) resolves
-    to where the settings say ``auto``: no residual warp (``scene.residual``; ``scene.residual_scale
-    = 0``) and PSFs centred on their pixel (``blur.centre = on``); elsewhere ``blur.centre`` resolves
-    to ``off``. A static stack has nothing for a free per-pixel warp or a PSF shift to follow, and
-    both were used to fit the images' blur instead (9-image focus x exposure stack, PSNR-mu: 36.5 dB
-    with the residual (seed 0); without it 38.4, and 41.5 with centred PSFs too (means of 3 seeds)).
-    On moving footage the shift stays free: centred, the PSFs of the Adobe240 triplet grew to 4 px
-    on its sharp background, which came out over-sharpened."""
-    cfg = copy.deepcopy(ctx.cfg)
-    static = ctx.spec.layers == 1 and bool(ctx.results["bootstrap"].get("static", False))
-    off = cfg.scene.residual == "off" or (cfg.scene.residual == "auto" and static)
-    if off and cfg.scene.deformation == "homography":
-        cfg.scene.residual_scale = 0.0
-    if cfg.blur.centre == "auto":
-        cfg.blur.centre = "on" if static else "off"
-    return cfg
-
-
 def model_meta(ctx: Context) -> dict:
-    """What :func:`layercam.render.build_model` needs, saved with the model."""
+    """What :func:`layercam.checkpoint.build_model` needs besides the config, saved with the model."""
     b = ctx.results["bootstrap"]
     e = ctx.exposures
     return {
-        "cfg": ctx.cfg.to_dict(),
-        "spec": ctx.spec.to_dict(),
+        "reasons": dict(ctx.reasons),
         "h0": b["h0"],
         "log2_dt": np.asarray(e.log2_dt, dtype=np.float32),
         "exposure_learn": e.learn,
@@ -306,7 +245,7 @@ def model_meta(ctx: Context) -> dict:
 def load_trained(ctx: Context):
     import torch
 
-    from layercam.render import model_from_checkpoint
+    from layercam.checkpoint import model_from_checkpoint
 
     ck = torch.load(ctx.results["train"]["model_path"], map_location="cpu", weights_only=False)
     return model_from_checkpoint(ck), ck
@@ -330,7 +269,8 @@ class ExportStage(Stage):
     def run(self, ctx, out):
         from layercam.io import write_video
         from layercam.progress import bar as progress_bar
-        from layercam.render import render_frame, save_run_model, tonemap_display
+        from layercam.checkpoint import save_run_model
+        from layercam.render import render_frame, tonemap_display
 
         run = ctx.run_dir
         set_aside_previous(run, self.outputs, ctx.keys[self.name], ctx.say)
@@ -377,7 +317,7 @@ def write_crf(run: Path, model) -> None:
 
     z = torch.linspace(-12, 12, 241)
     curve = model.tone.curve(z).numpy()
-    write_json(run / "crf.json", {"z_stops": z.tolist(), "r": curve[:, 0].tolist(), "g": curve[:, 1].tolist(), "b": curve[:, 2].tolist(), "kind": model.spec.tone_mapper, "exposures_log2": model.exposure.values().detach().tolist()})
+    write_json(run / "crf.json", {"z_stops": z.tolist(), "r": curve[:, 0].tolist(), "g": curve[:, 1].tolist(), "b": curve[:, 2].tolist(), "kind": model.cfg.model.tone_mapper, "exposures_log2": model.exposure.values().detach().tolist()})
     plot_crf(run / "crf.png", z.numpy(), curve)
 
 

@@ -7,6 +7,7 @@ import time
 from pathlib import Path
 
 from layercam import analyse, distributed
+from layercam.config import validate
 from layercam.errors import LayercamError
 from layercam.pipelines.runner import Context, run_stages, write_json
 from layercam.pipelines.stages import BootstrapStage, ExportStage, FlowStage, TrainStage
@@ -19,10 +20,12 @@ def stages_for(task: str) -> list:
     return [FlowStage(), BootstrapStage(), TrainStage(), EXPORTS.get(task, ExportStage)(), AtlasStage()]
 
 
-def run_task(task: str, clip, exposures, cfg, run_dir: Path, overrides: dict | None = None, masks=None, progress: bool = True, extra: dict | None = None, extra_stages: list | None = None) -> Context:
-    """Analyse ``clip``, run the task's stages into ``run_dir`` and write ``report.json``."""
+def run_task(task: str, clip, exposures, cfg, run_dir: Path, masks=None, progress: bool = True, extra: dict | None = None, extra_stages: list | None = None) -> Context:
+    """Analyse ``clip``, run the task's stages into ``run_dir`` and write ``report.json``. The
+    analysis decides each ``auto`` of ``cfg.model`` (values set there are kept: ``--layers`` etc.)."""
     t0 = time.perf_counter()
-    ctx = Context(run_dir=Path(run_dir), clip=clip, exposures=exposures, cfg=cfg, spec=None, task=task, masks=masks, progress=progress, extra=extra or {})
+    validate(cfg)
+    ctx = Context(run_dir=Path(run_dir), clip=clip, exposures=exposures, cfg=cfg, task=task, masks=masks, progress=progress, extra=extra or {})
     ctx.say(f"layercam {task}: {clip.T} frames {clip.W}x{clip.H} from {clip.source}; preset {cfg.preset}")
     stages = stages_for(task) + list(extra_stages or [])
     try:
@@ -30,9 +33,9 @@ def run_task(task: str, clip, exposures, cfg, run_dir: Path, overrides: dict | N
         run_stages(ctx, stages[:1])
         from layercam.pipelines.stages import load_flow
 
-        ctx.extra["measures"] = analyse.measure(clip, exposures, load_flow(ctx))
-        ctx.spec = analyse.decide(clip, exposures, task, overrides, cfg, ctx.extra["measures"])
-        ctx.say("model chosen:\n" + analyse.format_table(ctx.spec))
+        ctx.measures = analyse.measure(clip, exposures, load_flow(ctx))
+        ctx.cfg, ctx.reasons = analyse.decide(cfg, clip, exposures, task, ctx.measures)
+        ctx.say("model chosen:\n" + analyse.format_table(ctx.cfg, ctx.reasons))
         run_stages(ctx, stages[1:])
     except LayercamError as e:
         if getattr(e, "events", None) is not None:  # training stopped: say why in report_failed.json
@@ -52,7 +55,7 @@ def write_report(ctx: Context, wall: float, name: str = "report.json", extra: di
         "task": ctx.task,
         "input": {"source": str(ctx.clip.source), "frames": ctx.clip.T, "width": ctx.clip.W, "height": ctx.clip.H, "fps": ctx.clip.fps, "bit_depth": ctx.clip.bit_depth},
         "exposures": {"spec": ctx.exposures.spec, "reason": ctx.exposures.reason, "log2_dt_given": ctx.exposures.log2_dt.tolist(), "learn": ctx.exposures.learn},
-        "analysis": {**(ctx.spec.to_dict() if ctx.spec else {}), "measures": ctx.extra.get("measures")},
+        "analysis": {**(analyse.model_summary(ctx.cfg) if ctx.measures is not None else {}), "reasons": ctx.reasons, "measures": ctx.measures},
         "settings": ctx.cfg.to_dict(),
         "stages": ctx.times,
         "wall_seconds": round(wall, 2),

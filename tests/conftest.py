@@ -72,6 +72,22 @@ def two_layer_run(tmp_path_factory):
     log2 = np.log2(scene.exposure_times / scene.exposure_times.min())
     exposures = Exposures(log2, "none", (np.arange(len(log2)) % 2), "alt", "test: known")
     run = tmp_path_factory.mktemp("layers") / "run"
-    cfg = load_config("fast", TINY + ["train.steps=120", "train.bootstrap_steps=50"])
-    ctx = run_task("hdr-video", scene.clip, exposures, cfg, run, {"layers": 2}, progress=False)
+    cfg = load_config("fast", TINY + ["train.steps=120", "train.bootstrap_steps=50", "model.layers=2"])
+    ctx = run_task("hdr-video", scene.clip, exposures, cfg, run, progress=False)
     return {"scene": scene, "run": run, "ctx": ctx, "exposures": exposures, "cfg": cfg}
+
+
+def decided(cfg=None, h0=None, frame_hw=(16, 16), static: bool = False, *, layers=1, tone_mapper="learned", exposures="given", blur="off", max_offset=5.0, flow_loss=True):
+    """``cfg`` (default: the fast preset) with the model chosen by hand, as the analysis would write
+    it, and the remaining ``auto`` settings resolved for the bootstrap mappings ``h0 (L, T, 3, 3)``
+    (default: identity, one per layer, 2 frames): ready for ``ImplicitCameraModel``."""
+    from layercam.analyse import resolve_auto
+    from layercam.config import load_config, model_overrides
+
+    cfg = (load_config("fast") if cfg is None else cfg).copy()
+    for item in model_overrides(layers, tone_mapper, blur, max_offset, flow_loss) + [f"model.exposures={exposures}"]:
+        cfg.set(*item.split("=", 1))
+    if cfg.blur.n == "auto":
+        cfg.blur.n = 3
+    h0 = np.tile(np.eye(3)[None, None], (layers, 2, 1, 1)) if h0 is None else h0
+    return resolve_auto(cfg, static, h0, frame_hw)

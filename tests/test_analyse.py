@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 
 from layercam import analyse, flow
-from layercam.config import load_config
+
+from layercam.config import load_config, model_overrides, unresolved
 from layercam.io import Clip, Exposures
 
 
@@ -29,10 +32,14 @@ def _single(t):
 
 
 def _decide(frames, exposures=None, task="hdr-video", overrides=None):
+    """``(the decided model as the report shows it, with its reasons; the measures)``; ``overrides``:
+    the model flags (``{"layers": 2, "blur": "5x5"}``)."""
     clip = Clip(frames.astype(np.float32), "test", [f"{i:05d}" for i in range(len(frames))])
     ex = exposures or _single(len(frames))
     m = analyse.measure(clip, ex, _flow(clip.frames))
-    return analyse.decide(clip, ex, task, overrides, load_config("fast"), m), m
+    cfg, reasons = analyse.decide(load_config("fast", model_overrides(**(overrides or {}))), clip, ex, task, m)
+    assert not [k for k in unresolved(cfg) if k.startswith("model.") or k in ("blur.n", "blur.max_offset")]
+    return SimpleNamespace(**analyse.model_summary(cfg), reasons=reasons), m
 
 
 def test_static_sharp_single_exposure_gets_the_minimal_model():

@@ -298,11 +298,12 @@ def test_t_blur_interpolates_between_frames():
 def test_in_model():
     from layercam.config import Config
     from layercam.model import ImplicitCameraModel
-    from layercam.spec import ModelSpec
+
+    from conftest import decided
 
     torch.manual_seed(0)
     h0 = torch.eye(3).expand(1, 3, 3, 3).clone()
-    model = ImplicitCameraModel(Config(), ModelSpec(blur="3x3"), h0, np.zeros(3), frame_hw=(H, W))
+    model = ImplicitCameraModel(decided(Config(), h0, (H, W), blur="3x3"), h0, np.zeros(3), frame_hw=(H, W))
     xy, t = pixel_xy(), torch.randint(0, 3, (H * W,))
     out = model(xy, t)
     assert out["rgb"].shape == (H * W, 3) and torch.isfinite(out["rgb"]).all()

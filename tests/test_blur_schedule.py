@@ -10,11 +10,12 @@ from torch import nn
 
 from layercam.config import TrainConfig, load_config
 from layercam.errors import LayercamError
-from layercam.model import ImplicitCameraModel, atlas_pixels, resolve_sizes
-from layercam.render import load_run_model, save_run_model
-from layercam.spec import ModelSpec
+from layercam.checkpoint import load_run_model, save_run_model
+from layercam.geometry import atlas_pixels
+from layercam.model import ImplicitCameraModel
 from layercam.train import Trainer
 
+from conftest import decided
 from test_guards import ToySampler
 
 
@@ -28,13 +29,13 @@ def test_grid_no_finer_than_pixels_with_blur():
     h0 = _h0(0.9)
     px = atlas_pixels(h0, (64, 64))
     assert abs(px - 64 / 0.9) < 1e-6
-    sharp = resolve_sizes(cfg, h0, (64, 64), blur=False).scene.grid_max_res
-    blurred = resolve_sizes(cfg, h0, (64, 64), blur=True).scene.grid_max_res
+    sharp = decided(cfg, h0, (64, 64), blur="off").scene.grid_max_res
+    blurred = decided(cfg, h0, (64, 64), blur="3x3").scene.grid_max_res
     assert sharp == 128  # power of two at or above 71.1 px: at least one cell per pixel
     assert blurred == 71  # the extent itself: at most one cell per pixel
     forced = load_config("fast", ["scene.grid_max_res=256"])
-    assert resolve_sizes(forced, h0, (64, 64), blur=True).scene.grid_max_res == 256  # a set size wins
-    m = ImplicitCameraModel(cfg, ModelSpec(blur="3x3"), torch.as_tensor(h0, dtype=torch.float32), np.zeros(2), frame_hw=(64, 64))
+    assert decided(forced, h0, (64, 64), blur="3x3").scene.grid_max_res == 256  # a set size wins
+    m = ImplicitCameraModel(decided(cfg, h0, (64, 64), blur="3x3"), torch.as_tensor(h0, dtype=torch.float32), np.zeros(2), frame_hw=(64, 64))
     assert m.scene.atlases[0].enc.resolutions[-1] == 71
 
 
@@ -73,13 +74,14 @@ def test_group_with_start_is_held_until_then(tmp_path):
 def test_blur_group_carries_the_warmup():
     cfg = load_config("fast", ["blur.warmup=0.3"])
     h0 = torch.as_tensor(_h0(1.0), dtype=torch.float32)
-    groups = ImplicitCameraModel(cfg, ModelSpec(blur="3x3"), h0, np.zeros(2), frame_hw=(16, 16)).param_groups(1e-3, 1e-2)
+    blur_cfg = decided(cfg, h0, blur="3x3")
+    groups = ImplicitCameraModel(blur_cfg, h0, np.zeros(2), frame_hw=(16, 16)).param_groups(1e-3, 1e-2)
     blur = [g for g in groups if g["name"] == "blur"]
     assert len(blur) == 1 and blur[0]["start"] == 0.3
     n_blur = sum(p.numel() for p in blur[0]["params"])
-    model = ImplicitCameraModel(cfg, ModelSpec(blur="3x3"), h0, np.zeros(2), frame_hw=(16, 16))
+    model = ImplicitCameraModel(blur_cfg, h0, np.zeros(2), frame_hw=(16, 16))
     assert n_blur == sum(p.numel() for p in model.blur.parameters())
-    assert not [g for g in ImplicitCameraModel(cfg, ModelSpec(), h0, np.zeros(2), frame_hw=(16, 16)).param_groups(1e-3, 1e-2) if g["name"] == "blur"]
+    assert not [g for g in ImplicitCameraModel(decided(cfg, h0), h0, np.zeros(2), frame_hw=(16, 16)).param_groups(1e-3, 1e-2) if g["name"] == "blur"]
     with pytest.raises(LayercamError, match="blur.warmup"):
         load_config("fast", ["blur.warmup=1"])
 
@@ -90,16 +92,17 @@ def test_saved_run_keeps_its_grid_sizes(tmp_path):
     cfg = load_config("fast", ["scene.grid_levels=3"])
     h0 = _h0(0.8, frames=3)
     meta = {"h0": h0, "log2_dt": np.zeros(3), "exposure_learn": "none", "phase": None, "init_log2": 0.0, "frame_hw": (40, 40)}
-    model = ImplicitCameraModel(cfg, ModelSpec(blur="3x3"), torch.as_tensor(h0, dtype=torch.float32), np.zeros(3), frame_hw=(40, 40))
+    model = ImplicitCameraModel(decided(cfg, h0, (40, 40), blur="3x3"), torch.as_tensor(h0, dtype=torch.float32), np.zeros(3), frame_hw=(40, 40))
     grids = [tuple(p.shape[-2:]) for n, p in model.named_parameters() if ".enc.grids." in n]
     assert grids[-1] == (50, 50)
-    # as an older version wrote it: cfg with grid_max_res = 0
-    torch.save({"state": model.state_dict(), "cfg": cfg.to_dict(), "spec": ModelSpec(blur="3x3").to_dict(), **meta}, tmp_path / "checkpoint.pt")
+    # as an older version wrote it: cfg with grid_max_res = 0 and the model chosen in a "spec"
+    spec = {"layers": 1, "tone_mapper": "learned", "exposures": "given", "blur": "3x3", "max_offset": 5.0, "flow_loss": True, "reasons": {}}
+    torch.save({"state": model.state_dict(), "cfg": {k: v for k, v in cfg.to_dict().items() if k != "model"}, "spec": spec, **meta}, tmp_path / "checkpoint.pt")
     loaded, _ = load_run_model(tmp_path)
     assert [tuple(p.shape[-2:]) for n, p in loaded.named_parameters() if ".enc.grids." in n] == grids
     # as written now
     (tmp_path / "new").mkdir()
-    save_run_model(tmp_path / "new" / "checkpoint.pt", model, {"cfg": cfg.to_dict(), "spec": ModelSpec(blur="3x3").to_dict(), **meta})
+    save_run_model(tmp_path / "new" / "checkpoint.pt", model, meta)
     ck = torch.load(tmp_path / "new" / "checkpoint.pt", weights_only=False)
     assert ck["cfg"]["scene"]["grid_max_res"] == 50
     loaded, _ = load_run_model(tmp_path / "new")
@@ -121,8 +124,8 @@ def test_static_stack_drops_the_residual_warp(tmp_path, mode, expect_residual):
 
     sc = synth.mfme_stack(size=(64, 64), focus_settings=2, exposures_ev=(0.0,), planes=2, seed=3)
     exp = Exposures(np.zeros(2), "none", None, "none", "single")
-    cfg = load_config("fast", TINY + SMALL_BLUR + ["train.steps=20", f"scene.residual={mode}"])
-    ctx = run_task("fuse-stack", sc.clip, exp, cfg, tmp_path / "run", {"layers": 1}, progress=False)
+    cfg = load_config("fast", TINY + SMALL_BLUR + ["train.steps=20", f"scene.residual={mode}", "model.layers=1"])
+    ctx = run_task("fuse-stack", sc.clip, exp, cfg, tmp_path / "run", progress=False)
     assert ctx.results["bootstrap"]["static"] is True
     model, ck = load_run_model(tmp_path / "run")
     d = model.scene.deformations[0]
@@ -146,8 +149,8 @@ def test_moving_clip_keeps_psf_shift_free(tmp_path):
     from conftest import SMALL_BLUR, TINY
 
     sc = synth.pan_hdr(frames=3, size=(48, 48), ev_step=0.0, seed=0)  # pans 1.5 to 3 px a frame
-    cfg = load_config("fast", TINY + SMALL_BLUR + ["train.steps=10"])
-    ctx = run_task("deblur-video", sc.clip, Exposures(np.zeros(3), "none", None, "none", "single"), cfg, tmp_path / "run", {"layers": 1, "blur": "3x3"}, progress=False)
+    cfg = load_config("fast", TINY + SMALL_BLUR + ["train.steps=10", "model.layers=1", "model.blur=on", "blur.n=3"])
+    ctx = run_task("deblur-video", sc.clip, Exposures(np.zeros(3), "none", None, "none", "single"), cfg, tmp_path / "run", progress=False)
     assert ctx.results["bootstrap"]["static"] is False
     model, ck = load_run_model(tmp_path / "run")
     assert ck["cfg"]["blur"]["centre"] == "off" and not model.blur.centre_exact

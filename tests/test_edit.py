@@ -15,7 +15,8 @@ def _paint_on_object(run, scene, out_png, colour=(0.1, 0.2, 1.0)):
     """Paints a disc of ``colour`` on the exported layer-1 atlas where the object's centre maps in frame 0."""
     import cv2
 
-    from layercam.render import load_run_model, render_mappings
+    from layercam.checkpoint import load_run_model
+    from layercam.render import render_mappings
 
     model, meta = load_run_model(run)
     hw = tuple(meta["frame_hw"])
@@ -84,7 +85,8 @@ def test_edit_refuses_overwrite_bad_layer_and_empty_edits(two_layer_run, tmp_pat
 
 
 def test_inverse_tone_round_trip(two_layer_run):
-    from layercam.render import inverse_tone, load_run_model, tone_map_log2
+    from layercam.checkpoint import load_run_model
+    from layercam.render import inverse_tone, tone_map_log2
 
     model, _ = load_run_model(two_layer_run["run"])
     rgb = np.random.default_rng(0).uniform(0.05, 0.95, (50, 3)).astype(np.float32)

@@ -63,7 +63,7 @@ def test_changed_export_setting_sets_earlier_atlases_aside(two_layer_run, tmp_pa
     old_key = (run / "atlases" / "key.txt").read_text()
     cfg = copy.deepcopy(two_layer_run["cfg"])
     cfg.export.half = False
-    ctx = run_task("hdr-video", two_layer_run["scene"].clip, two_layer_run["exposures"], cfg, run, {"layers": 2}, progress=False)
+    ctx = run_task("hdr-video", two_layer_run["scene"].clip, two_layer_run["exposures"], cfg, run, progress=False)
     assert ctx.times["train"]["cached"] and not ctx.times["atlas"]["cached"]
     assert (run / "atlases" / "key.txt").read_text() != old_key
     kept = list((run / "previous").glob("*/atlases/key.txt"))
@@ -74,12 +74,13 @@ def test_changed_export_setting_sets_earlier_atlases_aside(two_layer_run, tmp_pa
 def test_one_layer_atlas_export_has_no_alpha(tmp_path):
     from layercam.config import load_config
     from layercam.pipelines.atlas_export import export_atlases
-    from layercam.render import build_model
-    from layercam.spec import ModelSpec
+    from layercam.checkpoint import build_model
 
-    cfg = load_config("fast", ["scene.grid_levels=2", "scene.grid_max_res=16"])
+    from conftest import decided
+
     h0 = np.stack([np.stack([np.eye(3, dtype=np.float32) * [0.8, 0.8, 1]] * 3)])
-    model = build_model(cfg, ModelSpec(layers=1, tone_mapper="fixed"), {"h0": h0, "log2_dt": np.zeros(3, np.float32), "init_log2": -2.0, "frame_hw": (16, 16)})
+    cfg = decided(load_config("fast", ["scene.grid_levels=2", "scene.grid_max_res=16"]), h0, tone_mapper="fixed")
+    model = build_model(cfg, {"h0": h0, "log2_dt": np.zeros(3, np.float32), "init_log2": -2.0, "frame_hw": (16, 16)})
     frames = np.random.default_rng(0).uniform(0, 1, (3, 16, 16, 3)).astype(np.float32)
     summary = export_atlases(model, tmp_path, frames, fps=10)
     assert [e["layer"] for e in summary["layers"]] == [0] and summary["alpha_mattes"] == 0

@@ -326,13 +326,13 @@ def test_rigidity_and_gradient_losses_finite_on_degenerate_inputs():
 def test_model_loss_terms_and_gradients_finite(ev, layers, monotone, clipped, blur, target, autocast):
     from layercam.config import load_config
     from layercam.model import ImplicitCameraModel
-    from layercam.spec import ModelSpec
+
+    from conftest import decided
 
     torch.manual_seed(0)
-    cfg = load_config("fast", TINY + [f"tone.monotone={monotone}", f"loss.clipped={clipped}", "blur.width=8", "blur.depth=1"])
-    spec = ModelSpec(layers=layers, blur=blur)
     h0 = torch.eye(3).expand(layers, 2, 3, 3).clone()
-    model = ImplicitCameraModel(cfg, spec, h0, np.array([0.0, ev], np.float32), init_log2=-ev, frame_hw=(3, 5))
+    cfg = decided(load_config("fast", TINY + [f"tone.monotone={monotone}", f"loss.clipped={clipped}", "blur.width=8", "blur.depth=1"]), h0, (3, 5), layers=layers, blur=blur)
+    model = ImplicitCameraModel(cfg, h0, np.array([0.0, ev], np.float32), init_log2=-ev, frame_hw=(3, 5))
     n = 32
     rgb = {"black": torch.zeros(n, 3), "white": torch.ones(n, 3), "random": torch.rand(n, 3)}[target]
     batch = {"xy": torch.rand(n, 2) * 2 - 1, "t": torch.arange(n) % 2, "rgb": rgb,
@@ -476,7 +476,7 @@ def test_end_to_end_tiny_clips_export_finite_hdr_and_monotone_curves(hw, t, cont
             assert img.shape == (*hw, 3) and np.isfinite(img).all() and (img >= 0).all()
         rep = json.loads((d / "run" / "report.json").read_text())
         assert rep["train"]["steps"] == 6 and np.isfinite(rep["train"]["log2_dt"]).all()
-        from layercam.render import load_run_model
+        from layercam.checkpoint import load_run_model
 
         model, _ = load_run_model(d / "run")
         curve = model.tone.curve(Z).numpy()

@@ -34,7 +34,7 @@ def stack_run(tmp_path_factory):
 
 
 def _load(run):
-    from layercam.render import load_run_model
+    from layercam.checkpoint import load_run_model
 
     return load_run_model(run)
 

@@ -61,7 +61,7 @@ def test_foreground_bootstrap_masks_and_object_mapping(square):
     ious = [metrics.iou(fb["masks"][t] > 0.5, square["masks"][t]) for t in range(len(fb["masks"]))]
     assert np.mean(ious) > 0.5, ious
     # the foreground's own motion: the square's centre lands on (nearly) the same atlas point in every frame
-    from layercam.pipelines.stages import normalised_frame_matrix
+    from layercam.geometry import normalised_frame_matrix
 
     n = normalised_frame_matrix(64, 64)
     uv = []

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from layercam.cli import EPILOG, common_model_args, default_out, finish, input_args, load_cfg, load_masks, spec_overrides
+from layercam.cli import EPILOG, common_model_args, default_out, finish, input_args, load_cfg, load_masks
 
 
 def register(sub) -> argparse.ArgumentParser:
@@ -38,6 +38,6 @@ def run(args) -> int:
     exposures = parse_exposures(args.exposures, clip, args.ev_step)
     masks = load_masks(args.masks, clip) if args.masks else None
     out = Path(args.out) if args.out else default_out(args.inputs)
-    ctx = run_task("deblur-video", clip, exposures, cfg, out, spec_overrides(args), masks=masks, progress=not args.quiet)
+    ctx = run_task("deblur-video", clip, exposures, cfg, out, masks=masks, progress=not args.quiet)
     finish(ctx)
     return 0

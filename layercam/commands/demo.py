@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from layercam.cli import common_model_args, load_cfg, spec_overrides
+from layercam.cli import common_model_args, load_cfg
 
 
 def register(sub) -> argparse.ArgumentParser:
@@ -31,7 +31,7 @@ def run(args) -> int:
     log2 = np.log2(scene.exposure_times / scene.exposure_times.min())
     phase = (np.arange(len(log2)) % 2).astype(np.int64)
     exposures = Exposures(log2, "none", phase, f"alt (ev-step {args.ev_step}, known)", f"synthetic: exposures alternate by {args.ev_step} EV")
-    ctx = run_task("demo", scene.clip, exposures, cfg, Path(args.out), spec_overrides(args), progress=not args.quiet, extra={"scene": scene}, extra_stages=[EvaluateStage()])
+    ctx = run_task("demo", scene.clip, exposures, cfg, Path(args.out), progress=not args.quiet, extra={"scene": scene}, extra_stages=[EvaluateStage()])
     ev = ctx.results["evaluate"]
     rows = [("layercam (" + cfg.preset + ")", ev["metrics"])] + [(k, v) for k, v in ev["baselines"].items()]
     print("\nHDR against ground truth (one scale per channel aligned):")

@@ -139,7 +139,8 @@ def run(args) -> int:
     from layercam.pipelines.runner import write_json
     from layercam.pipelines.stages import resolve_device
     from layercam.progress import bar as progress_bar
-    from layercam.render import load_run_model, tonemap_display
+    from layercam.checkpoint import load_run_model
+    from layercam.render import tonemap_display
 
     run_dir = Path(args.run)
     model, meta = load_run_model(run_dir, resolve_device(args.device))

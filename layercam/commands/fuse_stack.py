@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from layercam.cli import common_model_args, default_out, finish, load_cfg, spec_overrides
+from layercam.cli import common_model_args, default_out, finish, load_cfg
 
 EXAMPLES = """examples:
   layercam fuse-stack near.tif far.tif --out runs/pair                  # multi-focus (MF): sRGB assumed
@@ -68,7 +68,7 @@ def run(args) -> int:
     resolve_reference(args.reference, clip.T)  # a bad --reference fails now, not after training
     exposures = pick_exposures(args.exposures, clip)
     out = Path(args.out) if args.out else default_out(args.inputs)
-    ctx = run_task("fuse-stack", clip, exposures, cfg, out, spec_overrides(args), progress=not args.quiet, extra={"reference": args.reference})
+    ctx = run_task("fuse-stack", clip, exposures, cfg, out, progress=not args.quiet, extra={"reference": args.reference})
     finish(ctx)
     if not args.quiet:
         ex = ctx.results["export"]

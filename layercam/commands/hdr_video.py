@@ -6,7 +6,7 @@ import argparse
 from pathlib import Path
 
 from layercam import distributed
-from layercam.cli import EPILOG, common_model_args, default_out, finish, input_args, load_cfg, load_masks, spec_overrides
+from layercam.cli import EPILOG, common_model_args, default_out, finish, input_args, load_cfg, load_masks
 
 
 def register(sub) -> argparse.ArgumentParser:
@@ -31,6 +31,6 @@ def run(args) -> int:
         exposures = parse_exposures(args.exposures, clip, args.ev_step)
         masks = load_masks(args.masks, clip) if args.masks else None
         out = Path(args.out) if args.out else default_out(args.inputs)
-        ctx = run_task("hdr-video", clip, exposures, cfg, out, spec_overrides(args), masks=masks, progress=not args.quiet and distributed.is_main())
+        ctx = run_task("hdr-video", clip, exposures, cfg, out, masks=masks, progress=not args.quiet and distributed.is_main())
         finish(ctx)
     return 0

@@ -158,7 +158,7 @@ def run(args) -> int:
     from layercam.io.atomic import ensure_writable_dir
     from layercam.pipelines.runner import write_json
     from layercam.pipelines.stages import resolve_device
-    from layercam.render import load_run_model
+    from layercam.checkpoint import load_run_model
 
     if args.exposure is None and args.focus is None and args.sweep is None:
         raise LayercamError("nothing to render: give --exposure EV, --focus F or --sweep exposure|focus")

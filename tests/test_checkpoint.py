@@ -1,0 +1,54 @@
+"""Checkpoints: a run saved by an earlier version (format 1: the model's choices in a separate
+``spec`` dict) still loads, renders the same pixels, and takes ``layercam render`` and ``edit``."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from layercam.checkpoint import FORMAT, load_run_model, save_run_model
+from layercam.cli import main
+from layercam.render import render_frame
+
+OLD_RUN = Path(__file__).parent / "data" / "run_format1"  # hdr-video, 2 layers + 3x3 blur (s = 2), 4 frames 16x16, made at 11fa359
+
+
+def test_format1_checkpoint_renders_what_it_rendered_then():
+    raw = torch.load(OLD_RUN / "checkpoint.pt", weights_only=False)
+    assert "spec" in raw and "model" not in raw["cfg"]  # really the old format
+    model, meta = load_run_model(OLD_RUN)
+    assert meta["format"] == FORMAT and meta["reasons"]["layers"] == "forced by --layers"
+    m, b = model.cfg.model, model.cfg.blur
+    assert (m.layers, m.tone_mapper, m.blur, b.n, b.max_offset, m.flow_loss) == (2, "learned", "on", 3, 2.0, True)
+    expected = np.load(OLD_RUN / "expected.npz")
+    out = render_frame(model, 1, (16, 16))
+    np.testing.assert_array_equal(out["image"], expected["hdr"])
+    np.testing.assert_array_equal(out["alpha"], expected["alpha"])
+    np.testing.assert_array_equal(render_frame(model, 1, (16, 16), what="ldr")["image"], expected["ldr"])
+
+
+def test_format1_run_takes_render_and_edit(tmp_path):
+    run = tmp_path / "run"
+    shutil.copytree(OLD_RUN, run)
+    assert main(["render", str(run), "--exposure", "1", "--quiet"]) == 0
+    assert len(list((run / "render" / "exposure_+1.00").glob("frame_*.png"))) == 4
+    assert main(["render", str(run), "--focus", "0.5", "--quiet"]) == 0  # the blur generator of format 1
+    import cv2
+
+    png = cv2.imread(str(run / "atlases" / "layer1.png"), cv2.IMREAD_UNCHANGED)
+    png[8:24, 8:24, :3] = (0, 0, 255)  # paint a red square on the foreground's atlas
+    cv2.imwrite(str(tmp_path / "edited.png"), png)
+    assert main(["edit", str(run), "--layer", "1", "--atlas", str(tmp_path / "edited.png"), "--quiet"]) == 0
+    assert len(list((run / "edit" / "hdr").glob("*.exr"))) == 4
+
+
+def test_saved_now_loads_back_the_same(tmp_path):
+    model, meta = load_run_model(OLD_RUN)
+    save_run_model(tmp_path / "checkpoint.pt", model, meta)
+    again, meta2 = load_run_model(tmp_path)
+    assert meta2["cfg"] == model.cfg.to_dict() and "spec" not in meta2
+    for (k, v), (k2, v2) in zip(model.state_dict().items(), again.state_dict().items()):
+        assert k == k2 and torch.equal(v, v2)

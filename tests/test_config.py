@@ -1,0 +1,94 @@
+"""Settings: every section typed and range-checked when loaded; a bad value is one line and exit 2
+before any stage runs; the analysis's "auto" choices are kept apart from what is forced."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from layercam.cli import main
+from layercam.config import SECTIONS, Config, config_from_dict, load_config, model_overrides, preset_names, unresolved, validate
+from layercam.errors import LayercamError
+
+
+@pytest.mark.parametrize("name", preset_names())
+def test_every_preset_loads_and_round_trips(name):
+    cfg = load_config(name)
+    assert config_from_dict(cfg.to_dict()) == cfg
+
+
+BAD = [
+    ("train.autocast=bogus", "train.autocast"), ("scene.bootstrap=bogus", "scene.bootstrap"), ("flow.method=bogus", "flow.method"),
+    ("train.steps=-5", ">= 1"), ("train.steps=0", ">= 1"), ("train.batch=0", ">= 1"), ("train.steps=2.5", "integer"),
+    ("train.lr=-1", "> 0"), ("train.lr=0", "> 0"), ("train.lr=nan", "finite"), ("train.lr=inf", "finite"), ("train.grid_lr=1e6", "<= 1"),
+    ("blur.max_offset=-5", ">= 0"), ("blur.max_offset=nan", "finite"), ("blur.n=4", "odd"), ("blur.warmup=1", "< 1"),
+    ("export.preview_fps=-5", ">= 0"), ("loss.flow_decay_end=1.5", "<= 1"), ("segment.vote=2", "<= 1"),
+    ("model.layers=3", "model.layers"), ("model.flow_loss=maybe", "model.flow_loss"), ("tone.lut=1", "tone.lut"),
+    ("train.device=gpu", "train.device"), ("scene.grid_max_res=8", "grid_min_res"), ("flow.method=raft", "raft_weights"),
+    ("nosection.x=1", "nosection"), ("train.stepz=3", "stepz"), ("train.steps", "key=value"),
+]
+
+
+@pytest.mark.parametrize("item, needle", BAD)
+def test_bad_settings_are_refused_with_one_line(item, needle):
+    with pytest.raises(LayercamError, match=None) as e:
+        load_config("fast", [item])
+    assert needle in str(e.value) and "\n" not in str(e.value)
+
+
+def test_bad_preset_value_names_the_preset(tmp_path):
+    p = tmp_path / "mine.toml"
+    p.write_text("[train]\nsteps = -1\n")
+    with pytest.raises(LayercamError, match="preset .*mine.toml: train.steps: must be >= 1"):
+        load_config(str(p))
+
+
+@pytest.mark.parametrize("item", ["train.autocast=bogus", "scene.bootstrap=bogus", "flow.method=bogus", "train.steps=-5", "train.lr=nan"])
+def test_cli_refuses_before_any_stage_runs(item, tmp_path, capsys):
+    from layercam.io import write_video
+
+    video = tmp_path / "v.mp4"
+    write_video(video, np.random.default_rng(0).random((4, 16, 16, 3)).astype(np.float32), fps=4)
+    assert main(["hdr-video", str(video), "--out", str(tmp_path / "run"), "--set", item]) == 2
+    io = capsys.readouterr()
+    err = io.err.strip()
+    assert err.startswith("error:") and "\n" not in err and item.split("=")[0] in err
+    assert io.out == "" and not (tmp_path / "run").exists()  # nothing ran, nothing written
+
+
+def test_flags_become_settings():
+    assert model_overrides(2, "fixed", "5x5", 2.0, "off") == ["model.layers=2", "model.tone_mapper=fixed", "model.blur=on", "blur.n=5", "blur.max_offset=2.0", "model.flow_loss=off"]
+    cfg = load_config("fast", model_overrides(blur="off"))
+    assert cfg.model.blur == "off" and cfg.blur.n == "auto"
+    with pytest.raises(LayercamError, match="blur must be off or NxN"):
+        model_overrides(blur="big")
+
+
+def test_settings_set_in_code_are_checked_too():
+    cfg = load_config("fast")
+    cfg.train.steps = -5
+    with pytest.raises(LayercamError, match="train.steps"):
+        validate(cfg)
+    cfg = load_config("fast")
+    cfg.loss.flow = math.inf
+    with pytest.raises(LayercamError, match="finite"):
+        validate(cfg)
+
+
+def test_every_section_is_reachable_by_set():
+    cfg = Config()
+    for sec in SECTIONS:
+        name, value = next(iter(vars(getattr(cfg, sec)).items()))
+        cfg.set(f"{sec}.{name}", str(value))
+    assert set(SECTIONS) >= {"model", "segment", "blur", "export"}
+    cfg = load_config("fast", ["segment.grabcut=0", "segment.foreground=identity", "blur.n=5"])
+    assert (cfg.segment.grabcut, cfg.segment.foreground, cfg.blur.n) == (0, "identity", 5)
+
+
+def test_auto_is_left_to_the_analysis():
+    cfg = load_config("balanced")
+    assert set(unresolved(cfg)) == {"model.layers", "model.tone_mapper", "model.exposures", "model.blur", "model.flow_loss", "blur.n", "blur.max_offset", "blur.centre", "scene.residual", "scene.grid_max_res"}
+    paper = load_config("paper")  # the paper's n = 3, s = 5 are set, not derived
+    assert (paper.blur.n, paper.blur.max_offset) == (3, 5.0)

@@ -79,7 +79,7 @@ class QualityProbe:
         was = self.model.training
         self.model.eval()
         with torch.no_grad():
-            pred = np.stack([render_frame(self.model, t, self.gt.shape[1:3])["image"] for t in range(len(self.gt))])
+            pred = np.stack([render_frame(self.model, t, self.gt.shape[1:3])["hdr"] for t in range(len(self.gt))])
         self.model.train(was)
         m = hdr_metrics(pred, self.gt) if np.isfinite(pred).all() else {"psnr_mu": float("nan")}
         self.probe_time += time.perf_counter() - t0
@@ -315,7 +315,6 @@ def analysis_job(name: str, variant: str, out: Path, preset: str, quick: bool, o
     from layercam import synth
     from layercam.analyse import model_summary
     from layercam.config import load_config, model_overrides
-    from layercam.pipelines.blur_export import DeblurEvaluateStage, FuseEvaluateStage
     from layercam.pipelines.evaluate import EvaluateStage
     from layercam.pipelines.tasks import run_task
 
@@ -323,15 +322,10 @@ def analysis_job(name: str, variant: str, out: Path, preset: str, quick: bool, o
     scene = getattr(synth, fam)(**(qkw if quick else kw))
     cfg = load_config(preset, (model_overrides(**FULL_MODEL) if variant == "full" else []) + list(overrides_cfg))
     extra = {"scene": scene, "baselines": []}
-    if task == "hdr-video":
-        ev = EvaluateStage()
-    elif task == "deblur-video":
-        ev = DeblurEvaluateStage()
-    else:
-        ev = FuseEvaluateStage()
+    if task == "fuse-stack":
         extra.update(focus_index=np.asarray(scene.meta["focus_index"]), times=np.asarray(scene.exposure_times))
     t0 = time.perf_counter()
-    ctx = run_task(task, scene.clip, scene_exposures(scene), cfg, out / name / variant, progress=False, extra=extra, extra_stages=[ev])
+    ctx = run_task(task, scene.clip, scene_exposures(scene), cfg, out / name / variant, progress=False, extra=extra, extra_stages=[EvaluateStage()])
     wall = sum(v["seconds"] for k, v in ctx.times.items() if k != "evaluate")
     m = ctx.results["evaluate"]["metrics"]
     metric, value = ("psnr_mu", m["psnr_mu"]) if "psnr_mu" in m else ("psnr", m["psnr"])

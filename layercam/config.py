@@ -196,6 +196,7 @@ class ExportConfig:
     half: bool = True                       # EXR half floats
     preview_fps: float = setting(0.0, 0.0, 1000.0)  # 0: the input's frame rate
     chunk: int = setting(65536, 1)          # pixels rendered at once
+    reference: int | Literal["middle", "first", "last"] = "middle"  # fuse-stack: the view fused into (an index may be negative)
 
 
 @dataclass

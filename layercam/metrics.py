@@ -250,3 +250,43 @@ def highlight_psnr_mu(pred_hdr, gt_hdr, mask, mu: float = 5000.0, align: bool = 
     if not sel.any():
         raise MetricInputError("highlight mask selects no pixel")
     return _psnr_masked(mu_law(p, mu), mu_law(g, mu), sel, 1.0)
+
+
+# -- sharp frames against ground truth (deblurring) ------------------------------------------------
+def _translate(img: np.ndarray, dx: float, dy: float) -> np.ndarray:
+    import cv2
+
+    m = np.array([[1, 0, dx], [0, 1, dy]], np.float64)
+    return cv2.warpAffine(img, m, img.shape[1::-1], flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT_101)
+
+
+def best_shift(pred: np.ndarray, gt: np.ndarray, crop: int, max_shift: float = 3.0) -> tuple[np.ndarray, tuple[float, float]]:
+    """Translate ``pred (H, W, 3)`` by the shift (within ``max_shift`` px, 0.25 px steps) that
+    minimises its squared error to ``gt`` inside a ``crop``-pixel border: a deblurred frame may show
+    any instant of the exposure, and the blurry frame its blur's centre, so both are compared at
+    their best shift."""
+    c = (slice(crop, pred.shape[0] - crop), slice(crop, pred.shape[1] - crop))
+
+    def err(dx, dy):
+        return float(((_translate(pred, dx, dy)[c] - gt[c]) ** 2).mean())
+
+    n = int(max_shift)
+    best = min(((dx, dy) for dx in range(-n, n + 1) for dy in range(-n, n + 1)), key=lambda d: err(*d))
+    fine = [(best[0] + a / 4, best[1] + b / 4) for a in range(-3, 4) for b in range(-3, 4)]
+    fine = [d for d in fine if abs(d[0]) <= max_shift and abs(d[1]) <= max_shift]
+    dx, dy = min(fine, key=lambda d: err(*d))
+    return _translate(pred, dx, dy), (float(dx), float(dy))
+
+
+def score_frames(pred: np.ndarray, gt: np.ndarray, crop: int, align: bool) -> list[dict]:
+    """Per frame ``{"psnr", "ssim"}`` of LDR ``pred`` against ``gt`` (both ``(T, H, W, 3)``), with a
+    ``crop``-pixel border left out; ``align`` first moves each frame by its :func:`best_shift`."""
+    rows = []
+    for p, g in zip(pred, gt):
+        shift = (0.0, 0.0)
+        if align:
+            p, shift = best_shift(p, g, max(crop, 4))
+        c = (slice(crop, p.shape[0] - crop), slice(crop, p.shape[1] - crop)) if crop else (slice(None), slice(None))
+        m = ldr_metrics(np.clip(p[c], 0, 1), g[c])
+        rows.append({"psnr": round(m["psnr"], 3), "ssim": round(m["ssim"], 4), "shift": [round(shift[0], 2), round(shift[1], 2)]})
+    return rows

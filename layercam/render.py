@@ -9,41 +9,67 @@ import torch
 from layercam.data import pixel_grid
 
 
-@torch.no_grad()
-def render_frame(model, t: int, hw: tuple[int, int], chunk: int = 65536, what: str = "hdr", log2_dt: float | None = None, blur: bool = False) -> dict:
-    """Render frame ``t`` at ``hw = (H, W)``.
+FRAME_OUTPUTS = ("hdr", "log2_r", "layers", "ldr", "uv", "alpha")
 
-    what "hdr": linear irradiance ``2^log2_r`` (H, W, 3), camera dropped. "ldr": through the tone
-    mapper at the frame's own exposure or at ``log2_dt``; ``blur`` keeps the blur generator.
-    Returns ``{"image": (H, W, 3), "alpha": (H, W) | None, "uv": [(H, W, 2)]}``.
+
+@torch.no_grad()
+def render_frame(model, t: int, hw: tuple[int, int], what=("hdr",), *, log2_dt: float | None = None, blur: bool = False, t_blur: float | None = None, chunk: int = 65536) -> dict:
+    """Frame ``t`` of a trained model at ``hw = (H, W)``, rendered in chunks of ``chunk`` pixels on
+    the model's device (``chunk / K`` with a ``K``-sample blur patch); the one full-frame renderer of
+    the exports, ``render``, ``edit``, the notebook and the benchmark's probe.
+
+    ``what`` names the outputs, returned as float32 numpy arrays:
+
+    * ``"hdr"``: linear irradiance ``2^log2_r (H, W, 3)``, the camera dropped; ``"log2_r"``: its log2;
+    * ``"layers"``: each layer's log2 irradiance ``[L x (H, W, 3)]`` (composite them with
+      :func:`composite_layers`);
+    * ``"ldr"``: ``(H, W, 3)`` through the tone mapper at the frame's own exposure, or at
+      ``log2_dt``; ``blur`` applies the blur generator first, with the blur of the fractional image
+      index ``t_blur`` when given (focus between training images);
+    * ``"uv"``: each layer's atlas coordinates ``[L x (H, W, 2)]``; ``"alpha"``: the foreground's
+      opacity ``(H, W)`` (None for one layer). Asked for alone, they skip the atlases and camera.
     """
+    what = (what,) if isinstance(what, str) else tuple(what)
+    unknown = set(what) - set(FRAME_OUTPUTS)
+    if unknown:
+        raise ValueError(f"unknown render output(s) {sorted(unknown)} (one of {', '.join(FRAME_OUTPUTS)})")
     h, w = hw
     dev = next(model.parameters()).device
+    geometry_only = set(what) <= {"uv", "alpha"}
+    use_blur = "ldr" in what and blur and model.blur is not None
+    step = max(1, chunk // model.blur.K) if use_blur else chunk
     xy_all = pixel_grid(h, w, dev)
-    imgs, alphas, uvs = [], [], []
-    for s in range(0, xy_all.shape[0], chunk):
-        xy = xy_all[s : s + chunk]
+    parts: dict = {k: [] for k in what}
+    for s in range(0, xy_all.shape[0], step):
+        xy = xy_all[s : s + step]
         tt = torch.full((xy.shape[0],), int(t), dtype=torch.long, device=dev)
-        if what == "hdr":
-            out = model.irradiance(xy, tt)
-            img = torch.exp2(out["log2_r"])
-        elif what == "ldr":
-            with torch.enable_grad() if (blur and model.blur is not None) else torch.no_grad():
-                out = model(xy, tt, blur=blur)
-            if log2_dt is None:
-                img = out["rgb"]
-            else:
-                img = model.tone_map(out["log2_r_camera"], torch.full_like(out["log2_r"][:, :1], float(log2_dt)))
-        else:
-            raise ValueError(f"unknown render target {what!r}")
-        imgs.append(img.float().cpu())
-        if out["alpha"] is not None:
-            alphas.append(out["alpha"].float().cpu())
-        uvs.append(torch.stack(out["uv"], 0).float().cpu())
-    image = torch.cat(imgs).view(h, w, 3).numpy()
-    alpha = torch.cat(alphas).view(h, w).numpy() if alphas else None
-    uv = torch.cat(uvs, 1).view(-1, h, w, 2).numpy()
-    return {"image": image, "alpha": alpha, "uv": list(uv)}
+        out = model.scene.mappings(xy, tt) if geometry_only else model.scene(xy, tt)
+        got = {"uv": lambda: torch.stack(out["uv"], 0), "alpha": lambda: out["alpha"], "log2_r": lambda: out["log2_r"],
+               "hdr": lambda: torch.exp2(out["log2_r"]), "layers": lambda: torch.stack(out["layer_log2_r"], 0),
+               "ldr": lambda: _through_camera(model, xy, tt, out, log2_dt, use_blur, t_blur)}
+        for k in what:
+            v = got[k]()
+            if v is not None:
+                parts[k].append(v.float().cpu())
+    shapes = {"hdr": (h, w, 3), "log2_r": (h, w, 3), "ldr": (h, w, 3), "alpha": (h, w), "uv": (-1, h, w, 2), "layers": (-1, h, w, 3)}
+    res = {}
+    for k, v in parts.items():
+        if not v:
+            res[k] = None  # alpha of a one-layer scene
+            continue
+        arr = torch.cat(v, 1 if k in ("uv", "layers") else 0).view(*shapes[k]).numpy()
+        res[k] = list(arr) if k in ("uv", "layers") else arr
+    return res
+
+
+def _through_camera(model, xy, t, out: dict, log2_dt: float | None, blur: bool, t_blur: float | None) -> torch.Tensor:
+    """The scene output ``out`` at ``xy, t`` as the camera records it: ``(N, 3)``."""
+    log2_r = out["log2_r"]
+    if blur:
+        tb = None if t_blur is None else torch.full((xy.shape[0],), float(t_blur), device=xy.device)
+        log2_r = model.blur(model.scene, xy, t, out, t_blur=tb)
+    dt = model.exposure(t) if log2_dt is None else torch.full_like(log2_r[:, :1], float(log2_dt))
+    return model.tone_map(log2_r, dt)
 
 
 def tonemap_display(hdr: np.ndarray, stats: dict | None = None) -> tuple[np.ndarray, dict]:
@@ -68,43 +94,6 @@ def tonemap_display(hdr: np.ndarray, stats: dict | None = None) -> tuple[np.ndar
 
 
 # -- layers and atlases: what the atlas export and ``layercam edit`` share -------------------------
-@torch.no_grad()
-def render_mappings(model, t: int, hw: tuple[int, int], chunk: int = 65536) -> dict:
-    """Geometry of frame ``t`` only (no atlas, no camera): ``{"uv": [L x (H, W, 2)], "alpha": (H, W) | None}``."""
-    h, w = hw
-    dev = next(model.parameters()).device
-    xy_all = pixel_grid(h, w, dev)
-    uvs, alphas = [], []
-    for s in range(0, xy_all.shape[0], chunk):
-        xy = xy_all[s : s + chunk]
-        m = model.scene.mappings(xy, torch.full((xy.shape[0],), int(t), dtype=torch.long, device=dev))
-        uvs.append(torch.stack(m["uv"], 0).float().cpu())
-        if m["alpha"] is not None:
-            alphas.append(m["alpha"].float().cpu())
-    uv = torch.cat(uvs, 1).view(-1, h, w, 2).numpy()
-    return {"uv": list(uv), "alpha": torch.cat(alphas).view(h, w).numpy() if alphas else None}
-
-
-@torch.no_grad()
-def render_layers(model, t: int, hw: tuple[int, int], chunk: int = 65536) -> dict:
-    """Frame ``t`` per layer with the camera dropped: ``{"uv": [L x (H, W, 2)], "log2_r": [L x (H, W, 3)],
-    "alpha": (H, W) | None}`` (``alpha`` is layer 1's opacity; composite with :func:`composite_layers`)."""
-    h, w = hw
-    dev = next(model.parameters()).device
-    xy_all = pixel_grid(h, w, dev)
-    uvs, logs, alphas = [], [], []
-    for s in range(0, xy_all.shape[0], chunk):
-        xy = xy_all[s : s + chunk]
-        out = model.irradiance(xy, torch.full((xy.shape[0],), int(t), dtype=torch.long, device=dev))
-        uvs.append(torch.stack(out["uv"], 0).float().cpu())
-        logs.append(torch.stack(out["layer_log2_r"], 0).float().cpu())
-        if out["alpha"] is not None:
-            alphas.append(out["alpha"].float().cpu())
-    uv = torch.cat(uvs, 1).view(-1, h, w, 2).numpy()
-    lg = torch.cat(logs, 1).view(-1, h, w, 3).numpy()
-    return {"uv": list(uv), "log2_r": list(lg), "alpha": torch.cat(alphas).view(h, w).numpy() if alphas else None}
-
-
 def layer_weights(alpha: np.ndarray | None, n_layers: int, hw: tuple[int, int]) -> list[np.ndarray]:
     """How much each layer is seen per pixel: ``[1 - alpha, alpha]``, or ``[1]`` for one layer."""
     if alpha is None or n_layers == 1:

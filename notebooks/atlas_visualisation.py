@@ -56,6 +56,7 @@ from IPython.display import Image, display
 
 from layercam import analyse, checkpoint, render, synth, viz
 from layercam.data import normalise_xy
+from layercam.geometry import middle_frame
 from layercam.pipelines.atlas_export import atlas_resolution, png_exposure
 
 FIGURES = {}  # name -> figure, in the order drawn
@@ -117,16 +118,17 @@ if report.get("metrics"):
     print("  metrics:", report["metrics"])
 
 # %% [markdown]
-# Every frame rendered once: linear HDR with the camera dropped (`what="hdr"`, which also returns
-# each layer's `uv` and the alpha matte) and the frame as the camera would record it
-# (`what="ldr"`, the learned tone mapper at the frame's own exposure, sharp).
+# Every frame rendered once (`render.render_frame`, asked for four outputs): linear HDR with the
+# camera dropped (`"hdr"`), each layer's atlas coordinates (`"uv"`), the alpha matte (`"alpha"`)
+# and the frame as the camera would record it (`"ldr"`, the learned tone mapper at the frame's own
+# exposure, sharp).
 
 # %%
-renders = [render.render_frame(model, t, (H, W)) for t in range(T)]
-hdr = np.stack([r["image"] for r in renders])  # (T, H, W, 3) linear
+renders = [render.render_frame(model, t, (H, W), ("hdr", "uv", "alpha", "ldr")) for t in range(T)]
+hdr = np.stack([r["hdr"] for r in renders])  # (T, H, W, 3) linear
 uv = [np.stack([r["uv"][k] for r in renders]) for k in range(model.scene.n_layers)]  # per layer (T, H, W, 2)
 alpha = None if renders[0]["alpha"] is None else np.stack([r["alpha"] for r in renders])  # (T, H, W)
-ldr = np.stack([render.render_frame(model, t, (H, W), what="ldr")["image"] for t in range(T)])
+ldr = np.stack([r["ldr"] for r in renders])
 L = len(uv)
 visible = [np.stack(w) for w in zip(*(render.layer_weights(None if alpha is None else alpha[t], L, (H, W)) for t in range(T)))]
 _, display_stats = render.tonemap_display(hdr)  # one tonemap for the whole clip and its atlases
@@ -145,7 +147,7 @@ print(f"{L} layer(s); irradiance {hdr.min():.3g}..{hdr.max():.3g}")
 ref_ev = png_exposure(model)  # the median of the frames' log2 exposures
 atlas_img, camera_img, coverage = [], [], []
 for k in range(L):
-    res = ATLAS_RES or atlas_resolution(uv[k][T // 2], visible[k][T // 2])
+    res = ATLAS_RES or atlas_resolution(uv[k][middle_frame(T)], visible[k][middle_frame(T)])
     log2_atlas = render.sample_atlas(model, k, res)  # (res, res, 3)
     atlas_img.append(render.tonemap_display(np.exp2(log2_atlas), display_stats)[0])
     camera_img.append(render.tone_map_log2(model, log2_atlas, ref_ev))
@@ -219,7 +221,7 @@ if truth_ev is not None:
 # camera keeps nearly all the weight on the centre sample.
 
 # %%
-t_mid = T // 2
+t_mid = middle_frame(T)
 px = np.array([[W // 4, H // 4], [3 * W // 4, H // 4], [W // 4, 3 * H // 4], [3 * W // 4, 3 * H // 4]], dtype=np.float32)
 offsets = weights = None
 if model.blur is not None:
@@ -237,7 +239,7 @@ show("blur_kernels", viz.kernels_figure(offsets, weights, px, ldr[t_mid], labels
 # recorded with a shorter or longer exposure. The titles give each image's share of clipped pixels.
 
 # %%
-sweep = np.stack([render.render_frame(model, t_mid, (H, W), what="ldr", log2_dt=ref_ev + ev)["image"] for ev in SWEEP_EV])
+sweep = np.stack([render.render_frame(model, t_mid, (H, W), "ldr", log2_dt=ref_ev + ev)["ldr"] for ev in SWEEP_EV])
 show("exposure_sweep", viz.sweep_figure(sweep, SWEEP_EV))
 
 # %% [markdown]

@@ -1,6 +1,6 @@
 """Atlas outputs: what each layer of the scene looks like, and how the frames map into it.
 
-Written into the run folder by :class:`AtlasStage` (after the export stage):
+Written into the run folder by the export stage's ``atlases`` writer (:mod:`layercam.pipelines.export`):
 
 * ``atlases/layer{k}.exr`` — layer k's atlas as linear irradiance, sampled on a ``res x res`` grid of
   pixel centres over ``uv`` in ``[-1, 1]^2`` (row = v, column = u; ``grid_sample`` with
@@ -13,21 +13,18 @@ Written into the run folder by :class:`AtlasStage` (after the export stage):
   the pixels where the layer is seen.
 * ``atlases/layer{k}_alpha.mp4`` (two layers) — the layer's opacity per frame.
 * ``alpha/frame_00000.png`` (two layers) — the foreground's (layer 1) alpha as 8-bit mattes.
-* ``atlases/atlas.json`` — grid sizes, the exposure of the PNGs, file names; ``atlases/key.txt``
-  marks which settings made them (outputs of other settings are moved to ``previous/``).
+* ``atlases/atlas.json`` — grid sizes, the exposure of the PNGs, file names.
 """
 
 from __future__ import annotations
 
-import shutil
 from pathlib import Path
 
 import numpy as np
 
 from layercam.errors import LayercamError
-from layercam.pipelines.runner import Stage, write_json
+from layercam.pipelines.runner import write_json
 
-ATLAS_OUTPUTS = ["atlases", "alpha"]
 ATLAS_MIN_RES, ATLAS_MAX_RES = 32, 2048
 
 
@@ -66,19 +63,19 @@ def png_exposure(model) -> float:
     return float(np.median(model.exposure.values().detach().float().cpu().numpy()))
 
 
-def export_atlases(model, run_dir: Path, frames: np.ndarray, fps: float = 24.0, chunk: int = 65536, progress: bool = False, key: str = "") -> dict:
+def export_atlases(model, run_dir: Path, frames: np.ndarray, fps: float = 24.0, chunk: int = 65536, progress: bool = False) -> dict:
     """Writes the files listed in this module's docstring into ``run_dir``; returns a summary."""
+    from layercam.geometry import middle_frame
     from layercam.io import write_exr, write_png, write_video
     from layercam.progress import bar as progress_bar
-    from layercam.render import checker_overlay, coverage_from_splat, layer_weights, render_mappings, sample_atlas, splat_add, tone_map_log2
+    from layercam.render import checker_overlay, coverage_from_splat, layer_weights, render_frame, sample_atlas, splat_add, tone_map_log2
 
     run_dir = Path(run_dir)
     T, H, W = frames.shape[:3]
     L = model.scene.n_layers
     adir = run_dir / "atlases"
     adir.mkdir(parents=True, exist_ok=True)
-    mid = T // 2
-    m = render_mappings(model, mid, (H, W), chunk)
+    m = render_frame(model, middle_frame(T), (H, W), ("uv", "alpha"), chunk=chunk)
     ws = layer_weights(m["alpha"], L, (H, W))
     res = [atlas_resolution(m["uv"][k], ws[k]) for k in range(L)]
     acc = [np.zeros(r * r, np.float64) for r in res]
@@ -87,7 +84,7 @@ def export_atlases(model, run_dir: Path, frames: np.ndarray, fps: float = 24.0, 
     seen = [np.empty((T, H, W), np.uint8) for _ in range(L)]
     alphas = []
     for t in progress_bar(range(T), desc="atlases", unit="frame", enabled=progress):
-        m = render_mappings(model, t, (H, W), chunk)
+        m = render_frame(model, t, (H, W), ("uv", "alpha"), chunk=chunk)
         ws = layer_weights(m["alpha"], L, (H, W))
         if m["alpha"] is not None:
             alphas.append(m["alpha"])
@@ -123,54 +120,4 @@ def export_atlases(model, run_dir: Path, frames: np.ndarray, fps: float = 24.0, 
         "frame_hw": [H, W],
     }
     write_json(adir / "atlas.json", info)
-    (adir / "key.txt").write_text(key)
     return {"layers": [{k: v for k, v in e.items() if k in ("layer", "res", "coverage")} for e in layers], "alpha_mattes": len(alphas)}
-
-
-def set_aside_atlases(run_dir: Path, key: str, export_key: str, say) -> None:
-    """Outputs of earlier settings are moved to ``previous/<their export key>/`` (where the export
-    stage puts the rest of them), never overwritten; outputs from something else stop the run."""
-    run_dir = Path(run_dir)
-    marker = run_dir / "atlases" / "key.txt"
-    present = [n for n in ATLAS_OUTPUTS if (run_dir / n).exists()]
-    if not present:
-        return
-    if not marker.exists():
-        raise LayercamError(f"{run_dir} already holds {present[0]} from something else; choose another --out")
-    old = marker.read_text().strip()
-    if old == key:
-        return
-    old_export = (run_dir / "atlases" / "export_key.txt")
-    tag = old_export.read_text().strip() if old_export.exists() else f"atlas-{old}"
-    if tag == export_key:  # same export, other atlas settings
-        tag = f"{tag}-atlas-{old}"
-    dest = run_dir / "previous" / tag
-    dest.mkdir(parents=True, exist_ok=True)
-    for n in present:
-        target = dest / n
-        if target.exists():
-            target = dest / f"{n}-{old}"
-        shutil.move(str(run_dir / n), str(target))
-    say(f"settings changed: earlier atlases moved to {dest}")
-
-
-class AtlasStage(Stage):
-    """Per layer the atlas (EXR, PNG with coverage), alpha and UV-overlay videos, alpha mattes."""
-
-    name = "atlas"
-    deps = ("train", "export")
-    version = 1
-
-    def key_material(self, ctx):
-        return {"min_res": ATLAS_MIN_RES, "max_res": ATLAS_MAX_RES, "chunk": ctx.cfg.export.chunk}
-
-    def run(self, ctx, out):
-        from layercam.pipelines.stages import load_trained
-
-        key = ctx.keys[self.name]
-        set_aside_atlases(ctx.run_dir, key, ctx.keys.get("export", ""), ctx.say)
-        model, _ = load_trained(ctx)
-        fps = ctx.cfg.export.preview_fps or float(ctx.clip.fps or 24.0)
-        summary = export_atlases(model, ctx.run_dir, ctx.clip.frames, fps=fps, chunk=ctx.cfg.export.chunk, progress=ctx.progress, key=key)
-        (ctx.run_dir / "atlases" / "export_key.txt").write_text(ctx.keys.get("export", ""))
-        return summary

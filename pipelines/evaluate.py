@@ -1,4 +1,18 @@
-"""Scores an exported run against ground truth (synthetic scenes) next to classical baselines."""
+"""The evaluate stage: a run scored against the ground truth of a ``layercam.synth`` scene
+(``ctx.extra["scene"]``) next to the classical baselines, by the scorer of its task
+(:data:`SCORERS`). Used by ``demo``, the benchmarks and the tests, not by the other commands.
+
+* ``hdr``: PSNR-mu / PSNR-L / SSIM-mu of the exported ``hdr/`` frames against ``scene.hdr``, and the
+  same for OpenCV Debevec (calibrate + merge of each frame with its DIS-aligned neighbour).
+* ``deblur``: PSNR / SSIM of the sharp frames against ``scene.sharp_ldr``, next to the blurry
+  input's; a border of ``ctx.extra["crop"]`` px (default 4) is left out; "raw" as rendered, and
+  "aligned": each frame (deblurred and input alike) at its best shift within 3 px
+  (:func:`layercam.metrics.best_shift`).
+* ``fused``: PSNR-mu / PSNR-L / SSIM-mu of ``fused.exr`` against ``scene.allfocus_hdr``, next to
+  ``baselines.two_stage_mfme`` (Laplacian focus fusion per exposure, then Debevec) on the same
+  images (``ctx.extra["focus_index"]``, ``["times"]``) and, when ``ctx.extra["full_stack"] =
+  (images, times, focus_index)`` is given, on that.
+"""
 
 from __future__ import annotations
 
@@ -6,8 +20,7 @@ import time
 
 import numpy as np
 
-from layercam.pipelines.runner import Stage
-from layercam.pipelines.stages import load_flow
+from layercam.pipelines.runner import Context, Stage
 
 
 def read_hdr_frames(run_dir, n: int) -> np.ndarray:
@@ -16,32 +29,94 @@ def read_hdr_frames(run_dir, n: int) -> np.ndarray:
     return np.stack([read_exr(run_dir / "hdr" / f"frame_{t:05d}.exr") for t in range(n)])
 
 
+def model_wall_s(ctx: Context) -> float:
+    """Seconds the run's stages took (their first run, for cached ones), evaluation left out."""
+    return round(sum(v.get("seconds", 0) or v.get("original_seconds", 0) or 0 for k, v in ctx.times.items() if k != "evaluate"), 2)
+
+
+def hdr_key(ctx: Context) -> dict:
+    return {"baselines": ctx.extra.get("baselines", ["debevec"])}
+
+
+def score_hdr(ctx: Context) -> dict:
+    from layercam import metrics
+
+    gt = ctx.extra["scene"].hdr
+    res = {"metrics": {**metrics.hdr_metrics(read_hdr_frames(ctx.run_dir, ctx.clip.T), gt), "wall_s": model_wall_s(ctx)}, "baselines": {}}
+    if "debevec" in ctx.extra.get("baselines", ["debevec"]) and ctx.clip.T > 1 and ctx.exposures.count_distinct > 1:
+        from layercam.baselines import debevec_video
+
+        fl = ctx.flow
+        t0 = time.perf_counter()
+        base = debevec_video(ctx.clip.frames, np.exp2(ctx.exposures.log2_dt), fl["fw"].astype(np.float32), fl["bw"].astype(np.float32))
+        secs = time.perf_counter() - t0 + ctx.times.get("flow", {}).get("seconds", 0.0)
+        res["baselines"]["debevec"] = {**metrics.hdr_metrics(base, gt), "wall_s": round(secs, 2)}
+    return res
+
+
+def deblur_key(ctx: Context) -> dict:
+    return {"crop": ctx.extra.get("crop", 4)}
+
+
+def score_deblur(ctx: Context) -> dict:
+    from layercam.metrics import score_frames
+
+    scene = ctx.extra["scene"]
+    crop = int(ctx.extra.get("crop", 4))
+    pred = np.load(ctx.results["export"]["frames_path"])
+    gt, blurry = scene.sharp_ldr, ctx.clip.frames
+    res = {"crop": crop}
+    for align in (False, True):
+        d, b = score_frames(pred, gt, crop, align), score_frames(blurry, gt, crop, align)
+        mean = lambda rows: {"psnr": float(np.mean([r["psnr"] for r in rows])), "ssim": float(np.mean([r["ssim"] for r in rows]))}  # noqa: E731
+        res["aligned" if align else "raw"] = {"deblurred": mean(d), "input": mean(b), "per_frame": {"deblurred": d, "input": b}}
+    lengths = scene.meta.get("blur_length")
+    res["blur_length"] = None if lengths is None else [round(float(v), 3) for v in lengths]
+    res["metrics"] = res["raw"]["deblurred"]
+    return res
+
+
+def fused_key(ctx: Context) -> dict:
+    fs = ctx.extra.get("full_stack")
+    return {"focus_index": [int(v) for v in ctx.extra.get("focus_index", [])], "full": None if fs is None else int(len(fs[0]))}
+
+
+def score_fused(ctx: Context) -> dict:
+    from layercam import metrics
+    from layercam.baselines import two_stage_mfme
+
+    gt = ctx.extra["scene"].allfocus_hdr
+    pred = np.load(ctx.results["export"]["fused_path"])
+    res = {"metrics": {**metrics.hdr_metrics(pred, gt), "wall_s": model_wall_s(ctx)}, "baselines": {}}
+    sets = {}
+    if "focus_index" in ctx.extra:
+        times = ctx.extra.get("times", np.exp2(ctx.exposures.log2_dt))
+        sets[f"two_stage_mfme ({ctx.clip.T} images)"] = (ctx.clip.frames, times, ctx.extra["focus_index"])
+    if ctx.extra.get("full_stack") is not None:
+        imgs, times, fidx = ctx.extra["full_stack"]
+        sets[f"two_stage_mfme ({len(imgs)} images)"] = (imgs, times, fidx)
+    for name, (imgs, times, fidx) in sets.items():
+        t0 = time.perf_counter()
+        base = two_stage_mfme(imgs, times, fidx)
+        res["baselines"][name] = {**metrics.hdr_metrics(base, gt), "wall_s": round(time.perf_counter() - t0, 2)}
+    return res
+
+
+# scorer name -> (key material, scorer); tasks -> scorer
+SCORERS = {"hdr": (hdr_key, score_hdr), "deblur": (deblur_key, score_deblur), "fused": (fused_key, score_fused)}
+TASK_SCORERS = {"hdr-video": "hdr", "demo": "hdr", "deblur-video": "deblur", "fuse-stack": "fused"}
+
+
 class EvaluateStage(Stage):
-    """PSNR-mu / PSNR-L / SSIM-mu of the exported HDR against ``ctx.extra["scene"].hdr``, and the
-    same for OpenCV Debevec (calibrate + merge of each frame with its DIS-aligned neighbour)."""
+    """Scores the exported run with its task's scorer (this module's docstring)."""
 
     name = "evaluate"
-    deps = ("export", "flow")
-    version = 1
+    deps = ("flow", "export")
+    version = 3  # 3: one stage for every task
 
     def key_material(self, ctx):
-        return {"baselines": ctx.extra.get("baselines", ["debevec"])}
+        scorer = TASK_SCORERS[ctx.task]
+        return {"scorer": scorer, **SCORERS[scorer][0](ctx)}
 
     def run(self, ctx, out):
-        from layercam import metrics
-
-        scene = ctx.extra["scene"]
-        gt = scene.hdr
-        pred = read_hdr_frames(ctx.run_dir, ctx.clip.T)
-        res = {"metrics": metrics.hdr_metrics(pred, gt), "baselines": {}}
-        wall_model = sum(v.get("seconds", 0) or v.get("original_seconds", 0) or 0 for k, v in ctx.times.items() if k != "evaluate")
-        res["metrics"]["wall_s"] = round(wall_model, 2)
-        if "debevec" in ctx.extra.get("baselines", ["debevec"]) and ctx.clip.T > 1 and ctx.exposures.count_distinct > 1:
-            from layercam.baselines import debevec_video
-
-            fl = load_flow(ctx)
-            t0 = time.perf_counter()
-            base = debevec_video(ctx.clip.frames, np.exp2(ctx.exposures.log2_dt), fl["fw"].astype(np.float32), fl["bw"].astype(np.float32))
-            secs = time.perf_counter() - t0 + ctx.times.get("flow", {}).get("seconds", 0.0)
-            res["baselines"]["debevec"] = {**metrics.hdr_metrics(base, gt), "wall_s": round(secs, 2)}
-        return res
+        return SCORERS[TASK_SCORERS[ctx.task]][1](ctx)

@@ -36,6 +36,8 @@ class Context:
     extra: dict = field(default_factory=dict)   # task inputs that are not settings (e.g. ground truth)
     measures: dict | None = None    # what the analysis measured (layercam.analyse.measure)
     reasons: dict = field(default_factory=dict)  # why the analysis decided each model setting
+    flow: dict | None = None        # the flow stage's arrays (fw, bw, fw_ok, bw_ok, homs), read once
+    model: Any = None               # the trained model (layercam.model.ImplicitCameraModel), built once
     results: dict = field(default_factory=dict)
     dirs: dict = field(default_factory=dict)
     keys: dict = field(default_factory=dict)

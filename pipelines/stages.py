@@ -29,6 +29,7 @@ class FlowStage(Stage):
         frames = ctx.clip.frames
         if ctx.clip.T < 2:
             np.savez(out / "flow.npz", fw=np.zeros((0, ctx.clip.H, ctx.clip.W, 2), np.float16))
+            ctx.flow = None
             return {"pairs": 0}
         method = ctx.cfg.flow.method
         if method == "raft":
@@ -38,20 +39,17 @@ class FlowStage(Stage):
         fw_ok = flow.flow_consistency(fw, bw)
         bw_ok = flow.flow_consistency(bw, fw)
         homs = flow.global_homographies(fw)
-        np.savez(out / "flow.npz", fw=fw.astype(np.float16), bw=bw.astype(np.float16), fw_ok=fw_ok, bw_ok=bw_ok, homs=homs)
+        ctx.flow = {"fw": fw.astype(np.float16), "bw": bw.astype(np.float16), "fw_ok": fw_ok, "bw_ok": bw_ok, "homs": homs}  # as cached
+        np.savez(out / "flow.npz", **ctx.flow)
         mag = np.sqrt((fw.astype(np.float32) ** 2).sum(-1))
         return {"pairs": int(len(fw)), "mean_flow_px": float(mag.mean()), "consistent_fraction": float(fw_ok.mean())}
 
     def load(self, ctx, out, summary):
-        return {**summary, "path": str(out / "flow.npz")}
-
-
-def load_flow(ctx: Context) -> dict | None:
-    res = ctx.results.get("flow")
-    if not res or not res.get("pairs"):
-        return None
-    with np.load(res["path"]) as z:
-        return {k: z[k] for k in z.files}
+        """The cached arrays, read once into ``ctx.flow`` (None for a single frame)."""
+        if ctx.flow is None and summary.get("pairs"):
+            with np.load(out / "flow.npz") as z:
+                ctx.flow = {k: z[k] for k in z.files}
+        return summary
 
 
 # A clip whose chained flow homographies move no frame corner by this much is registered by the
@@ -84,7 +82,7 @@ class BootstrapStage(Stage):
 
         clip = ctx.clip
         T, H, W = clip.T, clip.H, clip.W
-        fl = load_flow(ctx)
+        fl = ctx.flow
         ref = T // 2
         static = False
         if ctx.cfg.scene.bootstrap == "flow" and fl is not None:
@@ -155,15 +153,11 @@ class TrainStage(Stage):
         from layercam import distributed
         from layercam.camera.tone import fit_init_curve
         from layercam.data import PixelSampler
-        from layercam.analyse import resolve_auto
-        from layercam.checkpoint import build_model, save_run_model
         from layercam.train import BootstrapPhase, FlowDecay, MaskTaper, Trainer
 
-        boot = ctx.results["bootstrap"]
-        cfg = resolve_auto(ctx.cfg, boot.get("static", False), boot["h0"], (ctx.clip.H, ctx.clip.W))
+        cfg = self.model_cfg(ctx)
         torch.manual_seed(cfg.train.seed)
-        meta = model_meta(ctx)
-        model = build_model(cfg, meta)
+        model = self.build(ctx, cfg)
         if cfg.scene.residual_scale == 0 and ctx.cfg.scene.residual_scale > 0:
             ctx.say("[train] static one-layer scene: per-frame homographies only, no residual warp (scene.residual=on keeps it)")
         if model.blur is not None and ctx.cfg.blur.centre == "auto":
@@ -173,7 +167,7 @@ class TrainStage(Stage):
         masks = ctx.masks if ctx.masks is not None else ctx.results["bootstrap"].get("masks")  # given, else motion masks
         if masks is not None and model.scene.alpha is not None:
             model.weights["alpha_mask"] = 1.0
-        fl = load_flow(ctx) if cfg.model.flow_loss else None
+        fl = ctx.flow if cfg.model.flow_loss else None
         dev = resolve_device(cfg.train.device)
         model.to(dev)
         if cfg.train.compile:
@@ -189,9 +183,8 @@ class TrainStage(Stage):
         trainer = Trainer(model, sampler, tcfg, out / "ckpt.pt", callbacks, progress=ctx.progress, desc=f"{ctx.task} train")
         if (out / "ckpt.pt").exists():
             ctx.say(f"[train] resuming from {out / 'ckpt.pt'}")
-        res = trainer.fit()
-        if distributed.is_main():
-            save_run_model(out / "model.pt", model, meta)
+        res = trainer.fit()  # its last checkpoint (out / "ckpt.pt") holds the final model
+        ctx.model = model.eval()
         losses = [h for h in res.history if "total" in h]
         return {
             "steps": res.steps,
@@ -208,8 +201,29 @@ class TrainStage(Stage):
             "loss_curve": [[h["step"], h["total"]] for h in losses],
         }
 
+    @staticmethod
+    def model_cfg(ctx):
+        """The model's own config: ``ctx.cfg`` (analysed) with what the bootstrap decides resolved."""
+        from layercam.analyse import resolve_auto
+
+        boot = ctx.results["bootstrap"]
+        return resolve_auto(ctx.cfg, boot.get("static", False), boot["h0"], (ctx.clip.H, ctx.clip.W))
+
+    @staticmethod
+    def build(ctx, cfg):
+        from layercam.checkpoint import build_model
+
+        return build_model(cfg, model_meta(ctx))
+
     def load(self, ctx, out, summary):
-        return {**summary, "model_path": str(out / "model.pt")}
+        """A cached training: the model rebuilt once from its final checkpoint into ``ctx.model``."""
+        if ctx.model is None:
+            import torch
+
+            model = self.build(ctx, self.model_cfg(ctx))
+            model.load_state_dict(torch.load(out / "ckpt.pt", map_location="cpu", weights_only=False)["model"])
+            ctx.model = model.eval()
+        return summary
 
 
 def resolve_device(name: str) -> str:
@@ -240,105 +254,3 @@ def model_meta(ctx: Context) -> dict:
         "task": ctx.task,
         "source": str(ctx.clip.source),
     }
-
-
-def load_trained(ctx: Context):
-    import torch
-
-    from layercam.checkpoint import model_from_checkpoint
-
-    ck = torch.load(ctx.results["train"]["model_path"], map_location="cpu", weights_only=False)
-    return model_from_checkpoint(ck), ck
-
-
-HDR_VIDEO_OUTPUTS = ["hdr", "preview.mp4", "crf.json", "crf.png", "checkpoint.pt", "report.json"]
-
-
-class ExportStage(Stage):
-    """Writes the run folder: linear HDR EXR per frame, a tonemapped preview, the learned CRF,
-    and the checkpoint that ``layercam render`` reads."""
-
-    name = "export"
-    deps = ("train",)
-    version = 1
-    outputs = HDR_VIDEO_OUTPUTS
-
-    def key_material(self, ctx):
-        return ctx.cfg.section_dict("export")
-
-    def run(self, ctx, out):
-        from layercam.io import write_video
-        from layercam.progress import bar as progress_bar
-        from layercam.checkpoint import save_run_model
-        from layercam.render import render_frame, tonemap_display
-
-        run = ctx.run_dir
-        set_aside_previous(run, self.outputs, ctx.keys[self.name], ctx.say)
-        model, meta = load_trained(ctx)
-        model.to(resolve_device(ctx.cfg.train.device))  # render where it trained (GPU when there is one)
-        hw = (ctx.clip.H, ctx.clip.W)
-        hdr_dir = run / "hdr"
-        hdr_dir.mkdir(exist_ok=True)
-        frames = [render_frame(model, t, hw, ctx.cfg.export.chunk)["image"] for t in progress_bar(range(ctx.clip.T), desc="export", unit="frame", enabled=ctx.progress)]
-        half = write_hdr_set([hdr_dir / f"frame_{t:05d}.exr" for t in range(len(frames))], frames, ctx.cfg.export.half, ctx.say)
-        hdr = np.stack(frames)
-        np.save(out / "hdr_stats.npy", np.array([hdr.min(), hdr.max(), hdr.mean()]))
-        preview, stats = tonemap_display(hdr)
-        fps = ctx.cfg.export.preview_fps or float(ctx.clip.fps or 24.0)
-        write_video(run / "preview.mp4", preview, fps=fps)
-        model.cpu()
-        write_crf(run, model)
-        save_run_model(run / "checkpoint.pt", model, meta)
-        (run / "export_key.txt").write_text(ctx.keys[self.name])
-        return {"frames": int(ctx.clip.T), "hdr_min": float(hdr.min()), "hdr_max": float(hdr.max()), "exr": "half" if half else "float32", "display": stats}
-
-
-def write_hdr_set(paths: list[Path], images: list[np.ndarray], half: bool, say=None) -> bool:
-    """Write linear HDR images as EXR, all of one type: half floats stop at 65504, so a set brighter
-    than that is written as float32. Refuses (one line) before writing anything non-finite.
-    Returns whether half floats were used."""
-    from layercam.io import write_exr
-
-    for p, img in zip(paths, images):
-        if not np.isfinite(img).all():
-            raise LayercamError(f"{p.name}: the model rendered non-finite irradiance; not writing it")
-    peak = max((float(img.max()) for img in images), default=0.0)
-    use_half = bool(half) and peak <= 65504.0
-    if use_half != bool(half) and say:
-        say(f"[export] irradiance reaches {peak:.3g}, beyond half floats: EXRs written as float32")
-    for p, img in zip(paths, images):
-        write_exr(p, img, half=use_half)
-    return use_half
-
-
-def write_crf(run: Path, model) -> None:
-    """``crf.json`` (z = log2 r + log2 dt in stops -> value per channel) and ``crf.png``."""
-    import torch
-
-    z = torch.linspace(-12, 12, 241)
-    curve = model.tone.curve(z).numpy()
-    write_json(run / "crf.json", {"z_stops": z.tolist(), "r": curve[:, 0].tolist(), "g": curve[:, 1].tolist(), "b": curve[:, 2].tolist(), "kind": model.cfg.model.tone_mapper, "exposures_log2": model.exposure.values().detach().tolist()})
-    plot_crf(run / "crf.png", z.numpy(), curve)
-
-
-def plot_crf(path: Path, z: np.ndarray, curve: np.ndarray, truth: np.ndarray | None = None) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from layercam.io.atomic import atomic_write
-
-    fig, ax = plt.subplots(figsize=(4.5, 3.2), dpi=100)
-    for k, col in enumerate("rgb"):
-        ax.plot(z, curve[:, k], color=col, label=f"learned {col.upper()}")
-        if truth is not None:
-            ax.plot(z, truth[:, k], color=col, ls="--", lw=0.8)
-    ax.set_xlabel("log2 irradiance + log2 exposure (stops)")
-    ax.set_ylabel("pixel value")
-    ax.set_title("camera response")
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=7)
-    fig.tight_layout()
-    atomic_write(Path(path), lambda p: fig.savefig(p))
-    plt.close(fig)

@@ -10,14 +10,13 @@ from layercam import analyse, distributed
 from layercam.config import validate
 from layercam.errors import LayercamError
 from layercam.pipelines.runner import Context, run_stages, write_json
-from layercam.pipelines.stages import BootstrapStage, ExportStage, FlowStage, TrainStage
+from layercam.pipelines.export import ExportStage
+from layercam.pipelines.stages import BootstrapStage, FlowStage, TrainStage
 
 
 def stages_for(task: str) -> list:
-    from layercam.pipelines.atlas_export import AtlasStage
-    from layercam.pipelines.blur_export import EXPORTS
-
-    return [FlowStage(), BootstrapStage(), TrainStage(), EXPORTS.get(task, ExportStage)(), AtlasStage()]
+    """Every task runs the same stages; the export stage picks its writers by ``task``."""
+    return [FlowStage(), BootstrapStage(), TrainStage(), ExportStage()]
 
 
 def run_task(task: str, clip, exposures, cfg, run_dir: Path, masks=None, progress: bool = True, extra: dict | None = None, extra_stages: list | None = None) -> Context:
@@ -31,9 +30,7 @@ def run_task(task: str, clip, exposures, cfg, run_dir: Path, masks=None, progres
     try:
         # flow first: the analysis reads it to decide what the model needs
         run_stages(ctx, stages[:1])
-        from layercam.pipelines.stages import load_flow
-
-        ctx.measures = analyse.measure(clip, exposures, load_flow(ctx))
+        ctx.measures = analyse.measure(clip, exposures, ctx.flow)
         ctx.cfg, ctx.reasons = analyse.decide(cfg, clip, exposures, task, ctx.measures)
         ctx.say("model chosen:\n" + analyse.format_table(ctx.cfg, ctx.reasons))
         run_stages(ctx, stages[1:])
@@ -50,7 +47,6 @@ def write_report(ctx: Context, wall: float, name: str = "report.json", extra: di
     import torch
 
     train = dict(ctx.results.get("train", {}))
-    train.pop("model_path", None)
     rep = {
         "task": ctx.task,
         "input": {"source": str(ctx.clip.source), "frames": ctx.clip.T, "width": ctx.clip.W, "height": ctx.clip.H, "fps": ctx.clip.fps, "bit_depth": ctx.clip.bit_depth},
@@ -60,8 +56,8 @@ def write_report(ctx: Context, wall: float, name: str = "report.json", extra: di
         "stages": ctx.times,
         "wall_seconds": round(wall, 2),
         "train": train,
-        "flow": {k: v for k, v in ctx.results.get("flow", {}).items() if k != "path"},
-        "export": {k: v for k, v in ctx.results.get("export", {}).items()},
+        "flow": ctx.results.get("flow", {}),
+        "export": {k: v for k, v in ctx.results.get("export", {}).items() if not k.endswith("_path")},
         "metrics": ctx.results.get("evaluate", {}).get("metrics"),
         "baselines": ctx.results.get("evaluate", {}).get("baselines"),
         "machine": {"python": platform.python_version(), "torch": torch.__version__, "threads": torch.get_num_threads(), "cpu": platform.processor() or platform.machine()},

@@ -84,13 +84,13 @@ def test_blur_generator_deblurs_shake_clip(tmp_path):
     from layercam import synth
     from layercam.config import load_config
     from layercam.io import Exposures
-    from layercam.pipelines.blur_export import DeblurEvaluateStage
+    from layercam.pipelines.evaluate import EvaluateStage
     from layercam.pipelines.tasks import run_task
 
     sc = synth.shake_blur(frames=6, size=(48, 48), max_blur_px=6.0, seed=0)
     e = Exposures(np.zeros(6), "none", None, "none", "single")
     cfg = load_config("fast", ["train.batch=2048", "scene.grid_max_res=64", "model.layers=1"])  # about one grid cell per pixel
-    ctx = run_task("deblur-video", sc.clip, e, cfg, tmp_path / "run", progress=False, extra={"scene": sc}, extra_stages=[DeblurEvaluateStage()])
+    ctx = run_task("deblur-video", sc.clip, e, cfg, tmp_path / "run", progress=False, extra={"scene": sc}, extra_stages=[EvaluateStage()])
     res = ctx.results["evaluate"]["aligned"]
     assert res["deblurred"]["psnr"] > res["input"]["psnr"] + 1.0, res
     spread = ctx.results["export"]["psf"]["spread_px"]

@@ -16,11 +16,11 @@ def _paint_on_object(run, scene, out_png, colour=(0.1, 0.2, 1.0)):
     import cv2
 
     from layercam.checkpoint import load_run_model
-    from layercam.render import render_mappings
+    from layercam.render import render_frame
 
     model, meta = load_run_model(run)
     hw = tuple(meta["frame_hw"])
-    uv = render_mappings(model, 0, hw)["uv"][1]
+    uv = render_frame(model, 0, hw, "uv")["uv"][1]
     cx, cy = np.round(scene.meta["object_centre"][0]).astype(int)
     u, v = uv[cy, cx]
     png = cv2.imread(str(run / "atlases" / "layer1.png"), cv2.IMREAD_UNCHANGED)

@@ -62,7 +62,7 @@ def test_mfme_with_times_file_learns_tone_and_scores(tmp_path):
     from layercam.config import load_config
     from layercam.io import Exposures
     from layercam.io.clip import Clip
-    from layercam.pipelines.blur_export import FuseEvaluateStage
+    from layercam.pipelines.evaluate import EvaluateStage
     from layercam.pipelines.tasks import run_task
 
     sc = synth.mfme_stack(size=(24, 24), focus_settings=3, exposures_ev=(0.0, 2.0, 4.0), planes=3, seed=1)
@@ -84,8 +84,8 @@ def test_mfme_with_times_file_learns_tone_and_scores(tmp_path):
     ev = sc.meta["ev"][idx]
     clip = Clip(sc.clip.frames[idx], "synthetic:mfme_stack", names)
     e = Exposures(ev - ev.min(), "none", None, "times", "test: known")
-    extra = {"scene": sc, "focus_index": sc.meta["focus_index"][idx], "times": sc.exposure_times[idx], "reference": "middle"}
-    ctx = run_task("fuse-stack", clip, e, load_config("fast", TINY + SMALL_BLUR), run, progress=False, extra=extra, extra_stages=[FuseEvaluateStage()])
+    extra = {"scene": sc, "focus_index": sc.meta["focus_index"][idx], "times": sc.exposure_times[idx]}
+    ctx = run_task("fuse-stack", clip, e, load_config("fast", TINY + SMALL_BLUR), run, progress=False, extra=extra, extra_stages=[EvaluateStage()])
     assert all(ctx.times[k]["cached"] for k in ("flow", "bootstrap", "train", "export"))
     res = ctx.results["evaluate"]
     assert 10 < res["metrics"]["psnr_mu"] < 100

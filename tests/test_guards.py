@@ -238,7 +238,7 @@ def test_export_refuses_non_finite_render(tiny_scene, tiny_exposures, tmp_path, 
 
     def nan_render(*a, **k):
         out = real(*a, **k)
-        out["image"][0, 0, 0] = np.nan
+        out["hdr"][0, 0, 0] = np.nan
         return out
 
     monkeypatch.setattr(render, "render_frame", nan_render)

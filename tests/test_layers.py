@@ -60,15 +60,15 @@ def test_changed_export_setting_sets_earlier_atlases_aside(two_layer_run, tmp_pa
 
     run = tmp_path / "run"
     shutil.copytree(two_layer_run["run"], run)
-    old_key = (run / "atlases" / "key.txt").read_text()
+    old_key = (run / "export_key.txt").read_text()
     cfg = copy.deepcopy(two_layer_run["cfg"])
     cfg.export.half = False
     ctx = run_task("hdr-video", two_layer_run["scene"].clip, two_layer_run["exposures"], cfg, run, progress=False)
-    assert ctx.times["train"]["cached"] and not ctx.times["atlas"]["cached"]
-    assert (run / "atlases" / "key.txt").read_text() != old_key
-    kept = list((run / "previous").glob("*/atlases/key.txt"))
-    assert kept and kept[0].read_text() == old_key
-    assert len(list(kept[0].parent.parent.glob("alpha/frame_*.png"))) == two_layer_run["scene"].clip.T
+    assert ctx.times["train"]["cached"] and not ctx.times["export"]["cached"]
+    assert (run / "export_key.txt").read_text() != old_key and (run / "atlases" / "atlas.json").is_file()
+    kept = run / "previous" / old_key
+    assert (kept / "atlases" / "atlas.json").is_file() and (kept / "hdr").is_dir()
+    assert len(list(kept.glob("alpha/frame_*.png"))) == two_layer_run["scene"].clip.T
 
 
 def test_one_layer_atlas_export_has_no_alpha(tmp_path):

@@ -36,7 +36,7 @@ from torch import nn
 from layercam.scene.encodings import PositionalEncoding
 from layercam.scene.mlp import MLP
 
-__all__ = ["patch_offsets_base", "sample_positions", "apply_patch_blur", "BlurGenerator"]
+__all__ = ["patch_offsets_base", "sample_positions", "apply_patch_blur", "BlurGenerator", "psf_summary"]
 
 _LN2 = math.log(2.0)
 LOGIT_BOUND = 1e4  # weight logits are clamped to +-this before the softmax
@@ -275,3 +275,33 @@ class BlurGenerator(nn.Module):
 
     def extra_repr(self) -> str:
         return f"n={self.n}, max_offset={self.max_offset:g}, n_frames={self.n_frames}, frame_hw={self.frame_hw}, use_depth={self.use_depth}, zero_mean_offsets={self.zero_mean_offsets}"
+
+
+@torch.no_grad()
+def psf_summary(blur: "BlurGenerator", hw: tuple[int, int], grid: int = 24) -> dict:
+    """Per frame, the learned PSF on a ``grid x grid`` lattice of pixels, averaged: ``spread_px``
+    (weighted RMS distance of the samples from their weighted centre: 0 for a sharp frame, about
+    ``L / sqrt(12)`` for a straight blur of length ``L``), ``centre_weight`` and ``shift_px`` (the
+    length of the PSF's weighted centre). The lattice leaves out a border as wide as the patch can
+    reach (``n // 2 + 2 s`` px, at most a quarter of the frame): there samples fall outside the
+    frame and nothing constrains the PSF."""
+    from layercam.data import normalise_xy
+
+    h, w = hw
+    reach = blur.n // 2 + 2 * blur.max_offset
+    my, mx = (int(min(reach, (v - 1) // 4)) for v in (h, w))
+    ys = torch.linspace(my, h - 1 - my, min(grid, h - 2 * my)).round()
+    xs = torch.linspace(mx, w - 1 - mx, min(grid, w - 2 * mx)).round()
+    yy, xx = torch.meshgrid(ys, xs, indexing="ij")
+    xy = normalise_xy(xx.flatten(), yy.flatten(), w, h)
+    dev = blur.embedding.device
+    xy = xy.to(dev)
+    rows = {"spread_px": [], "centre_weight": [], "shift_px": []}
+    for t in range(blur.n_frames):
+        disp, wts = blur.kernels(xy, torch.full((xy.shape[0],), t, dtype=torch.long, device=dev))
+        centre = (wts[:, :, None] * disp).sum(1)
+        spread = ((wts * ((disp - centre[:, None]) ** 2).sum(-1)).sum(1)).sqrt()
+        rows["spread_px"].append(round(float(spread.mean()), 4))
+        rows["centre_weight"].append(round(float(wts[:, blur.K // 2].mean()), 4))
+        rows["shift_px"].append(round(float(centre.norm(dim=1).mean()), 4))
+    return rows

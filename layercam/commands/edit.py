@@ -121,10 +121,10 @@ def sample_edit(edit: dict, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def render_edited_frame(model, t: int, hw: tuple[int, int], layer: int, edit: dict, chunk: int = 65536) -> dict:
     """Frame ``t`` with the edit on ``layer``: ``{"hdr": (H, W, 3) linear, "ldr": (H, W, 3) in [0, 1]
     through the camera at the frame's exposure, "edit_alpha": (H, W) how much of the edit shows}``."""
-    from layercam.render import composite_layers, layer_weights, render_layers, tone_map_log2
+    from layercam.render import composite_layers, layer_weights, render_frame, tone_map_log2
 
-    out = render_layers(model, t, hw, chunk)
-    layers = [np.exp2(lg) for lg in out["log2_r"]]
+    out = render_frame(model, t, hw, ("layers", "uv", "alpha"), chunk=chunk)
+    layers = [np.exp2(lg) for lg in out["layers"]]
     irr, a = sample_edit(edit, out["uv"][layer])
     layers[layer] = a[..., None] * irr + (1 - a[..., None]) * layers[layer]
     hdr = composite_layers(layers, out["alpha"]).astype(np.float32)

@@ -35,7 +35,7 @@ def register(sub) -> argparse.ArgumentParser:
     g = f.add_argument_group("input")
     g.add_argument("--exposures", default="auto", help="auto (EXIF times when every image has one, else one exposure) | times.txt | exif | learn | none (default: auto)")
     g.add_argument("--resize", help="scale factor (0.5) or size WxH")
-    g.add_argument("--reference", default="middle", help="the view to fuse into: middle, first, last or an image index (default: middle)")
+    g.add_argument("--reference", help="the view to fuse into: middle, first, last or an image index (default: middle; export.reference)")
     common_model_args(f)
     return f
 
@@ -58,17 +58,19 @@ def pick_exposures(spec: str, clip):
 def run(args) -> int:
     from layercam.errors import LayercamError
     from layercam.io import load_clip
-    from layercam.pipelines.blur_export import resolve_reference
+    from layercam.pipelines.export import resolve_reference
     from layercam.pipelines.tasks import run_task
 
+    if args.reference is not None:
+        args.overrides = [f"export.reference={args.reference}", *args.overrides]
     cfg = load_cfg(args)
     clip = load_clip(args.inputs if len(args.inputs) > 1 else args.inputs[0], resize=args.resize)
     if clip.T < 2:
         raise LayercamError(f"fuse-stack needs at least 2 images, got {clip.T}")
-    resolve_reference(args.reference, clip.T)  # a bad --reference fails now, not after training
+    resolve_reference(cfg.export.reference, clip.T)  # a bad --reference fails now, not after training
     exposures = pick_exposures(args.exposures, clip)
     out = Path(args.out) if args.out else default_out(args.inputs)
-    ctx = run_task("fuse-stack", clip, exposures, cfg, out, progress=not args.quiet, extra={"reference": args.reference})
+    ctx = run_task("fuse-stack", clip, exposures, cfg, out, progress=not args.quiet)
     finish(ctx)
     if not args.quiet:
         ex = ctx.results["export"]

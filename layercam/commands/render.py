@@ -66,52 +66,26 @@ def exposure_at(model, f: float) -> float:
     return float(np.interp(f, np.arange(len(v)), v))
 
 
-def render_view(model, t: int, hw: tuple[int, int], log2_dt: float, t_blur: float | None = None, blur: bool = True, chunk: int = 65536):
-    """Frame ``t``'s view through the camera: ``(H, W, 3)`` in ``[0, 1]``.
-
-    The tone mapper at ``log2_dt``; with ``blur`` (and a blur generator) the blur of the
-    fractional image index ``t_blur`` (default ``t``) is applied in irradiance first.
-    """
-    import torch
-
-    from layercam.data import pixel_grid
-
-    h, w = hw
-    dev = next(model.parameters()).device
-    use_blur = blur and model.blur is not None
-    step = max(1, chunk // (model.blur.K if use_blur else 1))
-    xy_all = pixel_grid(h, w, dev)
-    outs = []
-    with torch.no_grad():
-        for s in range(0, xy_all.shape[0], step):
-            xy = xy_all[s : s + step]
-            tt = torch.full((xy.shape[0],), int(t), dtype=torch.long, device=dev)
-            out = model.scene(xy, tt)
-            log2_r = out["log2_r"]
-            if use_blur:
-                tb = None if t_blur is None else torch.full((xy.shape[0],), float(t_blur), device=dev)
-                log2_r = model.blur(model.scene, xy, tt, out, t_blur=tb)
-            rgb = model.tone_map(log2_r, torch.full_like(log2_r[:, :1], float(log2_dt)))
-            outs.append(rgb.float().cpu())
-    return torch.cat(outs).view(h, w, 3).numpy()
-
-
 def exposure_frames(model, meta: dict, ev: float, keep_blur: bool = False, chunk: int = 65536):
     """Every frame at ``ev`` stops from the reference exposure: ``(T, H, W, 3)``."""
     import numpy as np
 
+    from layercam.render import render_frame
+
     hw = tuple(meta["frame_hw"])
     z = reference_exposure(model) + ev
-    return np.stack([render_view(model, t, hw, z, blur=keep_blur, chunk=chunk) for t in range(int(meta["n_frames"]))])
+    return np.stack([render_frame(model, t, hw, "ldr", log2_dt=z, blur=keep_blur, chunk=chunk)["ldr"] for t in range(int(meta["n_frames"]))])
 
 
 def exposure_sweep(model, meta: dict, evs, frame: int, keep_blur: bool = False):
     """One view at each of ``evs`` (stops from the reference exposure): ``(N, H, W, 3)``."""
     import numpy as np
 
+    from layercam.render import render_frame
+
     hw = tuple(meta["frame_hw"])
     z0 = reference_exposure(model)
-    return np.stack([render_view(model, frame, hw, z0 + float(e), blur=keep_blur) for e in evs])
+    return np.stack([render_frame(model, frame, hw, "ldr", log2_dt=z0 + float(e), blur=keep_blur)["ldr"] for e in evs])
 
 
 def focus_sweep(model, meta: dict, fs, frame: int, ev: float | None = None):
@@ -119,11 +93,13 @@ def focus_sweep(model, meta: dict, fs, frame: int, ev: float | None = None):
     exposure interpolated at each ``f``, or at ``ev`` stops from the reference when given."""
     import numpy as np
 
+    from layercam.render import render_frame
+
     hw = tuple(meta["frame_hw"])
     out = []
     for f in fs:
         z = exposure_at(model, float(f)) if ev is None else reference_exposure(model) + ev
-        out.append(render_view(model, frame, hw, z, t_blur=float(f), blur=True))
+        out.append(render_frame(model, frame, hw, "ldr", log2_dt=z, t_blur=float(f), blur=True)["ldr"])
     return np.stack(out)
 
 
@@ -159,6 +135,7 @@ def run(args) -> int:
     from layercam.pipelines.runner import write_json
     from layercam.pipelines.stages import resolve_device
     from layercam.checkpoint import load_run_model
+    from layercam.geometry import middle_frame
 
     if args.exposure is None and args.focus is None and args.sweep is None:
         raise LayercamError("nothing to render: give --exposure EV, --focus F or --sweep exposure|focus")
@@ -174,7 +151,7 @@ def run(args) -> int:
         raise LayercamError(f"--focus must lie between 0 and {T - 1} (the training images' indices), got {args.focus}")
     if args.frame is not None and not 0 <= args.frame < T:
         raise LayercamError(f"--frame must be between 0 and {T - 1}, got {args.frame}")
-    default_view = int(meta.get("reference", (T - 1) // 2))
+    default_view = int(meta.get("reference", middle_frame(T)))
     out = ensure_writable_dir(Path(args.out) if args.out else Path(args.run) / "render")
     z0 = reference_exposure(model)
     say = (lambda m: None) if args.quiet else print

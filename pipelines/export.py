@@ -1,0 +1,251 @@
+"""The export stage: the run folder's outputs, written by the writers that the task's row of
+:data:`TASK_WRITERS` names, followed by those every task writes (:data:`COMMON_WRITERS`).
+
+====================  ======================================================================
+writer                writes
+====================  ======================================================================
+``hdr``               ``hdr/frame_00000.exr`` (linear, camera dropped) and ``preview.mp4``
+                      (global Reinhard over the whole clip)
+``sharp``             ``frames/frame_00000.png`` and ``deblurred.mp4``: the tone mapper at each
+                      frame's own exposure, blur generator dropped; ``hdr/`` when exposures vary
+``fused``             ``fused.exr`` (the scene for the reference view, camera dropped) and
+                      ``fused.png`` (tonemapped; with the fixed sRGB curve, the input's tonality)
+``atlases``           ``atlases/`` and ``alpha/`` (:mod:`layercam.pipelines.atlas_export`)
+``crf``               ``crf.json`` and ``crf.png``: the learned response per channel
+``psf``               ``psf.json``: the learned blur per frame (a model with a blur generator)
+``checkpoint``        ``checkpoint.pt``: what ``layercam render`` and ``edit`` read
+====================  ======================================================================
+
+Every writer is ``writer(ctx, model, dest, cache) -> dict`` (its part of the export summary): it
+writes its files into ``dest`` (the run folder) and what the evaluate stage reads into ``cache``
+(the stage's cache folder). :meth:`ExportStage.run` is the one place where the run folder's
+top level is written: the earlier outputs of other settings are first moved to
+``previous/<their key>/``, and ``export_key.txt`` marks the folder's outputs as this key's.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from layercam.errors import LayercamError
+from layercam.pipelines.runner import Context, Stage, set_aside_previous, write_json
+
+CHECKPOINT_NAME = "checkpoint.pt"
+
+
+def exposures_vary(ctx: Context) -> bool:
+    return ctx.exposures.count_distinct > 1 or ctx.exposures.learn != "none"
+
+
+def resolve_reference(ref, n: int) -> int:
+    """The image a stack is fused into (``export.reference``): "middle" (default,
+    :func:`layercam.geometry.middle_frame`), "first", "last" or an index (negative counts from the
+    end) among ``n`` images."""
+    from layercam.geometry import middle_frame
+
+    named = {"middle": middle_frame(n), "first": 0, "last": n - 1}
+    if isinstance(ref, str) and ref.strip().lower() in named:
+        return named[ref.strip().lower()]
+    try:
+        i = int(ref)
+    except (TypeError, ValueError):
+        raise LayercamError(f"reference must be middle, first, last or an image index, got {ref!r}") from None
+    if not -n <= i < n:
+        raise LayercamError(f"reference image {i} is out of range for {n} images")
+    return i % n
+
+
+def _frames(ctx: Context, desc: str = "export"):
+    from layercam.progress import bar
+
+    return bar(range(ctx.clip.T), desc=desc, unit="frame", enabled=ctx.progress)
+
+
+def _fps(ctx: Context) -> float:
+    return ctx.cfg.export.preview_fps or float(ctx.clip.fps or 24.0)
+
+
+def _bits(ctx: Context) -> int:
+    return 16 if ctx.clip.bit_depth > 8 else 8
+
+
+def write_hdr_set(paths: list[Path], images: list[np.ndarray], half: bool, say=None) -> bool:
+    """Write linear HDR images as EXR, all of one type: half floats stop at 65504, so a set brighter
+    than that is written as float32. Refuses (one line) before writing anything non-finite.
+    Returns whether half floats were used."""
+    from layercam.io import write_exr
+
+    for p, img in zip(paths, images):
+        if not np.isfinite(img).all():
+            raise LayercamError(f"{p.name}: the model rendered non-finite irradiance; not writing it")
+    peak = max((float(img.max()) for img in images), default=0.0)
+    use_half = bool(half) and peak <= 65504.0
+    if use_half != bool(half) and say:
+        say(f"[export] irradiance reaches {peak:.3g}, beyond half floats: EXRs written as float32")
+    for p, img in zip(paths, images):
+        write_exr(p, img, half=use_half)
+    return use_half
+
+
+def _hdr_frames(ctx: Context, model, dest: Path) -> tuple[list[np.ndarray], bool]:
+    """Every frame's linear HDR into ``dest/hdr/``: ``(frames, half floats used)``."""
+    from layercam import render
+
+    frames = [render.render_frame(model, t, (ctx.clip.H, ctx.clip.W), ("hdr",), chunk=ctx.cfg.export.chunk)["hdr"] for t in _frames(ctx)]
+    (dest / "hdr").mkdir(exist_ok=True)
+    half = write_hdr_set([dest / "hdr" / f"frame_{t:05d}.exr" for t in range(len(frames))], frames, ctx.cfg.export.half, ctx.say)
+    return frames, half
+
+
+def hdr_writer(ctx: Context, model, dest: Path, cache: Path) -> dict:
+    from layercam.io import write_video
+    from layercam.render import tonemap_display
+
+    frames, half = _hdr_frames(ctx, model, dest)
+    hdr = np.stack(frames)
+    preview, stats = tonemap_display(hdr)
+    write_video(dest / "preview.mp4", preview, fps=_fps(ctx))
+    return {"frames": int(ctx.clip.T), "hdr_min": float(hdr.min()), "hdr_max": float(hdr.max()), "exr": "half" if half else "float32", "display": stats}
+
+
+def sharp_writer(ctx: Context, model, dest: Path, cache: Path) -> dict:
+    from layercam import render
+    from layercam.io import write_png, write_video
+
+    (dest / "frames").mkdir(exist_ok=True)
+    frames = []
+    for t in _frames(ctx):
+        ldr = render.render_frame(model, t, (ctx.clip.H, ctx.clip.W), ("ldr",), chunk=ctx.cfg.export.chunk)["ldr"]
+        if not np.isfinite(ldr).all():
+            raise LayercamError(f"frame {t}: the model rendered non-finite values; not writing it")
+        write_png(dest / "frames" / f"frame_{t:05d}.png", ldr, bit_depth=_bits(ctx))
+        frames.append(ldr)
+    with_hdr = exposures_vary(ctx)
+    hdr_max = max(float(h.max()) for h in _hdr_frames(ctx, model, dest)[0]) if with_hdr else 0.0
+    frames = np.stack(frames)
+    np.save(cache / "deblurred.npy", frames.astype(np.float32))
+    write_video(dest / "deblurred.mp4", frames, fps=_fps(ctx))
+    return {"frames": int(ctx.clip.T), "hdr": with_hdr, "hdr_max": hdr_max, "png_bits": _bits(ctx)}
+
+
+def fused_writer(ctx: Context, model, dest: Path, cache: Path) -> dict:
+    from layercam import render
+    from layercam.io import write_png
+
+    hw = (ctx.clip.H, ctx.clip.W)
+    ref = resolve_reference(ctx.cfg.export.reference, ctx.clip.T)
+    hdr = render.render_frame(model, ref, hw, ("hdr",), chunk=ctx.cfg.export.chunk)["hdr"]
+    write_hdr_set([dest / "fused.exr"], [hdr], ctx.cfg.export.half, ctx.say)
+    np.save(cache / "fused.npy", hdr.astype(np.float32))
+    if ctx.cfg.model.tone_mapper == "fixed":  # one exposure: the sharp image as the camera would have recorded it
+        png = render.render_frame(model, ref, hw, ("ldr",), chunk=ctx.cfg.export.chunk)["ldr"]
+        how, stats = "fixed sRGB tone curve at the stack's exposure (input tonality)", None
+    else:
+        png, stats = render.tonemap_display(hdr)
+        how = "Reinhard global tonemap + sRGB"
+    write_png(dest / "fused.png", png, bit_depth=_bits(ctx))
+    return {"reference": ref, "reference_name": ctx.clip.names[ref], "png": how, "display": stats, "hdr_min": float(hdr.min()), "hdr_max": float(hdr.max())}
+
+
+def atlas_writer(ctx: Context, model, dest: Path, cache: Path) -> dict:
+    from layercam.pipelines.atlas_export import export_atlases
+
+    return {"atlas": export_atlases(model, dest, ctx.clip.frames, fps=_fps(ctx), chunk=ctx.cfg.export.chunk, progress=ctx.progress)}
+
+
+def crf_writer(ctx: Context, model, dest: Path, cache: Path) -> dict:
+    """``crf.json`` (z = log2 r + log2 dt in stops -> value per channel) and ``crf.png``."""
+    import torch
+
+    from layercam import viz
+    from layercam.io.atomic import atomic_write
+
+    z = torch.linspace(-12, 12, 241)
+    curve = model.tone.curve(z.to(next(model.parameters()).device)).float().cpu().numpy()
+    write_json(dest / "crf.json", {"z_stops": z.tolist(), "r": curve[:, 0].tolist(), "g": curve[:, 1].tolist(), "b": curve[:, 2].tolist(), "kind": model.cfg.model.tone_mapper, "exposures_log2": model.exposure.values().detach().cpu().tolist()})
+    fig = viz.crf_figure(z.numpy(), curve)
+    atomic_write(dest / "crf.png", lambda p: fig.savefig(p, format="png"))
+    return {}
+
+
+def psf_writer(ctx: Context, model, dest: Path, cache: Path) -> dict:
+    from layercam.camera.blur import psf_summary
+
+    if model.blur is None:
+        return {"psf": None}
+    psf = psf_summary(model.blur, (ctx.clip.H, ctx.clip.W))
+    write_json(dest / "psf.json", {"frames": list(ctx.clip.names), **psf})
+    return {"psf": psf}
+
+
+def checkpoint_writer(ctx: Context, model, dest: Path, cache: Path) -> dict:
+    from layercam.checkpoint import save_run_model
+    from layercam.pipelines.stages import model_meta
+
+    meta = model_meta(ctx)
+    if ctx.task == "fuse-stack":
+        meta["reference"] = resolve_reference(ctx.cfg.export.reference, ctx.clip.T)
+    save_run_model(dest / CHECKPOINT_NAME, model, meta)
+    return {}
+
+
+# writer name -> (function, what it may write at the top of the run folder)
+WRITERS = {
+    "hdr": (hdr_writer, ["hdr", "preview.mp4"]),
+    "sharp": (sharp_writer, ["frames", "deblurred.mp4", "hdr"]),
+    "fused": (fused_writer, ["fused.exr", "fused.png"]),
+    "atlases": (atlas_writer, ["atlases", "alpha"]),
+    "crf": (crf_writer, ["crf.json", "crf.png"]),
+    "psf": (psf_writer, ["psf.json"]),
+    "checkpoint": (checkpoint_writer, [CHECKPOINT_NAME]),
+}
+TASK_WRITERS = {"hdr-video": ("hdr",), "demo": ("hdr",), "deblur-video": ("sharp",), "fuse-stack": ("fused",)}
+COMMON_WRITERS = ("atlases", "crf", "psf", "checkpoint")  # render writers run on the training device, these on the CPU from "crf" on
+REPORT_NAME = "report.json"  # written by the task after its stages; set aside with the outputs it describes
+
+
+def writers_for(task: str) -> tuple[str, ...]:
+    return TASK_WRITERS.get(task, TASK_WRITERS["hdr-video"]) + COMMON_WRITERS
+
+
+def outputs_for(task: str) -> list[str]:
+    """Everything at the top of a run folder that a ``task`` export may have written."""
+    names = [n for w in writers_for(task) for n in WRITERS[w][1]]
+    return list(dict.fromkeys(names + [REPORT_NAME]))
+
+
+class ExportStage(Stage):
+    """Writes the run folder with the task's writers (this module's docstring)."""
+
+    name = "export"
+    deps = ("train",)
+    version = 2  # 2: one stage for every task, atlases included
+
+    def key_material(self, ctx):
+        from layercam.pipelines.atlas_export import ATLAS_MAX_RES, ATLAS_MIN_RES
+
+        d = ctx.cfg.section_dict("export")
+        if ctx.task != "fuse-stack":
+            d["export"].pop("reference")  # only a stack is fused into one view
+        return {**d, "writers": list(writers_for(ctx.task)), "atlas": [ATLAS_MIN_RES, ATLAS_MAX_RES]}
+
+    def run(self, ctx, out):
+        from layercam.pipelines.stages import resolve_device
+
+        dest = ctx.run_dir
+        set_aside_previous(dest, outputs_for(ctx.task), ctx.keys[self.name], ctx.say)
+        model = ctx.model
+        model.to(resolve_device(ctx.cfg.train.device))  # render where it trained (GPU when there is one)
+        summary: dict = {}
+        for name in writers_for(ctx.task):
+            if name == "crf":
+                model.cpu()
+            summary.update(WRITERS[name][0](ctx, model, dest, out))
+        (dest / "export_key.txt").write_text(ctx.keys[self.name])
+        return summary
+
+    def load(self, ctx, out, summary):
+        paths = {"frames_path": out / "deblurred.npy", "fused_path": out / "fused.npy"}
+        return {**summary, **{k: str(p) for k, p in paths.items() if p.exists()}}

@@ -13,6 +13,7 @@ import math
 
 import numpy as np
 
+from layercam.colour import REC601, luma
 from layercam.config import AUTO, Config
 
 # thresholds of the rules (each documented where it is used)
@@ -30,7 +31,7 @@ SIGMAS = (0.0, 0.5, 0.8, 1.2, 1.6, 2.0, 2.5, 3.0, 4.0, 5.0)
 
 
 def _grey(frame: np.ndarray) -> np.ndarray:
-    return (0.299 * frame[..., 0] + 0.587 * frame[..., 1] + 0.114 * frame[..., 2]).astype(np.float32)
+    return luma(frame, REC601).astype(np.float32)
 
 
 def laplacian_energy(frame: np.ndarray) -> float:

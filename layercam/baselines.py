@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from layercam.colour import REC601, luma, srgb_decode
 from layercam.errors import LayercamError
 
 __all__ = [
@@ -50,8 +51,7 @@ def _u8(img: np.ndarray) -> np.ndarray:
 
 def _srgb_linear(img: np.ndarray) -> np.ndarray:
     """Fallback linearisation (inverse sRGB) when the exposures cannot calibrate a CRF."""
-    y = np.clip(np.asarray(img, np.float64), 0.0, 1.0)
-    return np.where(y <= 0.04045, y / 12.92, ((y + 0.055) / 1.055) ** 2.4)
+    return srgb_decode(np.clip(np.asarray(img, np.float64), 0.0, 1.0))
 
 
 def _calibrate(stack_u8: list[np.ndarray], times: np.ndarray, samples: int) -> np.ndarray:
@@ -169,9 +169,9 @@ def laplacian_focus_fusion(images, sigma: float = 2.0, soft: bool = True) -> np.
     imgs = _check_stack(images, "images")
     if imgs.shape[0] == 1:
         return imgs[0].copy()
-    luma = imgs @ np.array([0.299, 0.587, 0.114], np.float32)
+    grey = luma(imgs, REC601)
     energy = np.stack(
-        [cv2.GaussianBlur(cv2.Laplacian(g, cv2.CV_32F, ksize=3) ** 2, (0, 0), sigma) for g in luma]
+        [cv2.GaussianBlur(cv2.Laplacian(g, cv2.CV_32F, ksize=3) ** 2, (0, 0), sigma) for g in grey]
     )
     best = np.argmax(energy, axis=0)
     wts = (best[None] == np.arange(imgs.shape[0])[:, None, None]).astype(np.float32)

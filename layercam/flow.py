@@ -15,6 +15,7 @@ import os
 
 import numpy as np
 
+from layercam.colour import REC601, luma
 from layercam.errors import LayercamError
 
 __all__ = [
@@ -33,7 +34,6 @@ FLOW_METHODS = ("dis_ultrafast", "dis_fast", "dis_medium")
 _DIS_FINEST_MIN = 128  # px on the short side of DIS's finest pyramid level (see _dis)
 _DIS_MIN = 16  # OpenCV DIS needs frames of at least about 12 px; smaller ones are edge-padded
 NORMALISERS = ("rank", "equalize", "clahe", "rank_clahe", "grey")
-_LUMA = np.array([0.299, 0.587, 0.114], np.float64)
 
 
 # --------------------------------------------------------------------------------------------
@@ -52,7 +52,7 @@ def _check_frame(frame) -> np.ndarray:
 
 def _grey(frame: np.ndarray) -> np.ndarray:
     f = np.asarray(frame, dtype=np.float64)
-    return f @ _LUMA if f.ndim == 3 else f
+    return luma(f, REC601) if f.ndim == 3 else f
 
 
 def _midrank(g: np.ndarray) -> np.ndarray:

@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
+from layercam.colour import REC709, luma, srgb_encode
 from layercam.data import pixel_grid
 
 
@@ -78,7 +79,7 @@ def tonemap_display(hdr: np.ndarray, stats: dict | None = None) -> tuple[np.ndar
     ``stats`` (log-average luminance and white point) computed over the whole clip once and reused
     for every frame, so that the preview does not flicker.
     """
-    lum = 0.2126 * hdr[..., 0] + 0.7152 * hdr[..., 1] + 0.0722 * hdr[..., 2]
+    lum = luma(hdr, REC709)
     if stats is None:
         lum_f = lum[np.isfinite(lum)]
         lavg = float(np.exp(np.mean(np.log(np.maximum(lum_f, 1e-8))))) if lum_f.size else 1.0
@@ -89,7 +90,7 @@ def tonemap_display(hdr: np.ndarray, stats: dict | None = None) -> tuple[np.ndar
     ld = l * (1 + l / stats["white"] ** 2) / (1 + l)
     ratio = np.where(lum > 1e-12, ld / np.maximum(lum, 1e-12), 0.0)
     out = np.clip(hdr * ratio[..., None], 0, 1)
-    out = np.where(out <= 0.0031308, 12.92 * out, 1.055 * np.power(out, 1 / 2.4) - 0.055)
+    out = srgb_encode(out)
     return np.nan_to_num(np.clip(out, 0, 1)).astype(np.float32), stats
 
 

@@ -31,6 +31,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from layercam.colour import REC709, luma, srgb_decode, srgb_encode
 from layercam.errors import LayercamError
 from layercam.io.clip import Clip
 
@@ -137,7 +138,7 @@ def crf_apply(x: np.ndarray, name: str) -> np.ndarray:
     if name == "gamma":
         y = x ** (1.0 / 2.2)
     elif name == "srgb":
-        y = np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1.0 / 2.4) - 0.055)
+        y = srgb_encode(x)
     elif name == "scurve":
         y = _scurve(x, *_SCURVE_DEFAULT)
     else:
@@ -154,7 +155,7 @@ def crf_inverse(y: np.ndarray, name: str) -> np.ndarray:
     if name == "gamma":
         x = y**2.2
     elif name == "srgb":
-        x = np.where(y <= 0.04045, y / 12.92, ((y + 0.055) / 1.055) ** 2.4)
+        x = srgb_decode(y)
     elif name == "scurve":
         x = _scurve_inv(y, *_SCURVE_DEFAULT)
     else:
@@ -275,7 +276,7 @@ def hdr_canvas(
     alb = np.clip(alb, 0.02, 1.0)
     illum = np.exp2(illum_stops * _fbm(rng, h, w, (96, 48, 24)))[..., None]
     canvas = (alb * illum).astype(np.float32)
-    lum = canvas @ np.array([0.2126, 0.7152, 0.0722], np.float32)
+    lum = luma(canvas, REC709)
     med = float(np.median(lum))
     # emitters
     if isinstance(emitters, (int, np.integer)):

@@ -57,7 +57,7 @@ from IPython.display import Image, display
 from layercam import analyse, checkpoint, render, synth, viz
 from layercam.data import normalise_xy
 from layercam.geometry import middle_frame
-from layercam.pipelines.atlas_export import atlas_resolution, png_exposure
+from layercam.pipelines.atlas_export import atlas_resolution
 
 FIGURES = {}  # name -> figure, in the order drawn
 
@@ -144,7 +144,7 @@ print(f"{L} layer(s); irradiance {hdr.min():.3g}..{hdr.max():.3g}")
 # exposure, greyed where no frame looks (there the field only extrapolates).
 
 # %%
-ref_ev = png_exposure(model)  # the median of the frames' log2 exposures
+ref_ev = model.exposure.reference()  # the median of the frames' log2 exposures
 atlas_img, camera_img, coverage = [], [], []
 for k in range(L):
     res = ATLAS_RES or atlas_resolution(uv[k][middle_frame(T)], visible[k][middle_frame(T)])

@@ -57,12 +57,6 @@ def write_rgba_png(path: Path, rgb: np.ndarray, alpha: np.ndarray) -> None:
     atomic_write(Path(path), _write)
 
 
-def png_exposure(model) -> float:
-    """The exposure at which atlas PNGs are rendered and edits are read back: the median of the
-    clip's log2 exposures (the reference exposure of ``layercam render``)."""
-    return float(np.median(model.exposure.values().detach().float().cpu().numpy()))
-
-
 def export_atlases(model, run_dir: Path, frames: np.ndarray, fps: float = 24.0, chunk: int = 65536, progress: bool = False) -> dict:
     """Writes the files listed in this module's docstring into ``run_dir``; returns a summary."""
     from layercam.geometry import middle_frame
@@ -92,7 +86,7 @@ def export_atlases(model, run_dir: Path, frames: np.ndarray, fps: float = 24.0, 
             splat_add(acc[k], m["uv"][k], ws[k], res[k])
             overlays[k][t] = to8(checker_overlay(frames[t], m["uv"][k], ws[k]))
             seen[k][t] = to8(ws[k])
-    log2_dt = png_exposure(model)
+    log2_dt = model.exposure.reference()
     layers = []
     for k in range(L):
         log2_r = sample_atlas(model, k, res[k], chunk)

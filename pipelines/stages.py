@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import math
 from pathlib import Path
 
 import numpy as np
@@ -78,12 +77,13 @@ class BootstrapStage(Stage):
         return d
 
     def run(self, ctx, out):
-        from layercam.geometry import atlas_mappings, chain_homographies, max_corner_shift
+        from layercam.camera.tone import initial_log2
+        from layercam.geometry import atlas_mappings, chain_homographies, max_corner_shift, middle_frame
 
         clip = ctx.clip
         T, H, W = clip.T, clip.H, clip.W
         fl = ctx.flow
-        ref = T // 2
+        ref = middle_frame(T)
         static = False
         if ctx.cfg.scene.bootstrap == "flow" and fl is not None:
             bg = chain_homographies(fl["homs"].astype(np.float64), ref)
@@ -107,7 +107,7 @@ class BootstrapStage(Stage):
                 segment.save_masks(out, fg["masks"])
                 ctx.say(f"[bootstrap] motion masks (no --masks given): mean coverage {fg['masks'].mean():.3f}, saved in {out / 'masks'}")
         h0 = np.stack(h0)
-        init_log2 = initial_log2(clip.frames, ctx.exposures.log2_dt, ctx.cfg.tone.init_slope, ctx.cfg.model.tone_mapper)
+        init_log2 = initial_log2(clip.frames, ctx.exposures.log2_dt, ctx.cfg.tone.init_slope, ctx.cfg.model.tone_mapper)  # layercam.camera.tone
         np.save(out / "h0.npy", h0)
         res = {"how": how, "init_log2": init_log2, "layers": int(h0.shape[0]), "static": static}
         if fg:
@@ -120,17 +120,6 @@ class BootstrapStage(Stage):
             with np.load(out / "masks.npz") as z:
                 res["masks"] = z["masks"].astype(np.float32)
         return res
-
-
-def initial_log2(frames: np.ndarray, log2_dt: np.ndarray, slope: float, tone: str) -> float:
-    """Median log2 irradiance implied by the frames through the starting tone curve."""
-    c = np.clip(frames.mean(-1), 0.02, 0.98)
-    if tone == "fixed":
-        lin = np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
-        z = np.log2(np.maximum(lin, 1e-6))
-    else:
-        z = np.log(c / (1 - c)) / (slope * math.log(2))
-    return float(np.median(z - np.asarray(log2_dt, dtype=np.float32)[:, None, None]))
 
 
 class TrainStage(Stage):

@@ -46,5 +46,10 @@ class ExposureField(nn.Module):
         d = torch.cat([torch.zeros_like(d[:1]), d[1:]])  # the first phase / frame is the reference
         return self.init + EV_BOUND * torch.tanh(d[self.index] / EV_BOUND)
 
+    def reference(self) -> float:
+        """The clip's reference exposure: the median log2 exposure of its frames (what ``layercam
+        render`` counts stops from, and the exposure of the atlas PNGs that ``edit`` reads back)."""
+        return float(np.median(self.values().detach().float().cpu().numpy()))
+
     def forward(self, t: torch.Tensor) -> torch.Tensor:
         return self.values()[t][:, None]

@@ -8,22 +8,19 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import torch
 from torch import nn
+
+from layercam.colour import srgb_decode, srgb_encode_torch
 
 Z_SCALE = 0.125  # MLP input is z / 8: log exposures span about +-20 stops
 LUT_RANGE = 32.0  # the lookup-table fast path covers +-32 stops; beyond, the curve is flat
 
 
-def srgb_encode(x: torch.Tensor) -> torch.Tensor:
-    """Linear ``[0, 1]`` -> sRGB-encoded ``[0, 1]`` (values outside are clamped)."""
-    x = x.clamp(0.0, 1.0)
-    return torch.where(x <= 0.0031308, 12.92 * x, 1.055 * x.clamp_min(1e-12) ** (1 / 2.4) - 0.055)
-
-
 def srgb_tone(z: torch.Tensor) -> torch.Tensor:
     """Fixed tone curve: sRGB of ``2^z`` clipped to 1. ``z (N, 3) -> c (N, 3)``."""
-    return srgb_encode(torch.exp2(z.clamp(-40, 1)))
+    return srgb_encode_torch(torch.exp2(z.clamp(-40, 1)))
 
 
 class ToneMapper(nn.Module):
@@ -143,6 +140,18 @@ class FixedTone(nn.Module):
 def init_curve(z: torch.Tensor, slope: float) -> torch.Tensor:
     """The tone mapper's starting curve: ``sigmoid(slope * ln2 * z)``; ``T(0) = 0.5``."""
     return torch.sigmoid(slope * math.log(2) * z)
+
+
+def initial_log2(frames: np.ndarray, log2_dt: np.ndarray, slope: float, tone: str) -> float:
+    """The atlases' starting log2 irradiance: the median over the frames ``(T, H, W, 3)`` (grey,
+    kept within 0.02..0.98) of their value through the inverse of the starting tone curve (the
+    fixed sRGB curve, or :func:`init_curve` with ``slope``), less each frame's ``log2_dt (T,)``."""
+    c = np.clip(frames.mean(-1), 0.02, 0.98)
+    if tone == "fixed":
+        z = np.log2(np.maximum(srgb_decode(c), 1e-6))
+    else:
+        z = np.log(c / (1 - c)) / (slope * math.log(2))
+    return float(np.median(z - np.asarray(log2_dt, dtype=np.float32)[:, None, None]))
 
 
 def fit_init_curve(tone: ToneMapper, slope: float, steps: int = 300, seed: int = 0) -> float:

@@ -85,12 +85,11 @@ def read_rgba(path: Path) -> tuple[np.ndarray, np.ndarray]:
 def load_edit(model, run_dir: Path, layer: int, atlas_png: Path) -> dict:
     """The edit as a texture over the atlas square: ``{"irr": (h, w, 3) linear irradiance,
     "alpha": (h, w), "log2_dt": float, "unchanged_px": int}``."""
-    from layercam.pipelines.atlas_export import png_exposure
     from layercam.render import inverse_tone
 
     rgb, alpha = read_rgba(atlas_png)
     info_path = Path(run_dir) / "atlases" / "atlas.json"
-    log2_dt = json.loads(info_path.read_text())["log2_dt_png"] if info_path.exists() else png_exposure(model)
+    log2_dt = json.loads(info_path.read_text())["log2_dt_png"] if info_path.exists() else model.exposure.reference()
     unchanged = 0
     exported = Path(run_dir) / "atlases" / f"layer{layer}.png"
     if exported.exists() and exported.resolve() != Path(atlas_png).resolve():

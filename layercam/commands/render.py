@@ -51,13 +51,6 @@ def register(sub) -> argparse.ArgumentParser:
 
 
 # -- rendering functions (used by the command and the tests) ----------------------------------------
-def reference_exposure(model) -> float:
-    """The run's reference exposure: the median log2 exposure of its frames."""
-    import numpy as np
-
-    return float(np.median(model.exposure.values().detach().cpu().numpy()))
-
-
 def exposure_at(model, f: float) -> float:
     """log2 exposure at a fractional frame index (linear between neighbouring frames)."""
     import numpy as np
@@ -73,7 +66,7 @@ def exposure_frames(model, meta: dict, ev: float, keep_blur: bool = False, chunk
     from layercam.render import render_frame
 
     hw = tuple(meta["frame_hw"])
-    z = reference_exposure(model) + ev
+    z = model.exposure.reference() + ev
     return np.stack([render_frame(model, t, hw, "ldr", log2_dt=z, blur=keep_blur, chunk=chunk)["ldr"] for t in range(int(meta["n_frames"]))])
 
 
@@ -84,7 +77,7 @@ def exposure_sweep(model, meta: dict, evs, frame: int, keep_blur: bool = False):
     from layercam.render import render_frame
 
     hw = tuple(meta["frame_hw"])
-    z0 = reference_exposure(model)
+    z0 = model.exposure.reference()
     return np.stack([render_frame(model, frame, hw, "ldr", log2_dt=z0 + float(e), blur=keep_blur)["ldr"] for e in evs])
 
 
@@ -98,7 +91,7 @@ def focus_sweep(model, meta: dict, fs, frame: int, ev: float | None = None):
     hw = tuple(meta["frame_hw"])
     out = []
     for f in fs:
-        z = exposure_at(model, float(f)) if ev is None else reference_exposure(model) + ev
+        z = exposure_at(model, float(f)) if ev is None else model.exposure.reference() + ev
         out.append(render_frame(model, frame, hw, "ldr", log2_dt=z, t_blur=float(f), blur=True)["ldr"])
     return np.stack(out)
 
@@ -153,7 +146,7 @@ def run(args) -> int:
         raise LayercamError(f"--frame must be between 0 and {T - 1}, got {args.frame}")
     default_view = int(meta.get("reference", middle_frame(T)))
     out = ensure_writable_dir(Path(args.out) if args.out else Path(args.run) / "render")
-    z0 = reference_exposure(model)
+    z0 = model.exposure.reference()
     say = (lambda m: None) if args.quiet else print
     base = {"run": str(args.run), "reference_log2_exposure": z0, "frame_log2_exposures": model.exposure.values().detach().cpu().tolist()}
 

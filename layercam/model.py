@@ -1,11 +1,15 @@
 """The whole model: layered scene + implicit camera (exposures, optional blur, tone mapper).
 
 Follows nerfstudio's shape: :meth:`ImplicitCameraModel.loss_dict` returns already-weighted loss
-terms; the trainer only sums them. Loss weights live in ``self.weights`` so that schedule callbacks
-(flow-weight decay, bootstrap) change them without the model knowing about steps.
+terms; the trainer only sums them. The weights are a :class:`LossWeights` in ``model.loss_weights``;
+the model returns the schedules that change them during training
+(:meth:`ImplicitCameraModel.training_callbacks`: flow-weight decay, bootstrap phase, mask taper),
+so it never counts steps itself.
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 import torch
@@ -16,6 +20,22 @@ from layercam.camera.exposure import ExposureField
 from layercam.camera.tone import FixedTone, ToneMapper
 from layercam.config import Config, unresolved
 from layercam.scene.layered import LayeredScene
+
+
+@dataclass
+class LossWeights:
+    """The weight of each loss term (0: the term is not computed). Set from ``cfg.loss`` and the
+    model's components; changed during training by the schedules of ``training_callbacks``."""
+
+    color: float = 1.0
+    flow: float = 0.0
+    white_balance: float = 0.0
+    gradient: float = 0.0
+    bootstrap: float = 0.0
+    rigidity: float = 0.0
+    sparsity: float = 0.0
+    alpha_flow: float = 0.0
+    alpha_mask: float = 0.0
 
 
 class ImplicitCameraModel(nn.Module):
@@ -49,17 +69,28 @@ class ImplicitCameraModel(nn.Module):
             b = cfg.blur
             self.blur = BlurGenerator(b.n, b.max_offset, h0.shape[1], frame_hw, b.width, b.depth, init_centre_weight=b.init_centre_weight, zero_mean_offsets=b.zero_mean_offsets, centre_exact=b.centre == "on")
         lc = cfg.loss
-        self.weights = {
-            "color": lc.color,
-            "flow": lc.flow if m.flow_loss else 0.0,
-            "white_balance": lc.white_balance if learned else 0.0,
-            "gradient": lc.gradient if learned and not cfg.tone.monotone else 0.0,
-            "bootstrap": 1.0 if cfg.scene.deformation == "mlp" else 0.0,
-            "rigidity": lc.rigidity,
-            "sparsity": lc.sparsity if m.layers > 1 else 0.0,
-            "alpha_flow": lc.alpha_flow if m.layers > 1 and m.flow_loss else 0.0,
-            "alpha_mask": 0.0,
-        }
+        self.loss_weights = LossWeights(
+            color=lc.color,
+            flow=lc.flow if m.flow_loss else 0.0,
+            white_balance=lc.white_balance if learned else 0.0,
+            gradient=lc.gradient if learned and not cfg.tone.monotone else 0.0,
+            bootstrap=1.0 if cfg.scene.deformation == "mlp" else 0.0,
+            rigidity=lc.rigidity,
+            sparsity=lc.sparsity if m.layers > 1 else 0.0,
+            alpha_flow=lc.alpha_flow if m.layers > 1 and m.flow_loss else 0.0,
+        )
+
+    def training_callbacks(self, masks: bool = False) -> list:
+        """The schedules of this model's loss weights over ``cfg.train.steps``: the flow terms decay
+        to 0 by ``loss.flow_decay_end``; the deformation is fitted to its bootstrap mapping for the
+        first ``train.bootstrap_steps``; with ``masks`` (given or from motion segmentation) and an
+        alpha field, alpha is fitted to them at first, the weight tapering off with the flow's."""
+        from layercam.train import BootstrapPhase, FlowDecay, MaskTaper
+
+        c = self.cfg
+        if masks and self.scene.alpha is not None:
+            self.loss_weights.alpha_mask = 1.0
+        return [FlowDecay(c.loss.flow_decay_end), BootstrapPhase(c.train.bootstrap_steps, keys=("bootstrap",)), MaskTaper(c.train.bootstrap_steps, c.loss.flow_decay_end)]
 
     # -- rendering ---------------------------------------------------------------------------
     def irradiance(self, xy: torch.Tensor, t: torch.Tensor) -> dict:
@@ -81,35 +112,35 @@ class ImplicitCameraModel(nn.Module):
 
     # -- training ----------------------------------------------------------------------------
     def loss_dict(self, batch: dict) -> dict:
-        w = self.weights
+        w = self.loss_weights
         out = self(batch["xy"], batch["t"])
-        terms = {"color": w["color"] * losses.color_loss(out["rgb"], batch["rgb"], self.cfg.loss.clipped)}
-        if w["flow"] > 0 and "xy_match" in batch:
+        terms = {"color": w.color * losses.color_loss(out["rgb"], batch["rgb"], self.cfg.loss.clipped)}
+        if w.flow > 0 and "xy_match" in batch:
             m = self.scene.mappings(batch["xy_match"], batch["t_match"])
-            terms["flow"] = w["flow"] * sum(
+            terms["flow"] = w.flow * sum(
                 losses.flow_loss(uv, uvm, ok) for uv, uvm, ok in zip(out["uv"], m["uv"], self._layer_flow_weights(out, batch["match_ok"]))
             )
-            if w["alpha_flow"] > 0 and out["alpha"] is not None:
-                terms["alpha_flow"] = w["alpha_flow"] * losses.alpha_flow_loss(out["alpha"], m["alpha"], batch["match_ok"])
-        if w["white_balance"] > 0:
+            if w.alpha_flow > 0 and out["alpha"] is not None:
+                terms["alpha_flow"] = w.alpha_flow * losses.alpha_flow_loss(out["alpha"], m["alpha"], batch["match_ok"])
+        if w.white_balance > 0:
             zero = torch.zeros(1, 3, device=batch["xy"].device)
-            terms["white_balance"] = w["white_balance"] * losses.white_balance_loss(self.tone(zero), self.cfg.tone.c0)
-        if w["gradient"] > 0:
+            terms["white_balance"] = w.white_balance * losses.white_balance_loss(self.tone(zero), self.cfg.tone.c0)
+        if w.gradient > 0:
             z = torch.rand(256, 3, device=batch["xy"].device) * 40 - 20
-            terms["gradient"] = w["gradient"] * losses.gradient_loss(self.tone, z)
-        if w["bootstrap"] > 0:
-            terms["bootstrap"] = w["bootstrap"] * sum(
+            terms["gradient"] = w.gradient * losses.gradient_loss(self.tone, z)
+        if w.bootstrap > 0:
+            terms["bootstrap"] = w.bootstrap * sum(
                 ((uv - d.bootstrap_target(batch["xy"], batch["t"])) ** 2).sum(1).mean()
                 for uv, d in zip(out["uv"], self.scene.deformations)
             )
         if out["alpha"] is not None:
-            if w["sparsity"] > 0:
-                terms["sparsity"] = w["sparsity"] * losses.sparsity_loss(out["alpha"])
-            if w["alpha_mask"] > 0 and "mask" in batch:
-                terms["alpha_mask"] = w["alpha_mask"] * losses.mask_loss(out["alpha"], batch["mask"])
-        if w["rigidity"] > 0 and self.cfg.scene.deformation == "homography" and self.scene.n_layers > 1:
+            if w.sparsity > 0:
+                terms["sparsity"] = w.sparsity * losses.sparsity_loss(out["alpha"])
+            if w.alpha_mask > 0 and "mask" in batch:
+                terms["alpha_mask"] = w.alpha_mask * losses.mask_loss(out["alpha"], batch["mask"])
+        if w.rigidity > 0 and self.cfg.scene.deformation == "homography" and self.scene.n_layers > 1:
             xy, t = batch["xy"][:1024], batch["t"][:1024]
-            terms["rigidity"] = w["rigidity"] * sum(
+            terms["rigidity"] = w.rigidity * sum(
                 losses.rigidity_loss(d, xy, t, 2.0 / max(self.frame_hw)) for d in self.scene.deformations
             )
         if self.blur is not None:

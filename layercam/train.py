@@ -1,7 +1,9 @@
 """One training loop for every task. It knows no model: it sums ``model.loss_dict(batch)``.
 
-Schedules are callbacks (nerfstudio's shape), called before each step with the step index:
-:class:`FlowDecay` (the paper's flow weight decaying to 0) and :class:`BootstrapPhase`.
+Schedules are callbacks (nerfstudio's shape), called before each step with the step index; the
+model says which it needs (``model.training_callbacks``). Those here change named fields of the
+model's ``loss_weights``: :class:`FlowDecay` (the paper's flow weight decaying to 0),
+:class:`BootstrapPhase` and :class:`MaskTaper`.
 Guards: a non-finite loss or gradient (or a gradient norm that overflows) skips the step, halves
 the learning rate and logs an event in the history (``report.json`` "train.events"); after
 ``max_bad_steps`` in a row training stops with a clear error, keeping the last good checkpoint.
@@ -33,9 +35,8 @@ class Callback:
 
 @dataclass
 class FlowDecay(Callback):
-    """``lambda_f`` decays linearly from its start to 0 at ``end`` (a fraction of training)."""
+    """The ``keys`` weights decay linearly from their start to 0 at ``end`` (a fraction of training)."""
 
-    start: float
     end: float
     keys: tuple = ("flow", "alpha_flow")
     starts: dict = field(default_factory=dict)
@@ -43,9 +44,9 @@ class FlowDecay(Callback):
     def on_step(self, trainer, step):
         frac = step / max(trainer.cfg.steps, 1)
         k = max(0.0, 1.0 - frac / max(self.end, 1e-9)) if self.end > 0 else 1.0
+        w = trainer.model.loss_weights
         for key in self.keys:
-            base = self.starts.setdefault(key, trainer.model.weights.get(key, 0.0))
-            trainer.model.weights[key] = base * k
+            setattr(w, key, self.starts.setdefault(key, getattr(w, key)) * k)
 
 
 @dataclass
@@ -57,9 +58,10 @@ class BootstrapPhase(Callback):
     starts: dict = field(default_factory=dict)
 
     def on_step(self, trainer, step):
+        w = trainer.model.loss_weights
         for key in self.keys:
-            base = self.starts.setdefault(key, trainer.model.weights.get(key, 0.0))
-            trainer.model.weights[key] = base if step < self.steps else 0.0
+            base = self.starts.setdefault(key, getattr(w, key))
+            setattr(w, key, base if step < self.steps else 0.0)
 
 
 @dataclass
@@ -74,11 +76,12 @@ class MaskTaper(Callback):
     start: float | None = None
 
     def on_step(self, trainer, step):
+        w = trainer.model.loss_weights
         if self.start is None:
-            self.start = trainer.model.weights.get(self.key, 0.0)
+            self.start = getattr(w, self.key)
         stop = max(int(self.end * trainer.cfg.steps), self.steps + 1)
         k = 1.0 if step < self.steps else max(0.0, 1.0 - (step - self.steps) / (stop - self.steps))
-        trainer.model.weights[self.key] = self.start * k
+        setattr(w, self.key, self.start * k)
 
 
 @dataclass
@@ -97,7 +100,7 @@ class Trainer:
         self.ckpt_path = Path(ckpt_path) if ckpt_path else None
         self.callbacks = list(callbacks)
         self.progress, self.desc = progress, desc
-        self.opt = torch.optim.Adam(model.param_groups(cfg.lr, cfg.grid_lr), betas=(0.9, 0.99), eps=1e-12 if False else 1e-15)
+        self.opt = torch.optim.Adam(model.param_groups(cfg.lr, cfg.grid_lr), betas=(0.9, 0.99), eps=1e-15)
         self.loss_fn = distributed.loss_fn(model)  # model.loss_dict, through DDP inside a process group
         self.base_lrs = [g["lr"] for g in self.opt.param_groups]
         self.lr_scale = 1.0

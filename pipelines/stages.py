@@ -142,7 +142,7 @@ class TrainStage(Stage):
         from layercam import distributed
         from layercam.camera.tone import fit_init_curve
         from layercam.data import PixelSampler
-        from layercam.train import BootstrapPhase, FlowDecay, MaskTaper, Trainer
+        from layercam.train import Trainer
 
         cfg = self.model_cfg(ctx)
         torch.manual_seed(cfg.train.seed)
@@ -154,8 +154,6 @@ class TrainStage(Stage):
         if cfg.model.tone_mapper == "learned" and not cfg.tone.monotone:
             fit_init_curve(model.tone, cfg.tone.init_slope, seed=cfg.train.seed)
         masks = ctx.masks if ctx.masks is not None else ctx.results["bootstrap"].get("masks")  # given, else motion masks
-        if masks is not None and model.scene.alpha is not None:
-            model.weights["alpha_mask"] = 1.0
         fl = ctx.flow if cfg.model.flow_loss else None
         dev = resolve_device(cfg.train.device)
         model.to(dev)
@@ -166,7 +164,7 @@ class TrainStage(Stage):
             ctx.clip.frames, *(fl[k] for k in ("fw", "bw", "fw_ok", "bw_ok")) if fl else (None,) * 4,
             masks=masks, device=dev, seed=distributed.rank_seed(cfg.train.seed),
         )
-        callbacks = [FlowDecay(cfg.loss.flow, cfg.loss.flow_decay_end), BootstrapPhase(cfg.train.bootstrap_steps, keys=("bootstrap",)), MaskTaper(cfg.train.bootstrap_steps, cfg.loss.flow_decay_end)]
+        callbacks = model.training_callbacks(masks is not None)
         callbacks += [make(model) for make in ctx.extra.get("train_callbacks", [])]  # e.g. the benchmark's quality probe
         tcfg = dataclasses.replace(cfg.train, batch=distributed.rank_batch(cfg.train.batch))  # each rank's share
         trainer = Trainer(model, sampler, tcfg, out / "ckpt.pt", callbacks, progress=ctx.progress, desc=f"{ctx.task} train")

@@ -45,7 +45,6 @@ class TwoParams(nn.Module):
     def __init__(self):
         super().__init__()
         self.a, self.b = nn.Parameter(torch.zeros(2)), nn.Parameter(torch.zeros(2))
-        self.weights = {}
 
     def loss_dict(self, batch):
         return {"color": ((self.a - 1) ** 2).sum() + ((self.b - 1) ** 2).sum()}

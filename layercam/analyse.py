@@ -1,5 +1,6 @@
 """Decide what the model for one clip contains: measure the clip, then choose. Every decision
-carries its measured reason and can be forced by a flag (``overrides``).
+carries its measured reason and is written into the config's ``model`` section (and the blur
+generator's shape); a value set there (a flag such as ``--layers 2``, or ``--set``) is kept.
 
 Measures (:func:`measure`): exposure variation (from the spec, or brightness of registered
 neighbours), clipped fractions, global motion (homography fit of the cached flow), independent
@@ -218,7 +219,7 @@ def resolve_auto(cfg: Config, static: bool, h0, frame_hw: tuple[int, int]) -> Co
       identity) has no residual warp (``scene.residual`` -> ``off``, ``scene.residual_scale = 0``)
       and PSFs centred on their pixel (``blur.centre`` -> ``on``); elsewhere the residual is on
       and the centre free. A static stack has nothing for a free per-pixel warp or a PSF shift to
-      follow, and both were used to fit the images' blur instead (measured in the README). On moving
+      follow, and both were used to fit the images' blur instead (README, How it works). On moving
       footage the shift stays free: centred, the PSFs of the Adobe240 triplet grew to 4 px on its
       sharp background, which came out over-sharpened.
     * ``scene.grid_max_res = 0``: the finest atlas grid level from the atlas's extent in frame
@@ -226,8 +227,8 @@ def resolve_auto(cfg: Config, static: bool, h0, frame_hw: tuple[int, int]) -> Co
       within 32..2048: without a blur generator the power of two at or above it (at least one cell
       per pixel); with one, the extent itself (at most one cell per pixel). The blur generator
       samples the scene between pixels, so a finer grid lets the scene keep sub-pixel content that
-      each image's PSF reads on its own, fitting every image without one sharp scene (on the
-      3-image focus x exposure stack the PSFs collapsed to deltas at 1.8 cells per pixel).
+      each image's PSF reads on its own, fitting every image without one sharp scene (the PSFs
+      collapsed to deltas on the focus x exposure stack: ``docs/measurements.md``).
     """
     from layercam.geometry import atlas_pixels
 

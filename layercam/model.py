@@ -143,8 +143,6 @@ class ImplicitCameraModel(nn.Module):
             terms["rigidity"] = w.rigidity * sum(
                 losses.rigidity_loss(d, xy, t, 2.0 / max(self.frame_hw)) for d in self.scene.deformations
             )
-        if self.blur is not None:
-            terms.update({k: v for k, v in self.blur.regularisers().items()})
         return terms
 
     @staticmethod

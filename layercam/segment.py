@@ -10,9 +10,8 @@ residual noise, averaged with its neighbours along the flow (temporal consistenc
 morphology (open, close, fill holes, drop small components), and frames where the object stands
 still (no evidence) inherit their neighbours' masks along the flow. :func:`foreground_bootstrap`
 then tightens each mask to the object's colour edges with GrabCut (flow masks overshoot by about a
-DIS patch). Measured mean IoU with the true masks: ``synth.moving_object`` 64x64 seeds 0-2, 0.78-0.88
-after GrabCut (0.58 -> 0.68 over 8 clips of 64x64 / 96x128 with DIS fast); DAVIS libby at 214x120,
-0.31 flow-only, 0.37 with GrabCut (parallax of the trees and fence in front, the dog partly hidden).
+DIS patch). The masks' measured IoU with the true ones: ``docs/measurements.md``. Every threshold
+is a setting (``segment`` section of :mod:`layercam.config`).
 
 :func:`foreground_mappings` turns the masks into the foreground layer's bootstrap mapping: the
 object's own motion (a similarity per frame pair fitted to the flow inside the mask, chained to

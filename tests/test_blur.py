@@ -262,7 +262,6 @@ def test_shape_checks():
         b(Field(), torch.zeros(4, 2), torch.zeros(5, dtype=torch.long))
     with pytest.raises(ValueError):
         b.kernels(torch.zeros(4, 2), torch.zeros(4))  # float t: use t_blur
-    assert b.regularisers() == {}
 
 
 def test_t_blur_interpolates_between_frames():

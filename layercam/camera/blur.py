@@ -269,10 +269,6 @@ class BlurGenerator(nn.Module):
             patch = scene(pos.reshape(-1, 2), t.repeat_interleave(self.K))["log2_r"].float().view(n, self.K, -1)
         return _apply_log_weights(patch, log_w)
 
-    def regularisers(self) -> dict:
-        """Extra already-weighted loss terms: none (the paper adds none for the blur generator)."""
-        return {}
-
     def extra_repr(self) -> str:
         return f"n={self.n}, max_offset={self.max_offset:g}, n_frames={self.n_frames}, frame_hw={self.frame_hw}, use_depth={self.use_depth}, zero_mean_offsets={self.zero_mean_offsets}"
 

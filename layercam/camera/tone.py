@@ -32,12 +32,12 @@ class ToneMapper(nn.Module):
     gradient loss). It starts as :func:`init_curve` with ``init_slope``; ``INC_GAIN`` lets Adam move
     a knot's slope as fast as the MLP moves its curve (with gain 1 a sharp knee is out of reach in a
     few hundred steps). The increments are blurred (``SMOOTH`` knots): free knots let the curve wiggle
-    with the period of the exposure step, which the atlas then absorbs. Measured on pan_hdr (fast
-    preset): better than MLP + gradient loss at +3 EV (+0.4..+1.1 dB PSNR-mu), worse at +5 EV.
+    with the period of the exposure step, which the atlas then absorbs. How it compares with the MLP
+    and gradient loss, and what the smoothing gains: ``docs/measurements.md``.
     """
 
     INC_GAIN = 10.0
-    SMOOTH = 2.0  # Gaussian blur (sigma, knots) of the increments: pan_hdr +3 EV PSNR-mu 44.4 -> 48.1 dB
+    SMOOTH = 2.0  # Gaussian blur (sigma, knots) of the increments (docs/measurements.md)
 
     def __init__(self, width: int = 64, depth: int = 2, monotone: bool = False, z_max: float = 24.0, knots: int = 97, lut: int = 0, init_slope: float = 0.6):
         super().__init__()

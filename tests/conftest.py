@@ -91,3 +91,9 @@ def decided(cfg=None, h0=None, frame_hw=(16, 16), static: bool = False, *, layer
         cfg.blur.n = 3
     h0 = np.tile(np.eye(3)[None, None], (layers, 2, 1, 1)) if h0 is None else h0
     return resolve_auto(cfg, static, h0, frame_hw)
+
+
+def scaled_h0(scale: float, frames: int = 2) -> np.ndarray:
+    """One layer's identity mappings shrunk by ``scale`` ``(1, frames, 3, 3)``: the frame covers
+    ``scale`` of the atlas."""
+    return np.tile(np.diag([scale, scale, 1.0])[None, None], (1, frames, 1, 1))

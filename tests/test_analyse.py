@@ -6,11 +6,17 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+import torch
 
 from layercam import analyse, flow
-
+from layercam.checkpoint import load_run_model
 from layercam.config import load_config, model_overrides, unresolved
+from layercam.errors import LayercamError
+from layercam.geometry import atlas_pixels
 from layercam.io import Clip, Exposures
+from layercam.model import ImplicitCameraModel
+
+from conftest import decided, scaled_h0
 
 
 def _flow(frames):
@@ -93,3 +99,64 @@ def test_camera_shake_alone_keeps_one_layer():
     spec, m = _decide(s.clip.frames, task="deblur-video")
     assert spec.layers == 1, m
     assert spec.blur != "off"
+
+
+def test_grid_no_finer_than_pixels_with_blur():
+    cfg = load_config("fast")
+    h0 = scaled_h0(0.9)
+    px = atlas_pixels(h0, (64, 64))
+    assert abs(px - 64 / 0.9) < 1e-6
+    sharp = decided(cfg, h0, (64, 64), blur="off").scene.grid_max_res
+    blurred = decided(cfg, h0, (64, 64), blur="3x3").scene.grid_max_res
+    assert sharp == 128  # power of two at or above 71.1 px: at least one cell per pixel
+    assert blurred == 71  # the extent itself: at most one cell per pixel
+    forced = load_config("fast", ["scene.grid_max_res=256"])
+    assert decided(forced, h0, (64, 64), blur="3x3").scene.grid_max_res == 256  # a set size wins
+    m = ImplicitCameraModel(decided(cfg, h0, (64, 64), blur="3x3"), torch.as_tensor(h0, dtype=torch.float32), np.zeros(2), frame_hw=(64, 64))
+    assert m.scene.atlases[0].enc.resolutions[-1] == 71
+
+
+@pytest.mark.parametrize("mode,expect_residual", [("auto", False), ("on", True)])
+def test_static_stack_drops_the_residual_warp(tmp_path, mode, expect_residual):
+    """A static one-layer stack (identity bootstrap): with scene.residual=auto the deformation is
+    the per-frame homographies only; =on keeps the residual MLP. blur.centre=auto centres its PSFs.
+    The saved run rebuilds the same."""
+    from layercam import synth
+    from layercam.io import Exposures
+    from layercam.pipelines.tasks import run_task
+
+    from conftest import SMALL_BLUR, TINY
+
+    sc = synth.mfme_stack(size=(64, 64), focus_settings=2, exposures_ev=(0.0,), planes=2, seed=3)
+    exp = Exposures(np.zeros(2), "none", None, "none", "single")
+    cfg = load_config("fast", TINY + SMALL_BLUR + ["train.steps=20", f"scene.residual={mode}", "model.layers=1"])
+    ctx = run_task("fuse-stack", sc.clip, exp, cfg, tmp_path / "run", progress=False)
+    assert ctx.results["bootstrap"]["static"] is True
+    model, ck = load_run_model(tmp_path / "run")
+    d = model.scene.deformations[0]
+    assert (d.residual_scale > 0) == expect_residual
+    assert (ck["cfg"]["scene"]["residual_scale"] > 0) == expect_residual
+    assert ck["cfg"]["blur"]["centre"] == "on" and model.blur.centre_exact
+    disp, w = model.blur.kernels(torch.rand(50, 2) * 2 - 1, torch.randint(0, 2, (50,)))
+    assert torch.allclose((w[:, :, None] * disp).sum(1), torch.zeros(50, 2), atol=1e-4)
+    with pytest.raises(LayercamError, match="scene.residual"):
+        load_config("fast", ["scene.residual=maybe"])
+    with pytest.raises(LayercamError, match="blur.centre"):
+        load_config("fast", ["blur.centre=maybe"])
+
+
+def test_moving_clip_keeps_psf_shift_free(tmp_path):
+    """A clip whose camera moves (a pan, not static): blur.centre=auto resolves to off, residual kept."""
+    from layercam import synth
+    from layercam.io import Exposures
+    from layercam.pipelines.tasks import run_task
+
+    from conftest import SMALL_BLUR, TINY
+
+    sc = synth.pan_hdr(frames=3, size=(48, 48), ev_step=0.0, seed=0)  # pans 1.5 to 3 px a frame
+    cfg = load_config("fast", TINY + SMALL_BLUR + ["train.steps=10", "model.layers=1", "model.blur=on", "blur.n=3"])
+    ctx = run_task("deblur-video", sc.clip, Exposures(np.zeros(3), "none", None, "none", "single"), cfg, tmp_path / "run", progress=False)
+    assert ctx.results["bootstrap"]["static"] is False
+    model, ck = load_run_model(tmp_path / "run")
+    assert ck["cfg"]["blur"]["centre"] == "off" and not model.blur.centre_exact
+    assert model.scene.deformations[0].residual_scale > 0

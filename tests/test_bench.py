@@ -33,6 +33,7 @@ def test_speedups_against_the_paper_curve():
     assert s["slow"]["seconds"] is None and s["slow"]["speedup"] is None
 
 
+@pytest.mark.timeout(900)  # one process per preset, the paper preset's 4x512 atlas included
 def test_quick_bench_writes_csv_plot_and_speedups(tmp_path, capsys):
     out = tmp_path / "bench"
     assert main(["bench", "--quick", "--out", str(out), "--presets", "fast,paper", "--threads", "1"]) == 0

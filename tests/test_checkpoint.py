@@ -11,7 +11,11 @@ import torch
 
 from layercam.checkpoint import FORMAT, load_run_model, save_run_model
 from layercam.cli import main
+from layercam.config import load_config
+from layercam.model import ImplicitCameraModel
 from layercam.render import render_frame
+
+from conftest import decided, scaled_h0
 
 OLD_RUN = Path(__file__).parent / "data" / "run_format1"  # hdr-video, 2 layers + 3x3 blur (s = 2), 4 frames 16x16, made at 11fa359
 
@@ -52,3 +56,28 @@ def test_saved_now_loads_back_the_same(tmp_path):
     assert meta2["cfg"] == model.cfg.to_dict() and "spec" not in meta2
     for (k, v), (k2, v2) in zip(model.state_dict().items(), again.state_dict().items()):
         assert k == k2 and torch.equal(v, v2)
+
+
+def test_saved_run_keeps_its_grid_sizes(tmp_path):
+    """A run saved with the derived sizes left at 0 (older runs) is rebuilt from its saved grids;
+    a run saved now stores the sizes it was built with."""
+    cfg = load_config("fast", ["scene.grid_levels=3"])
+    h0 = scaled_h0(0.8, frames=3)
+    meta = {"h0": h0, "log2_dt": np.zeros(3), "exposure_learn": "none", "phase": None, "init_log2": 0.0, "frame_hw": (40, 40)}
+    model = ImplicitCameraModel(decided(cfg, h0, (40, 40), blur="3x3"), torch.as_tensor(h0, dtype=torch.float32), np.zeros(3), frame_hw=(40, 40))
+    grids = [tuple(p.shape[-2:]) for n, p in model.named_parameters() if ".enc.grids." in n]
+    assert grids[-1] == (50, 50)
+    # as an older version wrote it: cfg with grid_max_res = 0 and the model chosen in a "spec"
+    spec = {"layers": 1, "tone_mapper": "learned", "exposures": "given", "blur": "3x3", "max_offset": 5.0, "flow_loss": True, "reasons": {}}
+    torch.save({"state": model.state_dict(), "cfg": {k: v for k, v in cfg.to_dict().items() if k != "model"}, "spec": spec, **meta}, tmp_path / "checkpoint.pt")
+    loaded, _ = load_run_model(tmp_path)
+    assert [tuple(p.shape[-2:]) for n, p in loaded.named_parameters() if ".enc.grids." in n] == grids
+    # as written now
+    (tmp_path / "new").mkdir()
+    save_run_model(tmp_path / "new" / "checkpoint.pt", model, meta)
+    ck = torch.load(tmp_path / "new" / "checkpoint.pt", weights_only=False)
+    assert ck["cfg"]["scene"]["grid_max_res"] == 50
+    loaded, _ = load_run_model(tmp_path / "new")
+    xy = torch.rand(7, 2) * 2 - 1
+    t = torch.zeros(7, dtype=torch.long)
+    assert torch.allclose(loaded(xy, t)["rgb"], model.eval()(xy, t)["rgb"])

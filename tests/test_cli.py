@@ -10,7 +10,7 @@ import pytest
 
 from layercam.cli import main
 
-from conftest import TINY
+from conftest import SMALL_BLUR, TINY
 
 
 def test_help_lists_commands(capsys):
@@ -50,13 +50,20 @@ def test_bad_input_one_line_exit_2(argv, needle, tmp_path, capsys):
     assert needle in err.lower() or needle in err
 
 
-def test_hdr_video_on_a_real_mp4(tmp_path, tiny_scene):
+def test_hdr_video_on_a_real_mp4_with_a_blur_generator_writes_psf_json(tmp_path, tiny_scene):
+    import json
+
     from layercam.io import write_video
 
     video = tmp_path / "clip.mp4"
     write_video(video, tiny_scene.clip.frames, fps=8)
-    argv = ["hdr-video", str(video), "--exposures", "alt", "--ev-step", "3", "--out", str(tmp_path / "run"), "--preset", "fast", "--quiet"]
-    for s in TINY:
+    argv = ["hdr-video", str(video), "--exposures", "alt", "--ev-step", "3", "--blur", "3x3", "--out", str(tmp_path / "run"), "--preset", "fast", "--quiet"]
+    for s in TINY + SMALL_BLUR + ["train.steps=20"]:
         argv += ["--set", s]
     assert main(argv) == 0
-    assert len(list((tmp_path / "run" / "hdr").glob("*.exr"))) == 4
+    run = tmp_path / "run"
+    assert len(list((run / "hdr").glob("*.exr"))) == 4 and (run / "atlases" / "atlas.json").is_file()
+    psf = json.loads((run / "psf.json").read_text())
+    assert len(psf["spread_px"]) == len(psf["frames"]) == tiny_scene.clip.T
+    rep = json.loads((run / "report.json").read_text())
+    assert rep["analysis"]["blur"] == "3x3" and rep["export"]["psf"]["spread_px"] == psf["spread_px"]

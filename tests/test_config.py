@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from layercam.cli import main
-from layercam.config import SECTIONS, Config, config_from_dict, load_config, model_overrides, preset_names, unresolved, validate
+from layercam.config import Config, SECTIONS, config_from_dict, load_config, model_overrides, preset_names, unresolved, validate
 from layercam.errors import LayercamError
 
 
@@ -92,3 +92,20 @@ def test_auto_is_left_to_the_analysis():
     assert set(unresolved(cfg)) == {"model.layers", "model.tone_mapper", "model.exposures", "model.blur", "model.flow_loss", "blur.n", "blur.max_offset", "blur.centre", "scene.residual", "scene.grid_max_res"}
     paper = load_config("paper")  # the paper's n = 3, s = 5 are set, not derived
     assert (paper.blur.n, paper.blur.max_offset) == (3, 5.0)
+
+
+@pytest.mark.parametrize("name", preset_names())
+def test_every_preset_trains_two_steps(name, tmp_path):
+    """Each preset in configs/ builds its whole model (two layers and a blur generator forced, so
+    that every section's settings are used), trains two steps on a 16x16x4 clip and exports."""
+    from layercam import synth
+    from layercam.io import Exposures
+    from layercam.pipelines.tasks import run_task
+
+    scene = synth.moving_object(frames=4, size=(16, 16), seed=0)
+    log2 = np.log2(scene.exposure_times / scene.exposure_times.min())
+    ex = Exposures(log2, "none", np.arange(4) % 2, "alt", "test: known")
+    cfg = load_config(name, ["train.steps=2", "train.bootstrap_steps=1", "train.batch=64", "train.checkpoint_every=0", "flow.method=dis_fast"] + model_overrides(layers=2, blur="3x3"))
+    ctx = run_task("hdr-video", scene.clip, ex, cfg, tmp_path / "run", masks=scene.fg_mask.astype(np.float32), progress=False)
+    assert ctx.results["train"]["steps"] == 2 and ctx.model.blur is not None and ctx.model.scene.n_layers == 2
+    assert len(list((tmp_path / "run" / "hdr").glob("*.exr"))) == 4 and (tmp_path / "run" / "psf.json").is_file()

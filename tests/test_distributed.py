@@ -67,6 +67,7 @@ def _env() -> dict:
     return dict(os.environ, OMP_NUM_THREADS="1", GLOO_SOCKET_IFNAME="lo")
 
 
+@pytest.mark.timeout(900)  # two launches of two processes, each allowed 300 s
 def test_two_gloo_processes_match_one_and_resume(tmp_path, tiny_scene):
     frames = _write_frames(tmp_path / "clip", tiny_scene.clip.frames)
     one, two = tmp_path / "one", tmp_path / "two"

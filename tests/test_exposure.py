@@ -6,9 +6,15 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import torch
+from hypothesis import given, strategies as st
+from hypothesis.extra import numpy as hnp
 
+from layercam.camera.exposure import EV_BOUND, ExposureField
 from layercam.errors import LayercamError
 from layercam.io import Clip, Exposures, load_clip, parse_exposures
+
+from props import EV, _finite, props
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 needs_data = pytest.mark.skipif(not DATA.is_dir(), reason=f"shared data folder {DATA} is absent")
@@ -175,3 +181,24 @@ def test_taipei_image_list_and_real_alt_video():
     video = load_clip(DATA / "altexp_video_basler" / "clip_2exp_3stop.mp4", max_frames=12)
     a = parse_exposures("alt", video)
     assert a.log2_dt[0] == 0 and a.log2_dt[1] > 1.5  # frame 0 is the low exposure
+
+
+@props(40)
+@given(
+    log2=hnp.arrays(np.float32, st.integers(1, 6), elements=EV),
+    learn=st.sampled_from(["none", "ratio", "all"]),
+    delta=st.floats(-1e6, 1e6, width=32),
+)
+def test_exposures_bounded_finite_and_reference_fixed(log2, learn, delta):
+    phase = np.arange(len(log2)) % 2
+    ef = ExposureField(log2, learn, phase)
+    if ef.delta is not None:
+        with torch.no_grad():
+            ef.delta.fill_(delta)
+    v = ef.values()
+    init = torch.from_numpy(log2)
+    assert _finite(v)
+    assert float((v - init).abs().max()) <= EV_BOUND + 1e-3
+    assert float(v[0]) == pytest.approx(float(log2[0]), abs=1e-5)  # the reference frame / phase
+    t = torch.arange(len(log2))
+    assert ef(t).shape == (len(log2), 1)

@@ -114,3 +114,12 @@ def test_small_frames_keep_a_moving_object(method):
     obj = s.fg_mask[:-1].astype(bool)
     assert np.median(res[obj]) > 1.5
     assert np.median(res[~obj]) < 0.5
+
+
+@pytest.mark.parametrize("hw", [(1, 1), (2, 3), (5, 7), (11, 40)])
+def test_flow_on_frames_smaller_than_dis_patches(hw):
+    from layercam.flow import compute_flow
+
+    frames = np.random.default_rng(0).random((3, *hw, 3)).astype(np.float32)
+    fw, bw = compute_flow(frames, method="dis_fast", progress=False)
+    assert fw.shape == bw.shape == (2, *hw, 2) and np.isfinite(fw).all() and np.isfinite(bw).all()

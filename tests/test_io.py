@@ -3,25 +3,19 @@
 from __future__ import annotations
 
 import os
+import tempfile
 from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import given, strategies as st
+from hypothesis.extra import numpy as hnp
 
 from layercam.errors import LayercamError
-from layercam.io import (
-    Clip,
-    atomic_write,
-    ensure_writable_dir,
-    load_clip,
-    read_exr,
-    read_image,
-    read_video,
-    write_exr,
-    write_png,
-    write_video,
-)
+from layercam.io import Clip, atomic_write, ensure_writable_dir, load_clip, read_exr, read_image, read_video, write_exr, write_png, write_video
 from layercam.io.images import read_exif_exposure
+
+from props import props
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 needs_data = pytest.mark.skipif(not DATA.is_dir(), reason=f"shared data folder {DATA} is absent")
@@ -309,3 +303,25 @@ def test_real_exif_jpegs_and_tiffs():
     assert clip.exif_exposures == pytest.approx([1 / 8, 1.0, 8.0])
     tifs = sorted((DATA / "focus_pairs_lytro" / "color").glob("*.tif"))[:2]
     assert load_clip(tifs).frames.shape[-1] == 3
+
+
+@props(20)
+@given(img=hnp.arrays(np.float32, st.tuples(st.integers(1, 5), st.integers(1, 5), st.just(3)), elements=st.floats(0, 65504, width=32)), half=st.booleans())
+def test_exr_roundtrip_finite_non_negative(img, half):
+    from layercam.io import read_exr, write_exr
+
+    with tempfile.TemporaryDirectory() as d:
+        write_exr(Path(d) / "a.exr", img, half=half)
+        back = read_exr(Path(d) / "a.exr")
+    assert back.shape == img.shape and np.isfinite(back).all() and (back >= 0).all()
+
+
+def test_exr_refuses_non_finite_and_half_overflow(tmp_path):
+    from layercam.io import write_exr
+
+    for bad in (np.nan, np.inf):
+        with pytest.raises(ValueError, match="non-finite"):
+            write_exr(tmp_path / "x.exr", np.full((2, 2, 3), bad, np.float32))
+    with pytest.raises(ValueError, match="float16"):
+        write_exr(tmp_path / "y.exr", np.full((2, 2, 3), 1e5, np.float32), half=True)
+    assert not (tmp_path / "x.exr").exists() and not (tmp_path / "y.exr").exists()

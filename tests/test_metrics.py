@@ -105,3 +105,18 @@ def test_iou():
     assert metrics.iou(a, b) == pytest.approx(4 / 12)
     with pytest.raises(ValueError):
         metrics.iou(a, b[:2])
+
+
+def test_highlight_psnr_mu_restricts_psnr_mu_to_the_mask():
+    from layercam import metrics
+
+    rng = np.random.default_rng(0)
+    gt = rng.random((2, 8, 8, 3)).astype(np.float32) * 4
+    pred = gt.copy()
+    pred[:, :2] *= 1.3  # wrong only in the top quarter (the median alignment keeps the rest exact)
+    top = np.zeros((2, 8, 8), bool)
+    top[:, :2] = True
+    assert metrics.highlight_psnr_mu(pred, gt, np.ones_like(top)) == pytest.approx(metrics.psnr_mu(pred, gt))
+    assert metrics.highlight_psnr_mu(pred, gt, top) < metrics.psnr_mu(pred, gt) < metrics.highlight_psnr_mu(pred, gt, ~top)
+    with pytest.raises(metrics.MetricInputError):
+        metrics.highlight_psnr_mu(pred, gt, np.zeros_like(top))

@@ -5,12 +5,16 @@ from __future__ import annotations
 from types import SimpleNamespace
 
 import numpy as np
+import pytest
 import torch
+from hypothesis import given, strategies as st
 
 from layercam.config import load_config
+from layercam.errors import LayercamError
 from layercam.model import ImplicitCameraModel, LossWeights
 
-from conftest import TINY, decided
+from conftest import TINY, decided, scaled_h0
+from props import EV, _autocast, _finite, _grads_finite, props
 
 
 def _model(layers=2, **kw):
@@ -42,3 +46,45 @@ def test_schedules_change_the_weights_over_training():
     one = _model(layers=1)
     one.training_callbacks(masks=True)
     assert one.loss_weights.alpha_mask == 0.0  # no alpha field to fit the masks to
+
+
+def test_blur_group_carries_the_warmup():
+    cfg = load_config("fast", ["blur.warmup=0.3"])
+    h0 = torch.as_tensor(scaled_h0(1.0), dtype=torch.float32)
+    blur_cfg = decided(cfg, h0, blur="3x3")
+    groups = ImplicitCameraModel(blur_cfg, h0, np.zeros(2), frame_hw=(16, 16)).param_groups(1e-3, 1e-2)
+    blur = [g for g in groups if g["name"] == "blur"]
+    assert len(blur) == 1 and blur[0]["start"] == 0.3
+    n_blur = sum(p.numel() for p in blur[0]["params"])
+    model = ImplicitCameraModel(blur_cfg, h0, np.zeros(2), frame_hw=(16, 16))
+    assert n_blur == sum(p.numel() for p in model.blur.parameters())
+    assert not [g for g in ImplicitCameraModel(decided(cfg, h0), h0, np.zeros(2), frame_hw=(16, 16)).param_groups(1e-3, 1e-2) if g["name"] == "blur"]
+    with pytest.raises(LayercamError, match="blur.warmup"):
+        load_config("fast", ["blur.warmup=1"])
+
+
+@props(8)
+@given(
+    ev=EV, layers=st.sampled_from([1, 2]), monotone=st.booleans(), clipped=st.sampled_from(["plain", "one_sided"]),
+    blur=st.sampled_from(["off", "3x3"]), target=st.sampled_from(["black", "white", "random"]), autocast=st.sampled_from(["none", "bf16"]),
+)
+def test_model_loss_terms_and_gradients_finite(ev, layers, monotone, clipped, blur, target, autocast):
+    from layercam.config import load_config
+    from layercam.model import ImplicitCameraModel
+
+    from conftest import decided
+
+    torch.manual_seed(0)
+    h0 = torch.eye(3).expand(layers, 2, 3, 3).clone()
+    cfg = decided(load_config("fast", TINY + [f"tone.monotone={monotone}", f"loss.clipped={clipped}", "blur.width=8", "blur.depth=1"]), h0, (3, 5), layers=layers, blur=blur)
+    model = ImplicitCameraModel(cfg, h0, np.array([0.0, ev], np.float32), init_log2=-ev, frame_hw=(3, 5))
+    n = 32
+    rgb = {"black": torch.zeros(n, 3), "white": torch.ones(n, 3), "random": torch.rand(n, 3)}[target]
+    batch = {"xy": torch.rand(n, 2) * 2 - 1, "t": torch.arange(n) % 2, "rgb": rgb,
+             "xy_match": torch.rand(n, 2) * 2 - 1, "t_match": (torch.arange(n) + 1) % 2, "match_ok": torch.ones(n, dtype=torch.bool)}
+    with _autocast(torch.bfloat16 if autocast == "bf16" else None):
+        terms = model.loss_dict(batch)
+    loss = sum(terms.values())
+    assert _finite(*terms.values())
+    loss.backward()
+    assert _grads_finite(model)

@@ -38,13 +38,14 @@ def test_notebook_matches_its_text_twin():
     assert len(params) == 1 and "RUN = " in params[0].source
 
 
+@pytest.mark.timeout(900)  # a kernel that trains a tiny run first; nbmake's own limit is 600 s
 def test_notebook_runs_headless_with_nbmake(tmp_path):
     for mod in ("nbmake", "ipykernel", "nbclient"):
         pytest.importorskip(mod)
     env = {k: v for k, v in os.environ.items() if k not in ("LAYERCAM_RUN", "LAYERCAM_CRF_TRUTH")}
     # the tiny run goes to a temp folder: under tmp_path, so that pytest cleans it up
     env.update(LAYERCAM_FIGURE_DIR=str(tmp_path / "figures"), OMP_NUM_THREADS="1", TMPDIR=str(tmp_path))
-    cmd = [sys.executable, "-m", "pytest", "--nbmake", "--nbmake-timeout=600", str(NOTEBOOK), "-q", "-p", "no:cacheprovider", "-o", "addopts="]
+    cmd = [sys.executable, "-m", "pytest", "--nbmake", "--nbmake-timeout=600", str(NOTEBOOK), "-q", "-p", "no:cacheprovider", "-o", "addopts=", "-o", "timeout=0"]
     res = subprocess.run(cmd, cwd=tmp_path, env=env, capture_output=True, text=True, timeout=900)
     assert res.returncode == 0, res.stdout[-4000:] + res.stderr[-2000:]
     saved = sorted(p.name for p in (tmp_path / "figures").glob("*.png"))

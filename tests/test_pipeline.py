@@ -3,15 +3,19 @@
 from __future__ import annotations
 
 import json
+import tempfile
+from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import example, given, strategies as st
 
 from layercam.config import load_config
 from layercam.io import read_exr
 from layercam.pipelines.tasks import run_task
 
 from conftest import TINY
+from props import SIZES, Z, props
 
 
 def _run(scene, exposures, out, extra=()):
@@ -39,10 +43,17 @@ def test_end_to_end_outputs_and_loss_falls(tiny_scene, tiny_exposures, tmp_path)
 
 
 def test_same_command_skips_changed_setting_redoes_dependents(tiny_scene, tiny_exposures, tmp_path):
+    from layercam.render import render_frame
+
     run = tmp_path / "run"
-    _run(tiny_scene, tiny_exposures, run)
+    trained = _run(tiny_scene, tiny_exposures, run).model
     ctx = _run(tiny_scene, tiny_exposures, run)
     assert all(t["cached"] for t in ctx.times.values())
+    # an export setting: the model is rebuilt once from the cached training, and renders what the trained one did
+    ctx = _run(tiny_scene, tiny_exposures, run, ["export.half=off"])
+    assert ctx.times["train"]["cached"] and not ctx.times["export"]["cached"] and ctx.model is not trained
+    for t in range(tiny_scene.clip.T):
+        np.testing.assert_array_equal(read_exr(run / "hdr" / f"frame_{t:05d}.exr"), render_frame(trained, t, (32, 32))["hdr"])
     ctx = _run(tiny_scene, tiny_exposures, run, ["train.steps=70"])
     assert ctx.times["flow"]["cached"] and ctx.times["bootstrap"]["cached"]
     assert not ctx.times["train"]["cached"] and not ctx.times["export"]["cached"]
@@ -87,3 +98,84 @@ def test_foreign_files_in_run_folder_are_not_overwritten(tiny_scene, tiny_exposu
     with pytest.raises(LayercamError):
         _run(tiny_scene, tiny_exposures, run)
     assert (run / "preview.mp4").read_bytes() == b"somebody else's video"
+
+
+E2E = TINY + ["train.steps=6", "train.batch=64", "train.bootstrap_steps=2", "train.checkpoint_every=3", "export.chunk=4096"]
+
+
+def _frames(content: str, t: int, hw: tuple[int, int], value: float) -> np.ndarray:
+    rng = np.random.default_rng(t * 100 + hw[0])
+    shape = (t, *hw, 3)
+    if content == "black":
+        return np.zeros(shape, np.float32)
+    if content == "white":
+        return np.ones(shape, np.float32)
+    if content == "constant":
+        return np.full(shape, value, np.float32)
+    return rng.random(shape).astype(np.float32)
+
+
+def _load_png16(frames: np.ndarray, d: Path, grey: bool):
+    from layercam.io import load_clip, write_png
+
+    for i, f in enumerate(frames):
+        write_png(d / f"f{i:02d}.png", f.mean(-1) if grey else f, bit_depth=16)  # (H, W) grey or RGB, 16 bit
+    clip = load_clip(d)
+    assert clip.bit_depth == 16 and clip.frames.shape == frames.shape
+    assert np.allclose(clip.frames, frames.mean(-1, keepdims=True) if grey else frames, atol=1e-4)
+    return clip
+
+
+# tiny clips through the whole hdr-video pipeline (1x1, 2x3, odd sizes, one frame, black / white /
+# constant frames, 16-bit grey PNGs): the exported EXRs are finite and non-negative, the curves finite
+# (and monotone where asked); the named extremes always run, hypothesis adds random combinations
+@example(hw=(1, 1), t=1, content="black", value=0.0, ev=0, learn=False, monotone=False, clipped="plain", autocast="none")
+@example(hw=(1, 1), t=3, content="white", value=0.0, ev=-12, learn=False, monotone=True, clipped="one_sided", autocast="none")
+@example(hw=(2, 3), t=2, content="constant", value=0.5, ev=12, learn=True, monotone=False, clipped="plain", autocast="bf16")
+@example(hw=(5, 7), t=3, content="grey16", value=0.0, ev=12, learn=False, monotone=True, clipped="plain", autocast="none")
+@example(hw=(7, 5), t=2, content="rgb16", value=0.0, ev=-12, learn=False, monotone=False, clipped="one_sided", autocast="bf16")
+@example(hw=(2, 3), t=2, content="white", value=0.0, ev=12, learn=False, monotone=False, clipped="plain", autocast="none")
+@props(6)
+@given(
+    hw=SIZES,
+    t=st.integers(1, 3),
+    content=st.sampled_from(["black", "white", "constant", "random", "grey16", "rgb16"]),
+    value=st.floats(0, 1),
+    ev=st.integers(-12, 12),
+    learn=st.booleans(),
+    monotone=st.booleans(),
+    clipped=st.sampled_from(["plain", "one_sided"]),
+    autocast=st.sampled_from(["none", "bf16"]),
+)
+def test_end_to_end_tiny_clips_export_finite_hdr_and_monotone_curves(hw, t, content, value, ev, learn, monotone, clipped, autocast):
+    from layercam.io import Clip, Exposures, read_exr
+    from layercam.config import load_config
+    from layercam.pipelines.tasks import run_task
+
+    frames = _frames("random" if content.endswith("16") else content, t, hw, value)
+    log2 = np.where(np.arange(t) % 2 == 1, float(ev), 0.0)
+    learn = learn and t > 1
+    cfg = load_config("fast", E2E + [f"tone.monotone={monotone}", f"loss.clipped={clipped}", f"train.autocast={autocast}"])
+    with tempfile.TemporaryDirectory() as d:
+        d = Path(d)
+        if content.endswith("16"):
+            (d / "in").mkdir()
+            clip = _load_png16(frames, d / "in", grey=content == "grey16")
+        else:
+            clip = Clip(frames=frames, source=f"test:{content}", names=[f"{i}" for i in range(t)])
+        ex = Exposures(log2, "ratio" if learn else "none", np.arange(t) % 2, "alt", "test")
+        run_task("hdr-video", clip, ex, cfg, d / "run", progress=False)
+        exrs = sorted((d / "run" / "hdr").glob("frame_*.exr"))
+        assert len(exrs) == t
+        for p in exrs:
+            img = read_exr(p)
+            assert img.shape == (*hw, 3) and np.isfinite(img).all() and (img >= 0).all()
+        rep = json.loads((d / "run" / "report.json").read_text())
+        assert rep["train"]["steps"] == 6 and np.isfinite(rep["train"]["log2_dt"]).all()
+        from layercam.checkpoint import load_run_model
+
+        model, _ = load_run_model(d / "run")
+        curve = model.tone.curve(Z).numpy()
+        assert np.isfinite(curve).all() and curve.min() >= 0 and curve.max() <= 1
+        if monotone or rep["analysis"]["tone_mapper"] == "fixed":
+            assert (np.diff(curve, axis=0) >= 0).all(), "CRF not monotone over [-20, 20] stops"

@@ -1,5 +1,6 @@
-"""Guards that keep a run finite: the trainer's non-finite step guard and its checkpoints, the
-export's checks, tiny frames through flow, the clipped-pixel colour loss, float32 geometry."""
+"""Tests of layercam.train: one loop for every model; the non-finite step guard and its checkpoints
+(on a toy model, exact), the guard in the pipeline (report.json, report_failed.json, resume), and
+parameter groups held until their start."""
 
 from __future__ import annotations
 
@@ -12,16 +13,42 @@ from torch import nn
 
 from layercam.config import TrainConfig, load_config
 from layercam.errors import LayercamError
-from layercam.io import Clip, Exposures, read_exr
+from layercam.io import read_exr
 from layercam.pipelines.tasks import run_task
 from layercam.train import Trainer
 
 from conftest import TINY
 
 
-# ------------------------------------------------------------------------------------------
-# the trainer's guard on a toy model (fast, exact)
-# ------------------------------------------------------------------------------------------
+class TwoParams(nn.Module):
+    """``loss = |a - 1|^2 + |b - 1|^2``; ``b`` is in a group that starts at half of training."""
+
+    def __init__(self):
+        super().__init__()
+        self.a, self.b = nn.Parameter(torch.zeros(2)), nn.Parameter(torch.zeros(2))
+
+    def loss_dict(self, batch):
+        return {"color": ((self.a - 1) ** 2).sum() + ((self.b - 1) ** 2).sum()}
+
+    def param_groups(self, lr, grid_lr):
+        return [{"params": [self.a], "lr": lr, "name": "mlp"}, {"params": [self.b], "lr": lr, "name": "blur", "start": 0.5}]
+
+
+class Record:
+    def __init__(self):
+        self.b = []
+
+    def on_step(self, trainer, step):
+        self.b.append(trainer.model.b.detach().clone())
+
+
+def test_group_with_start_is_held_until_then(tmp_path):
+    model, rec = TwoParams(), Record()
+    cfg = TrainConfig(steps=20, lr=0.05, lr_decay=1.0, checkpoint_every=0)
+    Trainer(model, ToySampler(), cfg, None, callbacks=[rec], progress=False).fit()
+    assert all(torch.equal(b, torch.zeros(2)) for b in rec.b[:11])  # steps 0..10: frac <= 0.5 when stepped
+    assert not torch.equal(rec.b[-1], torch.zeros(2)) and (model.b > 0.2).all()
+    assert (model.a > 0.5).all()
 
 
 class ToyModel(nn.Module):
@@ -159,11 +186,6 @@ def test_checkpoint_refuses_non_finite_state_and_final_state_is_checked(tmp_path
         tr2.fit()
 
 
-# ------------------------------------------------------------------------------------------
-# the guard in the pipeline: report.json, report_failed.json, resume
-# ------------------------------------------------------------------------------------------
-
-
 def _nan_loss_from(monkeypatch, bad_calls):
     from layercam.model import ImplicitCameraModel
 
@@ -209,107 +231,3 @@ def test_pipeline_divergence_writes_failed_report_keeps_checkpoint_and_resumes(t
     ctx = run_task("hdr-video", tiny_scene.clip, tiny_exposures, cfg, run, progress=False)
     assert ctx.results["train"]["resumed_from"] == 5 and ctx.results["train"]["steps"] == 20
     assert (run / "report.json").exists() and not (run / "report_failed.json").exists()
-
-
-# ------------------------------------------------------------------------------------------
-# export, flow on tiny frames, geometry precision, clipped pixels
-# ------------------------------------------------------------------------------------------
-
-
-def _clip(frames):
-    return Clip(frames=np.asarray(frames, np.float32), source="test", names=[str(i) for i in range(len(frames))])
-
-
-def test_export_writes_float32_when_irradiance_exceeds_half(tmp_path):
-    # white frames at exposures 2^-12: the irradiance starts near 2^21, beyond half floats
-    ex = Exposures(np.array([-12.0, -11.0]), "none", np.array([0, 1]), "alt", "test")
-    cfg = load_config("fast", TINY + ["train.steps=4", "train.batch=64"])
-    ctx = run_task("hdr-video", _clip(np.ones((2, 8, 8, 3))), ex, cfg, tmp_path / "run", progress=False)
-    assert ctx.results["export"]["exr"] == "float32"
-    img = read_exr(tmp_path / "run" / "hdr" / "frame_00000.exr")
-    assert np.isfinite(img).all() and img.max() > 65504
-
-
-def test_export_refuses_non_finite_render(tiny_scene, tiny_exposures, tmp_path, monkeypatch):
-    import layercam.render as render
-
-    real = render.render_frame
-
-    def nan_render(*a, **k):
-        out = real(*a, **k)
-        out["hdr"][0, 0, 0] = np.nan
-        return out
-
-    monkeypatch.setattr(render, "render_frame", nan_render)
-    cfg = load_config("fast", TINY + ["train.steps=4"])
-    with pytest.raises(LayercamError, match="non-finite irradiance"):
-        run_task("hdr-video", tiny_scene.clip, tiny_exposures, cfg, tmp_path / "run", progress=False)
-    assert not list((tmp_path / "run").glob("hdr/*.exr"))
-
-
-@pytest.mark.parametrize("hw", [(1, 1), (2, 3), (5, 7), (11, 40)])
-def test_flow_on_frames_smaller_than_dis_patches(hw):
-    from layercam.flow import compute_flow
-
-    frames = np.random.default_rng(0).random((3, *hw, 3)).astype(np.float32)
-    fw, bw = compute_flow(frames, method="dis_fast", progress=False)
-    assert fw.shape == bw.shape == (2, *hw, 2) and np.isfinite(fw).all() and np.isfinite(bw).all()
-
-
-def test_homography_runs_in_float32_under_autocast():
-    from layercam.scene.fields import apply_homography
-
-    h = torch.eye(3).expand(64, 3, 3).clone()
-    h[:, 0, 2] = 0.123456
-    h[:, 2, 0] = 0.01
-    xy = torch.rand(64, 2) * 2 - 1
-    ref = apply_homography(h, xy)
-    with torch.autocast("cpu", dtype=torch.bfloat16):
-        out = apply_homography(h, xy)
-    assert out.dtype == torch.float32 and torch.equal(out, ref)
-
-
-def test_one_sided_loss_measures_clipped_pixels_against_the_threshold():
-    from layercam import losses
-
-    target = torch.tensor([[1.0, 0.0, 0.5]])
-    # a sigmoid curve never reaches 1: past the threshold a clipped pixel is satisfied
-    assert float(losses.color_loss(torch.tensor([[0.998, 0.003, 0.5]]), target, "one_sided")) == 0.0
-    # on the wrong side of the threshold it still costs (and plain MSE always does)
-    assert float(losses.color_loss(torch.tensor([[0.9, 0.003, 0.5]]), target, "one_sided")) > 0
-    assert float(losses.color_loss(torch.tensor([[0.998, 0.003, 0.5]]), target, "plain")) > 0
-
-
-def test_highlight_psnr_mu_restricts_psnr_mu_to_the_mask():
-    from layercam import metrics
-
-    rng = np.random.default_rng(0)
-    gt = rng.random((2, 8, 8, 3)).astype(np.float32) * 4
-    pred = gt.copy()
-    pred[:, :2] *= 1.3  # wrong only in the top quarter (the median alignment keeps the rest exact)
-    top = np.zeros((2, 8, 8), bool)
-    top[:, :2] = True
-    assert metrics.highlight_psnr_mu(pred, gt, np.ones_like(top)) == pytest.approx(metrics.psnr_mu(pred, gt))
-    assert metrics.highlight_psnr_mu(pred, gt, top) < metrics.psnr_mu(pred, gt) < metrics.highlight_psnr_mu(pred, gt, ~top)
-    with pytest.raises(metrics.MetricInputError):
-        metrics.highlight_psnr_mu(pred, gt, np.zeros_like(top))
-
-
-@pytest.mark.slow
-def test_one_sided_loss_improves_clipped_highlights(tmp_path):
-    """synth.pan_hdr at +5 EV (29% of the pixels clip in the long exposure), fast preset: PSNR-mu over
-    the pixels clipped in some exposure, plain MSE against the one-sided loss (measured: 32.6 -> 33.8 dB)."""
-    from layercam import metrics, synth
-
-    scene = synth.pan_hdr(frames=8, size=(64, 64), ev_step=5.0, seed=0)
-    log2 = np.log2(scene.exposure_times / scene.exposure_times.min())
-    ex = Exposures(log2, "none", np.arange(8) % 2, "alt", "test")
-    white = 1.0 / (scene.meta["gain"] * scene.exposure_times.max())
-    clipped = (scene.hdr >= white).any(-1)
-    hl = {}
-    for mode in ("plain", "one_sided"):
-        cfg = load_config("fast", ["flow.method=dis_fast", f"loss.clipped={mode}"])
-        run_task("hdr-video", scene.clip, ex, cfg, tmp_path / mode, progress=False)
-        pred = np.stack([read_exr(tmp_path / mode / "hdr" / f"frame_{t:05d}.exr") for t in range(8)])
-        hl[mode] = metrics.highlight_psnr_mu(pred, scene.hdr, clipped)
-    assert hl["one_sided"] > hl["plain"] + 0.5, hl

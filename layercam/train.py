@@ -18,7 +18,7 @@ from __future__ import annotations
 import contextlib
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import torch
@@ -33,55 +33,59 @@ class Callback:
         pass
 
 
+class WeightSchedule(Callback):
+    """Sets the model's loss weights named in ``keys`` to their starting values (read at the first
+    step) times :meth:`factor` of the step."""
+
+    keys: tuple = ()
+
+    def factor(self, trainer: "Trainer", step: int) -> float:  # pragma: no cover - interface
+        raise NotImplementedError
+
+    def on_step(self, trainer, step):
+        w = trainer.model.loss_weights
+        starts = self.__dict__.setdefault("_starts", {})
+        k = self.factor(trainer, step)
+        for key in self.keys:
+            setattr(w, key, starts.setdefault(key, getattr(w, key)) * k)
+
+
 @dataclass
-class FlowDecay(Callback):
+class FlowDecay(WeightSchedule):
     """The ``keys`` weights decay linearly from their start to 0 at ``end`` (a fraction of training)."""
 
     end: float
     keys: tuple = ("flow", "alpha_flow")
-    starts: dict = field(default_factory=dict)
 
-    def on_step(self, trainer, step):
+    def factor(self, trainer, step):
         frac = step / max(trainer.cfg.steps, 1)
-        k = max(0.0, 1.0 - frac / max(self.end, 1e-9)) if self.end > 0 else 1.0
-        w = trainer.model.loss_weights
-        for key in self.keys:
-            setattr(w, key, self.starts.setdefault(key, getattr(w, key)) * k)
+        return max(0.0, 1.0 - frac / max(self.end, 1e-9)) if self.end > 0 else 1.0
 
 
 @dataclass
-class BootstrapPhase(Callback):
+class BootstrapPhase(WeightSchedule):
     """During the first ``steps``, fit the deformation to its bootstrap mapping (and masks to alpha)."""
 
     steps: int
     keys: tuple = ("bootstrap", "alpha_mask")
-    starts: dict = field(default_factory=dict)
 
-    def on_step(self, trainer, step):
-        w = trainer.model.loss_weights
-        for key in self.keys:
-            base = self.starts.setdefault(key, getattr(w, key))
-            setattr(w, key, base if step < self.steps else 0.0)
+    def factor(self, trainer, step):
+        return 1.0 if step < self.steps else 0.0
 
 
 @dataclass
-class MaskTaper(Callback):
+class MaskTaper(WeightSchedule):
     """Alpha against its bootstrap masks: full weight during the first ``steps``, then decaying
     linearly to 0 at ``end`` (a fraction of training, the flow decay's end), instead of stopping at
     once: on DAVIS libby the alpha field had not yet taken the mask's shape after 100 steps."""
 
     steps: int
     end: float
-    key: str = "alpha_mask"
-    start: float | None = None
+    keys: tuple = ("alpha_mask",)
 
-    def on_step(self, trainer, step):
-        w = trainer.model.loss_weights
-        if self.start is None:
-            self.start = getattr(w, self.key)
+    def factor(self, trainer, step):
         stop = max(int(self.end * trainer.cfg.steps), self.steps + 1)
-        k = 1.0 if step < self.steps else max(0.0, 1.0 - (step - self.steps) / (stop - self.steps))
-        setattr(w, self.key, self.start * k)
+        return 1.0 if step < self.steps else max(0.0, 1.0 - (step - self.steps) / (stop - self.steps))
 
 
 @dataclass

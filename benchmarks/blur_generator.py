@@ -45,7 +45,7 @@ def shake(a) -> dict:
         cfg = load_config(a.preset, model_overrides(layers=1, **VARIANTS[v]) + a.set)
         t0 = time.time()
         ctx = run_task("deblur-video", scene.clip, exp, cfg, a.out / f"shake_{v}", progress=False,
-                       extra={"scene": scene}, extra_stages=[EvaluateStage()])
+                       extra_stages=[EvaluateStage(scene)])
         ev = ctx.results["evaluate"]
         pf, pa = ev["raw"]["per_frame"], ev["aligned"]["per_frame"]
         print(f"{v}: {time.time() - t0:.0f} s  raw: deblurred {ev['raw']['deblurred']} input {ev['raw']['input']}")
@@ -64,15 +64,14 @@ def mfme(a) -> dict:
         idx = [0, 4, 8] if sub == "3" else list(range(9))
         clip = Clip(scene.clip.frames[idx], "synthetic:mfme_stack", [scene.clip.names[i] for i in idx], meta={"kind": "synthetic"})
         e = Exposures(ev[idx] - ev[idx].min(), "none", None, "times", "synthetic: known times")
-        extra = {"scene": scene, "focus_index": fidx[idx], "times": scene.exposure_times[idx],
-                 "full_stack": (scene.clip.frames, scene.exposure_times, fidx)}
+        truth = {"focus_index": fidx[idx], "times": scene.exposure_times[idx], "full_stack": (scene.clip.frames, scene.exposure_times, fidx)}
         for v in a.variants.split(","):
             key = {seed: f"{sub}_{v}" + (f"_seed{seed}" if seed else "") for seed in a.seeds}  # seed 0 keeps the plain name
             for seed in a.seeds:
                 cfg = load_config(a.preset, model_overrides(layers=1, **VARIANTS[v]) + a.set + [f"train.seed={seed}"])
                 t0 = time.time()
                 ctx = run_task("fuse-stack", clip, e, cfg, a.out / f"mfme_{key[seed]}", progress=False,
-                               extra=extra, extra_stages=[EvaluateStage()])
+                               extra_stages=[EvaluateStage(scene, **truth)])
                 r = ctx.results["evaluate"]
                 print(f"{sub} images, {v}, seed {seed}: {time.time() - t0:.0f} s  layercam {r['metrics']}", flush=True)
                 for k, b in r["baselines"].items():

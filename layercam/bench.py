@@ -109,7 +109,7 @@ def run_job(job: dict) -> dict:
 
     t0 = time.perf_counter()
     ctx = run_task(SCENES[job["scene"]]["task"], scene.clip, scene_exposures(scene), cfg, Path(job["out"]), progress=False,
-                   extra={"scene": scene, "train_callbacks": [make_probe], "baselines": []}, extra_stages=[EvaluateStage()])
+                   extra_stages=[EvaluateStage(scene, baselines=())], train_callbacks=[make_probe])
     wall = time.perf_counter() - t0
     tr = ctx.results["train"]
     probe_s = probe["cb"].probe_time if probe["cb"] else 0.0
@@ -321,11 +321,11 @@ def analysis_job(name: str, variant: str, out: Path, preset: str, quick: bool, o
     fam, kw, qkw, task = ANALYSIS_FAMILIES[name]
     scene = getattr(synth, fam)(**(qkw if quick else kw))
     cfg = load_config(preset, (model_overrides(**FULL_MODEL) if variant == "full" else []) + list(overrides_cfg))
-    extra = {"scene": scene, "baselines": []}
+    extra = {}
     if task == "fuse-stack":
         extra.update(focus_index=np.asarray(scene.meta["focus_index"]), times=np.asarray(scene.exposure_times))
     t0 = time.perf_counter()
-    ctx = run_task(task, scene.clip, scene_exposures(scene), cfg, out / name / variant, progress=False, extra=extra, extra_stages=[EvaluateStage()])
+    ctx = run_task(task, scene.clip, scene_exposures(scene), cfg, out / name / variant, progress=False, extra_stages=[EvaluateStage(scene, baselines=(), **extra)])
     wall = sum(v["seconds"] for k, v in ctx.times.items() if k != "evaluate")
     m = ctx.results["evaluate"]["metrics"]
     metric, value = ("psnr_mu", m["psnr_mu"]) if "psnr_mu" in m else ("psnr", m["psnr"])

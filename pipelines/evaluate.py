@@ -1,17 +1,17 @@
 """The evaluate stage: a run scored against the ground truth of a ``layercam.synth`` scene
-(``ctx.extra["scene"]``) next to the classical baselines, by the scorer of its task
+(:attr:`EvaluateStage.scene`) next to the classical baselines, by the scorer of its task
 (:data:`SCORERS`). Used by ``demo``, the benchmarks and the tests, not by the other commands.
 
 * ``hdr``: PSNR-mu / PSNR-L / SSIM-mu of the exported ``hdr/`` frames against ``scene.hdr``, and the
-  same for OpenCV Debevec (calibrate + merge of each frame with its DIS-aligned neighbour).
+  same for OpenCV Debevec (calibrate + merge of each frame with its DIS-aligned neighbour) unless
+  ``baselines`` leaves it out.
 * ``deblur``: PSNR / SSIM of the sharp frames against ``scene.sharp_ldr``, next to the blurry
-  input's; a border of ``ctx.extra["crop"]`` px (default 4) is left out; "raw" as rendered, and
-  "aligned": each frame (deblurred and input alike) at its best shift within 3 px
-  (:func:`layercam.metrics.best_shift`).
+  input's; a border of ``crop`` px is left out; "raw" as rendered, and "aligned": each frame
+  (deblurred and input alike) at its best shift within 3 px (:func:`layercam.metrics.best_shift`).
 * ``fused``: PSNR-mu / PSNR-L / SSIM-mu of ``fused.exr`` against ``scene.allfocus_hdr``, next to
   ``baselines.two_stage_mfme`` (Laplacian focus fusion per exposure, then Debevec) on the same
-  images (``ctx.extra["focus_index"]``, ``["times"]``) and, when ``ctx.extra["full_stack"] =
-  (images, times, focus_index)`` is given, on that.
+  images (when ``focus_index`` is given, with ``times`` or the run's exposures) and, when
+  ``full_stack = (images, times, focus_index)`` is given, on that.
 """
 
 from __future__ import annotations
@@ -34,16 +34,16 @@ def model_wall_s(ctx: Context) -> float:
     return round(sum(v.get("seconds", 0) or v.get("original_seconds", 0) or 0 for k, v in ctx.times.items() if k != "evaluate"), 2)
 
 
-def hdr_key(ctx: Context) -> dict:
-    return {"baselines": ctx.extra.get("baselines", ["debevec"])}
+def hdr_key(ctx: Context, ev: "EvaluateStage") -> dict:
+    return {"baselines": list(ev.baselines)}
 
 
-def score_hdr(ctx: Context) -> dict:
+def score_hdr(ctx: Context, ev: "EvaluateStage") -> dict:
     from layercam import metrics
 
-    gt = ctx.extra["scene"].hdr
+    gt = ev.scene.hdr
     res = {"metrics": {**metrics.hdr_metrics(read_hdr_frames(ctx.run_dir, ctx.clip.T), gt), "wall_s": model_wall_s(ctx)}, "baselines": {}}
-    if "debevec" in ctx.extra.get("baselines", ["debevec"]) and ctx.clip.T > 1 and ctx.exposures.count_distinct > 1:
+    if "debevec" in ev.baselines and ctx.clip.T > 1 and ctx.exposures.count_distinct > 1:
         from layercam.baselines import debevec_video
 
         fl = ctx.flow
@@ -54,15 +54,14 @@ def score_hdr(ctx: Context) -> dict:
     return res
 
 
-def deblur_key(ctx: Context) -> dict:
-    return {"crop": ctx.extra.get("crop", 4)}
+def deblur_key(ctx: Context, ev: "EvaluateStage") -> dict:
+    return {"crop": ev.crop}
 
 
-def score_deblur(ctx: Context) -> dict:
+def score_deblur(ctx: Context, ev: "EvaluateStage") -> dict:
     from layercam.metrics import score_frames
 
-    scene = ctx.extra["scene"]
-    crop = int(ctx.extra.get("crop", 4))
+    scene, crop = ev.scene, int(ev.crop)
     pred = np.load(ctx.results["export"]["frames_path"])
     gt, blurry = scene.sharp_ldr, ctx.clip.frames
     res = {"crop": crop}
@@ -76,24 +75,24 @@ def score_deblur(ctx: Context) -> dict:
     return res
 
 
-def fused_key(ctx: Context) -> dict:
-    fs = ctx.extra.get("full_stack")
-    return {"focus_index": [int(v) for v in ctx.extra.get("focus_index", [])], "full": None if fs is None else int(len(fs[0]))}
+def fused_key(ctx: Context, ev: "EvaluateStage") -> dict:
+    fs = ev.full_stack
+    return {"focus_index": [int(v) for v in (ev.focus_index if ev.focus_index is not None else [])], "full": None if fs is None else int(len(fs[0]))}
 
 
-def score_fused(ctx: Context) -> dict:
+def score_fused(ctx: Context, ev: "EvaluateStage") -> dict:
     from layercam import metrics
     from layercam.baselines import two_stage_mfme
 
-    gt = ctx.extra["scene"].allfocus_hdr
+    gt = ev.scene.allfocus_hdr
     pred = np.load(ctx.results["export"]["fused_path"])
     res = {"metrics": {**metrics.hdr_metrics(pred, gt), "wall_s": model_wall_s(ctx)}, "baselines": {}}
     sets = {}
-    if "focus_index" in ctx.extra:
-        times = ctx.extra.get("times", np.exp2(ctx.exposures.log2_dt))
-        sets[f"two_stage_mfme ({ctx.clip.T} images)"] = (ctx.clip.frames, times, ctx.extra["focus_index"])
-    if ctx.extra.get("full_stack") is not None:
-        imgs, times, fidx = ctx.extra["full_stack"]
+    if ev.focus_index is not None:
+        times = ev.times if ev.times is not None else np.exp2(ctx.exposures.log2_dt)
+        sets[f"two_stage_mfme ({ctx.clip.T} images)"] = (ctx.clip.frames, times, ev.focus_index)
+    if ev.full_stack is not None:
+        imgs, times, fidx = ev.full_stack
         sets[f"two_stage_mfme ({len(imgs)} images)"] = (imgs, times, fidx)
     for name, (imgs, times, fidx) in sets.items():
         t0 = time.perf_counter()
@@ -108,15 +107,20 @@ TASK_SCORERS = {"hdr-video": "hdr", "demo": "hdr", "deblur-video": "deblur", "fu
 
 
 class EvaluateStage(Stage):
-    """Scores the exported run with its task's scorer (this module's docstring)."""
+    """Scores the exported run against ``scene`` (a ``layercam.synth.SynthScene``) with its task's
+    scorer (this module's docstring); the other arguments are the scorers' options."""
 
     name = "evaluate"
     deps = ("flow", "export")
     version = 3  # 3: one stage for every task
 
+    def __init__(self, scene, *, baselines=("debevec",), crop: int = 4, focus_index=None, times=None, full_stack=None):
+        self.scene, self.baselines, self.crop = scene, tuple(baselines), crop
+        self.focus_index, self.times, self.full_stack = focus_index, times, full_stack
+
     def key_material(self, ctx):
         scorer = TASK_SCORERS[ctx.task]
-        return {"scorer": scorer, **SCORERS[scorer][0](ctx)}
+        return {"scorer": scorer, **SCORERS[scorer][0](ctx, self)}
 
     def run(self, ctx, out):
-        return SCORERS[TASK_SCORERS[ctx.task]][1](ctx)
+        return SCORERS[TASK_SCORERS[ctx.task]][1](ctx, self)

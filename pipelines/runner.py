@@ -33,7 +33,7 @@ class Context:
     task: str
     masks: Any = None               # (T, H, W) foreground masks or None
     progress: bool = True
-    extra: dict = field(default_factory=dict)   # task inputs that are not settings (e.g. ground truth)
+    train_callbacks: list = field(default_factory=list)  # model -> trainer callback, besides the model's own (the bench's probe)
     measures: dict | None = None    # what the analysis measured (layercam.analyse.measure)
     reasons: dict = field(default_factory=dict)  # why the analysis decided each model setting
     flow: dict | None = None        # the flow stage's arrays (fw, bw, fw_ok, bw_ok, homs), read once

@@ -165,7 +165,7 @@ class TrainStage(Stage):
             masks=masks, device=dev, seed=distributed.rank_seed(cfg.train.seed),
         )
         callbacks = model.training_callbacks(masks is not None)
-        callbacks += [make(model) for make in ctx.extra.get("train_callbacks", [])]  # e.g. the benchmark's quality probe
+        callbacks += [make(model) for make in ctx.train_callbacks]  # e.g. the benchmark's quality probe
         tcfg = dataclasses.replace(cfg.train, batch=distributed.rank_batch(cfg.train.batch))  # each rank's share
         trainer = Trainer(model, sampler, tcfg, out / "ckpt.pt", callbacks, progress=ctx.progress, desc=f"{ctx.task} train")
         if (out / "ckpt.pt").exists():

@@ -19,12 +19,14 @@ def stages_for(task: str) -> list:
     return [FlowStage(), BootstrapStage(), TrainStage(), ExportStage()]
 
 
-def run_task(task: str, clip, exposures, cfg, run_dir: Path, masks=None, progress: bool = True, extra: dict | None = None, extra_stages: list | None = None) -> Context:
-    """Analyse ``clip``, run the task's stages into ``run_dir`` and write ``report.json``. The
-    analysis decides each ``auto`` of ``cfg.model`` (values set there are kept: ``--layers`` etc.)."""
+def run_task(task: str, clip, exposures, cfg, run_dir: Path, masks=None, progress: bool = True, extra_stages: list | None = None, train_callbacks: list | None = None) -> Context:
+    """Analyse ``clip``, run the task's stages (and ``extra_stages``, e.g. an evaluate stage) into
+    ``run_dir`` and write ``report.json``. The analysis decides each ``auto`` of ``cfg.model``
+    (values set there are kept: ``--layers`` etc.). ``train_callbacks``: functions of the model
+    that return more trainer callbacks (the benchmark's quality probe)."""
     t0 = time.perf_counter()
     validate(cfg)
-    ctx = Context(run_dir=Path(run_dir), clip=clip, exposures=exposures, cfg=cfg, task=task, masks=masks, progress=progress, extra=extra or {})
+    ctx = Context(run_dir=Path(run_dir), clip=clip, exposures=exposures, cfg=cfg, task=task, masks=masks, progress=progress, train_callbacks=list(train_callbacks or []))
     ctx.say(f"layercam {task}: {clip.T} frames {clip.W}x{clip.H} from {clip.source}; preset {cfg.preset}")
     stages = stages_for(task) + list(extra_stages or [])
     try:

@@ -84,8 +84,8 @@ def test_mfme_with_times_file_learns_tone_and_scores(tmp_path):
     ev = sc.meta["ev"][idx]
     clip = Clip(sc.clip.frames[idx], "synthetic:mfme_stack", names)
     e = Exposures(ev - ev.min(), "none", None, "times", "test: known")
-    extra = {"scene": sc, "focus_index": sc.meta["focus_index"][idx], "times": sc.exposure_times[idx]}
-    ctx = run_task("fuse-stack", clip, e, load_config("fast", TINY + SMALL_BLUR), run, progress=False, extra=extra, extra_stages=[EvaluateStage()])
+    ev_stage = EvaluateStage(sc, focus_index=sc.meta["focus_index"][idx], times=sc.exposure_times[idx])
+    ctx = run_task("fuse-stack", clip, e, load_config("fast", TINY + SMALL_BLUR), run, progress=False, extra_stages=[ev_stage])
     assert all(ctx.times[k]["cached"] for k in ("flow", "bootstrap", "train", "export"))
     res = ctx.results["evaluate"]
     assert 10 < res["metrics"]["psnr_mu"] < 100

@@ -31,7 +31,7 @@ def run(args) -> int:
     log2 = np.log2(scene.exposure_times / scene.exposure_times.min())
     phase = (np.arange(len(log2)) % 2).astype(np.int64)
     exposures = Exposures(log2, "none", phase, f"alt (ev-step {args.ev_step}, known)", f"synthetic: exposures alternate by {args.ev_step} EV")
-    ctx = run_task("demo", scene.clip, exposures, cfg, Path(args.out), progress=not args.quiet, extra={"scene": scene}, extra_stages=[EvaluateStage()])
+    ctx = run_task("demo", scene.clip, exposures, cfg, Path(args.out), progress=not args.quiet, extra_stages=[EvaluateStage(scene)])
     ev = ctx.results["evaluate"]
     rows = [("layercam (" + cfg.preset + ")", ev["metrics"])] + [(k, v) for k, v in ev["baselines"].items()]
     print("\nHDR against ground truth (one scale per channel aligned):")

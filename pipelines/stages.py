@@ -1,15 +1,14 @@
-"""The stages every task is built from: flow -> bootstrap -> train -> export."""
+"""The stages every task is built from: flow -> bootstrap -> train (-> export, in export.py). Between
+flow and bootstrap the task runs the analysis (``layercam.analyse``), which decides the model."""
 
 from __future__ import annotations
 
 import dataclasses
-import json
-from pathlib import Path
 
 import numpy as np
 
 from layercam.errors import LayercamError
-from layercam.pipelines.runner import Context, Stage, set_aside_previous, write_json
+from layercam.pipelines.runner import Context, Stage
 
 
 class FlowStage(Stage):

@@ -194,7 +194,7 @@ def run_bench(out: Path, scenes: list[str], presets: list[str], quick: bool = Fa
             say(f"{sc:>8} {r['method']:>10} {'':>9} {r['wall_s']:>8.1f} s  PSNR-mu {r['psnr_mu']:.2f}")
         quality_wall = None
         for pr in presets:
-            ov = ["train.steps=20", "train.bootstrap_steps=2", "train.batch=1024"] if quick else []
+            ov = ["train.steps=20", "train.bootstrap_steps=2", "train.batch=1024", "export.atlas_max_res=64"] if quick else []
             note = ""
             if pr == "paper" and not quick:
                 # measure the paper preset's speed, then give it quality's budget

@@ -196,6 +196,8 @@ class ExportConfig:
     half: bool = True                       # EXR half floats
     preview_fps: float = setting(0.0, 0.0, 1000.0)  # 0: the input's frame rate
     chunk: int = setting(65536, 1)          # pixels rendered at once
+    atlas_min_res: int = setting(32, 2, 8192)  # atlases/ grid side: about one texel per frame pixel, within these
+    atlas_max_res: int = setting(2048, 2, 8192)
     reference: int | Literal["middle", "first", "last"] = "middle"  # fuse-stack: the view fused into (an index may be negative)
 
 
@@ -352,6 +354,8 @@ def validate(cfg: Config) -> Config:
     s = cfg.scene
     if s.grid_max_res and s.grid_max_res < s.grid_min_res:
         raise LayercamError(f"scene.grid_max_res ({s.grid_max_res}) must be 0 (derived) or at least scene.grid_min_res ({s.grid_min_res})")
+    if cfg.export.atlas_max_res < cfg.export.atlas_min_res:
+        raise LayercamError(f"export.atlas_max_res ({cfg.export.atlas_max_res}) must be at least export.atlas_min_res ({cfg.export.atlas_min_res})")
     if cfg.flow.method.startswith("raft") and not cfg.flow.raft_weights:
         raise LayercamError(f"flow.method={cfg.flow.method} needs a weights file: --set flow.raft_weights=PATH")
     return cfg

@@ -25,10 +25,7 @@ import numpy as np
 from layercam.errors import LayercamError
 from layercam.pipelines.runner import write_json
 
-ATLAS_MIN_RES, ATLAS_MAX_RES = 32, 2048
-
-
-def atlas_resolution(uv: np.ndarray, weight: np.ndarray, lo: int = ATLAS_MIN_RES, hi: int = ATLAS_MAX_RES) -> int:
+def atlas_resolution(uv: np.ndarray, weight: np.ndarray, lo: int = 32, hi: int = 2048) -> int:
     """Atlas grid size at which one frame pixel is about one atlas pixel: from the median spacing of
     neighbouring pixels' ``uv (H, W, 2)`` where the layer is seen (``weight (H, W)`` > 0.5)."""
     dx = np.linalg.norm(uv[:, 1:] - uv[:, :-1], axis=-1)
@@ -57,8 +54,10 @@ def write_rgba_png(path: Path, rgb: np.ndarray, alpha: np.ndarray) -> None:
     atomic_write(Path(path), _write)
 
 
-def export_atlases(model, run_dir: Path, frames: np.ndarray, fps: float = 24.0, chunk: int = 65536, progress: bool = False) -> dict:
-    """Writes the files listed in this module's docstring into ``run_dir``; returns a summary."""
+def export_atlases(model, run_dir: Path, frames: np.ndarray, fps: float = 24.0, chunk: int = 65536, progress: bool = False, res_range: tuple[int, int] = (32, 2048)) -> dict:
+    """Writes the files listed in this module's docstring into ``run_dir``, each atlas at
+    :func:`atlas_resolution` within ``res_range`` (``export.atlas_min_res``, ``atlas_max_res``);
+    returns a summary."""
     from layercam.geometry import middle_frame
     from layercam.io import write_exr, write_png, write_video
     from layercam.progress import bar as progress_bar
@@ -71,7 +70,7 @@ def export_atlases(model, run_dir: Path, frames: np.ndarray, fps: float = 24.0, 
     adir.mkdir(parents=True, exist_ok=True)
     m = render_frame(model, middle_frame(T), (H, W), ("uv", "alpha"), chunk=chunk)
     ws = layer_weights(m["alpha"], L, (H, W))
-    res = [atlas_resolution(m["uv"][k], ws[k]) for k in range(L)]
+    res = [atlas_resolution(m["uv"][k], ws[k], *res_range) for k in range(L)]
     acc = [np.zeros(r * r, np.float64) for r in res]
     to8 = lambda x: np.round(np.clip(x, 0, 1) * 255).astype(np.uint8)  # noqa: E731 - videos kept as 8-bit
     overlays = [np.empty((T, H, W, 3), np.uint8) for _ in range(L)]

@@ -152,7 +152,8 @@ def fused_writer(ctx: Context, model, dest: Path, cache: Path) -> dict:
 def atlas_writer(ctx: Context, model, dest: Path, cache: Path) -> dict:
     from layercam.pipelines.atlas_export import export_atlases
 
-    return {"atlas": export_atlases(model, dest, ctx.clip.frames, fps=_fps(ctx), chunk=ctx.cfg.export.chunk, progress=ctx.progress)}
+    e = ctx.cfg.export
+    return {"atlas": export_atlases(model, dest, ctx.clip.frames, fps=_fps(ctx), chunk=e.chunk, progress=ctx.progress, res_range=(e.atlas_min_res, e.atlas_max_res))}
 
 
 def crf_writer(ctx: Context, model, dest: Path, cache: Path) -> dict:
@@ -224,12 +225,10 @@ class ExportStage(Stage):
     version = 2  # 2: one stage for every task, atlases included
 
     def key_material(self, ctx):
-        from layercam.pipelines.atlas_export import ATLAS_MAX_RES, ATLAS_MIN_RES
-
         d = ctx.cfg.section_dict("export")
         if ctx.task != "fuse-stack":
             d["export"].pop("reference")  # only a stack is fused into one view
-        return {**d, "writers": list(writers_for(ctx.task)), "atlas": [ATLAS_MIN_RES, ATLAS_MAX_RES]}
+        return {**d, "writers": list(writers_for(ctx.task))}
 
     def run(self, ctx, out):
         from layercam.pipelines.stages import resolve_device

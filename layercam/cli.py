@@ -4,6 +4,8 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
+import math
 import sys
 from pathlib import Path
 
@@ -15,21 +17,54 @@ EPILOG = """examples:
   layercam hdr-video frames/ --exposures times.txt --preset fast
   layercam hdr-video in.mp4 --set train.steps=500 --set scene.grid_max_res=128
 
-Re-running a command with the same input and settings skips finished stages; Ctrl-C during
-training and the same command again resumes from the last checkpoint."""
+Re-running a command with the same input and settings skips finished stages; after Ctrl-C (or a
+crash) the same command again goes on: training resumes from its last checkpoint, an unfinished
+export is redone. One command at a time per run folder (RUN/layercam.lock)."""
+
+
+class Parser(argparse.ArgumentParser):
+    """argparse with the project's one-line errors: ``error: ...`` and exit code 2 (usage: --help)."""
+
+    def error(self, message: str):
+        self.exit(2, f"error: {message} (see {self.prog} --help)\n")
+
+
+def number(kind: type = float, low: float | None = None, strict: bool = False, high: float | None = None):
+    """An argparse ``type`` reading a finite ``kind`` (int or float) within ``[low, high]`` (``low``
+    excluded when ``strict``): a bad number is refused before any work, in one line."""
+
+    def read(text: str):
+        try:
+            v = kind(text) if kind is float else int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected {'an integer' if kind is int else 'a number'}, got {text!r}") from None
+        if not math.isfinite(v):
+            raise argparse.ArgumentTypeError(f"must be a finite number, got {text}")
+        if low is not None and (v <= low if strict else v < low):
+            raise argparse.ArgumentTypeError(f"must be {'>' if strict else '>='} {low:g}, got {text}")
+        if high is not None and v > high:
+            raise argparse.ArgumentTypeError(f"must be at most {high:g}, got {text}")
+        return v
+
+    read.__name__ = kind.__name__  # argparse names the type in its messages
+    return read
+
+
+POSITIVE_INT = number(int, 1)
+FPS = number(float, 0, strict=True, high=1000)
 
 
 def common_model_args(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group("settings")
     g.add_argument("--preset", default="balanced", help="speed/quality preset: fast, balanced, quality, paper, or a .toml file (default: balanced)")
     g.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE", help="override one setting, e.g. train.steps=500 (repeatable)")
-    g.add_argument("--steps", type=int, help="shortcut for --set train.steps=N")
+    g.add_argument("--steps", type=POSITIVE_INT, help="shortcut for --set train.steps=N")
     g.add_argument("--device", choices=["cpu", "cuda", "auto"], help="where to train (default: cpu)")
     m = p.add_argument_group("model (default: chosen by analysis of the clip)")
     m.add_argument("--layers", type=int, choices=[1, 2], help="scene layers: 1, or 2 for an object that moves on its own")
     m.add_argument("--tone-mapper", choices=["learned", "fixed"], help="learn the camera response, or assume sRGB")
     m.add_argument("--blur", choices=["off", "3x3", "5x5"], help="blur generator patch size, or off")
-    m.add_argument("--max-offset", type=float, help="blur generator's maximum offset in pixels")
+    m.add_argument("--max-offset", type=number(float, 0), help="blur generator's maximum offset in pixels")
     m.add_argument("--flow-loss", choices=["on", "off"], help="optical-flow consistency loss")
     p.add_argument("--quiet", action="store_true", help="no progress bars or messages")
 
@@ -39,9 +74,10 @@ def input_args(p: argparse.ArgumentParser, exposures_default: str | None) -> Non
     p.add_argument("--out", help="run folder (default: runs/<input name>)")
     g = p.add_argument_group("input")
     g.add_argument("--exposures", default=exposures_default, help="alt | alt3 | an EV cycle like 0,3 | times.txt (one time per frame) | exif | learn | none")
-    g.add_argument("--ev-step", type=float, help="EV between alternating exposures (alt/alt3); learned when omitted")
-    g.add_argument("--max-frames", type=int, help="use at most N frames")
-    g.add_argument("--stride", type=int, default=1, help="use every K-th frame")
+    g.add_argument("--ev-step", type=number(float, 0, strict=True), help="EV between alternating exposures (alt/alt3); learned when omitted. Checked against the EV the frames measure: more than 2 EV apart is said, more than 2 EV and a factor of 2 apart is refused")
+    g.add_argument("--force-ev-step", action="store_true", help="use --ev-step even where the frames measure a very different ratio")
+    g.add_argument("--max-frames", type=POSITIVE_INT, help="use at most N frames")
+    g.add_argument("--stride", type=POSITIVE_INT, default=1, help="use every K-th frame")
     g.add_argument("--resize", help="scale factor (0.5) or size WxH")
     g.add_argument("--masks", help="folder of foreground masks, one PNG per frame (two-layer scenes)")
 
@@ -52,7 +88,7 @@ COMMAND_MODULES = ["hdr_video", "demo", "bench", "deblur_video", "fuse_stack", "
 def build_parser() -> argparse.ArgumentParser:
     import importlib
 
-    p = argparse.ArgumentParser(prog="layercam", description="Recover what the camera lost: sharp, all-in-focus, linear HDR frames from videos and photo stacks, by learning a layered scene and an implicit camera model per clip.", epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = Parser(prog="layercam", description="Recover what the camera lost: sharp, all-in-focus, linear HDR frames from videos and photo stacks, by learning a layered scene and an implicit camera model per clip.", epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--version", action="version", version="layercam 0.1.0")
     sub = p.add_subparsers(dest="command", metavar="COMMAND")
     for name in COMMAND_MODULES:
@@ -96,19 +132,43 @@ def finish(ctx) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
-    args = parser.parse_args(argv)
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as e:  # --help, --version, or a bad option (one line already printed)
+        return e.code if isinstance(e.code, int) else 2
     args._argv = list(sys.argv[1:] if argv is None else argv)  # for commands that re-launch themselves (--nproc)
     if not args.command:
         parser.print_help()
         return 0
     try:
-        return args._run(args)
+        with _term_as_interrupt():
+            return args._run(args)
     except LayercamError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print("\ninterrupted: run the same command again to resume from the last checkpoint", file=sys.stderr)
+        print("\ninterrupted: run the same command again to go on (training resumes from its last checkpoint, unfinished outputs are redone)", file=sys.stderr)
         return 130
+
+
+@contextlib.contextmanager
+def _term_as_interrupt():
+    """SIGTERM (``kill PID``, a scheduler's stop) stops a command as Ctrl-C does."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def stop(signum, frame):
+        raise KeyboardInterrupt
+
+    old = signal.signal(signal.SIGTERM, stop)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, old)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -186,8 +186,10 @@ def loss_fn(model):
 # -- `--nproc N`: local workers through torch's elastic launcher -----------------------------------
 def add_args(p) -> None:
     """``--nproc`` for a command that supports data-parallel training."""
+    from layercam.cli import number
+
     p.add_argument(
-        "--nproc", type=int, default=1, metavar="N",
+        "--nproc", type=number(int, 1), default=1, metavar="N",
         help="train with N data-parallel processes on this machine (torch.distributed: gloo on CPU, nccl "
         "with --device cuda, one GPU each); or start the command under torchrun (multi-node) instead. "
         "Default 1: one process, which on a few CPU cores is as fast",

@@ -10,7 +10,8 @@ the learning rate and logs an event in the history (``report.json`` "train.event
 A periodic checkpoint is written only once the model it holds has produced a finite loss and
 gradient on the next batch, and only when every parameter and optimiser moment is finite, so a
 kept checkpoint is never a poisoned one.
-Ctrl-C saves a checkpoint; the same command resumes from it.
+Ctrl-C (or SIGTERM) stops training between two steps and saves a checkpoint there; the same command
+resumes from it exactly where it stopped (the same result as a run that was not interrupted).
 """
 
 from __future__ import annotations
@@ -23,7 +24,7 @@ from pathlib import Path
 
 import torch
 
-from layercam import distributed
+from layercam import distributed, interrupts
 from layercam.config import TrainConfig
 from layercam.errors import LayercamError
 
@@ -177,6 +178,10 @@ class Trainer:
         return contextlib.nullcontext()
 
     def fit(self) -> TrainResult:
+        with interrupts.deferred() as pending:  # Ctrl-C is acted on between two steps
+            return self._fit(pending)
+
+    def _fit(self, pending) -> TrainResult:
         resumed = self.try_resume()
         t0 = time.perf_counter()
         bar = None
@@ -190,6 +195,9 @@ class Trainer:
         pending_save = False  # a checkpoint is due; written once the model passes the next step's checks
         try:
             while self.step < self.cfg.steps:
+                interrupts.reached("train", self.step)
+                if pending():  # stop here, where the state is whole
+                    raise interrupts.Interrupted
                 for cb in self.callbacks:
                     cb.on_step(self, self.step)
                 self._set_lr()
@@ -230,8 +238,12 @@ class Trainer:
                     bar.update(1)
                 if self.ckpt_path and self.cfg.checkpoint_every and self.step % self.cfg.checkpoint_every == 0:
                     pending_save = True
-        except KeyboardInterrupt:
-            self.save()
+        except interrupts.Interrupted:
+            self.save()  # the state after the last whole step, with the sampler where it stood
+            if bar is not None:
+                bar.close()
+            raise
+        except KeyboardInterrupt:  # a second Ctrl-C, in the middle of a step: the last checkpoint stays
             if bar is not None:
                 bar.close()
             raise

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import shutil
+import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -43,11 +44,18 @@ class Context:
     keys: dict = field(default_factory=dict)
     times: dict = field(default_factory=dict)
     log: list = field(default_factory=list)
+    warnings: list = field(default_factory=list)
 
     def say(self, msg: str) -> None:
         self.log.append(msg)
         if self.progress:
             print(msg, flush=True)
+
+    def warn(self, msg: str) -> None:
+        """Said on stderr even with ``--quiet`` (rank 0), and kept in the report's "warnings"."""
+        self.warnings.append(msg)
+        if distributed.is_main():
+            print(f"warning: {msg}", file=sys.stderr, flush=True)
 
 
 class Stage:

@@ -9,6 +9,7 @@ from pathlib import Path
 from layercam import analyse, distributed
 from layercam.config import validate
 from layercam.errors import LayercamError
+from layercam.io.lock import run_lock
 from layercam.pipelines.runner import Context, run_stages, write_json
 from layercam.pipelines.export import ExportStage
 from layercam.pipelines.stages import BootstrapStage, FlowStage, TrainStage
@@ -28,7 +29,16 @@ def run_task(task: str, clip, exposures, cfg, run_dir: Path, masks=None, progres
     validate(cfg)
     ctx = Context(run_dir=Path(run_dir), clip=clip, exposures=exposures, cfg=cfg, task=task, masks=masks, progress=progress, train_callbacks=list(train_callbacks or []))
     ctx.say(f"layercam {task}: {clip.T} frames {clip.W}x{clip.H} from {clip.source}; preset {cfg.preset}")
+    for w in list(getattr(exposures, "warnings", [])) + list(clip.meta.get("notes", [])):
+        ctx.warn(w)
     stages = stages_for(task) + list(extra_stages or [])
+    with run_lock(ctx.run_dir, ctx.say, enabled=distributed.is_main()):  # one writer per run folder
+        _run(ctx, stages, t0)
+    return ctx
+
+
+def _run(ctx: Context, stages: list, t0: float) -> None:
+    clip, exposures, task, cfg = ctx.clip, ctx.exposures, ctx.task, ctx.cfg
     try:
         # flow first: the analysis reads it to decide what the model needs
         run_stages(ctx, stages[:1])
@@ -42,7 +52,6 @@ def run_task(task: str, clip, exposures, cfg, run_dir: Path, masks=None, progres
         raise
     (ctx.run_dir / "report_failed.json").unlink(missing_ok=True)
     write_report(ctx, time.perf_counter() - t0)
-    return ctx
 
 
 def write_report(ctx: Context, wall: float, name: str = "report.json", extra: dict | None = None) -> dict:
@@ -64,6 +73,7 @@ def write_report(ctx: Context, wall: float, name: str = "report.json", extra: di
         "baselines": ctx.results.get("evaluate", {}).get("baselines"),
         "machine": {"python": platform.python_version(), "torch": torch.__version__, "threads": torch.get_num_threads(), "cpu": platform.processor() or platform.machine()},
         "cache_keys": ctx.keys,
+        "warnings": ctx.warnings,
         **(extra or {}),
     }
     if distributed.is_main():  # with torch.distributed, rank 0 reports

@@ -97,3 +97,24 @@ def scaled_h0(scale: float, frames: int = 2) -> np.ndarray:
     """One layer's identity mappings shrunk by ``scale`` ``(1, frames, 3, 3)``: the frame covers
     ``scale`` of the atlas."""
     return np.tile(np.diag([scale, scale, 1.0])[None, None], (1, frames, 1, 1))
+
+
+def tiny_argv(command: str, inp, out, *extra: str) -> list[str]:
+    """A CLI command line on a tiny clip with the TINY settings."""
+    argv = [command, str(inp), "--out", str(out), "--preset", "fast", "--quiet", *extra]
+    for s in TINY:
+        argv += ["--set", s]
+    return argv
+
+
+@pytest.fixture(scope="session")
+def tiny_frames(tmp_path_factory):
+    """``tiny_scene``'s frames as a folder of PNGs (a CLI input): 4 frames 32x32, alternating 3 EV."""
+    from layercam import synth
+    from layercam.io import write_png
+
+    folder = tmp_path_factory.mktemp("clip") / "frames"
+    folder.mkdir()
+    for t, f in enumerate(synth.pan_hdr(frames=4, size=(32, 32), ev_step=3.0, seed=1).clip.frames):
+        write_png(folder / f"frame_{t:03d}.png", f)
+    return folder

@@ -83,3 +83,30 @@ def test_bad_options_fail_that_job_only(tmp_path, capsys):
     assert main(["batch", str(m), "--dry-run"]) == 1
     out = capsys.readouterr().out
     assert "no-such-option" in out and "output column" in out
+
+
+def test_unclosed_quote_fails_that_line_only(tmp_path, capsys):
+    """Issue 18 item 11: an unclosed quote is an error for its own line; it does not swallow the
+    following lines into its options."""
+    from layercam.commands.batch import read_manifest
+
+    m = tmp_path / "jobs.csv"
+    m.write_text('hdr-video,a.mp4,runs/a,"--preset fast\nhdr-video,b.mp4,runs/b,--preset fast --ev-step 3\nhdr-video,c.mp4,runs/c,--set "x\n')
+    jobs = read_manifest(m)
+    assert [(j.line, j.output, j.status) for j in jobs] == [(1, "runs/a", "failed"), (2, "runs/b", "pending"), (3, "runs/c", "failed")]
+    assert "unclosed quote" in jobs[0].reason and "closing quotation" in jobs[2].reason
+    assert jobs[1].options == ["--preset", "fast", "--ev-step", "3"]
+    assert main(["batch", str(m), "--dry-run"]) == 1
+    assert "2 failed, 1 would run" in capsys.readouterr().out
+
+
+def test_a_failed_job_decides_the_exit_status_even_when_the_summary_cannot_be_written(tmp_path, capsys):
+    """Issue 18 item 11: the summary's own error (exit 2) must not hide "1 failed" (exit 1)."""
+    from layercam.commands.batch import Job, report
+
+    jobs = [Job(1, "hdr-video", "a.mp4", "runs/a", [], "failed", "exit 2: error: no such file")]
+    blocker = tmp_path / "blocker"
+    blocker.write_text("a file where the summary's folder should be")
+    assert report(jobs, str(blocker / "summary.json")) == 1
+    assert "cannot write the summary" in capsys.readouterr().err
+    assert report([Job(1, "demo", "", "runs/d", [], "done")], str(blocker / "summary.json")) == 2

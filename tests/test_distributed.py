@@ -22,17 +22,12 @@ from conftest import TINY
 # resumed rank 1 drawing a new pixel stream.
 TOL_DB = 1.0
 
-# torchrun entry that stops rank 0 at step 30 as Ctrl-C would (rank 0 saves its checkpoint and exits;
+# torchrun entry that sends rank 0 a Ctrl-C at step 30 (rank 0 saves its checkpoint and exits;
 # torchrun then stops rank 1, which is waiting for it in the next all-reduce)
 INTERRUPT_RANK0 = """
 import os, sys
-from layercam import train
-real = train.Trainer._set_lr
-def stop(self):
-    if os.environ.get("RANK") == "0" and self.step == 30:
-        raise KeyboardInterrupt
-    return real(self)
-train.Trainer._set_lr = stop
+if os.environ.get("RANK") == "0":
+    os.environ["LAYERCAM_SIGNAL_AT"] = "train:30:INT"
 from layercam.cli import main
 sys.exit(main(sys.argv[1:]))
 """
@@ -85,6 +80,7 @@ def test_two_gloo_processes_match_one_and_resume(tmp_path, tiny_scene):
 
     assert torch.load(ckpts[0], map_location="cpu", weights_only=False)["step"] == 30
     assert not (two / "report.json").exists()
+    assert not (two / "layercam.lock").exists(), "rank 0 releases the run folder's lock when interrupted"
 
     # the same command with --nproc 2 (layercam's own launcher) resumes and finishes
     r = subprocess.run([sys.executable, "-m", "layercam", *_argv(frames, two), "--nproc", "2"], capture_output=True, text=True, env=_env(), timeout=300)
@@ -95,6 +91,7 @@ def test_two_gloo_processes_match_one_and_resume(tmp_path, tiny_scene):
     assert rep["stages"]["flow"]["cached"] and rep["stages"]["bootstrap"]["cached"]
     assert tr["final_loss"]["color"] < 0.5 * json.loads((one / "report.json").read_text())["train"]["first_loss"]["color"]
     assert len(list((two / "hdr").glob("frame_*.exr"))) == tiny_scene.clip.T
+    assert not (two / "layercam.lock").exists()
 
     p1, p2 = _psnr_mu(one, tiny_scene), _psnr_mu(two, tiny_scene)
     assert abs(p2 - p1) <= TOL_DB, (p1, p2)

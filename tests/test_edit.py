@@ -93,3 +93,20 @@ def test_inverse_tone_round_trip(two_layer_run):
     for log2_dt in (0.0, 1.5, 3.0):
         back = tone_map_log2(model, inverse_tone(model, rgb, log2_dt), log2_dt)
         assert np.abs(back - rgb).max() < 2e-3
+
+
+def test_interrupted_edit_leaves_no_partial_edit_and_is_redone(two_layer_run, tmp_path, monkeypatch):
+    """Ctrl-C half-way through an edit: nothing under the final names (no edit.json), and the
+    same command then writes the whole edit (issue 18: an interrupted render is redone)."""
+    run = two_layer_run["run"]
+    edited = tmp_path / "edited.png"
+    _paint_on_object(run, two_layer_run["scene"], edited)
+    out = tmp_path / "edit"
+    argv = ["edit", str(run), "--atlas", str(edited), "--out", str(out), "--quiet"]
+    monkeypatch.setenv("LAYERCAM_SIGNAL_AT", "edit:3:INT")
+    assert main(argv) == 130
+    assert sorted(p.name for p in out.iterdir()) == [".partial-edit"]
+    monkeypatch.delenv("LAYERCAM_SIGNAL_AT")
+    assert main(argv) == 0
+    assert sorted(p.name for p in out.iterdir()) == ["edit.json", "edited.mp4", "hdr", "preview.mp4"]
+    assert len(list((out / "hdr").glob("*.exr"))) == two_layer_run["scene"].clip.T

@@ -65,22 +65,11 @@ def test_same_command_skips_changed_setting_redoes_dependents(tiny_scene, tiny_e
 
 
 def test_interrupted_training_resumes(tiny_scene, tiny_exposures, tmp_path, monkeypatch):
-    from layercam import train as train_mod
-
     run = tmp_path / "run"
-    calls = {"n": 0}
-    real = train_mod.Trainer._set_lr
-
-    def interrupt_at_45(self):
-        calls["n"] += 1
-        if self.step == 45:
-            raise KeyboardInterrupt
-        return real(self)
-
-    monkeypatch.setattr(train_mod.Trainer, "_set_lr", interrupt_at_45)
+    monkeypatch.setenv("LAYERCAM_SIGNAL_AT", "train:45:INT")  # Ctrl-C at step 45
     with pytest.raises(KeyboardInterrupt):
         _run(tiny_scene, tiny_exposures, run)
-    monkeypatch.setattr(train_mod.Trainer, "_set_lr", real)
+    monkeypatch.delenv("LAYERCAM_SIGNAL_AT")
     ckpts = list((run / "cache").glob("train-*/ckpt.pt"))
     assert len(ckpts) == 1
     ctx = _run(tiny_scene, tiny_exposures, run)

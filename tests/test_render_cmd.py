@@ -124,3 +124,42 @@ def test_render_refusals(stack_run, capsys, argv, needle):
 def test_render_needs_a_run(tmp_path, capsys):
     assert main(["render", str(tmp_path), "--exposure", "1"]) == 2
     assert "checkpoint.pt" in capsys.readouterr().err
+
+
+def test_interrupted_render_is_redone_by_the_same_command(stack_run, tmp_path):
+    """Issue 18 items 2 and 10: a render killed half-way (SIGKILL after two frames) leaves nothing
+    under the final name, and the same command then writes the whole render; a folder of frames
+    without render.json (an interrupted render of an older version) does not block it either."""
+    import os
+    import subprocess
+    import sys
+
+    run, clip = stack_run
+    out, ref = tmp_path / "out", tmp_path / "ref"
+    cmd = [sys.executable, "-m", "layercam", "render", str(run), "--exposure", "0.5", "--out", str(out), "--quiet"]
+    r = subprocess.run(cmd, env=dict(os.environ, LAYERCAM_SIGNAL_AT="render:2:KILL"), capture_output=True, text=True, timeout=300)
+    assert r.returncode == -9, r.stderr[-2000:]
+    assert not (out / "exposure_+0.50").exists() and list(out.glob(".partial-*/exposure_+0.50/frame_*.png"))
+    r = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert main(["render", str(run), "--exposure", "0.5", "--out", str(ref), "--quiet"]) == 0
+    got = sorted((out / "exposure_+0.50").iterdir())
+    assert [p.name for p in got] == [p.name for p in sorted((ref / "exposure_+0.50").iterdir())]
+    assert len([p for p in got if p.suffix == ".png"]) == clip.T and (out / "exposure_+0.50" / "render.json").is_file()
+    for p in got:
+        if p.suffix == ".png":
+            assert np.array_equal(read_image(p), read_image(ref / "exposure_+0.50" / p.name))
+    assert not list(out.glob(".partial-*"))
+
+
+def test_render_left_without_its_sidecar_is_redone(stack_run, tmp_path):
+    """Issue 18 item 2: frames without video.mp4 and render.json (what a render killed half-way
+    left under its final name before renders were staged) do not block the same command."""
+    run, clip = stack_run
+    out = tmp_path / "out"
+    assert main(["render", str(run), "--exposure", "0.5", "--out", str(out), "--quiet"]) == 0
+    (out / "exposure_+0.50" / "render.json").unlink()
+    (out / "exposure_+0.50" / "video.mp4").unlink()
+    assert main(["render", str(run), "--exposure", "0.5", "--out", str(out), "--quiet"]) == 0
+    assert (out / "exposure_+0.50" / "render.json").is_file() and (out / "exposure_+0.50" / "video.mp4").is_file()
+    assert main(["render", str(run), "--exposure", "0.5", "--out", str(out), "--quiet"]) == 2  # finished: kept

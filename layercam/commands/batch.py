@@ -46,8 +46,10 @@ in OUTPUT/batch_job.json) is skipped. A job that failed, was interrupted (its tr
 the checkpoint) or whose options changed runs again; the command's stage cache then redoes only what
 changed, and earlier outputs are moved to OUTPUT/previous/, never overwritten.
 
-A failed job is reported and the batch goes on to the next one. Exit status: 0 when every job
-finished or was skipped, 1 when any job failed, 2 for an unreadable manifest."""
+A line with an unclosed quote or options that do not parse fails (that line only). A failed job is
+reported and the batch goes on to the next one. Exit status: 0 when every job finished or was
+skipped, 1 when any job failed, 2 for an unreadable manifest or --summary path (checked before any
+job runs)."""
 
 JOB_FILE = "batch_job.json"
 LOG_FILE = "batch.log"
@@ -88,6 +90,8 @@ def register(sub) -> argparse.ArgumentParser:
 def run(args) -> int:
     manifest = Path(args.manifest)
     jobs = read_manifest(manifest)
+    if args.summary:
+        check_summary_path(Path(args.summary))  # a bad path is found before any job runs
     base = manifest.resolve().parent
     print(f"batch {manifest}: {len(jobs)} job(s)", flush=True)
     try:
@@ -130,8 +134,13 @@ def read_manifest(path: Path) -> list[Job]:
     jobs: list[Job] = []
     outputs: dict[str, int] = {}
     base = path.resolve().parent
-    for n, row in enumerate(csv.reader(io.StringIO(text)), 1):
-        cells = [c.strip() for c in row]
+    for n, line in enumerate(text.splitlines(), 1):  # line by line: a quote cannot swallow the next lines
+        try:
+            cells = [c.strip() for c in next(csv.reader([line], strict=True), [])]
+        except csv.Error:
+            guess = [c.strip() for c in line.split(",")] + ["", "", ""]
+            jobs.append(Job(n, guess[0], guess[1], guess[2], [], "failed", "unclosed quote in this line; close it (the line was not run)"))
+            continue
         if not any(cells) or cells[0].startswith("#"):
             continue
         if not jobs and cells[0].lower() == "command":  # header
@@ -143,14 +152,15 @@ def read_manifest(path: Path) -> list[Job]:
             raise LayercamError(f"{path} line {n}: unknown command {command!r} (one of {', '.join(sorted(commands))})")
         if not out:
             raise LayercamError(f"{path} line {n}: the output column (run folder) is empty")
-        try:
-            options = shlex.split(cells[3]) if len(cells) == 4 else []
-        except ValueError as e:
-            raise LayercamError(f"{path} line {n}: cannot split options: {e}") from None
         key = str((base / out).resolve())
         if key in outputs:
             raise LayercamError(f"{path} line {n}: run folder {out} is also the output of line {outputs[key]}")
         outputs[key] = n
+        try:
+            options = shlex.split(cells[3]) if len(cells) == 4 else []
+        except ValueError as e:
+            jobs.append(Job(n, command, inp, out, [], "failed", f"cannot split options: {e} (the line was not run)"))
+            continue
         job = Job(n, command, inp, out, options)
         bad = _check_options(job)
         if bad:
@@ -180,7 +190,7 @@ def _check_options(job: Job) -> str:
             build_parser().parse_args(job.argv())
     except SystemExit:
         lines = [l for l in err.getvalue().strip().splitlines() if l.strip()]
-        return "bad options: " + (lines[-1].split(": error: ", 1)[-1] if lines else " ".join(job.options))
+        return "bad options: " + (lines[-1].removeprefix("error: ") if lines else " ".join(job.options))
     return ""
 
 
@@ -258,9 +268,24 @@ def report(jobs: list[Job], summary_path: str | None) -> int:
     for j in jobs:
         if j.status == "failed":
             print(f"  failed: line {j.line} {j.command} {j.input or '-'} -> {j.output}: {j.reason}")
+    code = 1 if counts.get("failed") else 0
     if summary_path:
         from layercam.io.atomic import atomic_write
 
         rows = [{"line": j.line, "command": j.command, "input": j.input, "output": j.output, "options": j.options, "status": j.status, "reason": j.reason, "seconds": round(j.seconds, 1)} for j in jobs]
-        atomic_write(Path(summary_path), lambda p: p.write_text(json.dumps({"counts": counts, "jobs": rows}, indent=1)))
-    return 1 if counts.get("failed") else 0
+        try:
+            atomic_write(Path(summary_path), lambda p: p.write_text(json.dumps({"counts": counts, "jobs": rows}, indent=1)))
+        except (LayercamError, OSError) as e:  # said, but a failed job still decides the exit status
+            print(f"error: cannot write the summary {summary_path}: {getattr(e, 'strerror', None) or e}", file=sys.stderr)
+            code = code or 2
+    return code
+
+
+def check_summary_path(path: Path) -> None:
+    """``--summary FILE`` can be written: not a folder, in a folder that exists or can be made and
+    is writable. Raises ``LayercamError`` (one line)."""
+    from layercam.io.atomic import ensure_writable_dir
+
+    if path.is_dir():
+        raise LayercamError(f"--summary {path} is a folder; give a file name")
+    ensure_writable_dir(path.parent if str(path.parent) else Path("."))

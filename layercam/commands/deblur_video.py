@@ -35,7 +35,7 @@ def run(args) -> int:
     clip = load_clip(args.inputs if len(args.inputs) > 1 else args.inputs[0], max_frames=args.max_frames, stride=args.stride, resize=args.resize)
     if clip.T < 2:
         raise LayercamError("deblur-video needs at least 2 frames (the blur of one frame is explained by the others)")
-    exposures = parse_exposures(args.exposures, clip, args.ev_step)
+    exposures = parse_exposures(args.exposures, clip, args.ev_step, args.force_ev_step)
     masks = load_masks(args.masks, clip) if args.masks else None
     out = Path(args.out) if args.out else default_out(args.inputs)
     ctx = run_task("deblur-video", clip, exposures, cfg, out, masks=masks, progress=not args.quiet)

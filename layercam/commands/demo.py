@@ -5,15 +5,15 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from layercam.cli import common_model_args, load_cfg
+from layercam.cli import common_model_args, load_cfg, number
 
 
 def register(sub) -> argparse.ArgumentParser:
     d = sub.add_parser("demo", help="run hdr-video on a built-in synthetic clip and score it against ground truth")
     d.add_argument("--out", default="runs/demo", help="run folder (default: runs/demo)")
-    d.add_argument("--frames", type=int, default=24)
-    d.add_argument("--size", type=int, default=128, help="frame height and width")
-    d.add_argument("--ev-step", type=float, default=3.0)
+    d.add_argument("--frames", type=number(int, 2), default=24)
+    d.add_argument("--size", type=number(int, 8), default=128, help="frame height and width")
+    d.add_argument("--ev-step", type=number(float, 0, strict=True, high=12), default=3.0)
     common_model_args(d)
     return d
 

@@ -29,6 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
+from layercam.cli import FPS, number
 from layercam.errors import LayercamError
 
 EXAMPLES = """examples:
@@ -48,11 +49,11 @@ def register(sub) -> argparse.ArgumentParser:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     e.add_argument("run", help="a finished layercam run folder (holds checkpoint.pt and atlases/)")
-    e.add_argument("--layer", type=int, default=1, help="the layer whose atlas was edited: 0 background, 1 foreground (default 1)")
+    e.add_argument("--layer", type=number(int, 0), default=1, help="the layer whose atlas was edited: 0 background, 1 foreground (default 1)")
     e.add_argument("--atlas", required=True, help="the edited atlas, an RGBA PNG over the same uv square as atlases/layer{k}.png")
     e.add_argument("--out", help="output folder (default: RUN/edit)")
     e.add_argument("--overwrite", action="store_true", help="replace an earlier edit in the output folder")
-    e.add_argument("--fps", type=float, help="video frame rate (default: the run's)")
+    e.add_argument("--fps", type=FPS, help="video frame rate (default: the run's)")
     e.add_argument("--device", choices=["cpu", "cuda", "auto"], default="cpu")
     e.add_argument("--quiet", action="store_true")
     return e
@@ -133,15 +134,29 @@ def render_edited_frame(model, t: int, hw: tuple[int, int], layer: int, edit: di
     return {"hdr": hdr, "ldr": ldr, "edit_alpha": seen.astype(np.float32)}
 
 
+EDIT_OUTPUTS = ["hdr", "edited.mp4", "preview.mp4", "edit.json"]  # edit.json last: marks a finished edit
+
+
 def run(args) -> int:
+    import contextlib
+
+    from layercam.io.lock import run_lock
+
+    run_dir = Path(args.run)
+    with run_lock(run_dir) if (run_dir / "checkpoint.pt").is_file() else contextlib.nullcontext():  # one writer per run folder
+        return _edit(args, run_dir)
+
+
+def _edit(args, run_dir: Path) -> int:
+    from layercam.checkpoint import load_run_model
+    from layercam.interrupts import reached
     from layercam.io import write_exr, write_video
+    from layercam.io.atomic import commit_staged, ensure_writable_dir, staging_dir
     from layercam.pipelines.runner import write_json
     from layercam.pipelines.stages import resolve_device
     from layercam.progress import bar as progress_bar
-    from layercam.checkpoint import load_run_model
     from layercam.render import tonemap_display
 
-    run_dir = Path(args.run)
     model, meta = load_run_model(run_dir, resolve_device(args.device))
     L = model.scene.n_layers
     if not 0 <= args.layer < L:
@@ -152,27 +167,31 @@ def run(args) -> int:
     edit = load_edit(model, run_dir, args.layer, Path(args.atlas))
     if not (edit["alpha"] > 0).any():
         raise LayercamError(f"{args.atlas}: nothing to composite (fully transparent, or identical to the exported atlas)")
-    (out / "hdr").mkdir(parents=True, exist_ok=True)
+    ensure_writable_dir(out)  # before any frame is rendered
+    stage = staging_dir(out, "edit")
+    (stage / "hdr").mkdir()
     hw = tuple(meta["frame_hw"])
     T = int(meta["n_frames"])
     hdrs, ldrs, cover = [], [], []
     for t in progress_bar(range(T), desc="edit", unit="frame", enabled=not args.quiet):
+        reached("edit", t)
         r = render_edited_frame(model, t, hw, args.layer, edit)
         if not np.isfinite(r["hdr"]).all():
             raise LayercamError(f"frame {t}: non-finite irradiance after the edit; nothing written for it")
-        write_exr(out / "hdr" / f"frame_{t:05d}.exr", r["hdr"])
+        write_exr(stage / "hdr" / f"frame_{t:05d}.exr", r["hdr"])
         hdrs.append(r["hdr"])
         ldrs.append(r["ldr"])
         cover.append(float((r["edit_alpha"] > 0.5).mean()))
     fps = args.fps or float(meta.get("fps") or 24.0)
-    write_video(out / "edited.mp4", np.stack(ldrs), fps=fps)
-    write_video(out / "preview.mp4", tonemap_display(np.stack(hdrs))[0], fps=fps)
-    write_json(out / "edit.json", {
+    write_video(stage / "edited.mp4", np.stack(ldrs), fps=fps)
+    write_video(stage / "preview.mp4", tonemap_display(np.stack(hdrs))[0], fps=fps)
+    write_json(stage / "edit.json", {
         "run": str(run_dir), "layer": args.layer, "atlas": str(Path(args.atlas).resolve()),
         "log2_dt_png": edit["log2_dt"], "unchanged_px_left_to_learned_atlas": edit["unchanged_px"],
         "frames": T, "edit_visible_fraction_per_frame": cover,
         "outputs": {"hdr": "hdr/frame_*.exr (linear)", "edited.mp4": "through the learned camera at each frame's exposure", "preview.mp4": "HDR, display tonemapped"},
     })
+    commit_staged(stage, out, EDIT_OUTPUTS)
     if not args.quiet:
         print(f"done: {out}  (edit visible in {sum(c > 0 for c in cover)} of {T} frames)")
     return 0

@@ -28,7 +28,7 @@ def run(args) -> int:
         return distributed.launch(args, device)
     with distributed.session(device):  # joins the process group under torchrun, else nothing
         clip = load_clip(args.inputs if len(args.inputs) > 1 else args.inputs[0], max_frames=args.max_frames, stride=args.stride, resize=args.resize)
-        exposures = parse_exposures(args.exposures, clip, args.ev_step)
+        exposures = parse_exposures(args.exposures, clip, args.ev_step, args.force_ev_step)
         masks = load_masks(args.masks, clip) if args.masks else None
         out = Path(args.out) if args.out else default_out(args.inputs)
         ctx = run_task("hdr-video", clip, exposures, cfg, out, masks=masks, progress=not args.quiet and distributed.is_main())

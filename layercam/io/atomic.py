@@ -7,6 +7,7 @@ under the final name.
 from __future__ import annotations
 
 import os
+import shutil
 import tempfile
 import uuid
 from pathlib import Path
@@ -14,7 +15,7 @@ from typing import Callable
 
 from layercam.errors import LayercamError
 
-__all__ = ["atomic_write", "ensure_writable_dir"]
+__all__ = ["atomic_write", "ensure_writable_dir", "staging_dir", "commit_staged", "replace_entry"]
 
 
 def ensure_writable_dir(path: str | os.PathLike) -> Path:
@@ -81,3 +82,34 @@ def atomic_write(path: str | os.PathLike, writer: Callable[[Path], None]) -> Pat
             pass
         raise
     return final
+
+
+# -- sets of outputs: written in a staging folder, moved into place when complete ------------------
+def staging_dir(dest: str | os.PathLike, tag: str) -> Path:
+    """A fresh hidden folder ``dest/.partial-<tag>/`` to write a set of outputs into; whatever an
+    interrupted command left there is removed first."""
+    stage = Path(dest) / f".partial-{tag}"
+    shutil.rmtree(stage, ignore_errors=True)
+    stage.mkdir(parents=True)
+    return stage
+
+
+def replace_entry(src: Path, dst: Path) -> None:
+    """Move file or folder ``src`` to ``dst``, replacing what is there (a folder is moved aside
+    first, then removed, so ``dst`` is never a mix of old and new)."""
+    src, dst = Path(src), Path(dst)
+    if dst.is_dir() and not dst.is_symlink():
+        old = dst.with_name(f".old-{dst.name}-{uuid.uuid4().hex[:8]}")
+        os.rename(dst, old)
+        os.rename(src, dst)
+        shutil.rmtree(old, ignore_errors=True)
+    else:
+        os.replace(src, dst)
+
+
+def commit_staged(stage: Path, dest: Path, names: list[str]) -> None:
+    """Move ``names`` from the staging folder ``stage`` into ``dest`` in order, each replacing what
+    is there, then remove ``stage``. The last name marks the set finished (a sidecar written last)."""
+    for n in names:
+        replace_entry(Path(stage) / n, Path(dest) / n)
+    shutil.rmtree(stage, ignore_errors=True)

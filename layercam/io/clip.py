@@ -36,7 +36,8 @@ class Clip:
         else None.
     meta: free-form; ``load_clip`` sets ``kind`` ("video"/"images"), ``frame_indices`` (index
         of each frame in the source before stride/max_frames), ``n_source_frames`` (None if
-        unknown), ``source_size`` (W,H before resizing), ``paths`` (for images).
+        unknown), ``source_size`` (W,H before resizing), ``paths`` and ``notes`` (lines said once
+        when a run starts, e.g. a dropped alpha channel) for images.
     """
 
     frames: np.ndarray
@@ -286,11 +287,13 @@ def load_clip(
     if max_frames is not None:
         idx = idx[:max_frames]
     paths = [all_paths[i] for i in idx]
-    frames_list, depths = [], []
+    frames_list, depths, alphas = [], [], []
     size0 = None
     target = None
     for p in paths:
-        img, depth = read_image(p, return_bit_depth=True)
+        img, depth, alpha = read_image(p, return_bit_depth=True, return_alpha=True)
+        if alpha is not None:
+            alphas.append(alpha)
         h, w = img.shape[:2]
         if size0 is None:
             size0 = (w, h)
@@ -316,5 +319,12 @@ def load_clip(
             "n_source_frames": len(all_paths),
             "source_size": size0,
             "paths": [str(p) for p in paths],
+            "notes": [_alpha_note(alphas, len(paths))] if alphas else [],
         },
     )
+
+
+def _alpha_note(transparent: list[float], n: int) -> str:
+    """One line for frames whose alpha channel is dropped (layercam reads RGB)."""
+    part = f"{max(transparent):.0%} of the pixels transparent at most" if max(transparent) > 0 else "fully opaque"
+    return f"{len(transparent)} of {n} frames have an alpha channel ({part}): alpha is dropped, the RGB values are used as they are"

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import os
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from fractions import Fraction
 from pathlib import Path
 
@@ -48,6 +48,7 @@ class Exposures:
     spec: str
     reason: str
     dt_seconds: np.ndarray | None = None
+    warnings: list = field(default_factory=list)  # said once when the run starts
 
     def __post_init__(self) -> None:
         self.log2_dt = np.asarray(self.log2_dt, dtype=np.float32).reshape(-1)
@@ -90,8 +91,8 @@ def measure_pair_ev(a: np.ndarray, b: np.ndarray) -> float:
     pixels qualify (e.g. many stops apart), falls back to the difference of per-frame medians.
     """
     la, lb = _luma_small(a), _luma_small(b)
-    ok = (la > _LO) & (la < _HI) & (lb > _LO) & (lb < _HI)
-    if np.count_nonzero(ok) >= max(16, 0.005 * ok.size):
+    ok = _both_unclipped(la, lb)
+    if _enough(ok):
         return float(_GAMMA * np.median(np.log2(lb[ok]) - np.log2(la[ok])))
 
     def level(x: np.ndarray) -> float:
@@ -100,6 +101,42 @@ def measure_pair_ev(a: np.ndarray, b: np.ndarray) -> float:
         return float(np.median(np.log2(np.maximum(v, 1e-3))))
 
     return _GAMMA * (level(lb) - level(la))
+
+
+def _both_unclipped(la: np.ndarray, lb: np.ndarray) -> np.ndarray:
+    return (la > _LO) & (la < _HI) & (lb > _LO) & (lb < _HI)
+
+
+def _enough(ok: np.ndarray) -> bool:
+    """Enough pixels unclipped in both frames of a pair for a per-pixel measurement."""
+    return np.count_nonzero(ok) >= max(16, 0.005 * ok.size)
+
+
+def _pairs_measured_per_pixel(frames: np.ndarray) -> float:
+    """Fraction of neighbouring pairs whose EV was measured per pixel (not from medians)."""
+    lum = [_luma_small(f) for f in frames]
+    return float(np.mean([_enough(_both_unclipped(a, b)) for a, b in zip(lum[:-1], lum[1:])])) if len(lum) > 1 else 0.0
+
+
+# --ev-step against what the frames show: the measurement assumes a gamma-2.2 camera curve, so a
+# camera curve of gamma g reads as 2.2 / g times its true ratio; within a factor of 2 (gamma 1.1 to
+# 4.4) a given step is plausible. More than EV_WARN away is said; more than EV_WARN and a factor of
+# 2 away, where the frames were measured per pixel, is refused (unless forced).
+EV_WARN = 2.0
+
+
+def check_ev_step(step: float, measured: np.ndarray, per_pixel: bool, force: bool) -> str:
+    """A warning ("" when none) for ``--ev-step step`` against the measured gaps between the
+    brightness-ordered phases; raises ``LayercamError`` when the frames contradict it."""
+    far = [float(g) for g in measured if abs(step - g) > EV_WARN]
+    if not far:
+        return ""
+    g = max(far, key=lambda v: abs(step - v))
+    said = f"--ev-step {step:g}, but the frames measure {g:.1f} EV between neighbouring exposures (assuming a gamma-2.2 camera curve)"
+    contradicts = per_pixel and not (g / 2 <= step <= 2 * g)
+    if contradicts and not force:
+        raise LayercamError(f"{said}: more than {EV_WARN:g} EV and a factor of 2 apart, the HDR would be wrong; leave --ev-step out to learn the ratio, or give --force-ev-step to use it anyway")
+    return f"{said}; using {step:g} (leave --ev-step out to learn the ratio)"
 
 
 def _pair_diffs(frames: np.ndarray) -> np.ndarray:
@@ -161,7 +198,7 @@ def _fmt_phases(ev: np.ndarray) -> str:
 # ----------------------------------------------------------------------------- specs
 
 
-def _alt(clip: Clip, n: int, spec: str, ev_step: float | None) -> Exposures:
+def _alt(clip: Clip, n: int, spec: str, ev_step: float | None, force_ev_step: bool = False) -> Exposures:
     if clip.T < n:
         raise LayercamError(f"'{spec}' needs at least {n} frames, the clip has {clip.T}")
     phase = _frame_phase(clip, n)
@@ -185,11 +222,13 @@ def _alt(clip: Clip, n: int, spec: str, ev_step: float | None) -> Exposures:
         what = f"alt3: phases darkest..brightest {list(map(int, order))}, measured gaps " + ", ".join(
             f"{g:.1f}" for g in gaps
         ) + " EV"
+    warning = ""
     if ev_step is not None:
         step = float(ev_step)
+        warning = check_ev_step(step, gaps, _pairs_measured_per_pixel(clip.frames) >= 0.5, force_ev_step)
         per_phase = rank * step
         learn = "none"
-        tail = f", ev-step {step:g} given"
+        tail = f", ev-step {step:g} given" + (f" (warning: {warning})" if warning else "")
     else:
         clamped = np.clip(gaps, _EV_MIN, _EV_MAX)
         ranked = np.concatenate([[0.0], np.cumsum(clamped)])
@@ -204,6 +243,7 @@ def _alt(clip: Clip, n: int, spec: str, ev_step: float | None) -> Exposures:
         phase=phase,
         spec=spec,
         reason=what + tail,
+        warnings=[warning] if warning else [],
     )
 
 
@@ -359,14 +399,15 @@ def _read_time_file(path: Path, clip: Clip, spec: str) -> Exposures:
     )
 
 
-def parse_exposures(spec: str | None, clip: Clip, ev_step: float | None = None) -> Exposures:
+def parse_exposures(spec: str | None, clip: Clip, ev_step: float | None = None, force_ev_step: bool = False) -> Exposures:
     """Decide the exposure of each frame of ``clip`` from ``spec``.
 
     spec:
       ``None``/``"none"``/``"single"``: one exposure, all zeros.
       ``"alt"``/``"alt3"``: 2/3 alternating exposures; the brightness order of the phases is
           measured from the frames; phases get 0, ev_step, 2*ev_step (darkest first) when
-          ``ev_step`` is given (learn="none"), else measured gaps clamped to [0.5, 12] EV and
+          ``ev_step`` is given (learn="none"; checked against the measured gaps by
+          :func:`check_ev_step`, ``force_ev_step`` skips the refusal), else measured gaps clamped to [0.5, 12] EV and
           learn="ratio".
       ``"0,3"``, ``"-2,0,2"``: explicit EV cycle, frame t uses entry t mod n (learn="none").
       a text file: one exposure time per line in seconds (``0.01`` or ``1/125``; ``#``
@@ -390,6 +431,8 @@ def parse_exposures(spec: str | None, clip: Clip, ev_step: float | None = None) 
         raise LayercamError(f"bad exposure spec {spec!r}")
     s = "none" if spec is None else os.fspath(spec).strip()
     key = s.lower()
+    if ev_step is not None and key not in ("alt", "alt3"):
+        raise LayercamError(f"--ev-step is for --exposures alt or alt3; {s or 'none'!r} sets the exposures itself")
     if key in ("", "none", "single"):
         return Exposures(
             log2_dt=np.zeros(clip.T, np.float32),
@@ -399,9 +442,10 @@ def parse_exposures(spec: str | None, clip: Clip, ev_step: float | None = None) 
             reason="single exposure: all frames share one exposure time",
         )
     if key == "alt":
-        return _alt(clip, 2, s, ev_step)
+        return _alt(clip, 2, s, ev_step, force_ev_step)
     if key == "alt3":
-        return _alt(clip, 3, s, ev_step)
+        return _alt(clip, 3, s, ev_step, force_ev_step)
+
     if key == "exif":
         return _exif(clip, s)
     if key == "learn":

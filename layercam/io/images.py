@@ -39,7 +39,7 @@ def image_bit_depth(arr: np.ndarray) -> int:
     return 32
 
 
-def read_image(path: str | os.PathLike, return_bit_depth: bool = False):
+def read_image(path: str | os.PathLike, return_bit_depth: bool = False, return_alpha: bool = False):
     """Read an image file as RGB float32 ``(H, W, 3)`` in ``[0, 1]``.
 
     Supports png/jpg/jpeg/tif/tiff/bmp, 8- and 16-bit integer and float TIFF. Grey ``(H,W)``
@@ -47,7 +47,8 @@ def read_image(path: str | os.PathLike, return_bit_depth: bool = False):
     65535, float data is clipped to ``[0, 1]`` (non-finite values become 0).
 
     Returns ``img`` or, with ``return_bit_depth=True``, ``(img, bit_depth)`` where bit_depth is
-    8, 16 or 32 (float). Raises ``LayercamError`` if the file is missing or cannot be decoded.
+    8, 16 or 32 (float); with ``return_alpha=True`` also the fraction of pixels that the dropped
+    alpha channel made transparent in any part (None without an alpha channel), last. Raises ``LayercamError`` if the file is missing or cannot be decoded.
     """
     import cv2
 
@@ -61,6 +62,10 @@ def read_image(path: str | os.PathLike, return_bit_depth: bool = False):
     if arr is None:
         raise LayercamError(f"cannot decode image {p} (corrupt or unsupported format)")
     depth = image_bit_depth(arr)
+    alpha = None
+    if arr.ndim == 3 and arr.shape[2] in (2, 4):
+        a = arr[:, :, -1]
+        alpha = float((a < (1.0 if np.issubdtype(a.dtype, np.floating) else np.iinfo(a.dtype).max)).mean())
     if arr.ndim == 3 and arr.shape[2] == 1:
         arr = arr[:, :, 0]
     if arr.ndim == 2:
@@ -86,7 +91,8 @@ def read_image(path: str | os.PathLike, return_bit_depth: bool = False):
         img = img.astype(np.float32)
         depth = info.bits
     img = np.ascontiguousarray(img, dtype=np.float32)
-    return (img, depth) if return_bit_depth else img
+    out = (img,) + ((depth,) if return_bit_depth else ()) + ((alpha,) if return_alpha else ())
+    return out if len(out) > 1 else img
 
 
 def write_png(path: str | os.PathLike, img: np.ndarray, bit_depth: int = 8) -> Path:

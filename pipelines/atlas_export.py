@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from layercam.errors import LayercamError
+from layercam.interrupts import reached
 from layercam.pipelines.runner import write_json
 
 def atlas_resolution(uv: np.ndarray, weight: np.ndarray, lo: int = 32, hi: int = 2048) -> int:
@@ -77,6 +78,7 @@ def export_atlases(model, run_dir: Path, frames: np.ndarray, fps: float = 24.0, 
     seen = [np.empty((T, H, W), np.uint8) for _ in range(L)]
     alphas = []
     for t in progress_bar(range(T), desc="atlases", unit="frame", enabled=progress):
+        reached("atlas", t)
         m = render_frame(model, t, (H, W), ("uv", "alpha"), chunk=chunk)
         ws = layer_weights(m["alpha"], L, (H, W))
         if m["alpha"] is not None:

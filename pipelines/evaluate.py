@@ -42,7 +42,7 @@ def score_hdr(ctx: Context, ev: "EvaluateStage") -> dict:
     from layercam import metrics
 
     gt = ev.scene.hdr
-    res = {"metrics": {**metrics.hdr_metrics(read_hdr_frames(ctx.run_dir, ctx.clip.T), gt), "wall_s": model_wall_s(ctx)}, "baselines": {}}
+    res = {"metrics": {**metrics.hdr_metrics(read_hdr_frames(ctx.dirs["export"], ctx.clip.T), gt), "wall_s": model_wall_s(ctx)}, "baselines": {}}
     if "debevec" in ev.baselines and ctx.clip.T > 1 and ctx.exposures.count_distinct > 1:
         from layercam.baselines import debevec_video
 

@@ -17,10 +17,10 @@ writer                writes
 ====================  ======================================================================
 
 Every writer is ``writer(ctx, model, dest, cache) -> dict`` (its part of the export summary): it
-writes its files into ``dest`` (the run folder) and what the evaluate stage reads into ``cache``
-(the stage's cache folder). :meth:`ExportStage.run` is the one place where the run folder's
-top level is written: the earlier outputs of other settings are first moved to
-``previous/<their key>/``, and ``export_key.txt`` marks the folder's outputs as this key's.
+writes its outputs into ``dest`` and what the evaluate stage reads into ``cache``. Both are the
+stage's cache folder: an interrupted export is redone there, and the finished outputs are published
+to the top of the run folder with the report, as one set, when the run ends
+(``pipelines/publish.py``; outputs of other settings are moved to ``previous/<their key>/``).
 """
 
 from __future__ import annotations
@@ -30,7 +30,8 @@ from pathlib import Path
 import numpy as np
 
 from layercam.errors import LayercamError
-from layercam.pipelines.runner import Context, Stage, set_aside_previous, write_json
+from layercam.interrupts import reached
+from layercam.pipelines.runner import Context, Stage, write_json
 
 CHECKPOINT_NAME = "checkpoint.pt"
 
@@ -93,7 +94,10 @@ def _hdr_frames(ctx: Context, model, dest: Path) -> tuple[list[np.ndarray], bool
     """Every frame's linear HDR into ``dest/hdr/``: ``(frames, half floats used)``."""
     from layercam import render
 
-    frames = [render.render_frame(model, t, (ctx.clip.H, ctx.clip.W), ("hdr",), chunk=ctx.cfg.export.chunk)["hdr"] for t in _frames(ctx)]
+    frames = []
+    for t in _frames(ctx):
+        reached("export", t)
+        frames.append(render.render_frame(model, t, (ctx.clip.H, ctx.clip.W), ("hdr",), chunk=ctx.cfg.export.chunk)["hdr"])
     (dest / "hdr").mkdir(exist_ok=True)
     half = write_hdr_set([dest / "hdr" / f"frame_{t:05d}.exr" for t in range(len(frames))], frames, ctx.cfg.export.half, ctx.say)
     return frames, half
@@ -117,6 +121,7 @@ def sharp_writer(ctx: Context, model, dest: Path, cache: Path) -> dict:
     (dest / "frames").mkdir(exist_ok=True)
     frames = []
     for t in _frames(ctx):
+        reached("export", t)
         ldr = render.render_frame(model, t, (ctx.clip.H, ctx.clip.W), ("ldr",), chunk=ctx.cfg.export.chunk)["ldr"]
         if not np.isfinite(ldr).all():
             raise LayercamError(f"frame {t}: the model rendered non-finite values; not writing it")
@@ -230,11 +235,13 @@ class ExportStage(Stage):
             d["export"].pop("reference")  # only a stack is fused into one view
         return {**d, "writers": list(writers_for(ctx.task))}
 
+    def output_names(self, ctx):
+        return [n for n in outputs_for(ctx.task) if n != REPORT_NAME]
+
     def run(self, ctx, out):
         from layercam.pipelines.stages import resolve_device
 
-        dest = ctx.run_dir
-        set_aside_previous(dest, outputs_for(ctx.task), ctx.keys[self.name], ctx.say)
+        dest = out  # published to the top of the run folder when the run ends
         model = ctx.model
         model.to(resolve_device(ctx.cfg.train.device))  # render where it trained (GPU when there is one)
         summary: dict = {}
@@ -242,7 +249,6 @@ class ExportStage(Stage):
             if name == "crf":
                 model.cpu()
             summary.update(WRITERS[name][0](ctx, model, dest, out))
-        (dest / "export_key.txt").write_text(ctx.keys[self.name])
         return summary
 
     def load(self, ctx, out, summary):

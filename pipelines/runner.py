@@ -4,7 +4,9 @@ A stage's output lives in ``RUN/cache/<stage>-<key>/`` and is marked finished by
 The key hashes the stage's name and version, the input (clip fingerprint and exposure spec), the
 settings the stage reads, and the keys of the stages it depends on. So the same command twice
 skips finished stages; a changed setting redoes only the stages whose key it changes; and a stage
-interrupted half-way (training) finds its own partial state (a checkpoint) in the same folder.
+interrupted half-way finds its own folder again: training its checkpoint, an export its partial
+outputs, which it removes and writes anew. Outputs for the top of the run folder are written here
+too, and published as one set when every stage has finished (``pipelines/publish.py``).
 """
 
 from __future__ import annotations
@@ -60,11 +62,20 @@ class Context:
 
 class Stage:
     """A named, cached step. Subclasses set ``name``, ``deps``, ``version`` and implement
-    :meth:`key_material` (the settings it reads), :meth:`run` and optionally :meth:`load`."""
+    :meth:`key_material` (the settings it reads), :meth:`run` and optionally :meth:`load`.
+
+    ``outputs``: the names this stage makes for the top of the run folder. It writes them into its
+    own folder ``out``; what an interrupted attempt left there is removed before it runs again, and
+    the finished set is published to the top when the run ends (``pipelines/publish.py``)."""
 
     name = "stage"
     deps: tuple = ()
     version = 1
+    outputs: tuple = ()
+
+    def output_names(self, ctx: "Context") -> list[str]:
+        """``outputs`` (a stage whose outputs depend on the task says so here)."""
+        return list(self.outputs)
 
     def key_material(self, ctx: Context) -> dict:
         return {}
@@ -104,6 +115,8 @@ def run_stages(ctx: Context, stages: list[Stage]) -> Context:
             distributed.barrier()  # until rank 0 has run this stage or found it cached
             if not done.exists():
                 raise LayercamError(f"stage {st.name}: rank 0 did not leave a result in {out}")
+        if done.exists() and main and not _outputs_kept(st.output_names(ctx), out, done):
+            done.unlink()  # its outputs were removed from the cache: made again
         if done.exists():
             summary = json.loads(done.read_text())
             ctx.results[st.name] = st.load(ctx, out, summary)
@@ -115,10 +128,12 @@ def run_stages(ctx: Context, stages: list[Stage]) -> Context:
         out.mkdir(parents=True, exist_ok=True)
         if main:
             (out / "settings.json").write_text(json.dumps(material, indent=1, default=str))
+            _clear_outputs(st.output_names(ctx), out)  # an interrupted attempt's partial outputs
         t0 = time.perf_counter()
         summary = st.run(ctx, out)
         secs = time.perf_counter() - t0
         summary["_seconds"] = secs
+        summary["_outputs"] = [n for n in st.output_names(ctx) if (out / n).exists()]
         if main:
             atomic_write(done, lambda p: p.write_text(json.dumps(summary, indent=1, default=_json_default)))
         ctx.results[st.name] = st.load(ctx, out, summary)
@@ -127,6 +142,36 @@ def run_stages(ctx: Context, stages: list[Stage]) -> Context:
         if alone and main:
             distributed.barrier()
     return ctx
+
+
+def _outputs_kept(outputs: list[str], out: Path, done: Path) -> bool:
+    """A finished stage with outputs still holds them all in its folder."""
+    if not outputs:
+        return True
+    names = json.loads(done.read_text()).get("_outputs")
+    return names is not None and all((out / n).exists() for n in names)
+
+
+def _clear_outputs(outputs: list[str], out: Path) -> None:
+    for n in outputs:
+        p = out / n
+        if p.is_dir() and not p.is_symlink():
+            shutil.rmtree(p)
+        elif p.exists() or p.is_symlink():
+            p.unlink()
+
+
+def output_sources(ctx: Context, stages: list[Stage]) -> tuple[dict, dict]:
+    """The finished outputs of ``stages`` (name -> path in its stage's folder) and the keys of the
+    stages that made them: the set to publish to the top of the run folder."""
+    sources, keys = {}, {}
+    for st in stages:
+        if st.output_names(ctx) and st.name in ctx.dirs:
+            keys[st.name] = ctx.keys[st.name]
+            for n in st.output_names(ctx):
+                if (ctx.dirs[st.name] / n).exists():
+                    sources[n] = ctx.dirs[st.name] / n
+    return sources, keys
 
 
 def _json_default(o):
@@ -144,24 +189,3 @@ def _json_default(o):
 
 def write_json(path: Path, obj: Any) -> None:
     atomic_write(Path(path), lambda p: p.write_text(json.dumps(obj, indent=1, default=_json_default)))
-
-
-def set_aside_previous(run_dir: Path, names: list[str], new_key: str, say) -> None:
-    """If ``run_dir`` holds outputs of another export (other settings), move them to
-    ``run_dir/previous/<old key>/`` instead of overwriting them."""
-    marker = run_dir / "export_key.txt"
-    if not marker.exists():
-        leftovers = [n for n in names if (run_dir / n).exists()]
-        if leftovers:
-            raise LayercamError(f"{run_dir} already holds {leftovers[0]} from something else; choose another --out")
-        return
-    old = marker.read_text().strip()
-    if old == new_key:
-        return
-    dest = run_dir / "previous" / old
-    dest.mkdir(parents=True, exist_ok=True)
-    for n in names + ["export_key.txt"]:
-        src = run_dir / n
-        if src.exists():
-            shutil.move(str(src), str(dest / n))
-    say(f"settings changed: earlier outputs moved to {dest}")

@@ -10,9 +10,17 @@ from layercam import analyse, distributed
 from layercam.config import validate
 from layercam.errors import LayercamError
 from layercam.io.lock import run_lock
-from layercam.pipelines.runner import Context, run_stages, write_json
+from layercam.pipelines import publish
 from layercam.pipelines.export import ExportStage
+from layercam.pipelines.runner import Context, output_sources, run_stages, write_json
 from layercam.pipelines.stages import BootstrapStage, FlowStage, TrainStage
+
+
+def all_output_names() -> list[str]:
+    """Every name an export may publish to the top of a run folder, for any task."""
+    from layercam.pipelines.export import TASK_WRITERS, outputs_for
+
+    return list(dict.fromkeys(n for task in TASK_WRITERS for n in outputs_for(task) if n != publish.REPORT))
 
 
 def stages_for(task: str) -> list:
@@ -39,6 +47,7 @@ def run_task(task: str, clip, exposures, cfg, run_dir: Path, masks=None, progres
 
 def _run(ctx: Context, stages: list, t0: float) -> None:
     clip, exposures, task, cfg = ctx.clip, ctx.exposures, ctx.task, ctx.cfg
+    publish.check_folder(ctx.run_dir, [n for st in stages for n in st.output_names(ctx)])  # before any work
     try:
         # flow first: the analysis reads it to decide what the model needs
         run_stages(ctx, stages[:1])
@@ -50,11 +59,15 @@ def _run(ctx: Context, stages: list, t0: float) -> None:
         if getattr(e, "events", None) is not None:  # training stopped: say why in report_failed.json
             write_report(ctx, time.perf_counter() - t0, "report_failed.json", {"error": str(e), "train": {"stopped": True, "events": e.events}})
         raise
-    (ctx.run_dir / "report_failed.json").unlink(missing_ok=True)
-    write_report(ctx, time.perf_counter() - t0)
+    report = write_report(ctx, time.perf_counter() - t0, name=None)
+    if distributed.is_main():  # the top of the run folder becomes this run's outputs and report, at once
+        sources, keys = output_sources(ctx, stages)
+        publish.publish(ctx.run_dir, sources, report, publish.set_key(keys), ctx.say)
+        (ctx.run_dir / "report_failed.json").unlink(missing_ok=True)
 
 
-def write_report(ctx: Context, wall: float, name: str = "report.json", extra: dict | None = None) -> dict:
+def write_report(ctx: Context, wall: float, name: str | None = "report.json", extra: dict | None = None) -> dict:
+    """The run's report; written to ``RUN/name`` by rank 0 unless ``name`` is None."""
     import torch
 
     train = dict(ctx.results.get("train", {}))
@@ -76,6 +89,6 @@ def write_report(ctx: Context, wall: float, name: str = "report.json", extra: di
         "warnings": ctx.warnings,
         **(extra or {}),
     }
-    if distributed.is_main():  # with torch.distributed, rank 0 reports
+    if name and distributed.is_main():  # with torch.distributed, rank 0 reports
         write_json(ctx.run_dir / name, rep)
     return rep

@@ -60,14 +60,16 @@ def test_changed_export_setting_sets_earlier_atlases_aside(two_layer_run, tmp_pa
 
     run = tmp_path / "run"
     shutil.copytree(two_layer_run["run"], run)
-    old_key = (run / "export_key.txt").read_text()
+    old = json.loads((run / "outputs.json").read_text())
     cfg = copy.deepcopy(two_layer_run["cfg"])
     cfg.export.half = False
     ctx = run_task("hdr-video", two_layer_run["scene"].clip, two_layer_run["exposures"], cfg, run, progress=False)
     assert ctx.times["train"]["cached"] and not ctx.times["export"]["cached"]
-    assert (run / "export_key.txt").read_text() != old_key and (run / "atlases" / "atlas.json").is_file()
-    kept = run / "previous" / old_key
+    new = json.loads((run / "outputs.json").read_text())
+    assert new["key"] != old["key"] and (run / "atlases" / "atlas.json").is_file()
+    kept = run / "previous" / old["key"]
     assert (kept / "atlases" / "atlas.json").is_file() and (kept / "hdr").is_dir()
+    assert json.loads((kept / "outputs.json").read_text())["key"] == old["key"]
     assert len(list(kept.glob("alpha/frame_*.png"))) == two_layer_run["scene"].clip.T
 
 

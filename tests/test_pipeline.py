@@ -168,3 +168,55 @@ def test_end_to_end_tiny_clips_export_finite_hdr_and_monotone_curves(hw, t, cont
         assert np.isfinite(curve).all() and curve.min() >= 0 and curve.max() <= 1
         if monotone or rep["analysis"]["tone_mapper"] == "fixed":
             assert (np.diff(curve, axis=0) >= 0).all(), "CRF not monotone over [-20, 20] stops"
+
+
+def test_run_folders_of_earlier_versions_are_set_aside(tiny_scene, tiny_exposures, tmp_path):
+    """A finished run of an earlier version (export_key.txt) and one whose export was interrupted
+    (outputs without a key, next to its cache) are moved to previous/, not refused or overwritten."""
+    marked, unmarked = tmp_path / "marked", tmp_path / "unmarked"
+    for run in (marked, unmarked):
+        (run / "hdr").mkdir(parents=True)
+        (run / "hdr" / "frame_00000.exr").write_bytes(b"earlier")
+        (run / "atlases").mkdir()
+    (marked / "export_key.txt").write_text("abc123")
+    (marked / "report.json").write_text("{}")
+    (unmarked / "cache").mkdir()
+    for run in (marked, unmarked):
+        _run(tiny_scene, tiny_exposures, run)
+        assert len(list((run / "hdr").glob("*.exr"))) == tiny_scene.clip.T
+    assert (marked / "previous" / "abc123" / "hdr" / "frame_00000.exr").read_bytes() == b"earlier"
+    assert (marked / "previous" / "abc123" / "export_key.txt").is_file() and not (marked / "export_key.txt").exists()
+    (kept,) = (unmarked / "previous").glob("unmarked-*")
+    assert (kept / "hdr" / "frame_00000.exr").read_bytes() == b"earlier" and (kept / "atlases").is_dir()
+
+
+def test_outputs_lost_from_the_cache_are_made_again(tiny_scene, tiny_exposures, tmp_path):
+    import shutil
+
+    run = tmp_path / "run"
+    _run(tiny_scene, tiny_exposures, run)
+    (hdr,) = run.glob("cache/export-*/hdr")
+    shutil.rmtree(hdr)
+    shutil.rmtree(run / "hdr")
+    ctx = _run(tiny_scene, tiny_exposures, run)
+    assert ctx.times["train"]["cached"] and not ctx.times["export"]["cached"]
+    assert len(list((run / "hdr").glob("*.exr"))) == tiny_scene.clip.T
+
+
+def test_settings_a_b_a_puts_a_back(tiny_scene, tiny_exposures, tmp_path):
+    """Issue 18 item 3: settings A, then B, then A again: the top of the run folder is A's again
+    (outputs and report), not B's under A's report; previous/ keeps B's."""
+    run = tmp_path / "run"
+    _run(tiny_scene, tiny_exposures, run)
+    a = [read_exr(p) for p in sorted((run / "hdr").glob("*.exr"))]
+    _run(tiny_scene, tiny_exposures, run, ["export.half=false"])
+    b = [read_exr(p) for p in sorted((run / "hdr").glob("*.exr"))]
+    assert json.loads((run / "report.json").read_text())["export"]["exr"] == "float32"
+    assert not all(np.array_equal(x, y) for x, y in zip(a, b))  # half floats against float32
+    ctx = _run(tiny_scene, tiny_exposures, run)
+    assert ctx.times["export"]["cached"]
+    rep = json.loads((run / "report.json").read_text())
+    assert rep["settings"]["export"]["half"] is True and rep["export"]["exr"] == "half" and rep["cache_keys"] == ctx.keys
+    again = [read_exr(p) for p in sorted((run / "hdr").glob("*.exr"))]
+    assert len(again) == len(a) and all(np.array_equal(x, y) for x, y in zip(again, a))
+    assert len(list((run / "previous").glob("*/hdr/frame_00000.exr"))) == 2  # A's first copy and B's

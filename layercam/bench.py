@@ -304,7 +304,7 @@ ANALYSIS_FAMILIES = {
     "static": ("static_single", {"frames": 8, "size": (64, 64)}, {"frames": 3, "size": (24, 24)}, "hdr-video"),
     "pan": ("pan_hdr", {"frames": 12, "size": (96, 96)}, {"frames": 4, "size": (24, 24)}, "hdr-video"),
     "moving": ("moving_object", {"frames": 12, "size": (96, 96)}, {"frames": 4, "size": (32, 32)}, "hdr-video"),
-    "shake": ("shake_blur", {"frames": 10, "size": (96, 96)}, {"frames": 3, "size": (24, 24)}, "deblur-video"),
+    "shake": ("shake_blur", {"frames": 10, "size": (96, 96)}, {"frames": 3, "size": (48, 48)}, "deblur-video"),  # 48 px: smaller frames have too few tiles to compare sharpness
     "mfme": ("mfme_stack", {"size": (96, 96)}, {"size": (24, 24)}, "fuse-stack"),
 }
 FULL_MODEL = {"layers": 2, "tone_mapper": "learned", "blur": "5x5", "max_offset": 5.0, "flow_loss": True}  # config.model_overrides

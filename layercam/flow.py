@@ -25,6 +25,7 @@ __all__ = [
     "flow_consistency",
     "global_homographies",
     "normalise_for_flow",
+    "pair_arrays",
     "raft_flow",
     "residual_motion",
     "warp",
@@ -250,33 +251,77 @@ def flow_consistency(fw, bw, abs_tol: float = 1.0, rel_tol: float = 0.05) -> np.
 # --------------------------------------------------------------------------------------------
 
 
-def global_homographies(fw, grid: int = 32, thresh: float = 1.0, seed: int = 0) -> np.ndarray:
+SIMPLER_SHARE = 0.9  # see global_homographies
+
+
+def global_homographies(fw, grid: int = 32, thresh: float = 1.0, seed: int = 0, mask=None, min_points: int = 24) -> np.ndarray:
     """Per-pair homography ``(T-1,3,3)`` (frame t -> t+1 pixel coordinates), fitted with RANSAC
     (reprojection threshold ``thresh`` px) to ``grid x grid`` flow correspondences.
 
-    Falls back to the median translation when RANSAC fails (e.g. tiny or degenerate flows).
+    ``mask (T-1,H,W)`` bool, optional: the pixels whose flow is evidence (e.g. consistent and seen
+    well by both frames, :func:`layercam.visibility.pair_visible`); then the correspondences are
+    those of a ``2 grid x 2 grid`` lattice inside the mask, and a pair with fewer than
+    ``min_points`` inside gets the identity (no evidence of motion: the flow between the dark frames
+    of a bracket is noise), one with fewer than ``8 min_points`` no homography (one fitted to a few
+    clustered points extrapolates wildly to the corners; ``docs/measurements.md``).
+    Of identity, median translation and homography, the simplest that explains (within
+    ``thresh``) at least ``SIMPLER_SHARE`` as many points as the best is kept.
     """
     import cv2
 
     f, _ = _check_pair(fw)
     n, h, w = f.shape[:3]
-    ys = np.linspace(0, h - 1, min(grid, h)).round().astype(int)
-    xs = np.linspace(0, w - 1, min(grid, w)).round().astype(int)
-    gy, gx = np.meshgrid(ys, xs, indexing="ij")
-    src = np.stack([gx.ravel(), gy.ravel()], -1).astype(np.float32)
+    lattice = []
+    for g in (grid, 2 * grid):
+        ys = np.linspace(0, h - 1, min(g, h)).round().astype(int)
+        xs = np.linspace(0, w - 1, min(g, w)).round().astype(int)
+        gy, gx = np.meshgrid(ys, xs, indexing="ij")
+        lattice.append((gy.ravel(), gx.ravel()))
     out = np.repeat(np.eye(3)[None], n, 0)
     cv2.setRNGSeed(seed)
     for i in range(n):
-        d = f[i][gy.ravel(), gx.ravel()]
+        gy, gx = lattice[0]
+        if mask is not None:
+            my, mx = lattice[1]
+            keep = np.asarray(mask[i])[my, mx]
+            if keep.sum() < min_points:
+                continue  # identity
+            gy, gx = my[keep], mx[keep]
+        src = np.stack([gx, gy], -1).astype(np.float32)
+        d = f[i][gy, gx]
         hm = None
-        if len(src) >= 4:
+        if mask is not None and len(src) < 8 * min_points:
+            pass  # too few points to pin a homography down: identity or translation below
+        elif len(src) >= 4:
             hm, _ = cv2.findHomography(src, src + d, cv2.RANSAC, thresh, maxIters=2000,
                                        confidence=0.995)
-        if hm is None or not np.all(np.isfinite(hm)):
+        shift = np.median(d, axis=0)
+        # the simplest model that explains nearly as many points (Occam): identity, translation,
+        # homography (RANSAC fits a zoom to the flow noise between two differently focused images)
+        explained = {"identity": int((np.linalg.norm(d, axis=1) < thresh).sum()), "translation": int((np.linalg.norm(d - shift, axis=1) < thresh).sum())}
+        if hm is not None and np.all(np.isfinite(hm)):
+            pts = np.concatenate([src, np.ones((len(src), 1), np.float32)], 1) @ hm.T
+            explained["homography"] = int((np.linalg.norm(pts[:, :2] / pts[:, 2:] - (src + d), axis=1) < thresh).sum())
+        best = max(explained.values())
+        kind = next(k for k in ("identity", "translation", "homography") if k in explained and explained[k] >= SIMPLER_SHARE * best) if best else "translation"
+        if kind != "homography":
             hm = np.eye(3)
-            hm[:2, 2] = np.median(d, axis=0)
+            if kind == "translation":
+                hm[:2, 2] = shift
         out[i] = hm / hm[2, 2]
     return out.astype(np.float64)
+
+
+def pair_arrays(frames, fw, bw) -> dict:
+    """What the flow stage keeps besides the flows themselves: ``fw_ok``/``bw_ok`` (forward-backward
+    consistency), ``vis`` (``(T-1,H,W)``: both frames see the pixel well,
+    :func:`layercam.visibility.pair_visible`) and ``homs``, the per-pair homographies fitted where
+    the flow is consistent and both frames see well."""
+    from layercam.visibility import pair_visible
+
+    fw_ok = flow_consistency(fw, bw)
+    vis = pair_visible(frames, fw)
+    return {"fw_ok": fw_ok, "bw_ok": flow_consistency(bw, fw), "vis": vis, "homs": global_homographies(fw, mask=vis & fw_ok)}
 
 
 def _homography_flow(hm: np.ndarray, h: int, w: int) -> np.ndarray:

@@ -16,7 +16,7 @@ class FlowStage(Stage):
     per-pair global homography fitted to each forward flow (RANSAC)."""
 
     name = "flow"
-    version = 1
+    version = 2  # 2: homographies fitted where both frames see well (visibility.pair_visible); "vis" saved
 
     def key_material(self, ctx):
         return ctx.cfg.section_dict("flow")
@@ -34,10 +34,9 @@ class FlowStage(Stage):
             fw, bw = flow.raft_flow(frames, ctx.cfg.flow.raft_weights)
         else:
             fw, bw = flow.compute_flow(frames, method=method, progress=ctx.progress)
-        fw_ok = flow.flow_consistency(fw, bw)
-        bw_ok = flow.flow_consistency(bw, fw)
-        homs = flow.global_homographies(fw)
-        ctx.flow = {"fw": fw.astype(np.float16), "bw": bw.astype(np.float16), "fw_ok": fw_ok, "bw_ok": bw_ok, "homs": homs}  # as cached
+        arrays = flow.pair_arrays(frames, fw, bw)  # homographies fitted only where both frames see well
+        fw_ok = arrays["fw_ok"]
+        ctx.flow = {"fw": fw.astype(np.float16), "bw": bw.astype(np.float16), **arrays}  # as cached
         np.savez(out / "flow.npz", **ctx.flow)
         mag = np.sqrt((fw.astype(np.float32) ** 2).sum(-1))
         return {"pairs": int(len(fw)), "mean_flow_px": float(mag.mean()), "consistent_fraction": float(fw_ok.mean())}

@@ -1,0 +1,96 @@
+"""What a frame can see well: pixels that are neither clipped nor lost in the noise floor and that
+carry texture above the frame's noise. Flow between frames several stops apart is evidence of
+motion only there: elsewhere one of the two frames shows flat white, flat black or noise, and DIS
+fills in whatever its smoothness prior gives (``docs/measurements.md``).
+
+Frames are ``(H, W, 3)`` float in ``[0, 1]``; masks ``(H, W)`` bool.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from layercam.colour import REC601, luma
+
+CLIP_HI = 0.97          # a pixel with any channel at or above this is clipped
+FLOOR_LO = 4.0 / 255    # grey at or below this is at the 8-bit floor
+TEXTURE_SNR = 3.0       # local gradient (Gaussian sigma 1 px) at least this many times its noise response
+QUANT_SIGMA = 1.0 / 255 / np.sqrt(12.0)  # the noise of 8-bit quantisation: the least a frame has
+
+
+def grey(frame: np.ndarray) -> np.ndarray:
+    """``(H, W, 3) -> (H, W)`` float32 luma (Rec. 601)."""
+    return luma(np.asarray(frame, np.float32), REC601).astype(np.float32)
+
+
+def texture(g: np.ndarray, sigma: float = 1.0, win: int = 5) -> np.ndarray:
+    """Local gradient magnitude ``(H, W)``: Sobel of the Gaussian-smoothed grey image, RMS over a
+    ``win x win`` window."""
+    import cv2
+
+    b = cv2.GaussianBlur(np.asarray(g, np.float32), (0, 0), sigma)
+    gx = cv2.Sobel(b, cv2.CV_32F, 1, 0, ksize=3)
+    gy = cv2.Sobel(b, cv2.CV_32F, 0, 1, ksize=3)
+    return np.sqrt(cv2.blur(gx * gx + gy * gy, (win, win)))
+
+
+_NOISE_GAIN: dict = {}
+
+
+def texture_noise_gain(sigma: float = 1.0, win: int = 5) -> float:
+    """Median of :func:`texture` on unit white noise: what noise of standard deviation 1 reads as."""
+    key = (sigma, win)
+    if key not in _NOISE_GAIN:
+        rng = np.random.default_rng(0)
+        _NOISE_GAIN[key] = float(np.median(texture(rng.standard_normal((128, 128)).astype(np.float32), sigma, win)))
+    return _NOISE_GAIN[key]
+
+
+def noise_sigma(g: np.ndarray, mask: np.ndarray | None = None, flat: float = 0.4) -> float:
+    """Noise standard deviation of a grey image (Immerkaer's operator: the second difference
+    ``[[1,-2,1],[-2,4,-2],[1,-2,1]]`` has a response of variance ``36 sigma^2`` to white noise),
+    averaged as a variance over the flattest ``flat`` share of the ``mask`` pixels (texture
+    inflates the operator's response), never below 8-bit quantisation noise."""
+    import cv2
+
+    g = np.asarray(g, np.float32)
+    k = np.array([[1, -2, 1], [-2, 4, -2], [1, -2, 1]], np.float32)
+    r = cv2.filter2D(g, -1, k, borderType=cv2.BORDER_REFLECT) ** 2 / 36.0
+    m = np.ones(g.shape, bool) if mask is None else np.asarray(mask, bool)
+    if m.sum() < 64:
+        m = np.ones(g.shape, bool)
+    t = texture(g, 2.0, 7)
+    sel = m & (t <= np.quantile(t[m], flat))
+    var = float(r[sel].mean()) if sel.any() else float(r[m].mean())
+    return max(float(np.sqrt(var)), QUANT_SIGMA)
+
+
+def well_exposed(frame: np.ndarray) -> np.ndarray:
+    """``(H, W)`` bool: no channel clipped (``< CLIP_HI``) and grey above the 8-bit floor."""
+    f = np.asarray(frame, np.float32)
+    return (f.max(-1) < CLIP_HI) & (grey(f) > FLOOR_LO)
+
+
+def visible(frame: np.ndarray) -> np.ndarray:
+    """``(H, W)`` bool: well exposed and textured above the frame's noise (local gradient at
+    least ``TEXTURE_SNR`` times what the noise alone gives); isolated pixels (noise speckles in a
+    dark frame) are opened away."""
+    import cv2
+
+    g = grey(frame)
+    ok = well_exposed(frame)
+    sig = noise_sigma(g, ok)
+    vis = ok & (texture(g) > TEXTURE_SNR * sig * texture_noise_gain())
+    return cv2.morphologyEx(vis.astype(np.uint8), cv2.MORPH_OPEN, np.ones((3, 3), np.uint8)) > 0
+
+
+def pair_visible(frames: np.ndarray, fw: np.ndarray) -> np.ndarray:
+    """``(T-1, H, W)`` bool: pixels of frame ``t`` that frame ``t`` sees well and whose match in
+    frame ``t+1`` (along the forward flow ``fw (T-1, H, W, 2)``) frame ``t+1`` sees well."""
+    from layercam.flow import warp
+
+    vis = [visible(f) for f in frames]
+    out = np.zeros(np.asarray(fw).shape[:3], bool)
+    for t in range(len(out)):
+        out[t] = vis[t] & (warp(vis[t + 1].astype(np.float32), np.asarray(fw[t], np.float32)) > 0.5)
+    return out

@@ -23,6 +23,8 @@ __all__ = [
     "MetricInputError",
     "PSNR_CAP",
     "align_scale",
+    "deephdr_metrics",
+    "global_scale",
     "hdr_metrics",
     "highlight_psnr_mu",
     "iou",
@@ -290,3 +292,56 @@ def score_frames(pred: np.ndarray, gt: np.ndarray, crop: int, align: bool) -> li
         m = ldr_metrics(np.clip(p[c], 0, 1), g[c])
         rows.append({"psnr": round(m["psnr"], 3), "ssim": round(m["ssim"], 4), "shift": [round(shift[0], 2), round(shift[1], 2)]})
     return rows
+
+
+# --------------------------------------------------------------------------------------------
+# The DeepHDRVideo protocol (published HDR-video tables)
+# --------------------------------------------------------------------------------------------
+
+
+def global_scale(pred, gt) -> float:
+    """One scale for all channels that puts a relative HDR prediction on the ground truth's
+    radiometric scale: ``exp(median(log gt - log pred))`` over every pixel and channel where both
+    are above ``1e-6`` of their maximum and gt is finite (1 when none qualifies)."""
+    p, g = _pair(pred, gt)
+    ok = np.broadcast_to(_finite_gt(g), g.shape)
+    gz = np.where(ok, g, 0.0)
+    m = ok & (p > _REL_FLOOR * max(float(np.abs(p).max()), 1e-30)) & (gz > _REL_FLOOR * max(float(gz.max()), 1e-30))
+    return float(np.exp(np.median(np.log(gz[m]) - np.log(p[m])))) if m.any() else 1.0
+
+
+def deephdr_metrics(pred, gt, mu: float = 5000.0) -> dict[str, float]:
+    """``{"psnr_t", "psnr_l", "ssim_t"}`` as the DeepHDRVideo evaluation computes them (Chen et al.,
+    ICCV 2021; the Kalantari and Ramamoorthi 2017 convention), so that numbers compare with
+    published HDR-video tables.
+
+    What we followed, from guanyingc/DeepHDRVideo (commit 1642bbd): ``datasets/real_benchmark_dataset.py``
+    divides each ground-truth HDR by its maximum when that maximum is above 1 (one scalar for all
+    channels; a ground truth already in [0, 1] is left as it is); ``matlab/paral_eval_HDRs.m``
+    scores each frame on its own, ``PSNR-L = psnr(est, gt)`` and ``PSNR-T = psnr(mulog(est),
+    mulog(gt))`` with ``matlab/mulog_tonemap.m`` (``log(1 + mu x) / log(1 + mu)``, mu = 5000) and
+    MATLAB's ``psnr`` (peak 1), then averages the per-frame values; SSIM-T (``utils/eval_utils.py``,
+    ``ssim_matlab``: Gaussian window 11, sigma 1.5, range 1) is the SSIM of the mu-law images.
+    The networks there output HDR already on the ground truth's scale and in [0, 1] (a sigmoid), so
+    the protocol does no alignment. layercam and OpenCV give HDR on a scale of their own, so the
+    prediction is first put on the ground truth's scale by ONE scalar for all channels
+    (:func:`global_scale`: colour casts count, unlike :func:`psnr_mu`'s per-channel alignment),
+    then divided by the same number as the ground truth and clipped to [0, 1] (the range a sigmoid
+    output has).
+
+    pred, gt: ``(H,W,C)`` or ``(T,H,W,C)`` linear HDR. Returns per-frame means.
+    """
+    p, g = _pair(pred, gt)
+    if p.ndim == 3:
+        p, g = p[None], g[None]
+    rows = []
+    for pf, gf in zip(p, g):
+        ok = _finite_gt(gf)
+        gf = np.where(ok, gf, 0.0)
+        norm = max(float(gf.max()), 1.0)
+        pn = np.clip(pf * global_scale(pf, gf) / norm, 0.0, 1.0)
+        gn = gf / norm
+        tp, tg = mu_law(pn, mu), mu_law(gn, mu)
+        rows.append((_psnr_masked(tp, tg, ok, 1.0), _psnr_masked(pn, gn, ok, 1.0), _ssim_arrays(tp, tg)))
+    psnr_t, psnr_lin, ssim_t = (float(np.mean(c)) for c in zip(*rows))
+    return {"psnr_t": psnr_t, "psnr_l": psnr_lin, "ssim_t": ssim_t}

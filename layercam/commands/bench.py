@@ -1,4 +1,5 @@
-"""``layercam bench``: measure the speed/quality trade of the presets on scenes with ground truth."""
+"""``layercam bench``: measure the speed/quality trade of the presets on scenes with ground truth
+(``--suite synthetic``), or layercam against the classical merges on real captures (``--suite real``)."""
 
 from __future__ import annotations
 
@@ -7,30 +8,72 @@ from pathlib import Path
 
 from layercam.cli import POSITIVE_INT
 
+REAL_EXAMPLES = """real suite:
+  layercam bench --suite real --out runs/real                       # every case, fast and balanced
+  layercam bench --suite real --cases ntire-000000,composite-3ev --presets fast
+  layercam bench --suite real --presets quality --out runs/real     # adds quality to the same table
+  layercam bench --suite real --force --cases basler --max-frames 24
+
+Cases: ntire-000000..000003 (brackets with ground truth), taipei-3 and frobisher (brackets scored
+against a Robertson merge of all shots: a reference, not truth), composite-2ev and composite-3ev
+(a real person over a real radiance map, ground truth per frame), basler (real video, flicker).
+A finished job is skipped when run again (--force redoes it); writes real_suite.csv, real_suite.md
+and cases/<case>/figure.png."""
+
 
 def register(sub) -> argparse.ArgumentParser:
-    b = sub.add_parser("bench", help="presets x synthetic scenes (+ classical baselines) -> bench.csv, bench.png", description="Runs each preset on synthetic scenes with ground truth, and the classical baselines, on this machine. Writes bench.csv (scene, method, preset, wall s, steps/s, PSNR-mu, SSIM, peak memory), bench.png (quality against wall time, log time axis) and speedups.json (time to reach the paper preset's quality).")
-    b.add_argument("--out", default="runs/bench", help="output folder (default: runs/bench)")
-    b.add_argument("--scenes", default="pan", help="comma-separated scene names (default: pan)")
-    b.add_argument("--presets", default="fast,balanced,quality,paper", help="comma-separated presets")
+    b = sub.add_parser("bench", help="presets x synthetic scenes, or the real-capture suite -> tables and figures", description="--suite synthetic (default): runs each preset on synthetic scenes with ground truth, and the classical baselines, on this machine. Writes bench.csv (scene, method, preset, wall s, steps/s, PSNR-mu, SSIM, peak memory), bench.png (quality against wall time, log time axis) and speedups.json (time to reach the paper preset's quality). --suite real: layercam as a user would run it next to OpenCV's merges on the real captures in ../shared/data and on composites of real material with ground truth.", epilog=REAL_EXAMPLES, formatter_class=argparse.RawDescriptionHelpFormatter)
+    b.add_argument("--suite", choices=["synthetic", "real"], default="synthetic", help="synthetic scenes (default) or the real-capture suite")
+    b.add_argument("--out", help="output folder (default: runs/bench, or runs/real for --suite real)")
+    b.add_argument("--scenes", default="pan", help="synthetic suite: comma-separated scene names (default: pan)")
+    b.add_argument("--cases", help="real suite: comma-separated case names (default: all)")
+    b.add_argument("--presets", help="comma-separated presets (default: fast,balanced,quality,paper; real suite: fast,balanced)")
     b.add_argument("--quick", action="store_true", help="tiny scenes and a few steps: a smoke test, not a measurement")
-    b.add_argument("--threads", type=POSITIVE_INT, default=2, help="torch threads per job")
-    b.add_argument("--table", choices=["presets", "analysis"], default="presets", help="presets: the speed/quality trade (default); analysis: the analysed model against the full model on each synthetic family")
+    b.add_argument("--threads", type=POSITIVE_INT, help="torch threads per job (default: 2; real suite: 1)")
+    b.add_argument("--table", choices=["presets", "analysis"], default="presets", help="synthetic suite: presets, the speed/quality trade (default); analysis: the analysed model against the full model on each synthetic family")
     b.add_argument("--preset", default="fast", help="preset for --table analysis (default: fast)")
+    b.add_argument("--force", action="store_true", help="real suite: redo finished jobs")
+    b.add_argument("--data", help="real suite: the shared captures (default: $LAYERCAM_DATA or ../shared/data)")
+    b.add_argument("--max-frames", type=POSITIVE_INT, help="real suite: frames of the Basler clip (default: all 74)")
+    b.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE", help="real suite: a setting for every layercam job (repeatable)")
     b.add_argument("--quiet", action="store_true")
     return b
 
 
+def _list(s: str | None) -> list[str] | None:
+    return [x for x in s.split(",") if x] if s else None
+
+
 def run(args) -> int:
+    if args.suite == "real":
+        return _run_real(args)
     from layercam.bench import run_analysis_table, run_bench
 
+    out = Path(args.out or "runs/bench")
     if args.table == "analysis":
-        rows = run_analysis_table(Path(args.out), args.preset, args.quick, progress=not args.quiet)
+        rows = run_analysis_table(out, args.preset, args.quick, progress=not args.quiet)
         if not args.quiet:
-            print(f"wrote {Path(args.out) / 'analysis_table.md'} ({len(rows)} rows)")
+            print(f"wrote {out / 'analysis_table.md'} ({len(rows)} rows)")
         return 0
 
-    rows = run_bench(Path(args.out), [s for s in args.scenes.split(",") if s], [p for p in args.presets.split(",") if p], quick=args.quick, progress=not args.quiet, threads=args.threads)
+    rows = run_bench(out, _list(args.scenes) or [], _list(args.presets) or ["fast", "balanced", "quality", "paper"], quick=args.quick, progress=not args.quiet, threads=args.threads or 2)
     if not args.quiet:
-        print(f"wrote {Path(args.out) / 'bench.csv'} and bench.png ({len(rows)} rows)")
+        print(f"wrote {out / 'bench.csv'} and bench.png ({len(rows)} rows)")
+    return 0
+
+
+def _run_real(args) -> int:
+    import shlex
+
+    from layercam.realsuite import run_real_suite
+
+    out = Path(args.out or "runs/real")
+    cmd = "layercam bench --suite real --out " + shlex.quote(str(out))
+    for flag, v in (("--cases", args.cases), ("--presets", args.presets), ("--max-frames", args.max_frames), ("--threads", args.threads)):
+        if v:
+            cmd += f" {flag} {v}"
+    cmd += "".join(f" --set {s}" for s in args.overrides) + (" --quick" if args.quick else "")
+    rows = run_real_suite(out, _list(args.cases), _list(args.presets), args.data, args.force, args.quick, args.threads or 1, args.overrides, args.max_frames, progress=not args.quiet, command=cmd)
+    if not args.quiet:
+        print(f"wrote {out / 'real_suite.md'}, real_suite.csv and cases/*/figure.png ({len(rows)} rows)")
     return 0

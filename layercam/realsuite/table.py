@@ -1,0 +1,104 @@
+"""The real suite's table: ``real_suite.csv`` (every column) and ``real_suite.md`` (one table per
+group of cases with the columns that group has, then what the analysis chose and why)."""
+
+from __future__ import annotations
+
+import csv
+import json
+from pathlib import Path
+
+from layercam.io.atomic import atomic_write
+
+__all__ = ["CSV_FIELDS", "collect_rows", "write_table"]
+
+CSV_FIELDS = [
+    "case", "truth", "method", "preset", "psnr_mu", "psnr_mu_recov", "psnr_mu_fg", "clipped_pct", "psnr_t", "psnr_l_t", "ssim_t",
+    "psnr_l", "ssim_mu", "channels", "flicker", "static_pct", "wall_s", "train_s", "steps", "peak_mem_mb", "load", "analysis", "code", "note", "failed",
+]
+PRESET_ORDER = {"": 0, "fast": 1, "balanced": 2, "quality": 3, "paper": 4}
+_COLS = {  # group -> (title, [(header, field)])
+    "bracket-gt": ("Brackets with ground truth (PSNR-mu against the ground truth's radiance, in the medium shot's view)", ["psnr_mu", "psnr_mu_recov", "clipped_pct", "psnr_t", "psnr_l_t", "ssim_t", "channels"]),
+    "bracket-ref": ("Brackets without ground truth (scored against a Robertson merge of all shots: a reference, not truth)", ["psnr_mu", "psnr_mu_recov", "clipped_pct", "psnr_t", "ssim_t"]),
+    "composite": ("Composites of real material with ground truth (whole frame and the foreground's own pixels)", ["psnr_mu", "psnr_mu_fg", "psnr_mu_recov", "clipped_pct", "psnr_t", "ssim_t"]),
+    "video": ("Real video without ground truth (flicker: mean frame-to-frame change of the tonemapped output on static pixels, 8-bit codes)", ["flicker", "static_pct", "clipped_pct"]),
+}
+_HEAD = {
+    "psnr_mu": "PSNR-mu", "psnr_mu_recov": "PSNR-mu recoverable", "psnr_mu_fg": "PSNR-mu foreground", "clipped_pct": "clipped everywhere %",
+    "psnr_t": "PSNR-T", "psnr_l_t": "PSNR-L", "ssim_t": "SSIM-T", "flicker": "flicker", "static_pct": "static %", "channels": "scored channels",
+}
+
+
+def collect_rows(out: Path, cases: dict) -> list[dict]:
+    """Every row of every finished job under ``out/cases``, with its case's columns, in case order
+    (classical methods first, then the presets in dial order)."""
+    order = {name: i for i, name in enumerate(cases)}
+    rows = []
+    for res_path in sorted(Path(out).glob("cases/*/*/result.json")):
+        res = json.loads(res_path.read_text())
+        name = res.get("job", {}).get("case")
+        if name not in cases:
+            continue
+        prep_path = res_path.parents[1] / "prepare" / "result.json"
+        prep = json.loads(prep_path.read_text()) if prep_path.exists() else {}
+        for r in res.get("rows", []):
+            row = {**r, "case": name, "truth": cases[name].truth, "code": res.get("code", "")}
+            if "clipped_share" in prep:
+                row["clipped_pct"] = round(100.0 * prep["clipped_share"], 2)
+            if "static_share" in row:
+                row["static_pct"] = round(100.0 * row.pop("static_share"), 1)
+            rows.append(row)
+    rows.sort(key=lambda r: (order[r["case"]], r["method"] == "layercam", PRESET_ORDER.get(r.get("preset", ""), 9), r["method"]))
+    return rows
+
+
+def _cell(v) -> str:
+    if v is None or v == "":
+        return ""
+    if isinstance(v, float):
+        return f"{v:.3f}" if abs(v) < 2 else f"{v:.2f}"
+    if isinstance(v, dict):
+        return v.get("choice", "")
+    return str(v)
+
+
+def _md_table(rows: list[dict], fields: list[str]) -> list[str]:
+    head = ["case", "method", "preset", *[_HEAD[f] for f in fields], "wall s", "peak MB", "load"]
+    out = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for r in rows:
+        if r.get("failed"):
+            cells = [r["case"], r["method"], r.get("preset", ""), f"failed: {r['failed']}", *[""] * (len(fields) - 1), _cell(r.get("wall_s")), _cell(r.get("peak_mem_mb")), _cell(r.get("load"))]
+        else:
+            cells = [r["case"], r["method"], f"`{r['preset']}`" if r.get("preset") else "", *[_cell(r.get(f)) for f in fields], _cell(r.get("wall_s")), _cell(r.get("peak_mem_mb")), _cell(r.get("load"))]
+        out.append("| " + " | ".join(cells) + " |")
+    return out
+
+
+def write_table(out: Path, rows: list[dict], cases: dict, command: str = "") -> None:
+    """``out/real_suite.csv`` and ``out/real_suite.md`` (atomically)."""
+
+    def w_csv(p: Path) -> None:
+        with open(p, "w", newline="") as f:
+            wr = csv.DictWriter(f, fieldnames=CSV_FIELDS)
+            wr.writeheader()
+            for r in rows:
+                wr.writerow({k: (_cell(r.get(k)) if k == "analysis" else r.get(k, "")) for k in CSV_FIELDS})
+
+    atomic_write(Path(out) / "real_suite.csv", w_csv)
+    codes = sorted({r.get("code", "") for r in rows if r.get("code")})
+    md = ["# layercam real-capture suite", ""]
+    if command:
+        md += [f"Regenerate: `{command}`", ""]
+    md += [f"Code: {', '.join(codes) or '?'}. Wall time is end to end for layercam (the command as typed: flow, analysis, training, export) and the merge alone for the classical methods; `load` is the 1-minute load average at the job's start and end (timings under load are not final).", ""]
+    for group, (title, fields) in _COLS.items():
+        g = [r for r in rows if cases[r["case"]].group == group]
+        if g:
+            md += [f"## {title}", "", *_md_table(g, fields), ""]
+    chosen = [r for r in rows if r["method"] == "layercam" and isinstance(r.get("analysis"), dict)]
+    if chosen:
+        md += ["## What the analysis chose, and why (report.json[\"analysis\"])", "", "| case | preset | choice | reasons |", "|---|---|---|---|"]
+        for r in chosen:
+            why = "; ".join(f"{k}: {v}" for k, v in r["analysis"].get("reasons", {}).items())
+            md.append(f"| {r['case']} | `{r['preset']}` | {r['analysis']['choice']} | {why} |")
+        md.append("")
+    md += ["## Cases", "", *[f"* `{c.name}` ({c.truth}): {c.about}" for c in cases.values() if any(r["case"] == c.name for r in rows)], ""]
+    atomic_write(Path(out) / "real_suite.md", lambda p: p.write_text("\n".join(md)))

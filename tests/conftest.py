@@ -8,7 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-SHARED_DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
+# the shared captures: $LAYERCAM_DATA (as `layercam bench --suite real` reads it), else beside the checkout
+SHARED_DATA = Path(os.environ.get("LAYERCAM_DATA") or Path(__file__).resolve().parents[2] / "shared" / "data")
 
 # Tests use tiny tensors: one thread is as fast, and it does not collapse when the machine is
 # oversubscribed (OpenMP spin-waits made 2-thread runs 10-20x slower on a loaded 2-core box).

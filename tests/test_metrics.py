@@ -120,3 +120,45 @@ def test_highlight_psnr_mu_restricts_psnr_mu_to_the_mask():
     assert metrics.highlight_psnr_mu(pred, gt, top) < metrics.psnr_mu(pred, gt) < metrics.highlight_psnr_mu(pred, gt, ~top)
     with pytest.raises(metrics.MetricInputError):
         metrics.highlight_psnr_mu(pred, gt, np.zeros_like(top))
+
+
+# -- the DeepHDRVideo protocol ------------------------------------------------------------------
+def test_deephdr_known_values():
+    """A quarter of the pixels twice too bright (the median ratio stays 1, so no rescaling)."""
+    gt = np.full((16, 16, 3), 0.25)
+    pred = gt.copy()
+    pred[:8, :8] = 0.5
+    d = metrics.deephdr_metrics(pred, gt)
+    assert d["psnr_l"] == pytest.approx(-10 * np.log10(0.25 * 0.25**2), abs=1e-6)
+    mu_err = (np.log1p(5000 * 0.5) - np.log1p(5000 * 0.25)) / np.log1p(5000)
+    assert d["psnr_t"] == pytest.approx(-10 * np.log10(0.25 * mu_err**2), abs=1e-6)
+    assert 0 < d["ssim_t"] < 1
+    same = metrics.deephdr_metrics(gt, gt)
+    assert same["psnr_t"] == metrics.PSNR_CAP and same["ssim_t"] == pytest.approx(1.0, abs=1e-6)
+
+
+def test_deephdr_one_scale_for_all_channels_and_gt_normalised_when_above_one():
+    gt = _hdr(4, (20, 20, 3))
+    gt = gt / (2 * gt.max())
+    noisy = gt * np.exp(np.random.default_rng(5).normal(0, 0.1, gt.shape)).astype(np.float32)
+    d = metrics.deephdr_metrics(noisy, gt)
+    # the prediction's overall scale is free, a colour cast is not (unlike psnr_mu's per-channel scale)
+    assert metrics.deephdr_metrics(noisy * 7.0, gt)["psnr_t"] == pytest.approx(d["psnr_t"], abs=1e-4)
+    cast = noisy * np.array([1.0, 2.0, 1.0], np.float32)
+    assert metrics.deephdr_metrics(cast, gt)["psnr_t"] < d["psnr_t"] - 3
+    assert metrics.psnr_mu(cast, gt) == pytest.approx(metrics.psnr_mu(noisy, gt), abs=1e-3)
+    # a ground truth above 1 is divided by its max; one already in [0, 1] is kept as it is
+    k = 0.5 / gt.max()
+    big = metrics.deephdr_metrics(noisy * 10 * k, gt * 10 * k)  # gt max 5 -> divided by 5
+    assert big["psnr_t"] == pytest.approx(metrics.deephdr_metrics(noisy * 2 * k, gt * 2 * k)["psnr_t"], abs=1e-4)
+    assert big["psnr_t"] != pytest.approx(metrics.deephdr_metrics(noisy * k, gt * k)["psnr_t"], abs=0.1)
+
+
+def test_deephdr_averages_per_frame():
+    gt = _hdr(6, (2, 12, 12, 3))
+    pred = gt.copy()
+    pred[1] *= np.exp(np.random.default_rng(7).normal(0, 0.2, pred[1].shape)).astype(np.float32)
+    both = metrics.deephdr_metrics(pred, gt)
+    f0, f1 = metrics.deephdr_metrics(pred[0], gt[0]), metrics.deephdr_metrics(pred[1], gt[1])
+    assert both["psnr_t"] == pytest.approx((f0["psnr_t"] + f1["psnr_t"]) / 2, abs=1e-6)
+    assert f0["psnr_t"] == metrics.PSNR_CAP

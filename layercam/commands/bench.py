@@ -35,6 +35,7 @@ def register(sub) -> argparse.ArgumentParser:
     b.add_argument("--force", action="store_true", help="real suite: redo finished jobs")
     b.add_argument("--data", help="real suite: the shared captures (default: $LAYERCAM_DATA or ../shared/data)")
     b.add_argument("--max-frames", type=POSITIVE_INT, help="real suite: frames of the Basler clip (default: all 74)")
+    b.add_argument("--redraw", action="store_true", help="real suite: run nothing, write the table and figures again from the finished jobs")
     b.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE", help="real suite: a setting for every layercam job (repeatable)")
     b.add_argument("--quiet", action="store_true")
     return b
@@ -73,7 +74,7 @@ def _run_real(args) -> int:
         if v:
             cmd += f" {flag} {v}"
     cmd += "".join(f" --set {s}" for s in args.overrides) + (" --quick" if args.quick else "")
-    rows = run_real_suite(out, _list(args.cases), _list(args.presets), args.data, args.force, args.quick, args.threads or 1, args.overrides, args.max_frames, progress=not args.quiet, command=cmd)
+    rows = run_real_suite(out, _list(args.cases), _list(args.presets), args.data, args.force, args.quick, args.threads or 1, args.overrides, args.max_frames, progress=not args.quiet, command=cmd, redraw=args.redraw)
     if not args.quiet:
         print(f"wrote {out / 'real_suite.md'}, real_suite.csv and cases/*/figure.png ({len(rows)} rows)")
     return 0

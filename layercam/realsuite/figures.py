@@ -1,7 +1,8 @@
 """One figure per case: the inputs, layercam (each preset run), the classical methods and, where
-there is ground truth (or a reference), the error maps. HDR is shown as the scores see it (aligned
-per channel, divided by the truth's maximum, mu-law); the Basler clip, which has no truth, through
-the preview's global tonemap. Saved as compact palette PNGs."""
+there is ground truth (or a reference), the error maps in the scores' units. HDR is shown aligned
+per channel to the truth and mu-law tonemapped (:func:`~layercam.realsuite.measures.display_hdr`);
+the Basler clip, which has no truth, through the preview's global tonemap. Saved as compact
+palette PNGs."""
 
 from __future__ import annotations
 
@@ -13,7 +14,7 @@ from layercam.realsuite.measures import display_hdr, error_map
 
 __all__ = ["case_figure"]
 
-ERR_MAX = 0.25  # error maps: |mu(pred) - mu(gt)| from 0 (black) to this (white-hot)
+ERR_MAX = 0.25  # error maps: |mu(pred) - mu(gt)| (both divided by the truth's max) from 0 (black) to this
 
 
 def _save(fig, path: Path) -> None:
@@ -80,7 +81,7 @@ def case_figure(case, case_dir: Path, rows: list[dict], frames: np.ndarray, trut
     elif truth is not None:
         fig, plt = _composite(case, frames, truth, labelled)
     else:
-        fig, plt = _video(case, frames, labelled)
+        fig, plt = _video(case, case_dir, frames, labelled)
     _save(fig, path)
     plt.close(fig)
 
@@ -95,7 +96,7 @@ def _bracket(case, case_dir: Path, frames, truth, labelled):
     mid = [(kind, display_hdr(gt, gt))] + [(lab, display_hdr(p, gt)) for lab, p in labelled]
     unseen = truth["unseen"].astype(np.float32) * ERR_MAX
     bot = [(f"clipped everywhere\n{100 * truth['unseen'].mean():.1f}% (white)", unseen)] + [(f"|error| (0..{ERR_MAX})", error_map(p, gt)) for _, p in labelled]
-    return _grid([top, mid, bot], f"{case.name}: {case.about}")
+    return _grid([top, mid, bot], f"{case.name}: {case.about}", cell=2.6)
 
 
 def _composite(case, frames, truth, labelled):
@@ -113,17 +114,18 @@ def _composite(case, frames, truth, labelled):
     return _grid(rows, f"{case.name}: {case.about}")
 
 
-def _video(case, frames, labelled):
+def _video(case, case_dir: Path, frames, labelled):
+    from layercam.realsuite.jobs import static_pixels
     from layercam.render import tonemap_display
-    from layercam.realsuite.measures import static_mask
 
-    shown = np.linspace(0, len(frames) - 1, 4).round().astype(int)[1:3]
-    shown = sorted({int(shown[0]), int(shown[0]) + 1, int(shown[1]), int(shown[1]) + 1} & set(range(len(frames))))
+    third = np.linspace(0, len(frames) - 1, 4).round().astype(int)[1:3]
+    shown = sorted({int(t) + d for t in third for d in (0, 1)} & set(range(len(frames))))
     disp = []
     for lab, p in labelled:
         _, stats = tonemap_display(p)
         disp.append((lab, [tonemap_display(p[t], stats)[0] for t in shown]))
     rows = [[(f"input frame {t}", frames[t])] + [(lab, d[i]) for lab, d in disp] for i, t in enumerate(shown)]
-    static = static_mask(frames)
-    rows.append([(f"static pixels (flicker measured)\n{100 * static.mean():.0f}% of the frame", np.repeat(static[..., None], 3, -1).astype(np.float32))])
+    _, static = static_pixels(frames, case_dir)
+    t = min(shown[0], len(static) - 1)
+    rows.append([(f"static pixels of pair {t}-{t + 1} (white)\n{100 * static.mean():.0f}% over all pairs", np.repeat(static[t][..., None], 3, -1).astype(np.float32))])
     return _grid(rows, f"{case.name}: {case.about}", cell=2.6)

@@ -66,15 +66,32 @@ def _scores(case, pred: np.ndarray, truth: dict | None, frames: np.ndarray) -> d
     return score_hdr(pred, truth["hdr"], truth["unseen"], truth.get("fg"))
 
 
-def _video_flicker(pred: np.ndarray, frames: np.ndarray) -> dict:
-    """Flicker of the tonemapped video on the clip's static pixels, and the static share."""
-    from layercam.realsuite.measures import flicker, static_mask
+def _video_flicker(pred: np.ndarray, frames: np.ndarray, case_dir: Path) -> dict:
+    """Flicker of the tonemapped video (one tonemap for the whole clip, as preview.mp4) on the
+    clip's static pixels, and their share; the registration and the masks are the input's, cached
+    in ``case_dir/static.npz`` so that every method is measured on the same pixels."""
+    from layercam.realsuite.measures import flicker
     from layercam.render import tonemap_display
 
-    static = static_mask(frames)
-    _, stats = tonemap_display(pred)  # one tonemap for the whole clip, as preview.mp4
+    hom, static = static_pixels(frames, case_dir)
+    _, stats = tonemap_display(pred)
     disp = np.stack([tonemap_display(p, stats)[0] for p in pred])
-    return {"flicker": flicker(disp, static), "static_share": float(static.mean())}
+    return {"flicker": flicker(disp, hom, static), "static_share": float(static.mean())}
+
+
+def static_pixels(frames: np.ndarray, case_dir: Path) -> tuple[np.ndarray, np.ndarray]:
+    """The clip's registration and static masks (:mod:`layercam.realsuite.measures`), cached."""
+    from layercam.realsuite.measures import registration, static_masks
+
+    cache = Path(case_dir) / "static.npz"
+    if cache.exists():
+        z = np.load(cache)
+        if z["static"].shape[1:] == frames.shape[1:3] and len(z["hom"]) == len(frames) - 1:
+            return z["hom"], z["static"]
+    hom = registration(frames)
+    static = static_masks(frames, hom)
+    np.savez_compressed(cache, hom=hom, static=static)
+    return hom, static
 
 
 def _context(job: dict):
@@ -123,7 +140,7 @@ def job_classical(job: dict) -> dict:
         else:
             row.update(_scores(case, r["hdr"], truth, frames))
         if case.group == "video":
-            row.update(_video_flicker(r["hdr"], frames))
+            row.update(_video_flicker(r["hdr"], frames, case_dir))
         rows.append(_round(row))
     return {"rows": rows}
 
@@ -153,7 +170,7 @@ def job_layercam(job: dict) -> dict:
     truth = load_truth(case, case_dir, Path(job["data"]), frames, times)
     row.update(_scores(case, pred, truth, frames))
     if case.group == "video":
-        row.update(_video_flicker(pred, frames))
+        row.update(_video_flicker(pred, frames, case_dir))
     tr = report.get("train", {})
     row.update(steps=tr.get("steps"), train_s=tr.get("seconds_this_session"), analysis=analysis_summary(report.get("analysis")))
     return {"rows": [_round(row)]}

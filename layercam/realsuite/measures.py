@@ -1,5 +1,6 @@
 """Scores of the real suite beyond ``layercam.metrics``: which pixels no exposure saw, which pixels
-of a real video stay still, and how much a tonemapped video flickers there.
+of a real video hold still (after registering the camera's motion), and how much a tonemapped
+video flickers there.
 
 Encoded images are float in [0,1] ``(..., H, W, 3)``.
 """
@@ -10,7 +11,7 @@ import numpy as np
 
 from layercam import metrics
 
-__all__ = ["UNDER", "OVER", "unseen_mask", "static_mask", "flicker", "scored_channels", "score_hdr", "display_hdr", "error_map"]
+__all__ = ["UNDER", "OVER", "unseen_mask", "registration", "warp_into", "static_masks", "flicker", "scored_channels", "score_hdr", "display_hdr", "error_map"]
 
 OVER = 245.0 / 255.0  # at or above: clipped (NTIRE's LDRs saturate at code 248, not 255)
 UNDER = 2.0 / 255.0  # at or below in every channel: lost in the noise floor
@@ -25,35 +26,70 @@ def unseen_mask(stack: np.ndarray) -> np.ndarray:
     return ~seen.any(axis=0)
 
 
-def static_mask(frames: np.ndarray, period: int = 2, thr: float = 8.0 / 255.0, margin: int = 4) -> np.ndarray:
-    """Pixels of a fixed-camera clip ``(T,H,W,3)`` that stay still through it.
+def registration(frames: np.ndarray) -> np.ndarray:
+    """Homographies ``(T-1,3,3)`` from frame t to frame t+1 (pixel coordinates) of a clip
+    ``(T,H,W,3)``: layercam's exposure-invariant DIS flow (``dis_medium``) and its RANSAC fit
+    (``layercam.flow.global_homographies``)."""
+    from layercam import flow
 
-    Frames ``period`` apart share an exposure (2 for alternating exposures), so they can be compared
-    directly: a pixel is static if, after a 3x3 box blur, every such pair differs by less than
-    ``thr`` in every channel, it lies more than ``margin`` px from any pixel that is not, and the
-    clip's exposures see it (not :func:`unseen_mask` in some pair of neighbouring frames).
-    Returns ``(H,W)`` bool."""
+    fw, _ = flow.compute_flow(frames, method="dis_medium", progress=False)
+    return flow.global_homographies(fw)
+
+
+def warp_into(img: np.ndarray, hom: np.ndarray, a: int, b: int) -> tuple[np.ndarray, np.ndarray]:
+    """Frame ``b``'s image ``img`` ``(H,W,C)`` resampled into frame ``a``'s view (a < b) through
+    the chained homographies ``hom`` (t -> t+1); returns it and the ``(H,W)`` mask of pixels
+    that fall inside frame ``b``."""
+    import cv2
+
+    m = np.eye(3)
+    for t in range(a, b):
+        m = hom[t] @ m
+    h, w = img.shape[:2]
+    flags = cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP
+    out = cv2.warpPerspective(np.ascontiguousarray(img, np.float32), m, (w, h), flags=flags, borderMode=cv2.BORDER_REPLICATE)
+    inside = cv2.warpPerspective(np.ones((h, w), np.float32), m, (w, h), flags=flags, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    return out.reshape(img.shape), inside > 0.999
+
+
+def static_masks(frames: np.ndarray, hom: np.ndarray, period: int = 2, thr: float = 8.0 / 255.0, margin: int = 4) -> np.ndarray:
+    """For each pair (t, t+1), t < T - period, the pixels of frame t's view that hold still:
+    ``(T-period,H,W)`` bool.
+
+    The camera may move, so frames are compared after registration (:func:`warp_into` with
+    :func:`registration`'s homographies). Frames ``period`` apart share an exposure (2 for
+    alternating exposures), so they can be compared directly: a pixel is static if, after a 3x3
+    box blur, frame t and frame t+period warped into t's view differ by less than ``thr`` in every
+    channel, it lies more than ``margin`` px from any pixel that does not, frames t+1 and t+period
+    both cover it, and frames t and t+1 are not both clipped there (:func:`unseen_mask`)."""
     import cv2
 
     f = np.stack([cv2.blur(x, (3, 3)) for x in np.asarray(frames, np.float32)])
-    diff = np.abs(f[period:] - f[:-period]).max(axis=-1).max(axis=0)
-    moving = (diff >= thr).astype(np.uint8)
-    if margin > 0:
-        moving = cv2.dilate(moving, np.ones((2 * margin + 1, 2 * margin + 1), np.uint8))
-    unseen = np.zeros(moving.shape, bool)
-    for t in range(len(frames) - 1):
-        unseen |= unseen_mask(np.asarray(frames[t : t + 2]))
-    return (moving == 0) & ~unseen
+    kernel = np.ones((2 * margin + 1, 2 * margin + 1), np.uint8)
+    out = []
+    for t in range(len(f) - period):
+        far, in_far = warp_into(f[t + period], hom, t, t + period)
+        nxt, in_nxt = warp_into(np.asarray(frames[t + 1], np.float32), hom, t, t + 1)
+        moving = (np.abs(f[t] - far).max(axis=-1) >= thr).astype(np.uint8)
+        if margin > 0:
+            moving = cv2.dilate(moving, kernel)
+        out.append((moving == 0) & in_far & in_nxt & ~unseen_mask(np.stack([frames[t], nxt])))
+    return np.stack(out)
 
 
-def flicker(display: np.ndarray, mask: np.ndarray) -> float:
-    """Mean absolute frame-to-frame change of a display video ``(T,H,W,3)`` in [0,1] over the
-    pixels of ``mask`` ``(H,W)``, in 8-bit code values (mean over channels, pixels and the T-1
-    pairs). NaN when the mask is empty."""
-    if not mask.any() or len(display) < 2:
-        return float("nan")
-    d = np.abs(np.diff(np.asarray(display, np.float32), axis=0))[:, mask]
-    return float(d.mean() * 255.0)
+def flicker(display: np.ndarray, hom: np.ndarray, static: np.ndarray) -> float:
+    """Frame-to-frame change of a display video ``(T,H,W,3)`` in [0,1] on static pixels, in 8-bit
+    code values: for each pair (t, t+1) with a mask in ``static`` (:func:`static_masks`), the
+    mean of ``|D_t - D_(t+1) warped into t's view|`` over the mask and the channels; then the mean
+    over pairs (weighted by their pixel counts). NaN when no pixel is static."""
+    total, count = 0.0, 0
+    for t, m in enumerate(static):
+        if not m.any():
+            continue
+        nxt, _ = warp_into(display[t + 1], hom, t, t + 1)
+        total += float(np.abs(display[t] - nxt)[m].sum())
+        count += int(m.sum()) * display.shape[-1]
+    return total / count * 255.0 if count else float("nan")
 
 
 def scored_channels(gt: np.ndarray) -> list[int]:
@@ -86,22 +122,24 @@ def score_hdr(pred: np.ndarray, gt: np.ndarray, unseen: np.ndarray, fg: np.ndarr
     return out
 
 
-def display_hdr(pred: np.ndarray, gt: np.ndarray | None = None) -> np.ndarray:
-    """What the scores see, for figures: the prediction aligned per channel to ``gt``, both divided
-    by gt's maximum, mu-law (mu = 5000); channels left out of the scores (:func:`scored_channels`)
-    are shown black. Without gt: ``layercam.render.tonemap_display``."""
+def display_hdr(pred: np.ndarray, gt: np.ndarray | None = None, white: float | None = None) -> np.ndarray:
+    """For figures: the prediction aligned per channel to ``gt``, divided by ``white`` (default:
+    gt's 99.5th percentile, so that a few bright lights do not leave the picture black; the scores
+    divide by the maximum), mu-law (mu = 5000); channels left out of the scores
+    (:func:`scored_channels`) are shown black. Without gt: ``layercam.render.tonemap_display``."""
     if gt is None:
         from layercam.render import tonemap_display
 
         return tonemap_display(np.asarray(pred, np.float32))[0]
     p = metrics.align_scale(pred, gt)
     p[..., [c for c in range(p.shape[-1]) if c not in scored_channels(gt)]] = 0.0
-    gmax = float(np.nanmax(gt))
-    return metrics.mu_law(np.clip(p / gmax, 0, 1)).astype(np.float32)
+    w = float(np.nanpercentile(gt, 99.5)) if white is None else float(white)
+    return metrics.mu_law(np.clip(p / max(w, 1e-12), 0, 1)).astype(np.float32)
 
 
 def error_map(pred: np.ndarray, gt: np.ndarray) -> np.ndarray:
-    """``|mu(pred) - mu(gt)|`` per pixel (mean over the scored channels) after :func:`display_hdr`'s
-    normalisation. ``(..., H, W)``."""
+    """``|mu(pred) - mu(gt)|`` per pixel (mean over the scored channels) in the scores' units (both
+    divided by gt's maximum). ``(..., H, W)``."""
     keep = scored_channels(gt)
-    return np.abs(display_hdr(pred, gt) - display_hdr(gt, gt))[..., keep].mean(axis=-1)
+    w = float(np.nanmax(gt))
+    return np.abs(display_hdr(pred, gt, w) - display_hdr(gt, gt, w))[..., keep].mean(axis=-1)

@@ -63,14 +63,53 @@ def _preset_tag(preset: str) -> str:
     return Path(preset).stem if preset.endswith(".toml") else preset
 
 
+class _Lock:
+    """``out/suite.lock`` holds the pid of the run writing into ``out``: a second run into the same
+    folder is refused (its jobs would share run folders); a lock left by a dead process is taken."""
+
+    def __init__(self, out: Path):
+        self.path = out / "suite.lock"
+
+    def __enter__(self):
+        for _ in range(2):
+            try:
+                fd = os.open(self.path, os.O_CREAT | os.O_EXCL | os.O_WRONLY)
+            except FileExistsError:
+                pid = int(self.path.read_text().strip() or 0)
+                if _alive(pid):
+                    raise LayercamError(f"another real-suite run (pid {pid}) is writing into {self.path.parent}") from None
+                self.path.unlink(missing_ok=True)
+                continue
+            os.write(fd, str(os.getpid()).encode())
+            os.close(fd)
+            return self
+        raise LayercamError(f"cannot lock {self.path}")
+
+    def __exit__(self, *exc):
+        self.path.unlink(missing_ok=True)
+
+
+def _alive(pid: int) -> bool:
+    if pid <= 0:
+        return False
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
 def run_real_suite(out, cases: list[str] | None = None, presets: list[str] | None = None, data=None, force: bool = False, quick: bool = False,
-                   threads: int = 1, overrides: list[str] | None = None, max_frames: int | None = None, progress: bool = True, command: str = "") -> list[dict]:
+                   threads: int = 1, overrides: list[str] | None = None, max_frames: int | None = None, progress: bool = True, command: str = "",
+                   redraw: bool = False) -> list[dict]:
     """Run the suite into ``out``; returns the table rows. ``cases``/``presets`` pick subsets
     (default: every case; fast and balanced); ``overrides`` are ``--set`` settings for every
-    layercam job; ``quick`` renders tiny composites and trains a few steps (a smoke test)."""
+    layercam job; ``quick`` renders tiny composites and trains a few steps (a smoke test);
+    ``redraw`` runs nothing and writes the table and figures from the finished jobs."""
     from layercam.config import load_config
     from layercam.io.atomic import ensure_writable_dir
-    from layercam.realsuite.table import collect_rows, write_table
 
     names = list(cases or CASES)
     for n in names:
@@ -80,44 +119,60 @@ def run_real_suite(out, cases: list[str] | None = None, presets: list[str] | Non
     ov = list(overrides or []) + (QUICK_OVERRIDES if quick else [])
     for p in presets:
         load_config(p, ov)  # a bad preset or setting fails now, not after an hour
-    data = resolve_data(data)
-    out = ensure_writable_dir(Path(out))
-    say = print if progress else (lambda *a, **k: None)
+    s = _Suite(ensure_writable_dir(Path(out)), resolve_data(data), quick, max_frames, threads, command, print if progress else (lambda *a, **k: None))
+    if redraw:
+        return s.outputs(names)
+    with _Lock(s.out):
+        for name in names:
+            if force:
+                for f in ("truth.npz", "inputs/composite.npz"):
+                    (s.out / "cases" / name / f).unlink(missing_ok=True)
+            s.run(s.job(name, "prepare", "prepare"), f"{name} prepare", force)
+            s.run(s.job(name, "classical", "classical"), f"{name} classical", force)
+        for p in presets:
+            for name in names:
+                s.run(s.job(name, "layercam", f"layercam-{_preset_tag(p)}", preset=p, overrides=ov, threads=threads), f"{name} layercam {p}", force)
+    return s.outputs(names)  # tables and figures drawn again from everything on disk
 
-    def job(name: str, kind: str, tag: str, **kw) -> dict:
-        d = out / "cases" / name / tag
-        return {"kind": kind, "case": name, "case_dir": str(out / "cases" / name), "dir": str(d), "data": str(data), "shared_dir": str(out / "shared"), "quick": quick, "max_frames": max_frames, **kw}
 
-    def run(j: dict, what: str) -> None:
+class _Suite:
+    """Where a suite run writes, what it reads, and how it says what it does."""
+
+    def __init__(self, out: Path, data: Path, quick: bool, max_frames: int | None, threads: int, command: str, say):
+        self.out, self.data, self.quick, self.max_frames, self.threads, self.command, self.say = out, data, quick, max_frames, threads, command, say
+
+    def job(self, name: str, kind: str, tag: str, **kw) -> dict:
+        d = self.out / "cases" / name / tag
+        return {"kind": kind, "case": name, "case_dir": str(self.out / "cases" / name), "dir": str(d), "data": str(self.data),
+                "shared_dir": str(self.out / "shared"), "quick": self.quick, "max_frames": self.max_frames, **kw}
+
+    def run(self, j: dict, what: str, force: bool) -> None:
+        """Run job ``j`` unless it finished before; then the table and the case's figure."""
         d = Path(j["dir"])
         if force and d.exists():
             shutil.rmtree(d)
         if _done(d):
-            say(f"{what}: done before, skipped (--force to redo)")
+            self.say(f"{what}: done before, skipped (--force to redo)")
             return
-        say(f"{what}: running ...", flush=True)
-        _spawn(j, threads)
-        res = json.loads((d / "result.json").read_text())
-        for r in res["rows"]:
+        self.say(f"{what}: running ...", flush=True)
+        _spawn(j, self.threads)
+        for r in json.loads((d / "result.json").read_text())["rows"]:
             msg = f"failed: {r['failed']}" if r.get("failed") else ", ".join(f"{k} {r[k]}" for k in ("psnr_mu", "psnr_mu_fg", "flicker", "wall_s") if r.get(k) is not None)
-            say(f"  {r['method']} {r.get('preset', '')}: {msg}")
-        rows = collect_rows(out, CASES)
-        write_table(out, rows, CASES, command)
-        try:
-            _figure(out, j["case"], [r for r in rows if r["case"] == j["case"]], data, quick, max_frames)
-        except Exception as e:  # noqa: BLE001 - a figure must not stop a long run; said, not hidden
-            say(f"  figure of {j['case']} not drawn: {type(e).__name__}: {e}")
+            self.say(f"  {r['method']} {r.get('preset', '')}: {msg}", flush=True)
+        self.outputs([j["case"]])
 
-    for name in names:
-        if force:
-            for f in ("truth.npz", "inputs/composite.npz"):
-                (out / "cases" / name / f).unlink(missing_ok=True)
-        run(job(name, "prepare", "prepare"), f"{name} prepare")
-        run(job(name, "classical", "classical"), f"{name} classical")
-    for p in presets:
-        for name in names:
-            run(job(name, "layercam", f"layercam-{_preset_tag(p)}", preset=p, overrides=ov, threads=threads), f"{name} layercam {p}")
-    return collect_rows(out, CASES)
+    def outputs(self, which: list[str]) -> list[dict]:
+        """Write the table from every finished job, and the figures of the cases ``which``."""
+        from layercam.realsuite.table import collect_rows, write_table
+
+        rows = collect_rows(self.out, CASES)
+        write_table(self.out, rows, CASES, self.command)
+        for name in which:
+            try:
+                _figure(self.out, name, [r for r in rows if r["case"] == name], self.data, self.quick, self.max_frames)
+            except Exception as e:  # noqa: BLE001 - a figure must not stop a long run; said, not hidden
+                self.say(f"  figure of {name} not drawn: {type(e).__name__}: {e}")
+        return rows
 
 
 def _figure(out: Path, name: str, rows: list[dict], data: Path, quick: bool, max_frames: int | None) -> None:

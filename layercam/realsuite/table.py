@@ -22,6 +22,18 @@ _COLS = {  # group -> (title, [(header, field)])
     "composite": ("Composites of real material with ground truth (whole frame and the foreground's own pixels)", ["psnr_mu", "psnr_mu_fg", "psnr_mu_recov", "clipped_pct", "psnr_t", "ssim_t"]),
     "video": ("Real video without ground truth (flicker: mean frame-to-frame change of the tonemapped output on static pixels, 8-bit codes)", ["flicker", "static_pct", "clipped_pct"]),
 }
+HOW = [
+    "* PSNR-mu: `layercam.metrics` (one scale per channel, the median ratio; both divided by the truth's maximum; mu-law, mu = 5000). "
+    "PSNR-T / PSNR-L / SSIM-T: the DeepHDRVideo protocol (`layercam.metrics.deephdr_metrics`: one scale for all channels, truth divided by its maximum when above 1, per-frame means).",
+    "* Scored channels: a channel of the truth that is 0 in over half its pixels is left out of every score (the NTIRE crops' green: a magenta-lit stage under the 16-bit source's floor).",
+    "* Clipped everywhere: pixels that no exposure saw (some channel at or above 245/255, or every channel at or below 2/255, in every exposure): for the NTIRE crops and the composites, "
+    "the truth rendered through the known camera at each exposure; for the other brackets the input shots themselves; for the Basler clip each pair of neighbouring frames. "
+    "PSNR-mu recoverable: the same score on the other pixels.",
+    "* Composites: PSNR-mu over all frames, and on the foreground's own pixels (coverage above 0.5 in the composite's masks), alignment from the whole frame.",
+    "* Flicker (Basler clip): each method's HDR tonemapped with one global operator for the whole clip (as `preview.mp4`); frames t+1 warped into frame t's view "
+    "(homographies from layercam's exposure-invariant DIS flow of the input); static pixels: where the input frames t and t+2 (same exposure), registered, differ by under 8/255 "
+    "in every channel after a 3x3 blur, more than 4 px from any pixel that does not, seen by frame t or t+1; flicker = mean |D_t - D_(t+1)| there, in 8-bit codes.",
+]
 _HEAD = {
     "psnr_mu": "PSNR-mu", "psnr_mu_recov": "PSNR-mu recoverable", "psnr_mu_fg": "PSNR-mu foreground", "clipped_pct": "clipped everywhere %",
     "psnr_t": "PSNR-T", "psnr_l_t": "PSNR-L", "ssim_t": "SSIM-T", "flicker": "flicker", "static_pct": "static %", "channels": "scored channels",
@@ -101,4 +113,5 @@ def write_table(out: Path, rows: list[dict], cases: dict, command: str = "") -> 
             md.append(f"| {r['case']} | `{r['preset']}` | {r['analysis']['choice']} | {why} |")
         md.append("")
     md += ["## Cases", "", *[f"* `{c.name}` ({c.truth}): {c.about}" for c in cases.values() if any(r["case"] == c.name for r in rows)], ""]
+    md += ["## How it is measured", "", *HOW, ""]
     atomic_write(Path(out) / "real_suite.md", lambda p: p.write_text("\n".join(md)))

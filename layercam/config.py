@@ -85,6 +85,8 @@ class SceneConfig:
     grid_min_res: int = setting(16, 2)
     grid_max_res: int = setting(0, 0, 8192)  # 0: derived from the atlas's extent in pixels (analyse.resolve_auto)
     grid_features: int = setting(4, 1)
+    grid_sparse_cells: int = setting(16384, 1)  # levels with at least this many cells: sparse gradients, row-wise Adam
+                                             # (a step's cost grows with the batch, not the grid; scene/encodings.py, optim.py)
     atlas_width: int = setting(64, 1)        # atlas MLP width / depth (paper: 512 x 4)
     atlas_depth: int = setting(2, 0)
     deformation: Literal["homography", "mlp"] = "homography"  # per-frame homography + residual MLP | MLP (paper)

@@ -24,7 +24,7 @@ from pathlib import Path
 
 import torch
 
-from layercam import distributed, interrupts
+from layercam import distributed, interrupts, optim
 from layercam.config import TrainConfig
 from layercam.errors import LayercamError
 
@@ -105,7 +105,8 @@ class Trainer:
         self.ckpt_path = Path(ckpt_path) if ckpt_path else None
         self.callbacks = list(callbacks)
         self.progress, self.desc = progress, desc
-        self.opt = torch.optim.Adam(model.param_groups(cfg.lr, cfg.grid_lr), betas=(0.9, 0.99), eps=1e-15)
+        # sparse grid levels: only the rows a batch touches are read and updated (layercam/optim.py)
+        self.opt = optim.Adam(model.param_groups(cfg.lr, cfg.grid_lr), betas=(0.9, 0.99), eps=1e-15)
         self.loss_fn = distributed.loss_fn(model)  # model.loss_dict, through DDP inside a process group
         self.base_lrs = [g["lr"] for g in self.opt.param_groups]
         self.lr_scale = 1.0
@@ -249,6 +250,7 @@ class Trainer:
             raise
         if bar is not None:
             bar.close()
+        self.opt.flush()  # sparse grid rows: the coasting since their last gradient (layercam/optim.py)
         if not self.finite_state():
             raise LayercamError(f"training ended with non-finite parameters at step {self.step}; " + self._kept_message())
         self.save()
@@ -261,7 +263,7 @@ class Trainer:
             names = [k for k, v in terms.items() if not bool(torch.isfinite(v.detach()).all())]
             return f"non-finite loss ({', '.join(names) or 'total'})"
         loss.backward()
-        grads = [p.grad for p in params if p.grad is not None]
+        grads = [p.grad._values() if p.grad.is_sparse else p.grad for p in params if p.grad is not None]  # sparse: its rows
         if grads and not bool(torch.isfinite(torch.nn.utils.get_total_norm(grads))):
             return "non-finite gradient norm"
         return ""

@@ -125,7 +125,7 @@ class TrainStage(Stage):
 
     name = "train"
     deps = ("flow", "bootstrap")
-    version = 3  # 2: alpha trained on bootstrap masks with balanced BCE, tapered (MaskTaper); 3: grid at most one cell per pixel with a blur generator
+    version = 4  # 2: alpha trained on bootstrap masks with balanced BCE, tapered (MaskTaper); 3: grid at most one cell per pixel with a blur generator; 4: sparse grid levels, row-wise Adam (layercam/optim.py)
     all_ranks = True  # data-parallel under torch.distributed (layercam/distributed.py)
 
     def key_material(self, ctx):

@@ -29,6 +29,7 @@ TINY = [
     "train.checkpoint_every=20",
     "scene.grid_levels=3",
     "scene.grid_max_res=32",
+    "scene.grid_sparse_cells=512",  # levels 23 and 32 sparse (as the fine levels of a real clip), 16 dense
     "scene.atlas_width=16",
     "scene.deform_width=16",
     "tone.width=16",

@@ -56,7 +56,7 @@ def _finite(*ts) -> bool:
 
 
 def _grads_finite(module: torch.nn.Module) -> bool:
-    return all(p.grad is None or bool(torch.isfinite(p.grad).all()) for p in module.parameters())
+    return all(p.grad is None or bool(torch.isfinite(p.grad._values() if p.grad.is_sparse else p.grad).all()) for p in module.parameters())
 
 
 def _scale_params(module: torch.nn.Module, scale: float) -> None:

@@ -22,7 +22,7 @@ class AtlasField(nn.Module):
     def __init__(self, cfg: SceneConfig, init_log2: float = 0.0):
         super().__init__()
         if cfg.encoding == "grid":
-            self.enc = DenseGrid2D(cfg.grid_levels, cfg.grid_min_res, cfg.grid_max_res, cfg.grid_features)
+            self.enc = DenseGrid2D(cfg.grid_levels, cfg.grid_min_res, cfg.grid_max_res, cfg.grid_features, sparse_cells=cfg.grid_sparse_cells)
         elif cfg.encoding == "pe":
             self.enc = PositionalEncoding(2, cfg.pe_freqs)
         else:

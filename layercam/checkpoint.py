@@ -96,4 +96,4 @@ def load_run_model(run_dir: Path, device: str = "cpu"):
     except Exception as e:  # noqa: BLE001 - any unreadable checkpoint is a user-facing error
         raise LayercamError(f"{path}: cannot read checkpoint ({e.__class__.__name__})") from None
     ck = upgrade(ck)
-    return model_from_checkpoint(ck), ck
+    return model_from_checkpoint(ck).to(device), ck

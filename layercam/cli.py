@@ -59,7 +59,7 @@ def common_model_args(p: argparse.ArgumentParser) -> None:
     g.add_argument("--preset", default="balanced", help="speed/quality preset: fast, balanced, quality, paper, or a .toml file (default: balanced)")
     g.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE", help="override one setting, e.g. train.steps=500 (repeatable)")
     g.add_argument("--steps", type=POSITIVE_INT, help="shortcut for --set train.steps=N")
-    g.add_argument("--device", choices=["cpu", "cuda", "auto"], help="where to train (default: cpu)")
+    g.add_argument("--device", choices=["cpu", "cuda", "auto"], help="where to train and render: auto (default: CUDA when torch sees a GPU, else the CPU), cpu or cuda")
     m = p.add_argument_group("model (default: chosen by analysis of the clip)")
     m.add_argument("--layers", type=int, choices=[1, 2], help="scene layers: 1, or 2 for an object that moves on its own")
     m.add_argument("--tone-mapper", choices=["learned", "fixed"], help="learn the camera response, or assume sRGB")

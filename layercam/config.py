@@ -153,7 +153,7 @@ class TrainConfig:
     autocast: Literal["auto", "none", "bf16"] = AUTO  # bf16 mixed precision on a GPU, fp32 on the CPU
     compile: bool = False                   # torch.compile the atlas fields (opt-in: 10-30 s to compile)
     checkpoint_every: int = setting(500, 0)  # 0: only at the end (and on Ctrl-C)
-    device: str = setting("cpu", check=_device)
+    device: str = setting("auto", check=_device)  # auto: CUDA when torch sees a GPU, else the CPU
     max_bad_steps: int = setting(20, 1)
 
 

@@ -154,6 +154,7 @@ class TrainStage(Stage):
         masks = ctx.masks if ctx.masks is not None else ctx.results["bootstrap"].get("masks")  # given, else motion masks
         fl = ctx.flow if cfg.model.flow_loss else None
         dev = resolve_device(cfg.train.device)
+        ctx.say(f"[train] device: {device_line(cfg.train.device, dev)}")
         model.to(dev)
         if cfg.train.compile:
             for atlas in model.scene.atlases:
@@ -175,6 +176,7 @@ class TrainStage(Stage):
             "steps": res.steps,
             "processes": distributed.world_size(),
             "device": str(dev),
+            "device_asked": cfg.train.device,
             "seconds_this_session": round(res.seconds, 2),
             "steps_per_s": round((res.steps - res.resumed_from) / max(res.seconds, 1e-9), 2),
             "resumed_from": res.resumed_from,
@@ -212,6 +214,7 @@ class TrainStage(Stage):
 
 
 def resolve_device(name: str) -> str:
+    """``train.device`` -> the device to use: "auto" is CUDA when torch sees a GPU, else the CPU."""
     import torch
 
     if name == "auto":
@@ -219,6 +222,17 @@ def resolve_device(name: str) -> str:
     if name == "cuda" and not torch.cuda.is_available():
         raise LayercamError("--device cuda asked for, but torch sees no CUDA device")
     return name
+
+
+def device_line(asked: str, dev: str) -> str:
+    """What a run says about where it trains, e.g. ``cpu (auto: torch sees no CUDA device)``."""
+    if asked != "auto":
+        return f"{dev} (asked for)"
+    import torch
+
+    if dev.startswith("cuda"):
+        return f"{dev} (auto: {torch.cuda.get_device_name(0)})"
+    return f"{dev} (auto: torch sees no CUDA device)"
 
 
 def model_meta(ctx: Context) -> dict:

@@ -54,7 +54,7 @@ def register(sub) -> argparse.ArgumentParser:
     e.add_argument("--out", help="output folder (default: RUN/edit)")
     e.add_argument("--overwrite", action="store_true", help="replace an earlier edit in the output folder")
     e.add_argument("--fps", type=FPS, help="video frame rate (default: the run's)")
-    e.add_argument("--device", choices=["cpu", "cuda", "auto"], default="cpu")
+    e.add_argument("--device", choices=["cpu", "cuda", "auto"], default="auto", help="auto (default: CUDA when present, else the CPU), cpu or cuda")
     e.add_argument("--quiet", action="store_true")
     return e
 

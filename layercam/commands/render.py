@@ -47,7 +47,7 @@ def register(sub) -> argparse.ArgumentParser:
     r.add_argument("--fps", type=FPS, help="video frame rate (default: the input's for --exposure, 12 for sweeps)")
     r.add_argument("--out", help="output folder (default: RUN/render)")
     r.add_argument("--overwrite", action="store_true", help="replace earlier renders of the same name")
-    r.add_argument("--device", choices=["cpu", "cuda", "auto"], default="cpu")
+    r.add_argument("--device", choices=["cpu", "cuda", "auto"], default="auto", help="auto (default: CUDA when present, else the CPU), cpu or cuda")
     r.add_argument("--quiet", action="store_true")
     return r
 

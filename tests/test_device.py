@@ -1,0 +1,99 @@
+"""Where a run trains: ``--device auto`` (the default) is CUDA when torch sees a GPU, else the CPU,
+and the run says which; the model, the optimiser's state and the sampler's tensors follow the
+device; bf16 autocast trains. What needs a GPU is skipped without one (these machines have none)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from layercam.config import load_config
+from layercam.errors import LayercamError
+from layercam.pipelines.stages import device_line, resolve_device
+from layercam.pipelines.tasks import run_task
+
+from conftest import TINY, decided
+
+CUDA = pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device")
+DEVICES = ["cpu", pytest.param("cuda", marks=CUDA)]
+
+
+def test_auto_is_the_default_and_resolves_to_what_torch_sees(monkeypatch):
+    assert load_config("fast").train.device == "auto"
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
+    assert resolve_device("auto") == "cpu"
+    assert device_line("auto", "cpu") == "cpu (auto: torch sees no CUDA device)"
+    with pytest.raises(LayercamError, match="CUDA"):
+        resolve_device("cuda")
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: True)
+    assert resolve_device("auto") == "cuda" and resolve_device("cuda:1") == "cuda:1"
+    assert device_line("cpu", "cpu") == "cpu (asked for)"
+    with pytest.raises(LayercamError, match="train.device"):
+        load_config("fast", ["train.device=tpu"])
+
+
+def test_a_run_says_where_it_trains(tiny_scene, tiny_exposures, tmp_path):
+    ctx = run_task("hdr-video", tiny_scene.clip, tiny_exposures, load_config("fast", TINY), tmp_path / "run", progress=False)
+    want = resolve_device("auto")
+    assert any(m.startswith(f"[train] device: {want} (auto: ") for m in ctx.log)
+    tr = json.loads((tmp_path / "run" / "report.json").read_text())["train"]
+    assert tr["device"] == want and tr["device_asked"] == "auto"
+
+
+def _tiny_trainer(device: str, autocast: str = "none", steps: int = 30):
+    from layercam.data import PixelSampler
+    from layercam.model import ImplicitCameraModel
+    from layercam.synth import pan_hdr
+    from layercam.train import Trainer
+
+    scene = pan_hdr(frames=3, size=(24, 24), seed=2)
+    h0 = np.tile(np.diag([0.9, 0.9, 1.0])[None, None], (1, 3, 1, 1))
+    cfg = decided(load_config("fast", TINY + [f"train.steps={steps}", f"train.autocast={autocast}"]), h0, (24, 24), flow_loss=False)
+    log2_dt = np.log2(scene.exposure_times / scene.exposure_times.min())
+    torch.manual_seed(0)
+    model = ImplicitCameraModel(cfg, torch.as_tensor(h0, dtype=torch.float32), log2_dt, frame_hw=(24, 24)).to(device)
+    return Trainer(model, PixelSampler(scene.clip.frames, device=device), cfg.train, progress=False)
+
+
+@pytest.mark.parametrize("device", DEVICES)
+def test_model_optimiser_state_and_sampler_follow_the_device(device):
+    tr = _tiny_trainer(device, steps=5)
+    tr.fit()
+    dev = torch.device(device).type
+    sparse = [p for p in tr.model.parameters() if p.grad is not None and p.grad.is_sparse]
+    assert sparse, "the tiny preset should train sparse grid levels"
+    assert all(p.device.type == dev for p in tr.model.parameters())
+    assert all(v.device.type == dev for st in tr.opt.state.values() for k, v in st.items() if k != "step")
+    assert tr.sampler.frames.device.type == dev and tr.sampler.sample(8)["xy"].device.type == dev
+
+
+def test_bf16_autocast_trains_on_the_cpu():
+    """The path a GPU takes by default (train.autocast=auto is bf16 there), run on the CPU."""
+    tr = _tiny_trainer("cpu", autocast="bf16", steps=40)
+    res = tr.fit()
+    assert res.bad_steps == 0 and tr.finite_state()
+    losses = [h["total"] for h in res.history if "total" in h]
+    assert losses[-1] < 0.5 * losses[0]
+
+
+def test_interrupted_and_resumed_training_ends_where_one_run_ends(tmp_path, monkeypatch):
+    """Ctrl-C and the same command again give the model one uninterrupted run gives: the sparse grid
+    levels' row-wise Adam state (moments, each row's last step) is saved and restored with the checkpoint."""
+    from layercam import interrupts
+
+    whole = _tiny_trainer("cpu", steps=30)
+    whole.fit()
+    first = _tiny_trainer("cpu", steps=30)
+    first.ckpt_path = tmp_path / "ckpt.pt"
+    monkeypatch.setenv(interrupts.ENV, "train:17:INT")  # Ctrl-C at step 17
+    with pytest.raises(KeyboardInterrupt):
+        first.fit()
+    monkeypatch.delenv(interrupts.ENV)
+    again = _tiny_trainer("cpu", steps=30)
+    again.ckpt_path = tmp_path / "ckpt.pt"
+    assert again.fit().resumed_from == 17
+    for (name, a), b in zip(whole.model.state_dict().items(), again.model.state_dict().values()):
+        assert torch.equal(a, b), name

@@ -97,6 +97,7 @@ class TrainResult:
     final: dict
     bad_steps: int
     resumed_from: int
+    cpu_seconds: float = 0.0  # process CPU time of the loop: steady when the machine is shared
 
 
 class Trainer:
@@ -184,7 +185,7 @@ class Trainer:
 
     def _fit(self, pending) -> TrainResult:
         resumed = self.try_resume()
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         bar = None
         if self.progress:
             from layercam.progress import bar as progress_bar
@@ -254,7 +255,7 @@ class Trainer:
         if not self.finite_state():
             raise LayercamError(f"training ended with non-finite parameters at step {self.step}; " + self._kept_message())
         self.save()
-        return TrainResult(self.step, time.perf_counter() - t0, self.history, last, self.bad_total, resumed)
+        return TrainResult(self.step, time.perf_counter() - t0, self.history, last, self.bad_total, resumed, time.process_time() - c0)
 
     @staticmethod
     def _check(loss: torch.Tensor, terms: dict, params: list) -> str:

@@ -178,6 +178,7 @@ class TrainStage(Stage):
             "device": str(dev),
             "device_asked": cfg.train.device,
             "seconds_this_session": round(res.seconds, 2),
+            "cpu_seconds_this_session": round(res.cpu_seconds, 2),
             "steps_per_s": round((res.steps - res.resumed_from) / max(res.seconds, 1e-9), 2),
             "resumed_from": res.resumed_from,
             "first_loss": losses[0] if losses else None,

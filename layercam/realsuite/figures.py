@@ -1,8 +1,8 @@
 """One figure per case: the inputs, layercam (each preset run), the classical methods and, where
 there is ground truth (or a reference), the error maps in the scores' units. HDR is shown aligned
-per channel to the truth and mu-law tonemapped (:func:`~layercam.realsuite.measures.display_hdr`);
-the Basler clip, which has no truth, through the preview's global tonemap. Saved as compact
-palette PNGs."""
+per channel to the truth through the preview's global tonemap with the truth's statistics
+(:func:`~layercam.realsuite.measures.display_hdr`); the Basler clip, which has no truth, through
+each method's own tonemap for the whole clip. Saved as compact palette PNGs."""
 
 from __future__ import annotations
 

@@ -122,24 +122,29 @@ def score_hdr(pred: np.ndarray, gt: np.ndarray, unseen: np.ndarray, fg: np.ndarr
     return out
 
 
-def display_hdr(pred: np.ndarray, gt: np.ndarray | None = None, white: float | None = None) -> np.ndarray:
-    """For figures: the prediction aligned per channel to ``gt``, divided by ``white`` (default:
-    gt's 99.5th percentile, so that a few bright lights do not leave the picture black; the scores
-    divide by the maximum), mu-law (mu = 5000); channels left out of the scores
-    (:func:`scored_channels`) are shown black. Without gt: ``layercam.render.tonemap_display``."""
-    if gt is None:
-        from layercam.render import tonemap_display
+def display_hdr(pred: np.ndarray, gt: np.ndarray | None = None) -> np.ndarray:
+    """For figures: the prediction aligned per channel to ``gt`` (channels left out of the scores,
+    :func:`scored_channels`, black), then ``layercam.render.tonemap_display`` (the preview's global
+    Reinhard + sRGB) with the statistics of ``gt``, so that every panel of a case is shown alike.
+    Without gt: the prediction's own tonemap."""
+    from layercam.render import tonemap_display
 
+    if gt is None:
         return tonemap_display(np.asarray(pred, np.float32))[0]
-    p = metrics.align_scale(pred, gt)
-    p[..., [c for c in range(p.shape[-1]) if c not in scored_channels(gt)]] = 0.0
-    w = float(np.nanpercentile(gt, 99.5)) if white is None else float(white)
-    return metrics.mu_law(np.clip(p / max(w, 1e-12), 0, 1)).astype(np.float32)
+    g = np.asarray(gt, np.float32).copy()
+    p = metrics.align_scale(pred, g)
+    off = [c for c in range(p.shape[-1]) if c not in scored_channels(g)]
+    p[..., off], g[..., off] = 0.0, 0.0
+    return tonemap_display(p, tonemap_display(g)[1])[0]
+
+
+def _mu_normalised(pred: np.ndarray, gt: np.ndarray) -> np.ndarray:
+    """The prediction as the scores see it: aligned per channel, divided by gt's maximum, mu-law."""
+    return metrics.mu_law(np.clip(metrics.align_scale(pred, gt) / float(np.nanmax(gt)), 0, 1))
 
 
 def error_map(pred: np.ndarray, gt: np.ndarray) -> np.ndarray:
-    """``|mu(pred) - mu(gt)|`` per pixel (mean over the scored channels) in the scores' units (both
-    divided by gt's maximum). ``(..., H, W)``."""
+    """``|mu(pred) - mu(gt)|`` per pixel, mean over the scored channels, in the scores' units (aligned
+    per channel, both divided by gt's maximum, mu-law). ``(..., H, W)``."""
     keep = scored_channels(gt)
-    w = float(np.nanmax(gt))
-    return np.abs(display_hdr(pred, gt, w) - display_hdr(gt, gt, w))[..., keep].mean(axis=-1)
+    return np.abs(_mu_normalised(pred, gt) - _mu_normalised(gt, gt))[..., keep].mean(axis=-1).astype(np.float32)

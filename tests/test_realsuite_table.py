@@ -40,5 +40,8 @@ def test_table_rows_in_order_with_truth_kind_clipped_share_and_analysis(tmp_path
     assert "Regenerate: `layercam bench --suite real --out X`" in md and "abc1234" in md
     assert "a reference, not truth" in md and "| ntire-000000 | debevec |  | 34.28 |" in md
     assert "failed: exit 2" in md and "independent motion in 100% of frame pairs" in md
-    # one markdown line per row, in four sections with their headers
-    assert sum(line.startswith("| ntire-000000 | ") for line in md.splitlines()) == 4 + 2  # + 2 analysis rows
+    # the targets, measured: layercam under Debevec here, and a dial that rises
+    assert "| ntire-000000 | `fast` | PSNR-mu above OpenCV Debevec | 29.00 vs 34.28 (-5.28 dB) | **no** |" in md
+    assert "| ntire-000000 | `fast -> balanced` | dial monotone (within 0.2 dB) | 29.00 -> 30.50 | yes |" in md
+    # one markdown line per row: 4 table rows, 2 + 1 targets, 2 analysis rows
+    assert sum(line.startswith("| ntire-000000 | ") for line in md.splitlines()) == 4 + 3 + 2

@@ -105,6 +105,7 @@ def write_table(out: Path, rows: list[dict], cases: dict, command: str = "") -> 
         g = [r for r in rows if cases[r["case"]].group == group]
         if g:
             md += [f"## {title}", "", *_md_table(g, fields), ""]
+    md += _targets(rows, cases)
     chosen = [r for r in rows if r["method"] == "layercam" and isinstance(r.get("analysis"), dict)]
     if chosen:
         md += ["## What the analysis chose, and why (report.json[\"analysis\"])", "", "| case | preset | choice | reasons |", "|---|---|---|---|"]
@@ -115,3 +116,35 @@ def write_table(out: Path, rows: list[dict], cases: dict, command: str = "") -> 
     md += ["## Cases", "", *[f"* `{c.name}` ({c.truth}): {c.about}" for c in cases.values() if any(r["case"] == c.name for r in rows)], ""]
     md += ["## How it is measured", "", *HOW, ""]
     atomic_write(Path(out) / "real_suite.md", lambda p: p.write_text("\n".join(md)))
+
+
+def _targets(rows: list[dict], cases: dict) -> list[str]:
+    """Issue 14's targets, case by case: on brackets with ground truth layercam's PSNR-mu above
+    Debevec's; on the composites the whole frame above flow + Debevec and the foreground at least
+    1 dB above it; on the Basler clip flicker no higher than flow + Debevec's; and the dial
+    (fast <= balanced <= quality within 0.2 dB) where more than one preset ran."""
+    out = []
+    ok = [r for r in rows if not r.get("failed")]
+    for name, case in cases.items():
+        mine = [r for r in ok if r["case"] == name and r["method"] == "layercam"]
+        base = {r["method"]: r for r in ok if r["case"] == name and r["method"] != "layercam"}
+        for r in mine:
+            if case.group == "bracket-gt" and "debevec" in base and r.get("psnr_mu") is not None:
+                d = r["psnr_mu"] - base["debevec"]["psnr_mu"]
+                out.append((name, r["preset"], "PSNR-mu above OpenCV Debevec", f"{r['psnr_mu']:.2f} vs {base['debevec']['psnr_mu']:.2f} ({d:+.2f} dB)", d > 0))
+            if case.group == "composite" and "flow+debevec" in base and r.get("psnr_mu") is not None:
+                b = base["flow+debevec"]
+                d, dfg = r["psnr_mu"] - b["psnr_mu"], r["psnr_mu_fg"] - b["psnr_mu_fg"]
+                out.append((name, r["preset"], "whole frame above flow + Debevec", f"{r['psnr_mu']:.2f} vs {b['psnr_mu']:.2f} ({d:+.2f} dB)", d > 0))
+                out.append((name, r["preset"], "foreground >= 1 dB above flow + Debevec", f"{r['psnr_mu_fg']:.2f} vs {b['psnr_mu_fg']:.2f} ({dfg:+.2f} dB)", dfg >= 1.0))
+            if case.group == "video" and "flow+debevec" in base and r.get("flicker") is not None:
+                b = base["flow+debevec"]["flicker"]
+                out.append((name, r["preset"], "flicker no higher than flow + Debevec", f"{r['flicker']:.2f} vs {b:.2f}", r["flicker"] <= b))
+        dial = sorted((r for r in mine if r.get("psnr_mu") is not None and r["preset"] in PRESET_ORDER), key=lambda r: PRESET_ORDER[r["preset"]])
+        for a, b in zip(dial, dial[1:]):
+            out.append((name, f"{a['preset']} -> {b['preset']}", "dial monotone (within 0.2 dB)", f"{a['psnr_mu']:.2f} -> {b['psnr_mu']:.2f}", b["psnr_mu"] >= a["psnr_mu"] - 0.2))
+    if not out:
+        return []
+    md = ["## Issue 14's targets", "", "| case | preset | target | measured | met |", "|---|---|---|---|---|"]
+    md += [f"| {c} | `{p}` | {t} | {m} | {'yes' if y else '**no**'} |" for c, p, t, m, y in out]
+    return md + [""]

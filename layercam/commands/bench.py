@@ -70,7 +70,8 @@ def _run_real(args) -> int:
 
     out = Path(args.out or "runs/real")
     cmd = "layercam bench --suite real --out " + shlex.quote(str(out))
-    for flag, v in (("--cases", args.cases), ("--presets", args.presets), ("--max-frames", args.max_frames), ("--threads", args.threads)):
+    picks = () if args.redraw else (("--cases", args.cases), ("--presets", args.presets))  # a redraw writes every row
+    for flag, v in (*picks, ("--max-frames", args.max_frames), ("--threads", args.threads)):
         if v:
             cmd += f" {flag} {v}"
     cmd += "".join(f" --set {s}" for s in args.overrides) + (" --quick" if args.quick else "")

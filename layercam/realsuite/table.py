@@ -63,13 +63,18 @@ def collect_rows(out: Path, cases: dict) -> list[dict]:
     return rows
 
 
-def _cell(v) -> str:
+_DIGITS = {"clipped_pct": 2, "static_pct": 1, "flicker": 2, "peak_mem_mb": 0, "psnr_mu": 2, "psnr_mu_recov": 2, "psnr_mu_fg": 2, "psnr_t": 2, "psnr_l_t": 2, "psnr_l": 2}
+
+
+def _cell(v, field: str = "") -> str:
     if v is None or v == "":
         return ""
-    if isinstance(v, float):
-        return f"{v:.3f}" if abs(v) < 2 else f"{v:.2f}"
     if isinstance(v, dict):
         return v.get("choice", "")
+    if isinstance(v, float):
+        if field == "wall_s":
+            return f"{v:.1f}" if v >= 10 else f"{v:.2f}"
+        return f"{v:.{_DIGITS.get(field, 3)}f}"
     return str(v)
 
 
@@ -77,10 +82,13 @@ def _md_table(rows: list[dict], fields: list[str]) -> list[str]:
     head = ["case", "method", "preset", *[_HEAD[f] for f in fields], "wall s", "peak MB", "load"]
     out = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for r in rows:
+        vals = [_cell(r.get(f), f) for f in fields]
         if r.get("failed"):
-            cells = [r["case"], r["method"], r.get("preset", ""), f"failed: {r['failed']}", *[""] * (len(fields) - 1), _cell(r.get("wall_s")), _cell(r.get("peak_mem_mb")), _cell(r.get("load"))]
-        else:
-            cells = [r["case"], r["method"], f"`{r['preset']}`" if r.get("preset") else "", *[_cell(r.get(f)) for f in fields], _cell(r.get("wall_s")), _cell(r.get("peak_mem_mb")), _cell(r.get("load"))]
+            vals = [f"failed: {r['failed']}"] + [""] * (len(fields) - 1)
+        elif not any(r.get(f) is not None for f in _HEAD if f not in ("clipped_pct", "channels")):
+            vals[0] = r.get("note", "")  # nothing scored: say why
+        preset = f"`{r['preset']}`" if r.get("preset") else ""
+        cells = [r["case"], r["method"], preset, *vals, _cell(r.get("wall_s"), "wall_s"), _cell(r.get("peak_mem_mb"), "peak_mem_mb"), _cell(r.get("load"))]
         out.append("| " + " | ".join(cells) + " |")
     return out
 
@@ -93,7 +101,7 @@ def write_table(out: Path, rows: list[dict], cases: dict, command: str = "") -> 
             wr = csv.DictWriter(f, fieldnames=CSV_FIELDS)
             wr.writeheader()
             for r in rows:
-                wr.writerow({k: (_cell(r.get(k)) if k == "analysis" else r.get(k, "")) for k in CSV_FIELDS})
+                wr.writerow({k: (_cell(r.get(k), k) if k == "analysis" else r.get(k, "")) for k in CSV_FIELDS})
 
     atomic_write(Path(out) / "real_suite.csv", w_csv)
     codes = sorted({r.get("code", "") for r in rows if r.get("code")})

@@ -34,6 +34,8 @@ __all__ = [
     "exposures_figure",
     "kernels_figure",
     "sweep_figure",
+    "error_overlay",
+    "layer_bench_figure",
 ]
 
 LAYER_NAMES = ("background", "foreground")
@@ -316,4 +318,62 @@ def sweep_figure(images: np.ndarray, evs: Sequence[float], title: str = "EV"):
     for j, (img, ev) in enumerate(zip(images, evs)):
         clipped = float(((img > 0.98) | (img < 0.02)).any(-1).mean())
         _image_axis(axes[0, j], img, f"{title} {float(ev):+.1f}\n{clipped:.0%} clipped")
+    return fig
+
+
+def error_overlay(frame: np.ndarray, pred: np.ndarray, truth: np.ndarray) -> np.ndarray:
+    """Where a mask goes wrong, on the frame ``(H, W, 3)``: ``pred`` and ``truth`` ``(H, W)`` (> 0.5)
+    agreeing on the object in green, ``pred`` alone (false positive) in red, ``truth`` alone (missed)
+    in blue; the background the two agree on is the frame darkened."""
+    p, g = np.asarray(pred) > 0.5, np.asarray(truth) > 0.5
+    out = 0.45 * np.clip(np.asarray(frame, dtype=np.float32), 0, 1)
+    for sel, col in ((p & g, (0.1, 0.85, 0.1)), (p & ~g, (1.0, 0.1, 0.1)), (~p & g, (0.15, 0.35, 1.0))):
+        out[sel] = 0.35 * out[sel] + 0.65 * np.array(col, np.float32)
+    return out
+
+
+def layer_bench_figure(frames: np.ndarray, alpha: np.ndarray, truth: np.ndarray, atlases: Sequence[np.ndarray], boot: np.ndarray | None = None, title: str = "", max_frames: int = 5):
+    """One real clip's two-layer run against its true masks: for up to ``max_frames`` frames spread
+    over the clip, rows of the frame, the foreground ``alpha (T, H, W)``, the true mask
+    ``truth (T, H, W)``, alpha's errors (:func:`error_overlay`, titled with the frame's IoU) and,
+    with ``boot`` (the bootstrap's motion masks), their errors too; a last row with each layer's atlas
+    (``atlases``: per layer ``(R, R, 3)`` in [0, 1]) and the IoU per frame."""
+    from layercam.metrics import iou
+
+    frames = np.asarray(frames, dtype=np.float32)
+    T, H, W = frames.shape[:3]
+    idx = _pick(T, max_frames)
+    rows = [("frame", None), ("alpha", alpha), ("true mask", truth), ("alpha errors", alpha)] + ([("bootstrap errors", boot)] if boot is not None else [])
+    from matplotlib.figure import Figure
+
+    cw = 2.3
+    ch = cw * H / W
+    fig = Figure(figsize=(cw * len(idx), ch * len(rows) + 2.6 + 0.4 * bool(title)), dpi=90, layout="constrained")
+    gs = fig.add_gridspec(len(rows) + 1, len(idx), height_ratios=[ch] * len(rows) + [2.4])
+    for i, (name, arr) in enumerate(rows):
+        for j, t in enumerate(idx):
+            ax = fig.add_subplot(gs[i, j])
+            if name == "frame":
+                _image_axis(ax, frames[t], f"frame {t}")
+            elif name in ("alpha", "true mask"):
+                _image_axis(ax, arr[t], f"{name}" + (f", mean {arr[t].mean():.2f}" if name == "alpha" else ""), cmap="gray", vmin=0, vmax=1)
+            else:
+                _image_axis(ax, error_overlay(frames[t], arr[t], truth[t]), f"{name}: IoU {iou(arr[t] > 0.5, truth[t] > 0.5):.2f}")
+    n_at = len(atlases)
+    sub = gs[len(rows), :].subgridspec(1, n_at + 1, width_ratios=[1] * n_at + [max(1.5, len(idx) - n_at)])
+    for k, at in enumerate(atlases):
+        ax = fig.add_subplot(sub[0, k])
+        _image_axis(ax, at, f"{_layer_name(k, n_at)} atlas")
+    ax = fig.add_subplot(sub[0, n_at])
+    ax.plot([iou(a > 0.5, g > 0.5) for a, g in zip(alpha, truth)], "o-", ms=3, label="alpha")
+    if boot is not None:
+        ax.plot([iou(b > 0.5, g > 0.5) for b, g in zip(boot, truth)], "s--", ms=3, label="bootstrap masks")
+    ax.set_ylim(0, 1)
+    ax.set_xlabel("frame", fontsize=7)
+    ax.set_ylabel("IoU with the true mask", fontsize=7)
+    ax.tick_params(labelsize=6)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=6)
+    if title:
+        fig.suptitle(title, fontsize=9)
     return fig

@@ -30,13 +30,17 @@ def register(sub) -> argparse.ArgumentParser:
     b.add_argument("--presets", help="comma-separated presets (default: fast,balanced,quality,paper; real suite: fast,balanced)")
     b.add_argument("--quick", action="store_true", help="tiny scenes and a few steps: a smoke test, not a measurement")
     b.add_argument("--threads", type=POSITIVE_INT, help="torch threads per job (default: 2; real suite: 1)")
-    b.add_argument("--table", choices=["presets", "analysis"], default="presets", help="synthetic suite: presets, the speed/quality trade (default); analysis: the analysed model against the full model on each synthetic family")
-    b.add_argument("--preset", default="fast", help="preset for --table analysis (default: fast)")
-    b.add_argument("--force", action="store_true", help="real suite: redo finished jobs")
-    b.add_argument("--data", help="real suite: the shared captures (default: $LAYERCAM_DATA or ../shared/data)")
-    b.add_argument("--max-frames", type=POSITIVE_INT, help="real suite: frames of the Basler clip (default: all 74)")
+    b.add_argument("--table", choices=["presets", "analysis", "layers"], default="presets", help="synthetic suite: presets, the speed/quality trade (default); analysis: the analysed model against the full model on each synthetic family; layers: alpha against the true masks on the real DAVIS clips, with and without --masks")
+    b.add_argument("--preset", default="fast", help="preset for --table analysis and layers (default: fast)")
+    b.add_argument("--force", action="store_true", help="real suite, --table layers: redo finished jobs")
+    b.add_argument("--data", help="real suite, --table layers: the shared captures (default: $LAYERCAM_DATA or ../shared/data)")
+    b.add_argument("--max-frames", type=POSITIVE_INT, help="real suite: frames of the Basler clip (default: all 74); --table layers: of each clip")
+    b.add_argument("--clips", help="--table layers: comma-separated clip names, e.g. libby,cows (default: every layers_davis_* clip)")
+    b.add_argument("--variants", default="motion,masks", help="--table layers: motion (no masks: the motion bootstrap), masks (the true masks given) (default: both)")
+    b.add_argument("--resize", default="0.33", help="--table layers: frame scale, as hdr-video's --resize (default: 0.33)")
+    b.add_argument("--layers", choices=["auto", "2"], default="auto", help="--table layers: auto, the analysis decides (default); 2: forced")
     b.add_argument("--redraw", action="store_true", help="real suite: run nothing, write the table and figures again from the finished jobs")
-    b.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE", help="real suite: a setting for every layercam job (repeatable)")
+    b.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE", help="real suite, --table layers: a setting for every layercam job (repeatable)")
     b.add_argument("--quiet", action="store_true")
     return b
 
@@ -51,6 +55,16 @@ def run(args) -> int:
     from layercam.bench import run_analysis_table, run_bench
 
     out = Path(args.out or "runs/bench")
+    if args.table == "layers":
+        import os
+
+        from layercam.bench_layers import run_layers_table
+
+        data = Path(args.data or os.environ.get("LAYERCAM_DATA") or "../shared/data")
+        rows = run_layers_table(out, data, _list(args.clips), tuple(_list(args.variants) or ()), args.preset, args.resize, args.overrides, args.layers, args.max_frames, args.threads or 1, args.force, progress=not args.quiet)
+        if not args.quiet:
+            print(f"wrote {out / 'layers.md'} ({len(rows)} rows)")
+        return 0
     if args.table == "analysis":
         rows = run_analysis_table(out, args.preset, args.quick, progress=not args.quiet)
         if not args.quiet:

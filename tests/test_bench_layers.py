@@ -1,0 +1,62 @@
+"""``layercam bench --table layers`` (layercam.bench_layers): alpha against true masks on real clips."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from layercam import bench_layers
+from layercam.errors import LayercamError
+from layercam.viz import error_overlay
+
+
+def test_mask_ious_and_error_overlay():
+    truth = np.zeros((2, 8, 8), np.float32)
+    truth[:, 2:6, 2:6] = 1
+    pred = truth.copy()
+    pred[1, 2:6, 2:4] = 0  # half of the object missed in frame 1
+    pred[1, 0, 0] = 1  # and one false positive
+    ious = bench_layers.mask_ious(pred, truth)
+    assert ious[0] == 1.0 and abs(ious[1] - 8 / 17) < 1e-9
+    img = error_overlay(np.full((8, 8, 3), 0.5, np.float32), pred[1], truth[1])
+    assert img[0, 0, 0] > 0.6 and img[0, 0, 1] < 0.3  # false positive: red
+    assert img[3, 2, 2] > 0.6 and img[3, 2, 0] < 0.3  # missed: blue
+    assert img[3, 5, 1] > 0.6 and img[3, 5, 0] < 0.3  # found: green
+    assert np.allclose(img[7, 7], 0.45 * 0.5)  # agreed background: the frame darkened
+
+
+def test_find_clips_and_table(tmp_path):
+    with pytest.raises(LayercamError, match="no layers_davis"):
+        bench_layers.find_clips(tmp_path)
+    for n in ("a", "b"):
+        (tmp_path / f"layers_davis_{n}" / "frames").mkdir(parents=True)
+        (tmp_path / f"layers_davis_{n}" / "masks_gt").mkdir()
+    assert list(bench_layers.find_clips(tmp_path)) == ["a", "b"]
+    assert list(bench_layers.find_clips(tmp_path, ["b"])) == ["b"]
+    with pytest.raises(LayercamError, match="unknown clip 'c'"):
+        bench_layers.find_clips(tmp_path, ["c"])
+    row = {"clip": "a", "variant": "motion", "frames": 3, "size": "8x8", "layers": 2, "iou": 0.5, "iou_min": 0.25, "bootstrap_iou": 0.4, "psnr": 30.0, "wall_s": 12.0}
+    bench_layers.write_layers_table(tmp_path, [row, {**row, "variant": "masks", "bootstrap_iou": None}])
+    md = (tmp_path / "layers.md").read_text().splitlines()
+    assert len(md) == 4 and "| a | 3 | 8x8 | none (motion) | 2 | 0.500 | 0.250 | 0.400 | 30.00 | 12 |" in md
+
+
+@pytest.mark.data
+def test_layer_job_on_a_real_clip_and_resume(shared_data, tmp_path):
+    folder = shared_data / "layers_davis_cows"
+    if not folder.is_dir():
+        pytest.skip(f"{folder} is absent")
+    job = {"clip": "cows", "folder": str(folder), "variant": "motion", "preset": "fast", "resize": "0.1", "max_frames": 4, "layers": "2",
+           "overrides": ["train.steps=20", "train.bootstrap_steps=5", "train.batch=1024"], "run": str(tmp_path / "runs" / "cows-motion"), "figure": str(tmp_path / "cows-motion.png")}
+    row = bench_layers.run_layer_job(job)
+    assert row["layers"] == 2 and row["frames"] == 4 and row["size"] == "85x48"
+    assert len(row["per_frame_iou"]) == 4 and 0.0 <= row["iou"] <= 1.0 and 0.0 <= row["bootstrap_iou"] <= 1.0
+    assert np.isfinite(row["psnr"]) and row["psnr"] > 10
+    assert (tmp_path / "cows-motion.png").stat().st_size > 10_000
+    # a finished job's result is re-used, not re-run (no subprocess is started for it)
+    (tmp_path / "results").mkdir()
+    (tmp_path / "results" / "cows-motion.json").write_text(json.dumps(row))
+    rows = bench_layers.run_layers_table(tmp_path, shared_data, ["cows"], ("motion",), progress=False)
+    assert rows == [row] and "| cows | 4 | 85x48 |" in (tmp_path / "layers.md").read_text()

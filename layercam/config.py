@@ -168,10 +168,15 @@ class SegmentConfig:
     """Motion segmentation of a two-layer clip (:func:`layercam.segment.motion_masks`) and the
     foreground layer's bootstrap. Distances in pixels of the clip being segmented.
 
-    ``abs_px``: a residual below this is never motion. ``k_sigma``: a residual must also exceed
-    the frame's robust residual level (median + k_sigma * 1.4826 MAD). ``window``: neighbours on
-    each side averaged along the flow; ``vote``: the averaged evidence that makes a pixel
-    foreground. ``grid``: flow samples per side for the homography fit. ``min_area``: components
+    ``abs_px``: a residual below this (times sqrt(k) over k frames) is never motion. ``k_sigma``: a
+    residual must also exceed the pair's robust residual level (median + k_sigma * 1.4826 MAD).
+    ``reach``: pixels are followed along the flow to frames 1, 2, 4, ... up to ``reach`` away on
+    each side (:func:`layercam.motion.long_range_evidence`); ``evidence``: the share of those pairs
+    in which a pixel must move. ``f_vote``: the share of pairs that must vote for the epipolar model
+    (parallax) for the clip to use it, and ``min_object``: the median share of a frame that its
+    masks must still cover (otherwise it explained the object away as well). ``window``: neighbours
+    on each side averaged along the flow; ``vote``: the averaged evidence that makes a pixel
+    foreground. ``min_area``: components
     smaller than this fraction of the frame are dropped, and so are those smaller than
     ``keep_fraction`` of the frame's largest. ``still_fraction``: a frame whose mask is smaller than
     this fraction of the clip's median area inherits its neighbours' masks (the object stood still).
@@ -182,12 +187,15 @@ class SegmentConfig:
 
     abs_px: float = setting(0.5, 0.0)
     k_sigma: float = setting(4.0, 0.0)
+    reach: int = setting(8, 1, 64)
+    evidence: float = setting(0.5, 0.0, 1.0)
+    f_vote: float = setting(0.5, 0.0, 1.0)
+    min_object: float = setting(0.005, 0.0, 1.0)
     window: int = setting(2, 0, 16)
     vote: float = setting(0.4, 0.0, 1.0)
     min_area: float = setting(0.002, 0.0, 1.0)
     keep_fraction: float = setting(0.15, 0.0, 1.0)
     still_fraction: float = setting(0.3, 0.0, 1.0)
-    grid: int = setting(48, 2)
     grabcut: int = setting(4, 0, 32)
     foreground: Literal["object", "identity"] = "object"
     margin: float = setting(0.6, above=0.0, hi=1.0)

@@ -27,7 +27,7 @@ import numpy as np
 from layercam.config import SegmentConfig
 from layercam.errors import LayercamError
 
-__all__ = ["SegmentConfig", "motion_evidence", "motion_masks", "clean_mask", "object_motion", "foreground_mappings"]
+__all__ = ["SegmentConfig", "motion_masks", "clean_mask", "object_motion", "foreground_mappings"]
 
 
 def _check_flows(fw, bw) -> tuple[np.ndarray, np.ndarray]:
@@ -38,43 +38,6 @@ def _check_flows(fw, bw) -> tuple[np.ndarray, np.ndarray]:
     if f.shape[0] < 1:
         raise LayercamError("motion segmentation needs at least two frames")
     return f, b
-
-
-def _residual(flow_t: np.ndarray, hm: np.ndarray) -> np.ndarray:
-    from layercam.flow import _homography_flow
-
-    h, w = flow_t.shape[:2]
-    return np.linalg.norm(flow_t - _homography_flow(hm, h, w), axis=-1)
-
-
-def motion_evidence(fw, bw, homs=None, cfg: SegmentConfig | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Per-frame residual motion ``(T, H, W)`` (pixels) and its binary evidence ``(T, H, W)`` bool.
-
-    ``homs`` ``(T-1, 3, 3)``: frame t -> t+1 homographies (pixels); fitted when None.
-    """
-    from layercam.flow import global_homographies
-
-    cfg = cfg or SegmentConfig()
-    f, b = _check_flows(fw, bw)
-    n, h, w = f.shape[:3]
-    if homs is None:
-        homs = global_homographies(f, grid=cfg.grid)
-    homs = np.asarray(homs, dtype=np.float64)
-    if homs.shape != (n, 3, 3):
-        raise LayercamError(f"expected homographies ({n},3,3), got {homs.shape}")
-    fwd = [_residual(f[i], homs[i]) for i in range(n)]                   # at frame i
-    bwd = [_residual(b[i], np.linalg.inv(homs[i])) for i in range(n)]    # at frame i+1
-    res = np.empty((n + 1, h, w), np.float32)
-    for t in range(n + 1):
-        parts = ([fwd[t]] if t < n else []) + ([bwd[t - 1]] if t > 0 else [])
-        res[t] = np.minimum.reduce(parts) if len(parts) > 1 else parts[0]
-    ev = np.zeros(res.shape, bool)
-    for t in range(n + 1):
-        r = res[t]
-        med = float(np.median(r))
-        mad = float(np.median(np.abs(r - med))) * 1.4826
-        ev[t] = r > max(cfg.abs_px, med + cfg.k_sigma * mad)
-    return res, ev
 
 
 def _warp_to(mask_next: np.ndarray, flow_t: np.ndarray) -> np.ndarray:
@@ -164,18 +127,43 @@ def _fill_still_frames(masks: np.ndarray, fw: np.ndarray, bw: np.ndarray, frac: 
     return out, filled
 
 
-def motion_masks(fw, bw, homs=None, cfg: SegmentConfig | None = None) -> tuple[np.ndarray, dict]:
+def _voted_masks(soft: np.ndarray, f: np.ndarray, b: np.ndarray, cfg: SegmentConfig) -> np.ndarray:
+    """Soft evidence ``(T, H, W)`` -> cleaned masks ``(T, H, W)`` bool: thresholded at
+    ``cfg.evidence``, averaged with its neighbours along the flow, thresholded at ``cfg.vote``."""
+    ev = soft >= cfg.evidence
+    vote = _temporal_vote(ev, f, b, cfg.window) if cfg.window > 0 else ev.astype(np.float32)
+    return np.stack([clean_mask(v >= cfg.vote, cfg) for v in vote])
+
+
+def motion_offsets(reach: int) -> tuple[int, ...]:
+    """Frame offsets 1, 2, 4, ... up to ``reach`` (at least 1)."""
+    return tuple(2**i for i in range(int(np.log2(max(int(reach), 1))) + 1))
+
+
+def motion_masks(fw, bw, fw_ok=None, bw_ok=None, cfg: SegmentConfig | None = None) -> tuple[np.ndarray, dict]:
     """Foreground masks of whatever moves on its own: ``(T, H, W)`` float32 in {0, 1}, and an info
-    dict (coverage per frame, frames filled from neighbours)."""
+    dict (coverage per frame, frames filled from neighbours, the static scene's model). ``fw_ok``,
+    ``bw_ok`` ``(T-1, H, W)``: the flows' forward-backward checks (computed when None)."""
+    from layercam.flow import flow_consistency
+    from layercam.motion import long_range_evidence
+
     cfg = cfg or SegmentConfig()
     f, b = _check_flows(fw, bw)
-    _, ev = motion_evidence(f, b, homs, cfg)
-    vote = _temporal_vote(ev, f, b, cfg.window) if cfg.window > 0 else ev.astype(np.float32)
-    masks = np.stack([clean_mask(v >= cfg.vote, cfg) for v in vote])
+    fo = flow_consistency(f, b) if fw_ok is None else np.asarray(fw_ok, bool)
+    bo = flow_consistency(b, f) if bw_ok is None else np.asarray(bw_ok, bool)
+    soft, share = long_range_evidence(f, b, fo, bo, motion_offsets(cfg.reach), cfg.abs_px, cfg.k_sigma, cfg.f_vote)
+    masks = _voted_masks(soft["homography"], f, b, cfg)
+    model = {"model": "homography", "epipolar_votes": round(share, 3)}
+    if soft["epipolar"] is not None:  # parallax: unless the epipolar model explained the object away too
+        alt = _voted_masks(soft["epipolar"], f, b, cfg)
+        left = float(np.median(alt.reshape(len(alt), -1).mean(1)))
+        model["epipolar_coverage"] = round(left, 4)
+        if left >= cfg.min_object:
+            masks, model["model"] = alt, "epipolar"
     masks, filled = _fill_still_frames(masks, f, b, cfg.still_fraction)
     masks = np.stack([clean_mask(m, cfg) for m in masks]) if filled else masks
     cover = masks.reshape(len(masks), -1).mean(1)
-    info = {"coverage_mean": float(cover.mean()), "coverage_min": float(cover.min()), "coverage_max": float(cover.max()), "filled_from_neighbours": filled, "empty_frames": int((cover == 0).sum())}
+    info = {**model, "coverage_mean": float(cover.mean()), "coverage_min": float(cover.min()), "coverage_max": float(cover.max()), "filled_from_neighbours": filled, "empty_frames": int((cover == 0).sum())}
     return masks.astype(np.float32), info
 
 
@@ -284,7 +272,7 @@ def grabcut_refine(frame: np.ndarray, mask: np.ndarray, iters: int = 4) -> np.nd
     return out if out.any() else m
 
 
-SEGMENT_VERSION = 1               # bump when motion_masks changes what it returns
+SEGMENT_VERSION = 2               # bump when motion_masks changes what it returns
 
 
 def foreground_bootstrap(frames: np.ndarray, flows: dict | None, masks: np.ndarray | None = None, cfg: SegmentConfig | None = None) -> dict:
@@ -301,7 +289,7 @@ def foreground_bootstrap(frames: np.ndarray, flows: dict | None, masks: np.ndarr
     computed = False
     if masks is None and flows is not None and T > 1:
         fw, bw = flows["fw"].astype(np.float32), flows["bw"].astype(np.float32)
-        masks, info = motion_masks(fw, bw, flows.get("homs"), cfg)
+        masks, info = motion_masks(fw, bw, flows.get("fw_ok"), flows.get("bw_ok"), cfg)
         if cfg.grabcut > 0:
             masks = np.stack([grabcut_refine(frames[t], masks[t], cfg.grabcut) for t in range(T)]).astype(np.float32)
             info["coverage_after_grabcut"] = float(masks.mean())

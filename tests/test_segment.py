@@ -42,7 +42,7 @@ def square():
 
 
 def test_motion_masks_find_the_moving_square(square):
-    m, info = segment.motion_masks(square["fw"], square["bw"], square["homs"])
+    m, info = segment.motion_masks(square["fw"], square["bw"])
     assert m.shape == square["masks"].shape and m.dtype == np.float32
     assert set(np.unique(m)) <= {0.0, 1.0}
     ious = [metrics.iou(m[t] > 0.5, square["masks"][t]) for t in range(len(m))]

@@ -221,6 +221,9 @@ def format_table(cfg: Config, reasons: dict) -> str:
     return "\n".join(f"  {a:<{w0}}  {b:<{w1}}  {c}" for a, b, c in rows)
 
 
+ALPHA_GRID_MAX = 512  # cells across the alpha grid's finest level at most (T x 512^2 x 2 floats)
+
+
 def resolve_auto(cfg: Config, static: bool, h0, frame_hw: tuple[int, int]) -> Config:
     """The settings left ``auto`` until the bootstrap has run, resolved in a copy of ``cfg``:
 
@@ -238,6 +241,8 @@ def resolve_auto(cfg: Config, static: bool, h0, frame_hw: tuple[int, int]) -> Co
       samples the scene between pixels, so a finer grid lets the scene keep sub-pixel content that
       each image's PSF reads on its own, fitting every image without one sharp scene (the PSFs
       collapsed to deltas on the focus x exposure stack: ``docs/measurements.md``).
+    * ``scene.alpha_grid_res = 0``: the alpha grid's finest level has one cell per pixel along the
+      frame's longer side, at most ``ALPHA_GRID_MAX``.
     """
     from layercam.geometry import atlas_pixels
 
@@ -255,4 +260,6 @@ def resolve_auto(cfg: Config, static: bool, h0, frame_hw: tuple[int, int]) -> Co
         res = int(round(px)) if cfg.model.blur == "on" else 2 ** math.ceil(math.log2(max(px, 2.0)))
         s.grid_max_res = int(min(max(res, 32), 2048))
         s.grid_min_res = min(s.grid_min_res, s.grid_max_res)
+    if s.alpha_grid_res == 0:  # one cell per frame pixel along the longer side
+        s.alpha_grid_res = int(min(max(frame_hw), ALPHA_GRID_MAX))
     return cfg

@@ -68,7 +68,7 @@ def reconstruction_psnr(model, frames: np.ndarray) -> list[float]:
     from layercam.render import render_frame
 
     hw = frames.shape[1:3]
-    return [psnr(np.clip(render_frame(model, t, hw, what="ldr", blur=model.blur is not None)["image"], 0, 1), frames[t]) for t in range(len(frames))]
+    return [psnr(np.clip(render_frame(model, t, hw, ("ldr",), blur=model.blur is not None)["ldr"], 0, 1), frames[t]) for t in range(len(frames))]
 
 
 def run_layer_job(job: dict) -> dict:
@@ -78,18 +78,18 @@ def run_layer_job(job: dict) -> dict:
     from layercam.config import load_config
     from layercam.io import load_clip, parse_exposures
     from layercam.io.masks import load_masks
+    from layercam.checkpoint import load_run_model
     from layercam.pipelines.tasks import run_task
-    from layercam.render import load_run_model
 
     torch.set_num_threads(job.get("threads", 1))
     folder, run = Path(job["folder"]), Path(job["run"])
     clip = load_clip(folder / "frames", max_frames=job.get("max_frames"), resize=job["resize"])
     truth = load_masks(folder / "masks_gt", clip)
     exposures = parse_exposures("none", clip)
-    cfg = load_config(job["preset"], job.get("overrides", []))
-    forced = {"layers": 2} if job.get("layers") == "2" else None
+    forced = ["model.layers=2"] if job.get("layers") == "2" else []
+    cfg = load_config(job["preset"], forced + list(job.get("overrides", [])))
     t0 = time.perf_counter()
-    ctx = run_task("hdr-video", clip, exposures, cfg, run, forced, masks=truth if job["variant"] == "masks" else None, progress=False)
+    ctx = run_task("hdr-video", clip, exposures, cfg, run, masks=truth if job["variant"] == "masks" else None, progress=False)
     total = time.perf_counter() - t0
     wall = sum((v.get("seconds") or v.get("original_seconds") or 0.0) for v in ctx.times.values())
     alpha = read_alpha(run, clip.T, (clip.H, clip.W))
@@ -100,7 +100,7 @@ def run_layer_job(job: dict) -> dict:
     psnrs = reconstruction_psnr(model, clip.frames)
     row = {
         "clip": job["clip"], "variant": job["variant"], "frames": clip.T, "size": f"{clip.W}x{clip.H}", "preset": job["preset"],
-        "layers": int(ctx.spec.layers), "layers_reason": ctx.spec.reasons.get("layers", ""),
+        "layers": int(ctx.cfg.model.layers), "layers_reason": ctx.reasons.get("layers", ""),
         "iou": round(float(np.mean(ious)), 4), "iou_min": round(float(np.min(ious)), 4),
         "bootstrap_iou": None if boot_ious is None else round(float(np.mean(boot_ious)), 4),
         "psnr": round(float(np.mean(psnrs)), 3), "wall_s": round(wall, 1), "total_s": round(total, 1),

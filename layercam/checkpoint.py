@@ -49,7 +49,8 @@ def upgrade(ck: dict) -> dict:
     blur "off"|"3x3"|"5x5", max_offset, flow_loss, reasons) becomes the ``model`` section and the
     blur generator's ``n``/``max_offset``; settings that were left ``auto`` then (residual, PSF
     centre) are given the values those runs were trained with; a derived grid size that was not
-    stored is read from the saved grid."""
+    stored is read from the saved grid; an alpha field saved before the alpha grid is the positional
+    encoding alone."""
     ck = dict(ck)
     cfg = {k: dict(v) if isinstance(v, dict) else v for k, v in ck["cfg"].items()}
     spec = ck.pop("spec", None)
@@ -69,6 +70,8 @@ def upgrade(ck: dict) -> dict:
         sizes = [v.shape[-1] for k, v in ck["state"].items() if k.startswith("scene.atlases.0.enc.grids.")]
         if sizes:
             scene["grid_min_res"], scene["grid_max_res"] = int(min(sizes)), int(max(sizes))
+    if "alpha_encoding" not in scene:  # saved before the alpha grid existed: positional encoding only
+        scene["alpha_encoding"] = "pe"
     ck["cfg"] = cfg
     ck["format"] = FORMAT
     return ck

@@ -99,6 +99,10 @@ class SceneConfig:
     alpha_width: int = setting(64, 1)
     alpha_depth: int = setting(3, 0)
     alpha_pe_freqs: int = setting(6, 0, 16)
+    alpha_encoding: Literal["pe", "grid"] = "grid"  # alpha from the positional encoding only | also dense (x, y, t) grids
+    alpha_grid_levels: int = setting(4, 1, 8)
+    alpha_grid_res: int = setting(0, 0, 4096)  # finest cells across; 0: the frame's longer side, at most 512 (analyse.resolve_auto)
+    alpha_grid_features: int = setting(2, 1)
 
 
 @dataclass
@@ -379,6 +383,8 @@ def unresolved(cfg: Config) -> list[str]:
         out.append("scene.residual")
     if cfg.scene.encoding == "grid" and cfg.scene.grid_max_res == 0:
         out.append("scene.grid_max_res")
+    if cfg.scene.alpha_encoding == "grid" and cfg.scene.alpha_grid_res == 0 and cfg.model.layers != 1:
+        out.append("scene.alpha_grid_res")
     return out
 
 

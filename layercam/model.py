@@ -159,7 +159,7 @@ class ImplicitCameraModel(nn.Module):
         for name, p in self.named_parameters():
             if name.startswith("blur."):
                 blur.append(p)
-            elif ".enc.levels." in name:
+            elif ".enc.levels." in name or ".grid.grids." in name:  # atlas and alpha grid tables
                 grid.append(p)
             elif name.endswith(".dh"):
                 dh.append(p)

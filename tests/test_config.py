@@ -89,7 +89,7 @@ def test_every_section_is_reachable_by_set():
 
 def test_auto_is_left_to_the_analysis():
     cfg = load_config("balanced")
-    assert set(unresolved(cfg)) == {"model.layers", "model.tone_mapper", "model.exposures", "model.blur", "model.flow_loss", "blur.n", "blur.max_offset", "blur.centre", "scene.residual", "scene.grid_max_res"}
+    assert set(unresolved(cfg)) == {"model.layers", "model.tone_mapper", "model.exposures", "model.blur", "model.flow_loss", "blur.n", "blur.max_offset", "blur.centre", "scene.residual", "scene.grid_max_res", "scene.alpha_grid_res"}
     paper = load_config("paper")  # the paper's n = 3, s = 5 are set, not derived
     assert (paper.blur.n, paper.blur.max_offset) == (3, 5.0)
 

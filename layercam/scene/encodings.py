@@ -151,3 +151,29 @@ class DenseGrid2D(nn.Module):
             old = state_dict.pop(f"{prefix}grids.{l}", None)
             if old is not None:
                 state_dict[f"{prefix}levels.{l}.weight"] = old[0].permute(1, 2, 0).reshape(-1, old.shape[1])
+
+
+class DenseGrid3D(nn.Module):
+    """Multi-resolution dense grids over ``(x, y, t)``. ``(N, 3)`` in ``[-1, 1]`` -> ``(N, levels * features)``.
+
+    Level ``l`` has ``res_l`` cells along x and y (geometric from ``max_res / 2^(levels-1)``, at
+    least 4, to ``max_res``) and ``frames_l`` along t (from ``frames / 2^(levels-1)``, at least 2,
+    to ``frames``): the coarse levels are shared by neighbouring frames, the finest holds one slice
+    per frame. Trilinear sampling (``align_corners=False``: frame ``t``'s slice of the finest level
+    sits at ``(2t + 1) / frames - 1``), borders clamp.
+    """
+
+    def __init__(self, levels: int, max_res: int, frames: int, features: int = 2, init_std: float = 1e-2):
+        super().__init__()
+        if levels < 1 or max_res < 2 or frames < 1:
+            raise ValueError("DenseGrid3D: need levels >= 1, max_res >= 2 and frames >= 1")
+        self.shapes = [(max(frames // 2 ** (levels - 1 - l), min(frames, 2)), max(max_res // 2 ** (levels - 1 - l), 4)) for l in range(levels)]
+        self.grids = nn.ParameterList([nn.Parameter(torch.randn(1, features, d, r, r) * init_std) for d, r in self.shapes])
+        self.out_dim = levels * features
+
+    def forward(self, xyt: torch.Tensor) -> torch.Tensor:
+        if xyt.ndim != 2 or xyt.shape[1] != 3:
+            raise ValueError(f"DenseGrid3D expects (N, 3), got {tuple(xyt.shape)}")
+        g = xyt.view(1, -1, 1, 1, 3).to(self.grids[0].dtype)
+        feats = [F.grid_sample(grid, g, mode="bilinear", padding_mode="border", align_corners=False)[0, :, :, 0, 0] for grid in self.grids]
+        return torch.cat(feats, dim=0).t()

@@ -27,6 +27,9 @@ IND_MOTION_FRAC = (0.02, 0.6)  # fraction of such pixels that makes a foreground
 IND_MOTION_PAIRS = 0.3       # ... in at least this fraction of neighbour pairs
 MIN_MOVING_PAIRS = 2         # ... and in at least this many: one pair can be a flow failure (e.g. between
                              # two differently defocused images; docs/measurements.md)
+LONG_REACH = 8               # ... or of pairs this many frames apart (layercam.motion.long_range_moving_share):
+                             # a slow object (DAVIS cows, 0.1-0.5 px per frame) in 0% of neighbour pairs
+LONG_MIN_PAIRS = 2           # ... at least two of them
 MIN_EVIDENCE = 0.03          # a pair counts for motion when both frames see well this share of its pixels
 STATIC_PX = 0.3              # below this median flow the scene is static: no flow loss needed
 BLUR_SIGMA = 0.8             # relative blur (Gaussian sigma, px) of a tile that needs a blur generator
@@ -67,6 +70,13 @@ def _motion(frames: np.ndarray, flow: dict) -> tuple[dict, np.ndarray]:
     fg = ((frac > lo) & (frac < hi))[evidence]
     m["independent_pairs"] = float(fg.mean()) if evidence.any() else 0.0
     m["moving_pairs"] = int(fg.sum())
+    from layercam.motion import long_range_moving_share
+
+    share = long_range_moving_share(fw, seen, LONG_REACH, IND_MOTION_PX)  # followed through what both frames see well
+    fg_long = (share > lo) & (share < hi)
+    m["independent_frac_long"] = float(np.median(share)) if len(share) else 0.0
+    m["independent_pairs_long"] = float(fg_long.mean()) if len(share) else 0.0
+    m["moving_pairs_long"] = int(fg_long.sum())
     return m, moving
 
 
@@ -136,10 +146,16 @@ def decide(cfg: Config, clip, exposures, task: str, measures: dict | None = None
     # layers: a second layer only when something moves against the camera's global motion
     pairs = mm.get("independent_pairs", 0.0)
     frac = mm.get("independent_motion_frac", 0.0)
+    pairs_long = mm.get("independent_pairs_long", 0.0)
     if not forced("model.layers", m.layers):
-        if clip.T > 1 and pairs >= IND_MOTION_PAIRS and mm.get("moving_pairs", 0) >= MIN_MOVING_PAIRS:
+        if mm.get("masks_given"):
+            m.layers, r["layers"] = 2, "foreground masks given (--masks)"
+        elif clip.T > 1 and pairs >= IND_MOTION_PAIRS and mm.get("moving_pairs", 0) >= MIN_MOVING_PAIRS:
             m.layers = 2
             r["layers"] = f"independent motion in {pairs:.0%} of frame pairs (median {frac:.1%} of pixels beyond {IND_MOTION_PX} px of the global homography)"
+        elif clip.T > 1 and pairs_long >= IND_MOTION_PAIRS and mm.get("moving_pairs_long", 0) >= LONG_MIN_PAIRS:
+            m.layers = 2
+            r["layers"] = f"independent motion in {pairs_long:.0%} of frame pairs {LONG_REACH} frames apart (median {mm.get('independent_frac_long', 0.0):.1%} of pixels beyond {IND_MOTION_PX} px of the static scene)"
         else:
             m.layers = 1
             if not measures:

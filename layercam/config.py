@@ -143,6 +143,8 @@ class LossConfig:
     rigidity: float = setting(0.01, 0.0)
     sparsity: float = setting(0.001, 0.0)
     alpha_flow: float = setting(1.0, 0.0)
+    mask_given: float = setting(1.0, 0.0, 1.0)   # share of the alpha-mask weight kept all through training with --masks
+    mask_motion: float = setting(0.0, 0.0, 1.0)  # ... with the motion bootstrap's masks
 
 
 @dataclass

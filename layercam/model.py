@@ -80,17 +80,18 @@ class ImplicitCameraModel(nn.Module):
             alpha_flow=lc.alpha_flow if m.layers > 1 and m.flow_loss else 0.0,
         )
 
-    def training_callbacks(self, masks: bool = False) -> list:
+    def training_callbacks(self, masks: bool = False, given: bool = False) -> list:
         """The schedules of this model's loss weights over ``cfg.train.steps``: the flow terms decay
         to 0 by ``loss.flow_decay_end``; the deformation is fitted to its bootstrap mapping for the
-        first ``train.bootstrap_steps``; with ``masks`` (given or from motion segmentation) and an
-        alpha field, alpha is fitted to them at first, the weight tapering off with the flow's."""
+        first ``train.bootstrap_steps``; with ``masks`` (``given`` by the user, or from motion
+        segmentation) and an alpha field, alpha is fitted to them at first, the weight tapering off
+        with the flow's to the share ``loss.mask_given`` or ``loss.mask_motion`` of it."""
         from layercam.train import BootstrapPhase, FlowDecay, MaskTaper
 
         c = self.cfg
         if masks and self.scene.alpha is not None:
             self.loss_weights.alpha_mask = 1.0
-        return [FlowDecay(c.loss.flow_decay_end), BootstrapPhase(c.train.bootstrap_steps, keys=("bootstrap",)), MaskTaper(c.train.bootstrap_steps, c.loss.flow_decay_end)]
+        return [FlowDecay(c.loss.flow_decay_end), BootstrapPhase(c.train.bootstrap_steps, keys=("bootstrap",)), MaskTaper(c.train.bootstrap_steps, c.loss.flow_decay_end, c.loss.mask_given if given else c.loss.mask_motion)]
 
     # -- rendering ---------------------------------------------------------------------------
     def irradiance(self, xy: torch.Tensor, t: torch.Tensor) -> dict:

@@ -21,9 +21,10 @@ pairs (the wall beside the path), libby 0.69 (branches, fence posts), car-rounda
 
 Per pair a pixel moves when its residual exceeds ``max(abs_px * sqrt(k), median + k_sigma * 1.4826
 MAD)`` of the pair's residuals. The evidence of frame ``t`` is, per direction, the fraction of its
-valid pairs in which the pixel moved, then the smaller of the two directions (as in
-:func:`layercam.segment.motion_evidence`: the background an object is about to cover or has just
-uncovered moves in one direction only). A slow object (0.1-0.2 px per frame) builds up evidence
+valid pairs in which the pixel moved (a pair ``k`` frames apart weighs ``sqrt(k)``: an object moving
+0.5 px per frame leaves the model only over 4 and 8 frames); then the two directions' mean, but at
+most twice the smaller: the background an object is about to cover or has just uncovered moves in
+one direction only, while a slow object near the clip's end may lack the long pairs on one side. A slow object (0.1-0.2 px per frame) builds up evidence
 over 8 frames; flicker (noise, water, reflections) does not add up along a consistent track.
 
 Shapes: flows ``(T-1, H, W, 2)`` in pixels, validity ``(T-1, H, W)`` bool, evidence ``(T, H, W)``.
@@ -41,8 +42,9 @@ def _grid(h: int, w: int) -> np.ndarray:
     return np.stack([xx, yy], -1)
 
 
-def chained_displacements(fw: np.ndarray, bw: np.ndarray, fw_ok: np.ndarray, bw_ok: np.ndarray, t: int, kmax: int) -> dict:
-    """``{k: (d (H, W, 2), valid (H, W))}`` for ``k = +-1 .. +-kmax`` inside the clip: where each pixel
+def chained_displacements(fw: np.ndarray, bw: np.ndarray | None, fw_ok: np.ndarray, bw_ok: np.ndarray | None, t: int, kmax: int) -> dict:
+    """``{k: (d (H, W, 2), valid (H, W))}`` for ``k = +-1 .. +-kmax`` inside the clip (forward only
+    when ``bw`` is None): where each pixel
     of frame ``t`` lands in frame ``t + k`` along the chained flows (``fw[j]``: j -> j+1, ``bw[j]``:
     j+1 -> j), valid where every step lands inside the frame on a forward-backward consistent pixel."""
     import cv2
@@ -51,7 +53,7 @@ def chained_displacements(fw: np.ndarray, bw: np.ndarray, fw_ok: np.ndarray, bw_
     h, w = fw.shape[1:3]
     base = _grid(h, w)
     out = {}
-    for sgn, flows, oks in ((1, fw, fw_ok), (-1, bw, bw_ok)):
+    for sgn, flows, oks in ((1, fw, fw_ok), (-1, bw, bw_ok)) if bw is not None else ((1, fw, fw_ok),):
         d = np.zeros((h, w, 2), np.float32)
         v = np.ones((h, w), bool)
         j = t
@@ -182,9 +184,10 @@ def long_range_evidence(fw, bw, fw_ok, bw_ok, offsets=(1, 2, 4, 8), abs_px: floa
                 if res_h is None:
                     continue
                 votes.append(vote)
-                acc[0, t, di] += _moved(res_h, v, k, abs_px, k_sigma)
-                acc[1, t, di] += _moved(res_h if res_f is None else res_f, v, k, abs_px, k_sigma)
-                cnt[t, di] += v
+                wk = np.float32(np.sqrt(k))  # a longer pair sees a slow object move farther
+                acc[0, t, di] += wk * _moved(res_h, v, k, abs_px, k_sigma)
+                acc[1, t, di] += wk * _moved(res_h if res_f is None else res_f, v, k, abs_px, k_sigma)
+                cnt[t, di] += wk * v
     share = float(np.mean(votes)) if votes else 0.0
     has = cnt.reshape(T, 2, -1).max(-1) > 0  # (T, 2): a direction with any valid pair
     out = {}
@@ -192,8 +195,29 @@ def long_range_evidence(fw, bw, fw_ok, bw_ok, offsets=(1, 2, 4, 8), abs_px: floa
         frac = acc[m] / np.maximum(cnt, 1.0)
         ev = np.empty((T, h, w), np.float32)
         for t in range(T):
-            ev[t] = frac[t].min(0) if has[t].all() else frac[t, 0 if has[t, 0] else 1]
+            ev[t] = np.minimum(2 * frac[t].min(0), frac[t].mean(0)) if has[t].all() else frac[t, 0 if has[t, 0] else 1]
         out[name] = _ends(ev, fw, bw, has)
     if share < f_vote:
         out["epipolar"] = None
     return out, share
+
+
+def long_range_moving_share(fw, fw_ok, reach: int = 8, base_px: float = 1.5, rel: float = 0.05) -> np.ndarray:
+    """For pairs of frames ``reach`` apart (every ``reach // 2`` frames; fewer when the clip is
+    shorter): the share of pixels followed consistently from one to the other whose displacement
+    leaves the static scene's model (homography, or the epipolar model where the pair votes for it,
+    :func:`pair_residuals`) by more than ``base_px + rel * median displacement``. ``(P,)`` float.
+    An object moving 0.1-0.5 px per frame (cows grazing) moves 1-4 px over 8 frames."""
+    fw = np.asarray(fw, np.float32)
+    T = fw.shape[0] + 1
+    k = max(1, min(int(reach), T - 1))
+    out = []
+    for t in range(0, T - k, max(k // 2, 1)):
+        d, v = chained_displacements(fw, None, fw_ok, None, t, k)[k]
+        res_h, res_f, vote = pair_residuals(d, v)
+        if res_h is None:
+            continue
+        res = res_f if vote else res_h
+        thr = base_px + rel * float(np.median(np.linalg.norm(d[v], axis=-1)))
+        out.append(float((v & (res > thr)).mean()))
+    return np.asarray(out, np.float32)

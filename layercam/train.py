@@ -77,16 +77,19 @@ class BootstrapPhase(WeightSchedule):
 @dataclass
 class MaskTaper(WeightSchedule):
     """Alpha against its bootstrap masks: full weight during the first ``steps``, then decaying
-    linearly to 0 at ``end`` (a fraction of training, the flow decay's end), instead of stopping at
-    once: on DAVIS libby the alpha field had not yet taken the mask's shape after 100 steps."""
+    linearly to ``floor`` (a share of the start) at ``end`` (a fraction of training, the flow
+    decay's end), instead of stopping at once: on DAVIS libby the alpha field had not yet taken the
+    mask's shape after 100 steps."""
 
     steps: int
     end: float
+    floor: float = 0.0
     keys: tuple = ("alpha_mask",)
 
     def factor(self, trainer, step):
         stop = max(int(self.end * trainer.cfg.steps), self.steps + 1)
-        return 1.0 if step < self.steps else max(0.0, 1.0 - (step - self.steps) / (stop - self.steps))
+        k = 1.0 if step < self.steps else max(0.0, 1.0 - (step - self.steps) / (stop - self.steps))
+        return max(k, self.floor)
 
 
 @dataclass

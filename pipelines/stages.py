@@ -163,7 +163,7 @@ class TrainStage(Stage):
             ctx.clip.frames, *(fl[k] for k in ("fw", "bw", "fw_ok", "bw_ok")) if fl else (None,) * 4,
             masks=masks, device=dev, seed=distributed.rank_seed(cfg.train.seed),
         )
-        callbacks = model.training_callbacks(masks is not None)
+        callbacks = model.training_callbacks(masks is not None, given=ctx.masks is not None)
         callbacks += [make(model) for make in ctx.train_callbacks]  # e.g. the benchmark's quality probe
         tcfg = dataclasses.replace(cfg.train, batch=distributed.rank_batch(cfg.train.batch))  # each rank's share
         trainer = Trainer(model, sampler, tcfg, out / "ckpt.pt", callbacks, progress=ctx.progress, desc=f"{ctx.task} train")

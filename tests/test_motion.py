@@ -1,0 +1,114 @@
+"""Long-range motion evidence (layercam.motion): slow objects add up over frames; parallax of near
+background that runs off the frame is explained by the epipolar model, the moving object is not."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from layercam import flow, metrics, motion, segment
+
+
+def _texture(rng, h, w, sigma=1.5):
+    import cv2
+
+    t = cv2.GaussianBlur(rng.uniform(0, 1, (h, w, 3)).astype(np.float32), (0, 0), sigma)
+    return (t - t.min()) / (t.max() - t.min())
+
+
+def _clip(T=10, size=64, pan=(1.0, 0.0), band=None, obj_speed=(0.0, 2.0), side=12, seed=0):
+    """Far textured background panning by ``pan`` px per frame; optionally a near band (the bottom
+    ``band`` rows, another texture) panning 2.5 times as fast in the same direction (parallax of a
+    translating camera: it runs off the frame's edges); a textured square moving by ``obj_speed``
+    against the far background."""
+    import cv2
+
+    rng = np.random.default_rng(seed)
+    far = _texture(rng, size * 2, size * 4)
+    near = _texture(rng, size, size * 6, 1.0) * 0.5 + 0.4
+    sq = _texture(rng, side, side, 0.8) * 0.5 + 0.5
+    frames, masks = [], []
+    for t in range(T):
+        m = np.float32([[1, 0, 5 + pan[0] * t], [0, 1, 5 + pan[1] * t]])
+        f = cv2.warpAffine(far, m, (size, size), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP)
+        if band:
+            mn = np.float32([[1, 0, 5 + 2.5 * pan[0] * t], [0, 1, 0]])
+            f[-band:] = cv2.warpAffine(near, mn, (size, band), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP)[:band]
+        x0, y0 = 30 + (obj_speed[0] - pan[0]) * t, 8 + (obj_speed[1] - pan[1]) * t
+        ms = np.float32([[1, 0, -x0], [0, 1, -y0]])
+        obj = cv2.warpAffine(sq, ms, (size, size), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP, borderValue=(-1, -1, -1))
+        inside = obj[..., 0] >= 0
+        f[inside] = obj[inside]
+        frames.append(f)
+        masks.append(inside)
+    return np.clip(np.stack(frames), 0, 1), np.stack(masks)
+
+
+def _flows(frames):
+    fw, bw = flow.compute_flow(frames, "dis_fast", progress=False)
+    return fw, bw, flow.flow_consistency(fw, bw), flow.flow_consistency(bw, fw)
+
+
+def test_chained_displacements_follow_the_pan():
+    frames, _ = _clip(T=6, obj_speed=(0.0, 0.0), side=1)
+    fw, bw, fo, bo = _flows(frames)
+    ch = motion.chained_displacements(fw, bw, fo, bo, 2, 4)
+    assert set(ch) == {1, 2, 3, -1, -2}  # inside the clip only
+    d, v = ch[3]
+    assert v.mean() > 0.5 and np.allclose(np.median(d[v], axis=0), [-3.0, 0.0], atol=0.3)  # content moves left 1 px per frame
+    d, v = ch[-2]
+    assert np.allclose(np.median(d[v], axis=0), [2.0, 0.0], atol=0.3)
+    fwd = motion.chained_displacements(fw, None, fo, None, 2, 2)
+    assert set(fwd) == {1, 2}
+
+
+def test_a_slow_object_adds_up_over_frames():
+    frames, masks = _clip(T=16, obj_speed=(0.0, 0.5), side=16)  # 0.5 px per frame: DIS reads ~0.3 between neighbours
+    fw, bw, fo, bo = _flows(frames)
+    iou = {}
+    for reach in (1, 8):
+        m, _ = segment.motion_masks(fw, bw, fo, bo, segment.SegmentConfig(reach=reach))
+        iou[reach] = np.mean([metrics.iou(a > 0.5, b) for a, b in zip(m, masks)])
+    assert iou[8] > 0.45 and iou[1] < 0.1, iou
+    share = motion.long_range_moving_share(fw, fo, reach=8)
+    assert len(share) >= 2 and (share > 0.02).all(), share
+    still, _ = _clip(T=16, obj_speed=(0.0, 0.0))
+    fw, _, fo, _ = _flows(still)
+    assert (motion.long_range_moving_share(fw, fo, reach=8) < 0.01).all()
+
+
+def test_parallax_reaching_the_edge_is_explained_the_object_is_not():
+    frames, masks = _clip(T=10, pan=(1.5, 0.0), band=20, obj_speed=(0.0, 2.0))
+    fw, bw, fo, bo = _flows(frames)
+    ev, share = motion.long_range_evidence(fw, bw, fo, bo)
+    assert share >= 0.5 and ev["epipolar"] is not None
+    band = np.zeros(masks.shape[1:], bool)
+    band[-20:] = True
+    h, e = ev["homography"] >= 0.5, ev["epipolar"] >= 0.5
+    assert h[:, band].mean() > 0.5 and e[:, band & ~masks.any(0)].mean() < 0.1  # the band: moving for the homography only
+    m, info = segment.motion_masks(fw, bw, fo, bo)
+    assert info["model"] == "epipolar"
+    assert np.mean([metrics.iou(a > 0.5, b) for a, b in zip(m, masks)]) > 0.5
+
+
+def test_an_object_the_epipolar_model_explains_away_keeps_the_homography(monkeypatch):
+    """When the pairs vote for the epipolar model but it leaves (almost) nothing moving, it has
+    taken in the object too (a degenerate fit: a fundamental matrix with its epipole along the
+    object's path explains an object moving in a straight line): the homography's masks are kept."""
+    frames, masks = _clip(T=8, pan=(1.0, 0.0), obj_speed=(0.0, 2.5), side=16)
+    fw, bw, fo, bo = _flows(frames)
+    real = motion.long_range_evidence
+
+    def explained_away(*a, **k):
+        ev, _ = real(*a, **k)
+        return {"homography": ev["homography"], "epipolar": np.zeros_like(ev["homography"])}, 1.0
+
+    monkeypatch.setattr(motion, "long_range_evidence", explained_away)
+    m, info = segment.motion_masks(fw, bw, fo, bo)
+    assert info["model"] == "homography" and info["epipolar_coverage"] == 0.0
+    assert np.mean([metrics.iou(a > 0.5, b) for a, b in zip(m, masks)]) > 0.5
+
+
+@pytest.mark.parametrize("reach,offsets", [(1, (1,)), (5, (1, 2, 4)), (8, (1, 2, 4, 8))])
+def test_motion_offsets(reach, offsets):
+    assert segment.motion_offsets(reach) == offsets

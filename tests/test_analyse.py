@@ -69,6 +69,29 @@ def test_object_moving_on_its_own_gets_two_layers():
     assert spec.flow_loss
 
 
+def test_slow_object_gets_two_layers_from_pairs_eight_frames_apart():
+    bg = _texture(64, 64, 0)
+    fg = _texture(16, 16, 1)[..., ::-1] * 0.5 + 0.5
+    frames = []
+    for t in range(16):
+        f = np.roll(bg, t, axis=1).copy()  # the camera pans 1 px/frame
+        x = 24 + t - int(round(0.5 * t))   # the square drifts 0.5 px/frame against the background
+        f[20:36, x : x + 16] = fg
+        frames.append(f)
+    spec, m = _decide(np.stack(frames))
+    assert m["independent_pairs"] < analyse.IND_MOTION_PAIRS  # neighbours: too slow to tell
+    assert spec.layers == 2 and m["moving_pairs_long"] >= analyse.LONG_MIN_PAIRS, m
+    assert "8 frames apart" in spec.reasons["layers"]
+    still, m = _decide(np.stack([np.roll(bg, t, axis=1) for t in range(16)]))  # a pan alone
+    assert still.layers == 1 and m["moving_pairs_long"] == 0, m
+
+
+def test_given_masks_mean_two_layers():
+    clip = Clip(np.stack([_texture(16, 16)] * 3), "test", ["0", "1", "2"])
+    cfg, reasons = analyse.decide(load_config("fast"), clip, _single(3), "hdr-video", {"masks_given": True})
+    assert cfg.model.layers == 2 and "masks" in reasons["layers"]
+
+
 def test_blurred_frames_get_a_blur_generator():
     import cv2
 

@@ -231,3 +231,20 @@ def test_pipeline_divergence_writes_failed_report_keeps_checkpoint_and_resumes(t
     ctx = run_task("hdr-video", tiny_scene.clip, tiny_exposures, cfg, run, progress=False)
     assert ctx.results["train"]["resumed_from"] == 5 and ctx.results["train"]["steps"] == 20
     assert (run / "report.json").exists() and not (run / "report_failed.json").exists()
+
+
+def test_mask_taper_decays_to_its_floor():
+    from types import SimpleNamespace
+
+    from layercam.model import LossWeights
+    from layercam.train import MaskTaper
+
+    for floor, last in ((0.0, 0.0), (1.0, 2.0), (0.25, 0.5)):
+        trainer = SimpleNamespace(model=SimpleNamespace(loss_weights=LossWeights(alpha_mask=2.0)), cfg=SimpleNamespace(steps=100))
+        taper = MaskTaper(steps=10, end=0.5, floor=floor)
+        seen = []
+        for step in (0, 9, 30, 50, 99):
+            taper.on_step(trainer, step)
+            seen.append(trainer.model.loss_weights.alpha_mask)
+        assert seen[:2] == [2.0, 2.0] and seen[-1] == last and seen[-2] == last
+        assert seen[2] == pytest.approx(max(2.0 * (1 - 20 / 40), last))

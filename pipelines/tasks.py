@@ -54,7 +54,7 @@ def _run(ctx: Context, stages: list, t0: float) -> None:
         # flow first: the analysis reads it to decide what the model needs
         run_stages(ctx, stages[:1])
         ctx.measures = analyse.measure(clip, exposures, ctx.flow)
-        ctx.measures["masks_given"] = masks is not None and bool(np.asarray(masks).any())
+        ctx.measures["masks_given"] = ctx.masks is not None and bool(np.asarray(ctx.masks).any())
         ctx.cfg, ctx.reasons = analyse.decide(cfg, clip, exposures, task, ctx.measures)
         ctx.say("model chosen:\n" + analyse.format_table(ctx.cfg, ctx.reasons))
         run_stages(ctx, stages[1:])

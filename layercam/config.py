@@ -103,6 +103,7 @@ class SceneConfig:
     alpha_grid_levels: int = setting(4, 1, 8)
     alpha_grid_res: int = setting(0, 0, 4096)  # finest cells across; 0: the frame's longer side, at most 512 (analyse.resolve_auto)
     alpha_grid_features: int = setting(2, 1)
+    bg_change_cells: int = setting(0, 0, 256)  # two layers: a per-frame change of the background, cells x cells (0: off)
 
 
 @dataclass
@@ -145,6 +146,7 @@ class LossConfig:
     alpha_flow: float = setting(1.0, 0.0)
     mask_given: float = setting(1.0, 0.0, 1.0)   # share of the alpha-mask weight kept all through training with --masks
     mask_motion: float = setting(0.0, 0.0, 1.0)  # ... with the motion bootstrap's masks
+    bg_change: float = setting(1.0, 0.0)         # penalty on the background's per-frame change (mean square, log2 units)
 
 
 @dataclass
@@ -184,7 +186,8 @@ class SegmentConfig:
     on each side averaged along the flow; ``vote``: the averaged evidence that makes a pixel
     foreground. ``min_area``: components
     smaller than this fraction of the frame are dropped, and so are those smaller than
-    ``keep_fraction`` of the frame's largest. ``still_fraction``: a frame whose mask is smaller than
+    ``keep_fraction`` of the frame's largest or farther from it than ``gap`` times its size (one
+    object per frame). ``still_fraction``: a frame whose mask is smaller than
     this fraction of the clip's median area inherits its neighbours' masks (the object stood still).
     ``grabcut``: GrabCut iterations that tighten the masks to colour edges (0: off). ``foreground``:
     the foreground layer's starting mapping, the object's own motion or the identity.
@@ -201,6 +204,7 @@ class SegmentConfig:
     vote: float = setting(0.4, 0.0, 1.0)
     min_area: float = setting(0.002, 0.0, 1.0)
     keep_fraction: float = setting(0.15, 0.0, 1.0)
+    gap: float = setting(0.25, 0.0)
     still_fraction: float = setting(0.3, 0.0, 1.0)
     grabcut: int = setting(4, 0, 32)
     foreground: Literal["object", "identity"] = "object"

@@ -36,6 +36,7 @@ class LossWeights:
     sparsity: float = 0.0
     alpha_flow: float = 0.0
     alpha_mask: float = 0.0
+    bg_change: float = 0.0
 
 
 class ImplicitCameraModel(nn.Module):
@@ -78,6 +79,7 @@ class ImplicitCameraModel(nn.Module):
             rigidity=lc.rigidity,
             sparsity=lc.sparsity if m.layers > 1 else 0.0,
             alpha_flow=lc.alpha_flow if m.layers > 1 and m.flow_loss else 0.0,
+            bg_change=lc.bg_change if self.scene.bg_change is not None else 0.0,
         )
 
     def training_callbacks(self, masks: bool = False, given: bool = False) -> list:
@@ -134,6 +136,8 @@ class ImplicitCameraModel(nn.Module):
                 ((uv - d.bootstrap_target(batch["xy"], batch["t"])) ** 2).sum(1).mean()
                 for uv, d in zip(out["uv"], self.scene.deformations)
             )
+        if w.bg_change > 0 and out.get("bg_change") is not None:
+            terms["bg_change"] = w.bg_change * (out["bg_change"] ** 2).mean()
         if out["alpha"] is not None:
             if w.sparsity > 0:
                 terms["sparsity"] = w.sparsity * losses.sparsity_loss(out["alpha"])
@@ -160,7 +164,7 @@ class ImplicitCameraModel(nn.Module):
         for name, p in self.named_parameters():
             if name.startswith("blur."):
                 blur.append(p)
-            elif ".enc.levels." in name or ".grid.grids." in name:  # atlas and alpha grid tables
+            elif ".enc.levels." in name or ".grid.grids." in name or name.startswith("scene.bg_change."):  # grid tables
                 grid.append(p)
             elif name.endswith(".dh"):
                 dh.append(p)

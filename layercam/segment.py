@@ -74,7 +74,10 @@ def _temporal_vote(ev: np.ndarray, fw: np.ndarray, bw: np.ndarray, window: int) 
 
 
 def clean_mask(mask: np.ndarray, cfg: SegmentConfig | None = None) -> np.ndarray:
-    """Morphology on one ``(H, W)`` bool mask: open, close, fill holes, drop small components."""
+    """Morphology on one ``(H, W)`` bool mask: open, close, fill holes, drop small components, and
+    keep one object: the largest component and those within ``cfg.gap`` times its size (the square
+    root of its area) of it (parts an occluder splits off; DAVIS parkour's other blobs are sky and
+    railings: bootstrap IoU 0.65 -> 0.70)."""
     import cv2
 
     cfg = cfg or SegmentConfig()
@@ -97,6 +100,11 @@ def clean_mask(mask: np.ndarray, cfg: SegmentConfig | None = None) -> np.ndarray
         return np.zeros((h, w), bool)
     areas = stats[1:, cv2.CC_STAT_AREA]
     keep = (areas >= cfg.min_area * h * w) & (areas >= cfg.keep_fraction * areas.max())
+    if keep.sum() > 1:
+        main = 1 + int(np.argmax(areas))
+        dist = cv2.distanceTransform((lab != main).astype(np.uint8), cv2.DIST_L2, 3)
+        near = np.array([dist[lab == i + 1].min() <= cfg.gap * np.sqrt(areas.max()) for i in range(n - 1)])
+        keep &= near
     return np.isin(lab, 1 + np.flatnonzero(keep))
 
 

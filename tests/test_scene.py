@@ -137,3 +137,26 @@ def _fit_alpha(encoding: str, steps: int = 150) -> float:
 def test_alpha_grid_draws_thin_structures_the_encoding_alone_blurs():
     grid, pe = _fit_alpha("grid"), _fit_alpha("pe")
     assert grid > 0.95 and grid > pe + 0.1, (grid, pe)
+
+
+def test_background_change_is_per_frame_and_only_in_two_layer_scenes():
+    from layercam.scene.fields import BackgroundChange
+
+    b = BackgroundChange(4, 3)
+    xy = torch.rand(12, 2) * 2 - 1
+    t = torch.arange(4).repeat(3)
+    assert torch.equal(b(xy, t), torch.zeros(12, 3))  # starts as no change
+    with torch.no_grad():
+        b.grid[0, :, 2] = 0.5  # frame 2 brighter by half a stop
+    out = b(xy, t)
+    assert torch.allclose(out[t == 2], torch.full((3, 3), 0.5)) and torch.equal(out[t != 2], torch.zeros(9, 3))
+    cfg = SceneConfig(**{**SCENE.__dict__, "bg_change_cells": 3})
+    h0 = torch.eye(3).expand(2, 4, 3, 3).clone()
+    two, one = LayeredScene(cfg, h0), LayeredScene(cfg, h0[:1])
+    assert two.bg_change is not None and one.bg_change is None
+    with torch.no_grad():
+        two.bg_change.grid[0, :, 1] = 1.0
+        two.alpha.net.last.bias.fill_(-30.0)  # alpha ~ 0: the frame is the background
+    o = two(xy, t)
+    assert torch.allclose(o["log2_r"][t == 1], o["layer_log2_r"][0][t == 1], atol=1e-4)
+    assert torch.allclose(o["layer_log2_r"][0][t == 1] - 1.0, two.atlases[0](o["uv"][0][t == 1]), atol=1e-5)

@@ -128,3 +128,25 @@ class AlphaField(nn.Module):
 
     def forward(self, xy: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
         return torch.sigmoid(self.logits(xy, t))
+
+
+class BackgroundChange(nn.Module):
+    """``(xy, t) -> (N, 3)``: a small per-frame change of the background's log2 irradiance, in frame
+    coordinates, so that what changes over time without moving with anything (rippling water,
+    reflections, shadows, flicker) can stay in the background instead of pulling the foreground's
+    alpha onto it. One coarse ``cells x cells`` grid per frame (bilinear, starting at 0); its size
+    is penalised (``loss.bg_change``), and being coarse it cannot draw an object.
+    """
+
+    def __init__(self, n_frames: int, cells: int):
+        super().__init__()
+        if cells < 1:
+            raise ValueError("BackgroundChange needs at least one cell")
+        self.n_frames = n_frames
+        self.grid = nn.Parameter(torch.zeros(1, 3, n_frames, cells, cells))
+
+    def forward(self, xy: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
+        tc = (2.0 * t.float() + 1.0) / self.n_frames - 1.0  # frame t's own slice
+        g = torch.cat([xy.float(), tc[:, None]], dim=1).view(1, -1, 1, 1, 3)
+        out = torch.nn.functional.grid_sample(self.grid, g, mode="bilinear", padding_mode="border", align_corners=False)
+        return out[0, :, :, 0, 0].t()

@@ -55,34 +55,31 @@ def test_static_sharp_single_exposure_gets_the_minimal_model():
     assert all(spec.reasons[k] for k in ("layers", "tone_mapper", "blur", "flow_loss"))
 
 
-def test_object_moving_on_its_own_gets_two_layers():
+def _panning_square(T: int, where) -> np.ndarray:
+    """``T`` frames 64x64: a texture panning 1 px/frame and a 16 px square at ``where(t) = (y, x)``."""
     bg = _texture(64, 64, 0)
     fg = _texture(16, 16, 1)[..., ::-1] * 0.5 + 0.5
     frames = []
-    for t in range(5):
-        f = np.roll(bg, t, axis=1).copy()  # the camera pans 1 px/frame
-        y, x = 10 + 5 * t, 40 - 6 * t    # the square moves its own way
+    for t in range(T):
+        f = np.roll(bg, t, axis=1).copy()
+        y, x = where(t)
         f[y : y + 16, x : x + 16] = fg
         frames.append(f)
-    spec, m = _decide(np.stack(frames))
+    return np.stack(frames)
+
+
+def test_object_moving_on_its_own_gets_two_layers():
+    spec, m = _decide(_panning_square(5, lambda t: (10 + 5 * t, 40 - 6 * t)))  # the square moves its own way
     assert spec.layers == 2, m
     assert spec.flow_loss
 
 
 def test_slow_object_gets_two_layers_from_pairs_eight_frames_apart():
-    bg = _texture(64, 64, 0)
-    fg = _texture(16, 16, 1)[..., ::-1] * 0.5 + 0.5
-    frames = []
-    for t in range(16):
-        f = np.roll(bg, t, axis=1).copy()  # the camera pans 1 px/frame
-        x = 24 + t - int(round(0.5 * t))   # the square drifts 0.5 px/frame against the background
-        f[20:36, x : x + 16] = fg
-        frames.append(f)
-    spec, m = _decide(np.stack(frames))
+    spec, m = _decide(_panning_square(16, lambda t: (20, 24 + t - int(round(0.5 * t)))))  # drifts 0.5 px/frame against the pan
     assert m["independent_pairs"] < analyse.IND_MOTION_PAIRS  # neighbours: too slow to tell
     assert spec.layers == 2 and m["moving_pairs_long"] >= analyse.LONG_MIN_PAIRS, m
     assert "8 frames apart" in spec.reasons["layers"]
-    still, m = _decide(np.stack([np.roll(bg, t, axis=1) for t in range(16)]))  # a pan alone
+    still, m = _decide(np.stack([np.roll(_texture(64, 64, 0), t, axis=1) for t in range(16)]))  # a pan alone
     assert still.layers == 1 and m["moving_pairs_long"] == 0, m
 
 

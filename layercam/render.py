@@ -73,6 +73,15 @@ def _through_camera(model, xy, t, out: dict, log2_dt: float | None, blur: bool, 
     return model.tone_map(log2_r, dt)
 
 
+def display_stats(lum: np.ndarray) -> dict:
+    """The clip-wide statistics of :func:`tonemap_display` from luminances (any shape; non-finite
+    values left out): log-average luminance and white point (99.9th percentile)."""
+    lum_f = lum[np.isfinite(lum)]
+    lavg = float(np.exp(np.mean(np.log(np.maximum(lum_f, 1e-8))))) if lum_f.size else 1.0
+    white = float(np.percentile(lum_f, 99.9)) / max(lavg, 1e-12) * 0.18 if lum_f.size else 1.0
+    return {"log_avg": lavg, "white": max(white, 1e-3)}
+
+
 def tonemap_display(hdr: np.ndarray, stats: dict | None = None) -> tuple[np.ndarray, dict]:
     """Global Reinhard (extended) + sRGB for display. ``(..., 3)`` linear -> same shape in ``[0, 1]``.
 
@@ -81,10 +90,7 @@ def tonemap_display(hdr: np.ndarray, stats: dict | None = None) -> tuple[np.ndar
     """
     lum = luma(hdr, REC709)
     if stats is None:
-        lum_f = lum[np.isfinite(lum)]
-        lavg = float(np.exp(np.mean(np.log(np.maximum(lum_f, 1e-8))))) if lum_f.size else 1.0
-        white = float(np.percentile(lum_f, 99.9)) / max(lavg, 1e-12) * 0.18 if lum_f.size else 1.0
-        stats = {"log_avg": lavg, "white": max(white, 1e-3)}
+        stats = display_stats(lum)
     scale = 0.18 / max(stats["log_avg"], 1e-12)
     l = np.minimum(lum * scale, 1e15)  # guard: l * l below overflows float32 past ~1e19 (NaN -> black)
     ld = l * (1 + l / stats["white"] ** 2) / (1 + l)

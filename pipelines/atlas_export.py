@@ -18,6 +18,8 @@ Written into the run folder by the export stage's ``atlases`` writer (:mod:`laye
 
 from __future__ import annotations
 
+import contextlib
+
 from pathlib import Path
 
 import numpy as np
@@ -60,7 +62,7 @@ def export_atlases(model, run_dir: Path, frames: np.ndarray, fps: float = 24.0, 
     :func:`atlas_resolution` within ``res_range`` (``export.atlas_min_res``, ``atlas_max_res``);
     returns a summary."""
     from layercam.geometry import middle_frame
-    from layercam.io import write_exr, write_png, write_video
+    from layercam.io import VideoWriter, write_exr, write_png
     from layercam.progress import bar as progress_bar
     from layercam.render import checker_overlay, coverage_from_splat, layer_weights, render_frame, sample_atlas, splat_add, tone_map_log2
 
@@ -74,19 +76,23 @@ def export_atlases(model, run_dir: Path, frames: np.ndarray, fps: float = 24.0, 
     res = [atlas_resolution(m["uv"][k], ws[k], *res_range) for k in range(L)]
     acc = [np.zeros(r * r, np.float64) for r in res]
     to8 = lambda x: np.round(np.clip(x, 0, 1) * 255).astype(np.uint8)  # noqa: E731 - videos kept as 8-bit
-    overlays = [np.empty((T, H, W, 3), np.uint8) for _ in range(L)]
-    seen = [np.empty((T, H, W), np.uint8) for _ in range(L)]
-    alphas = []
-    for t in progress_bar(range(T), desc="atlases", unit="frame", enabled=progress):
-        reached("atlas", t)
-        m = render_frame(model, t, (H, W), ("uv", "alpha"), chunk=chunk)
-        ws = layer_weights(m["alpha"], L, (H, W))
-        if m["alpha"] is not None:
-            alphas.append(m["alpha"])
-        for k in range(L):
-            splat_add(acc[k], m["uv"][k], ws[k], res[k])
-            overlays[k][t] = to8(checker_overlay(frames[t], m["uv"][k], ws[k]))
-            seen[k][t] = to8(ws[k])
+    two = m["alpha"] is not None
+    if two:
+        (run_dir / "alpha").mkdir(exist_ok=True)
+    with contextlib.ExitStack() as open_videos:  # written as the frames are rendered: memory of one frame
+        uv_videos = [open_videos.enter_context(VideoWriter(adir / f"layer{k}_uv.mp4", fps=fps)) for k in range(L)]
+        alpha_videos = [open_videos.enter_context(VideoWriter(adir / f"layer{k}_alpha.mp4", fps=fps)) for k in range(L)] if two else []
+        for t in progress_bar(range(T), desc="atlases", unit="frame", enabled=progress):
+            reached("atlas", t)
+            m = render_frame(model, t, (H, W), ("uv", "alpha"), chunk=chunk)
+            ws = layer_weights(m["alpha"], L, (H, W))
+            for k in range(L):
+                splat_add(acc[k], m["uv"][k], ws[k], res[k])
+                uv_videos[k].add(to8(checker_overlay(frames[t], m["uv"][k], ws[k])))
+                if two:
+                    alpha_videos[k].add(to8(ws[k]))
+            if two:
+                write_png(run_dir / "alpha" / f"frame_{t:05d}.png", m["alpha"])
     log2_dt = model.exposure.reference()
     layers = []
     for k in range(L):
@@ -94,25 +100,19 @@ def export_atlases(model, run_dir: Path, frames: np.ndarray, fps: float = 24.0, 
         cov = coverage_from_splat(acc[k], res[k])
         write_exr(adir / f"layer{k}.exr", np.exp2(log2_r).astype(np.float32), half=False)
         write_rgba_png(adir / f"layer{k}.png", tone_map_log2(model, log2_r, log2_dt), cov)
-        write_video(adir / f"layer{k}_uv.mp4", overlays[k], fps=fps)
         entry = {"layer": k, "res": res[k], "exr": f"layer{k}.exr", "png": f"layer{k}.png", "uv_video": f"layer{k}_uv.mp4", "coverage": float(cov.mean())}
-        if alphas:
-            write_video(adir / f"layer{k}_alpha.mp4", seen[k], fps=fps)
+        if two:
             entry["alpha_video"] = f"layer{k}_alpha.mp4"
         layers.append(entry)
-    if alphas:
-        (run_dir / "alpha").mkdir(exist_ok=True)
-        for t, a in enumerate(alphas):
-            write_png(run_dir / "alpha" / f"frame_{t:05d}.png", a)
     info = {
         "layers": layers,
         "uv_grid": "res x res pixel centres over [-1, 1]^2; row = v, column = u (grid_sample, align_corners=False)",
         "log2_dt_png": log2_dt,
         "png_space": "the learned camera (tone mapper) at log2_dt_png; alpha = coverage",
         "exr_space": "linear irradiance (camera dropped)",
-        "foreground_alpha": "alpha/frame_*.png" if alphas else None,
+        "foreground_alpha": "alpha/frame_*.png" if two else None,
         "frames": T,
         "frame_hw": [H, W],
     }
     write_json(adir / "atlas.json", info)
-    return {"layers": [{k: v for k, v in e.items() if k in ("layer", "res", "coverage")} for e in layers], "alpha_mattes": len(alphas)}
+    return {"layers": [{k: v for k, v in e.items() if k in ("layer", "res", "coverage")} for e in layers], "alpha_mattes": T if two else 0}

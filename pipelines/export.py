@@ -72,67 +72,113 @@ def _bits(ctx: Context) -> int:
     return 16 if ctx.clip.bit_depth > 8 else 8
 
 
-def write_hdr_set(paths: list[Path], images: list[np.ndarray], half: bool, say=None) -> bool:
-    """Write linear HDR images as EXR, all of one type: half floats stop at 65504, so a set brighter
-    than that is written as float32. Refuses (one line) before writing anything non-finite.
-    Returns whether half floats were used."""
-    from layercam.io import write_exr
+HALF_MAX = 65504.0  # the largest half float
+# The preview's clip-wide tonemap statistics and the EXRs' type come from a first pass over every
+# frame rendered at most this many pixels (every pixel of a clip up to 256x256; 1/32 of a 1080p
+# frame): the export then renders each frame once, writes it and lets it go, so that its memory
+# does not grow with the clip.
+FIRST_PASS_PIXELS = 65536
 
-    for p, img in zip(paths, images):
+
+class HdrSet:
+    """Linear HDR images written as EXR one at a time, all of one type: half floats unless an image
+    exceeds what they hold (65504), after which the whole set is float32 (the images written
+    before are rewritten; their values were half floats already). Refuses (one line) an image
+    that is not finite, before writing it. ``lo``/``hi``: the set's extremes so far."""
+
+    def __init__(self, half: bool, say=None):
+        self.half, self.say = bool(half), say
+        self.paths: list[Path] = []
+        self.lo, self.hi = float("inf"), float("-inf")
+
+    def add(self, path: Path, img: np.ndarray) -> None:
+        from layercam.io import read_exr, write_exr
+
         if not np.isfinite(img).all():
-            raise LayercamError(f"{p.name}: the model rendered non-finite irradiance; not writing it")
-    peak = max((float(img.max()) for img in images), default=0.0)
-    use_half = bool(half) and peak <= 65504.0
-    if use_half != bool(half) and say:
-        say(f"[export] irradiance reaches {peak:.3g}, beyond half floats: EXRs written as float32")
+            raise LayercamError(f"{path.name}: the model rendered non-finite irradiance; not writing it")
+        peak = float(img.max())
+        if self.half and peak > HALF_MAX:
+            if self.say:
+                self.say(f"[export] irradiance reaches {peak:.3g}, beyond half floats: EXRs written as float32")
+            for p in self.paths:
+                write_exr(p, read_exr(p), half=False)
+            self.half = False
+        write_exr(path, img, half=self.half)
+        self.paths.append(path)
+        self.lo, self.hi = min(self.lo, float(img.min())), max(self.hi, peak)
+
+
+def write_hdr_set(paths: list[Path], images, half: bool, say=None) -> bool:
+    """Write linear HDR images (any iterable) as EXR, all of one type (:class:`HdrSet`).
+    Returns whether half floats were used."""
+    hs = HdrSet(half, say)
     for p, img in zip(paths, images):
-        write_exr(p, img, half=use_half)
-    return use_half
+        hs.add(p, img)
+    return hs.half
 
 
-def _hdr_frames(ctx: Context, model, dest: Path) -> tuple[list[np.ndarray], bool]:
-    """Every frame's linear HDR into ``dest/hdr/``: ``(frames, half floats used)``."""
+def first_pass(ctx: Context, model) -> tuple[dict, float]:
+    """Every frame rendered at most :data:`FIRST_PASS_PIXELS` pixels -> the preview's display
+    statistics (:func:`layercam.render.display_stats`) and the clip's peak irradiance. Refuses (one
+    line) non-finite irradiance before anything is written."""
     from layercam import render
+    from layercam.colour import REC709, luma
 
-    frames = []
-    for t in _frames(ctx):
-        reached("export", t)
-        frames.append(render.render_frame(model, t, (ctx.clip.H, ctx.clip.W), ("hdr",), chunk=ctx.cfg.export.chunk)["hdr"])
-    (dest / "hdr").mkdir(exist_ok=True)
-    half = write_hdr_set([dest / "hdr" / f"frame_{t:05d}.exr" for t in range(len(frames))], frames, ctx.cfg.export.half, ctx.say)
-    return frames, half
+    H, W = ctx.clip.H, ctx.clip.W
+    s = min(1.0, (FIRST_PASS_PIXELS / (H * W)) ** 0.5)
+    hw = (max(1, round(H * s)), max(1, round(W * s)))
+    lum, peak = [], 0.0
+    for t in _frames(ctx, "export (first pass)"):
+        hdr = render.render_frame(model, t, hw, ("hdr",), chunk=ctx.cfg.export.chunk)["hdr"]
+        if not np.isfinite(hdr).all():
+            raise LayercamError(f"frame_{t:05d}.exr: the model rendered non-finite irradiance; not writing it")
+        lum.append(luma(hdr, REC709).ravel())
+        peak = max(peak, float(hdr.max()))
+    return render.display_stats(np.concatenate(lum)), peak
 
 
 def hdr_writer(ctx: Context, model, dest: Path, cache: Path) -> dict:
-    from layercam.io import write_video
-    from layercam.render import tonemap_display
+    from layercam import render
+    from layercam.io import VideoWriter
 
-    frames, half = _hdr_frames(ctx, model, dest)
-    hdr = np.stack(frames)
-    preview, stats = tonemap_display(hdr)
-    write_video(dest / "preview.mp4", preview, fps=_fps(ctx))
-    return {"frames": int(ctx.clip.T), "hdr_min": float(hdr.min()), "hdr_max": float(hdr.max()), "exr": "half" if half else "float32", "display": stats}
+    stats, peak = first_pass(ctx, model)
+    exrs = HdrSet(ctx.cfg.export.half and peak <= HALF_MAX, ctx.say)
+    (dest / "hdr").mkdir(exist_ok=True)
+    with VideoWriter(dest / "preview.mp4", fps=_fps(ctx)) as preview:
+        for t in _frames(ctx):
+            reached("export", t)
+            hdr = render.render_frame(model, t, (ctx.clip.H, ctx.clip.W), ("hdr",), chunk=ctx.cfg.export.chunk)["hdr"]
+            exrs.add(dest / "hdr" / f"frame_{t:05d}.exr", hdr)
+            preview.add(render.tonemap_display(hdr, stats)[0])
+    return {"frames": int(ctx.clip.T), "hdr_min": exrs.lo, "hdr_max": exrs.hi, "exr": "half" if exrs.half else "float32", "display": stats}
 
 
 def sharp_writer(ctx: Context, model, dest: Path, cache: Path) -> dict:
     from layercam import render
-    from layercam.io import write_png, write_video
+    from layercam.io import VideoWriter, write_png
 
-    (dest / "frames").mkdir(exist_ok=True)
-    frames = []
-    for t in _frames(ctx):
-        reached("export", t)
-        ldr = render.render_frame(model, t, (ctx.clip.H, ctx.clip.W), ("ldr",), chunk=ctx.cfg.export.chunk)["ldr"]
-        if not np.isfinite(ldr).all():
-            raise LayercamError(f"frame {t}: the model rendered non-finite values; not writing it")
-        write_png(dest / "frames" / f"frame_{t:05d}.png", ldr, bit_depth=_bits(ctx))
-        frames.append(ldr)
+    T, hw = ctx.clip.T, (ctx.clip.H, ctx.clip.W)
     with_hdr = exposures_vary(ctx)
-    hdr_max = max(float(h.max()) for h in _hdr_frames(ctx, model, dest)[0]) if with_hdr else 0.0
-    frames = np.stack(frames)
-    np.save(cache / "deblurred.npy", frames.astype(np.float32))
-    write_video(dest / "deblurred.mp4", frames, fps=_fps(ctx))
-    return {"frames": int(ctx.clip.T), "hdr": with_hdr, "hdr_max": hdr_max, "png_bits": _bits(ctx)}
+    exrs = HdrSet(ctx.cfg.export.half, ctx.say)
+    (dest / "frames").mkdir(exist_ok=True)
+    if with_hdr:
+        (dest / "hdr").mkdir(exist_ok=True)
+    kept = np.lib.format.open_memmap(cache / "deblurred.npy", mode="w+", dtype=np.float32, shape=(T, *hw, 3))  # for the evaluation, on disk
+    with VideoWriter(dest / "deblurred.mp4", fps=_fps(ctx)) as video:
+        for t in _frames(ctx):
+            reached("export", t)
+            out = render.render_frame(model, t, hw, ("ldr", "hdr") if with_hdr else ("ldr",), chunk=ctx.cfg.export.chunk)
+            ldr = out["ldr"]
+            if not np.isfinite(ldr).all():
+                raise LayercamError(f"frame {t}: the model rendered non-finite values; not writing it")
+            write_png(dest / "frames" / f"frame_{t:05d}.png", ldr, bit_depth=_bits(ctx))
+            kept[t] = ldr
+            video.add(ldr)
+            if with_hdr:
+                exrs.add(dest / "hdr" / f"frame_{t:05d}.exr", out["hdr"])
+    kept.flush()
+    del kept
+    return {"frames": int(T), "hdr": with_hdr, "hdr_max": exrs.hi if with_hdr else 0.0, "png_bits": _bits(ctx)}
 
 
 def fused_writer(ctx: Context, model, dest: Path, cache: Path) -> dict:

@@ -325,3 +325,24 @@ def test_exr_refuses_non_finite_and_half_overflow(tmp_path):
     with pytest.raises(ValueError, match="float16"):
         write_exr(tmp_path / "y.exr", np.full((2, 2, 3), 1e5, np.float32), half=True)
     assert not (tmp_path / "x.exr").exists() and not (tmp_path / "y.exr").exists()
+
+
+def test_video_writer_streams_frames_and_leaves_nothing_on_error(tmp_path):
+    from layercam.io import VideoWriter
+
+    with VideoWriter(tmp_path / "s.mp4", fps=10) as vw:
+        for i in range(3):
+            vw.add(np.full((6, 8, 3), i / 3, np.float32))  # one frame at a time
+    frames, fps = read_video(tmp_path / "s.mp4")
+    assert frames.shape == (3, 6, 8, 3) and fps == 10
+    with pytest.raises(RuntimeError, match="stop"):
+        with VideoWriter(tmp_path / "t.mp4") as vw:
+            vw.add(np.zeros((6, 8, 3), np.uint8))
+            raise RuntimeError("stop")
+    assert not list(tmp_path.glob("*t.*mp4")), "an interrupted video leaves no file, not even a temporary one"
+    with pytest.raises(ValueError, match="must all be"):
+        with VideoWriter(tmp_path / "u.mp4") as vw:
+            vw.add(np.zeros((6, 8, 3), np.uint8))
+            vw.add(np.zeros((4, 8, 3), np.uint8))
+    write_video(tmp_path / "g.mp4", (np.zeros((5, 7)) for _ in range(2)))  # any iterable, odd sizes padded
+    assert read_video(tmp_path / "g.mp4")[0].shape == (2, 6, 8, 3)

@@ -9,7 +9,7 @@ from layercam.io.clip import Clip, load_clip
 from layercam.io.exposure import Exposures, parse_exposures
 from layercam.io.exr import read_exr, write_exr
 from layercam.io.images import IMAGE_SUFFIXES, read_exif_exposure, read_image, write_png
-from layercam.io.video import VIDEO_SUFFIXES, read_video, write_video
+from layercam.io.video import VIDEO_SUFFIXES, VideoWriter, read_video, write_video
 
 __all__ = [
     "Clip",
@@ -21,6 +21,7 @@ __all__ = [
     "read_exif_exposure",
     "read_video",
     "write_video",
+    "VideoWriter",
     "read_exr",
     "write_exr",
     "atomic_write",

@@ -15,7 +15,7 @@ from typing import Callable
 
 from layercam.errors import LayercamError
 
-__all__ = ["atomic_write", "ensure_writable_dir", "staging_dir", "commit_staged", "replace_entry"]
+__all__ = ["atomic_write", "ensure_writable_dir", "staging_dir", "commit_staged", "replace_entry", "temp_name"]
 
 
 def ensure_writable_dir(path: str | os.PathLike) -> Path:
@@ -42,7 +42,7 @@ def ensure_writable_dir(path: str | os.PathLike) -> Path:
     return p
 
 
-def _temp_name(path: Path) -> Path:
+def temp_name(path: Path) -> Path:
     """Hidden sibling temp name that keeps the full suffix, e.g. ``.frame_00000.<rand>.tmp.exr``."""
     suffix = "".join(path.suffixes[-1:])  # the last suffix decides the encoder
     stem = path.name[: len(path.name) - len(suffix)] if suffix else path.name
@@ -67,7 +67,7 @@ def atomic_write(path: str | os.PathLike, writer: Callable[[Path], None]) -> Pat
     parent = final.parent
     if not parent.is_dir():
         ensure_writable_dir(parent)
-    tmp = _temp_name(final)
+    tmp = temp_name(final)
     try:
         writer(tmp)
         if not tmp.exists():

@@ -14,9 +14,8 @@ from pathlib import Path
 import numpy as np
 
 from layercam.errors import LayercamError
-from layercam.io.atomic import atomic_write
 
-__all__ = ["VIDEO_SUFFIXES", "read_video", "write_video"]
+__all__ = ["VideoWriter", "VIDEO_SUFFIXES", "read_video", "write_video"]
 
 VIDEO_SUFFIXES: tuple[str, ...] = (".mp4", ".mov", ".avi", ".mkv", ".m4v", ".webm", ".gif")
 
@@ -124,54 +123,93 @@ def _to_uint8(frames: np.ndarray) -> np.ndarray:
     return np.round(np.clip(f, 0.0, 1.0) * 255.0).astype(np.uint8)
 
 
-def write_video(
-    path: str | os.PathLike, frames: np.ndarray, fps: float = 24.0, crf: int = 18
-) -> Path:
+class VideoWriter:
+    """An H.264 (libx264, yuv420p) mp4 written one frame at a time, so that its memory is one
+    frame's whatever the clip's length; the file appears under ``path`` (atomically) when the
+    ``with`` block ends without an error, and no partial file is left when it ends with one.
+
+    >>> with VideoWriter(path, fps=24) as vw:      # doctest: +SKIP
+    ...     for frame in frames:
+    ...         vw.add(frame)
+
+    Frames are ``(H,W,3)`` RGB (float in [0,1], clipped, or uint8) or ``(H,W)`` grey, all of one
+    size; odd sizes are padded to even by repeating the last row/column. ``crf`` is x264's quality.
+    """
+
+    def __init__(self, path: str | os.PathLike, fps: float = 24.0, crf: int = 18):
+        fps = float(fps)
+        if not np.isfinite(fps) or fps <= 0:
+            raise ValueError(f"fps must be positive, got {fps}")
+        self.path, self.fps, self.crf = Path(path), fps, int(crf)
+        self._gen, self._tmp, self._size, self.frames = None, None, None, 0
+
+    def __enter__(self) -> "VideoWriter":
+        return self
+
+    def add(self, frame: np.ndarray) -> None:
+        f = np.asarray(frame)
+        if f.ndim == 2:
+            f = np.repeat(f[..., None], 3, axis=2)
+        if f.ndim != 3 or f.shape[2] != 3 or f.shape[0] == 0 or f.shape[1] == 0:
+            raise ValueError(f"a video frame is (H,W,3) or (H,W), got shape {np.asarray(frame).shape}")
+        u8 = _to_uint8(f)
+        h, w = u8.shape[:2]
+        if self._gen is None:
+            self._start(h, w)
+        elif (h, w) != self._size:
+            raise ValueError(f"video frames must all be {self._size[1]}x{self._size[0]}, got {w}x{h}")
+        if h % 2 or w % 2:
+            u8 = np.pad(u8, ((0, h % 2), (0, w % 2), (0, 0)), mode="edge")
+        try:
+            self._gen.send(np.ascontiguousarray(u8))
+        except (OSError, RuntimeError) as e:
+            raise LayercamError(f"cannot write video {self.path}: {str(e).strip()[:160]}") from None
+        self.frames += 1
+
+    def _start(self, h: int, w: int) -> None:
+        import imageio_ffmpeg
+
+        from layercam.io.atomic import ensure_writable_dir, temp_name
+
+        ensure_writable_dir(self.path.parent)
+        self._size, self._tmp = (h, w), temp_name(self.path)
+        self._gen = imageio_ffmpeg.write_frames(
+            str(self._tmp), (w + w % 2, h + h % 2), fps=self.fps, codec="libx264", quality=None, macro_block_size=2,
+            pix_fmt_out="yuv420p", ffmpeg_log_level="error",
+            output_params=["-crf", str(self.crf), "-preset", "medium", "-movflags", "+faststart"],
+        )
+        self._gen.send(None)
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        gen, tmp = self._gen, self._tmp
+        self._gen = None
+        if gen is not None:
+            try:
+                gen.close()
+            except (OSError, RuntimeError) as e:
+                if exc_type is None:
+                    tmp.unlink(missing_ok=True)
+                    raise LayercamError(f"cannot write video {self.path}: {str(e).strip()[:160]}") from None
+        if exc_type is not None:
+            if tmp is not None:
+                tmp.unlink(missing_ok=True)
+            return
+        if self.frames == 0:
+            raise ValueError("write_video got an empty clip")
+        os.replace(tmp, self.path)
+
+
+def write_video(path: str | os.PathLike, frames, fps: float = 24.0, crf: int = 18) -> Path:
     """Encode ``frames`` to an H.264 (libx264, yuv420p) mp4 at ``path``, atomically.
 
-    ``frames``: ``(T,H,W,3)`` RGB, float in [0,1] (clipped) or uint8; ``(T,H,W)`` grey is
-    replicated. Odd widths/heights are padded to even by repeating the last row/column.
-    ``crf`` is the x264 quality (lower is better, 18 is visually lossless).
+    ``frames``: ``(T,H,W,3)`` RGB, float in [0,1] (clipped) or uint8, ``(T,H,W)`` grey (replicated),
+    or any iterable of such frames (encoded as they come: one frame in memory at a time). Odd
+    widths/heights are padded to even by repeating the last row/column. ``crf`` is the x264 quality
+    (lower is better, 18 is visually lossless). See :class:`VideoWriter`.
     """
-    frames = np.asarray(frames)
-    if frames.ndim == 3:
-        frames = np.repeat(frames[..., None], 3, axis=3)
-    if frames.ndim != 4 or frames.shape[3] != 3:
+    if isinstance(frames, np.ndarray) and frames.ndim not in (3, 4):
         raise ValueError(f"write_video expects (T,H,W,3) frames, got shape {frames.shape}")
-    if frames.shape[0] == 0 or frames.shape[1] == 0 or frames.shape[2] == 0:
-        raise ValueError(f"write_video got an empty clip {frames.shape}")
-    fps = float(fps)
-    if not np.isfinite(fps) or fps <= 0:
-        raise ValueError(f"fps must be positive, got {fps}")
-    u8 = _to_uint8(frames)
-    t, h, w, _ = u8.shape
-    ph, pw = h % 2, w % 2
-    if ph or pw:
-        u8 = np.pad(u8, ((0, 0), (0, ph), (0, pw), (0, 0)), mode="edge")
-    size = (w + pw, h + ph)
-
-    import imageio_ffmpeg
-
-    def _write(tmp: Path) -> None:
-        gen = imageio_ffmpeg.write_frames(
-            str(tmp),
-            size,
-            fps=fps,
-            codec="libx264",
-            quality=None,
-            macro_block_size=2,
-            pix_fmt_out="yuv420p",
-            ffmpeg_log_level="error",
-            output_params=["-crf", str(int(crf)), "-preset", "medium", "-movflags", "+faststart"],
-        )
-        gen.send(None)
-        for i in range(t):
-            gen.send(np.ascontiguousarray(u8[i]))
-        gen.close()
-
-    try:
-        return atomic_write(path, _write)
-    except (OSError, RuntimeError) as e:
-        if isinstance(e, LayercamError):
-            raise
-        raise LayercamError(f"cannot write video {path}: {str(e).strip()[:160]}") from None
+    with VideoWriter(path, fps, crf) as vw:
+        for f in frames:
+            vw.add(f)
+    return Path(path)

@@ -103,15 +103,22 @@ def _blur(frames: np.ndarray, homs: np.ndarray | None, moving: np.ndarray | None
 
 
 def measure(clip, exposures, flow: dict | None) -> dict:
-    """The numbers the decisions are made from. ``flow`` is the flow stage's arrays or None."""
+    """The numbers the decisions are made from. ``flow`` is the flow stage's arrays or None; the
+    motion and blur are measured on the flow's grid (a working size for large frames,
+    ``flow.short_side``: there distances are in its pixels)."""
     frames = clip.frames
+    n = frames[..., 0].size
     m: dict = {
         "frames": clip.T,
         "distinct_exposures": exposures.count_distinct,
         "exposure_range_ev": float(np.ptp(exposures.log2_dt)) if exposures.T else 0.0,
-        "clipped_high": float((frames.max(-1) >= 0.99).mean()),
-        "clipped_low": float((frames.max(-1) <= 0.01).mean()),
+        "clipped_high": sum(int((f.max(-1) >= 0.99).sum()) for f in frames) / n,  # a frame at a time
+        "clipped_low": sum(int((f.max(-1) <= 0.01).sum()) for f in frames) / n,
     }
+    if flow is not None and len(flow.get("fw", ())) and tuple(flow["fw"].shape[1:3]) != frames.shape[1:3]:
+        from layercam.flow import resize_frames
+
+        frames = resize_frames(frames, flow["fw"].shape[1:3])
     if flow is None or "fw" not in flow or len(flow["fw"]) == 0:
         m.update(global_motion_px=0.0, independent_motion_frac=0.0, independent_pairs=0.0, moving_pairs=0, flow_consistent=1.0, motion_pairs_measured=0)
         m.update(_blur(frames, None, None))

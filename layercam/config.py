@@ -169,6 +169,8 @@ class TrainConfig:
 class FlowConfig:
     method: Literal["dis_ultrafast", "dis_fast", "dis_medium", "raft", "raft_small", "raft_large"] = "dis_medium"
     raft_weights: str = ""                  # a torchvision RAFT weights file (the raft methods need one)
+    short_side: int = setting(540, 0)       # flow of frames whose short side is longer is computed on copies scaled
+                                            # to it and read back scaled up (flow.working_size); 0: at the frames' size
 
 
 @dataclass

@@ -345,3 +345,69 @@ def deephdr_metrics(pred, gt, mu: float = 5000.0) -> dict[str, float]:
         rows.append((_psnr_masked(tp, tg, ok, 1.0), _psnr_masked(pn, gn, ok, 1.0), _ssim_arrays(tp, tg)))
     psnr_t, psnr_lin, ssim_t = (float(np.mean(c)) for c in zip(*rows))
     return {"psnr_t": psnr_t, "psnr_l": psnr_lin, "ssim_t": ssim_t}
+
+
+def hdr_metrics_streamed(pred_frame, gt_frame, n: int, mu: float = 5000.0) -> dict[str, float]:
+    """:func:`hdr_metrics` of a clip read one frame at a time, for clips too large to hold
+    (1080p): ``pred_frame(t)`` and ``gt_frame(t)`` return frame ``t`` ``(H,W,C)``. Three passes
+    (maxima; log ratios for the per-channel median scale, kept in float32; errors and SSIM per
+    frame): the same numbers as ``hdr_metrics`` on the stacked clip to within float32 rounding of
+    the log ratios."""
+    if n < 1:
+        raise MetricInputError("no frames")
+
+    def pair(t):
+        p, g = _pair(pred_frame(t), gt_frame(t))
+        ok = np.all(np.isfinite(g), axis=-1, keepdims=True)
+        return p, np.where(ok, g, 0.0), ok
+
+    c = None
+    for t in range(n):  # pass 0: maxima (align_scale's floors, the normalisation)
+        p, gz, ok = pair(t)
+        if c is None:
+            c, pmax, gmax_c, any_ok = p.shape[-1], np.zeros(p.shape[-1]), np.zeros(p.shape[-1]), False
+        pmax = np.maximum(pmax, np.abs(p).reshape(-1, c).max(0))
+        gmax_c = np.maximum(gmax_c, np.abs(gz).reshape(-1, c).max(0))
+        any_ok |= bool(ok.any())
+    if not any_ok:
+        raise MetricInputError("ground truth has no finite pixel")
+    fp, fg = _REL_FLOOR * np.maximum(pmax, 1e-30), _REL_FLOOR * np.maximum(gmax_c, 1e-30)
+    ratios = [[] for _ in range(c)]
+    sums = np.zeros((c, 2))
+    for t in range(n):  # pass 1: the per-channel scale, as align_scale
+        p, gz, ok = pair(t)
+        for k in range(c):
+            pc, gc, oc = p[..., k], gz[..., k], ok[..., 0]
+            m = oc & (pc > fp[k]) & (gc > fg[k])
+            ratios[k].append((np.log(gc[m]) - np.log(pc[m])).astype(np.float32))
+            sums[k] += (gc[oc].sum(), pc[oc].sum())
+    scale = np.ones(c)
+    for k in range(c):
+        r = np.concatenate(ratios[k])
+        if r.size:
+            scale[k] = float(np.exp(np.median(r.astype(np.float64))))
+        elif sums[k, 1] > 0:
+            scale[k] = sums[k, 0] / sums[k, 1]
+    ratios = None
+    gmax = float(gmax_c.max())
+    if not gmax > 0:
+        raise MetricInputError("ground-truth HDR has no positive value")
+    se_mu = se_l = 0.0
+    count = 0
+    ssims = []
+    for t in range(n):  # pass 2: errors and SSIM, as psnr_mu / psnr_l / ssim_mu
+        p, gz, ok = pair(t)
+        pn = np.clip((p * scale).astype(np.float32).astype(np.float64) / gmax, 0.0, 1.0)
+        gn = np.clip(gz / gmax, 0.0, None)
+        okb = np.broadcast_to(ok, gn.shape)
+        pm, gm = mu_law(pn, mu), mu_law(gn, mu)
+        se_mu += float(((pm - gm) ** 2)[okb].sum())
+        se_l += float(((pn - gn) ** 2)[okb].sum())
+        count += int(okb.sum())
+        ssims.append(_ssim_arrays(pm, gm))
+
+    def to_db(se):
+        mse = se / max(count, 1)
+        return PSNR_CAP if mse <= 10.0 ** (-PSNR_CAP / 10.0) else float(10.0 * np.log10(1.0 / mse))
+
+    return {"psnr_mu": to_db(se_mu), "psnr_l": to_db(se_l), "ssim_mu": float(np.mean(ssims))}

@@ -45,8 +45,9 @@ def score_hdr(ctx: Context, ev: "EvaluateStage") -> dict:
     res = {"metrics": {**metrics.hdr_metrics(read_hdr_frames(ctx.dirs["export"], ctx.clip.T), gt), "wall_s": model_wall_s(ctx)}, "baselines": {}}
     if "debevec" in ev.baselines and ctx.clip.T > 1 and ctx.exposures.count_distinct > 1:
         from layercam.baselines import debevec_video
+        from layercam.flow import at_frame_size
 
-        fl = ctx.flow
+        fl = at_frame_size(ctx.flow, (ctx.clip.H, ctx.clip.W), ("fw", "bw"))
         t0 = time.perf_counter()
         base = debevec_video(ctx.clip.frames, np.exp2(ctx.exposures.log2_dt), fl["fw"].astype(np.float32), fl["bw"].astype(np.float32))
         secs = time.perf_counter() - t0 + ctx.times.get("flow", {}).get("seconds", 0.0)

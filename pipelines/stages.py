@@ -16,7 +16,7 @@ class FlowStage(Stage):
     per-pair global homography fitted to each forward flow (RANSAC)."""
 
     name = "flow"
-    version = 2  # 2: homographies fitted where both frames see well (visibility.pair_visible); "vis" saved
+    version = 3  # 2: homographies fitted where both frames see well (visibility.pair_visible); "vis" saved; 3: a working size (flow.short_side)
 
     def key_material(self, ctx):
         return ctx.cfg.section_dict("flow")
@@ -24,11 +24,13 @@ class FlowStage(Stage):
     def run(self, ctx, out):
         from layercam import flow
 
-        frames = ctx.clip.frames
         if ctx.clip.T < 2:
             np.savez(out / "flow.npz", fw=np.zeros((0, ctx.clip.H, ctx.clip.W, 2), np.float16))
             ctx.flow = None
             return {"pairs": 0}
+        hw = (ctx.clip.H, ctx.clip.W)
+        work = flow.working_size(hw, ctx.cfg.flow.short_side)
+        frames = ctx.clip.frames if work == hw else flow.resize_frames(ctx.clip.frames, work)
         method = ctx.cfg.flow.method
         if method == "raft":
             fw, bw = flow.raft_flow(frames, ctx.cfg.flow.raft_weights)
@@ -36,10 +38,11 @@ class FlowStage(Stage):
             fw, bw = flow.compute_flow(frames, method=method, progress=ctx.progress)
         arrays = flow.pair_arrays(frames, fw, bw)  # homographies fitted only where both frames see well
         fw_ok = arrays["fw_ok"]
-        ctx.flow = {"fw": fw.astype(np.float16), "bw": bw.astype(np.float16), **arrays}  # as cached
+        # as cached: every array on the working grid (flows in its pixels); flow.at_frame_size scales them up
+        ctx.flow = {"fw": fw.astype(np.float16), "bw": bw.astype(np.float16), **arrays}
         np.savez(out / "flow.npz", **ctx.flow)
-        mag = np.sqrt((fw.astype(np.float32) ** 2).sum(-1))
-        return {"pairs": int(len(fw)), "mean_flow_px": float(mag.mean()), "consistent_fraction": float(fw_ok.mean())}
+        mag = np.sqrt((fw.astype(np.float32) ** 2).sum(-1)) * (hw[1] / work[1])
+        return {"pairs": int(len(fw)), "working_size": list(work), "mean_flow_px": float(mag.mean()), "consistent_fraction": float(fw_ok.mean())}
 
     def load(self, ctx, out, summary):
         """The cached arrays, read once into ``ctx.flow`` (None for a single frame)."""
@@ -78,9 +81,11 @@ class BootstrapStage(Stage):
         from layercam.camera.tone import initial_log2
         from layercam.geometry import atlas_mappings, chain_homographies, max_corner_shift, middle_frame
 
+        from layercam.flow import at_frame_size
+
         clip = ctx.clip
         T, H, W = clip.T, clip.H, clip.W
-        fl = ctx.flow
+        fl = at_frame_size(ctx.flow, (H, W), None if ctx.cfg.model.layers > 1 else ("homs",))  # the motion segmentation reads the flows too
         ref = middle_frame(T)
         static = False
         if ctx.cfg.scene.bootstrap == "flow" and fl is not None:

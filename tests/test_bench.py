@@ -66,3 +66,22 @@ def test_quick_analysis_table_chosen_against_full(tmp_path):
     assert all(np.isfinite(r["value"]) and r["reasons"] for r in rows)
     md = (tmp_path / "an" / "analysis_table.md").read_text()
     assert md.count("\n") == 2 + len(rows)
+
+
+@pytest.mark.timeout(600)  # a process per clip, run, score and baseline
+def test_scaling_table_writes_csv_and_plot(tmp_path, capsys):
+    """``bench --table scaling`` on two tiny sizes: a row per size and method, costs and quality measured."""
+    out = tmp_path / "sc"
+    argv = ["bench", "--table", "scaling", "--out", str(out), "--sizes", "16x16,24x32", "--frames", "4", "--presets", "fast",
+            "--threads", "1", "--set", "train.steps=30"]
+    assert main(argv) == 0
+    rows = list(csv.DictReader(open(out / "scaling.csv")))
+    assert [(r["size"], r["method"]) for r in rows] == [("16x16", "debevec"), ("16x16", "layercam"), ("24x32", "debevec"), ("24x32", "layercam")]
+    for r in rows:
+        assert float(r["wall_s"]) > 0 and float(r["peak_mem_mb"]) > 0 and np.isfinite(float(r["psnr_mu"]))
+    lc = [r for r in rows if r["method"] == "layercam"]
+    assert all(int(r["steps"]) == 30 and float(r["steps_per_s"]) > 0 and float(r["train_s"]) > 0 for r in lc)
+    assert [int(r["pixels"]) for r in lc] == [256, 768]
+    assert (out / "scaling.png").stat().st_size > 1000
+    assert main(["bench", "--table", "scaling", "--out", str(out), "--sizes", "4x4"]) == 2
+    assert "sizes start at 8x8" in capsys.readouterr().err

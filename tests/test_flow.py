@@ -123,3 +123,34 @@ def test_flow_on_frames_smaller_than_dis_patches(hw):
     frames = np.random.default_rng(0).random((3, *hw, 3)).astype(np.float32)
     fw, bw = compute_flow(frames, method="dis_fast", progress=False)
     assert fw.shape == bw.shape == (2, *hw, 2) and np.isfinite(fw).all() and np.isfinite(bw).all()
+
+
+def test_working_size_scales_the_short_side_only_when_longer():
+    from layercam.flow import working_size
+
+    assert working_size((1080, 1920), 540) == (540, 960)
+    assert working_size((480, 854), 540) == (480, 854) and working_size((1080, 1920), 0) == (1080, 1920)
+
+
+def test_flow_at_a_working_size_reads_back_at_the_frames_size():
+    """A zoom-and-shift homography, measured on half-size frames, is the full-size one once rescaled;
+    a half-size flow upsamples to the full-size flow of the same motion."""
+    from layercam.flow import at_frame_size, pixel_scaling, rescale_homographies
+
+    full = np.array([[1.02, 0.0, 3.0], [0.0, 1.02, -2.0], [0.0, 0.0, 1.0]])
+    a = pixel_scaling((20, 30), (40, 60))  # full-size pixels -> half-size pixels
+    half = a @ full @ np.linalg.inv(a)
+    assert np.allclose(rescale_homographies(half[None], (20, 30), (40, 60))[0], full)
+    assert np.allclose(a @ [29.5, 19.5, 1.0], [14.5, 9.5, 1.0])  # the centres coincide
+
+    def homography_flow(h, hw):
+        yy, xx = np.mgrid[0 : hw[0], 0 : hw[1]].astype(np.float64)
+        p = np.einsum("ij,jhw->ihw", h, np.stack([xx, yy, np.ones_like(xx)]))
+        return np.stack([p[0] / p[2] - xx, p[1] / p[2] - yy], -1).astype(np.float32)
+
+    fl = {"fw": homography_flow(half, (20, 30))[None], "fw_ok": np.ones((1, 20, 30), bool), "homs": half[None]}
+    up = at_frame_size(fl, (40, 60))
+    assert up["fw"].shape == (1, 40, 60, 2) and up["fw_ok"].shape == (1, 40, 60)
+    inner = (slice(2, -2), slice(2, -2))
+    assert np.abs(up["fw"][0][inner] - homography_flow(full, (40, 60))[inner]).max() < 0.05
+    assert at_frame_size(fl, (40, 60), ("homs",)).keys() == {"homs"} and at_frame_size(fl, (20, 30)) is fl

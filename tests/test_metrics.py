@@ -162,3 +162,16 @@ def test_deephdr_averages_per_frame():
     f0, f1 = metrics.deephdr_metrics(pred[0], gt[0]), metrics.deephdr_metrics(pred[1], gt[1])
     assert both["psnr_t"] == pytest.approx((f0["psnr_t"] + f1["psnr_t"]) / 2, abs=1e-6)
     assert f0["psnr_t"] == metrics.PSNR_CAP
+
+
+def test_hdr_metrics_streamed_matches_the_stacked_clip():
+    """Frame by frame (for 1080p clips) gives hdr_metrics' numbers on the whole clip."""
+    gt = _hdr(11, (3, 16, 20, 3))
+    pred = gt * np.array([0.5, 0.7, 0.9]) * np.exp(np.random.default_rng(1).normal(0, 0.2, gt.shape))
+    want = metrics.hdr_metrics(pred, gt)
+    got = metrics.hdr_metrics_streamed(lambda t: pred[t], lambda t: gt[t], 3)
+    assert set(got) == set(want)
+    for k in want:
+        assert got[k] == pytest.approx(want[k], abs=1e-3), k
+    with pytest.raises(LayercamError):
+        metrics.hdr_metrics_streamed(lambda t: pred[t], lambda t: gt[t], 0)

@@ -220,3 +220,11 @@ def test_settings_a_b_a_puts_a_back(tiny_scene, tiny_exposures, tmp_path):
     again = [read_exr(p) for p in sorted((run / "hdr").glob("*.exr"))]
     assert len(again) == len(a) and all(np.array_equal(x, y) for x, y in zip(again, a))
     assert len(list((run / "previous").glob("*/hdr/frame_00000.exr"))) == 2  # A's first copy and B's
+
+
+def test_flow_at_a_working_size_runs_end_to_end(tiny_scene, tiny_exposures, tmp_path):
+    """Large frames get their flow on smaller copies (flow.short_side); the run trains on it."""
+    ctx = _run(tiny_scene, tiny_exposures, tmp_path / "run", ["flow.short_side=16"])
+    assert ctx.results["flow"]["working_size"] == [16, 16] and ctx.flow["fw"].shape[1:3] == (16, 16)
+    rep = json.loads((tmp_path / "run" / "report.json").read_text())
+    assert rep["train"]["final_loss"]["color"] < 0.5 * rep["train"]["first_loss"]["color"]

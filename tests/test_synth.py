@@ -143,3 +143,26 @@ def test_make_errors():
         synth.make("pan_hdr", bogus=1)
     with pytest.raises(LayercamError):
         synth.make("pan_hdr", frames=0)
+
+
+def test_pan_hdr_frames_one_at_a_time_are_pan_hdr():
+    s = synth.pan_hdr(frames=4, size=(24, 32), seed=3)
+    meta, times, each = synth.pan_hdr_frames(frames=4, size=(24, 32), seed=3)
+    pairs = list(each)
+    assert np.array_equal(times, s.exposure_times) and meta["gain"] == s.meta["gain"]
+    assert all(np.array_equal(h, s.hdr[t]) and np.array_equal(l, s.clip.frames[t]) for t, (h, l) in enumerate(pairs))
+
+
+def test_clip_on_disk_is_the_clip_with_its_truth(tmp_path):
+    """synth.disk writes the user's view (8-bit PNGs, times.txt) and the linear truth, frame by frame."""
+    from layercam.io import read_image
+    from layercam.synth.disk import main, truth_frame
+
+    assert main([str(tmp_path / "c"), "--size", "24x32", "--frames", "3", "--seed", "3"]) == 0
+    s = synth.pan_hdr(frames=3, size=(24, 32), seed=3)
+    for t in range(3):
+        assert np.array_equal(truth_frame(tmp_path / "c", t), s.hdr[t])
+        png = read_image(tmp_path / "c" / "frames" / f"frame_{t:05d}.png")
+        assert png.shape == (24, 32, 3) and np.abs(png - s.clip.frames[t]).max() <= 0.5 / 255 + 1e-6
+    lines = (tmp_path / "c" / "times.txt").read_text().split()
+    assert [float(v) for v in lines[1::2]] == pytest.approx(list(s.exposure_times))

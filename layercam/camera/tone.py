@@ -146,12 +146,13 @@ def initial_log2(frames: np.ndarray, log2_dt: np.ndarray, slope: float, tone: st
     """The atlases' starting log2 irradiance: the median over the frames ``(T, H, W, 3)`` (grey,
     kept within 0.02..0.98) of their value through the inverse of the starting tone curve (the
     fixed sRGB curve, or :func:`init_curve` with ``slope``), less each frame's ``log2_dt (T,)``."""
-    c = np.clip(frames.mean(-1), 0.02, 0.98)
-    if tone == "fixed":
-        z = np.log2(np.maximum(srgb_decode(c), 1e-6))
-    else:
-        z = np.log(c / (1 - c)) / (slope * math.log(2))
-    return float(np.median(z - np.asarray(log2_dt, dtype=np.float32)[:, None, None]))
+    dt = np.asarray(log2_dt, dtype=np.float32)
+    z = np.empty(frames.shape[:3], np.float32)
+    for t, f in enumerate(frames):  # a frame at a time: the temporaries of one frame, not of the clip
+        c = np.clip(f.mean(-1), 0.02, 0.98)
+        zt = np.log2(np.maximum(srgb_decode(c), 1e-6)) if tone == "fixed" else np.log(c / (1 - c)) / (slope * math.log(2))
+        z[t] = zt - dt[t]
+    return float(np.median(z))
 
 
 def fit_init_curve(tone: ToneMapper, slope: float, steps: int = 300, seed: int = 0) -> float:

@@ -27,10 +27,10 @@ def register(sub) -> argparse.ArgumentParser:
     b.add_argument("--out", help="output folder (default: runs/bench, or runs/real for --suite real)")
     b.add_argument("--scenes", default="pan", help="synthetic suite: comma-separated scene names (default: pan)")
     b.add_argument("--cases", help="real suite: comma-separated case names (default: all)")
-    b.add_argument("--presets", help="comma-separated presets (default: fast,balanced,quality,paper; real suite: fast,balanced)")
+    b.add_argument("--presets", help="comma-separated presets (default: fast,balanced,quality,paper; real suite and --table scaling: fast,balanced)")
     b.add_argument("--quick", action="store_true", help="tiny scenes and a few steps: a smoke test, not a measurement")
     b.add_argument("--threads", type=POSITIVE_INT, help="torch threads per job (default: 2; real suite: 1)")
-    b.add_argument("--table", choices=["presets", "analysis", "layers"], default="presets", help="synthetic suite: presets, the speed/quality trade (default); analysis: the analysed model against the full model on each synthetic family; layers: alpha against the true masks on the real DAVIS clips, with and without --masks")
+    b.add_argument("--table", choices=["presets", "analysis", "layers", "scaling"], default="presets", help="synthetic suite: presets, the speed/quality trade (default); analysis: the analysed model against the full model on each synthetic family; layers: alpha against the true masks on the real DAVIS clips, with and without --masks; scaling: cost against frame size (steps/s, stage times, peak memory, quality) -> scaling.csv, scaling.png")
     b.add_argument("--preset", default="fast", help="preset for --table analysis and layers (default: fast)")
     b.add_argument("--force", action="store_true", help="real suite, --table layers: redo finished jobs")
     b.add_argument("--data", help="real suite, --table layers: the shared captures (default: $LAYERCAM_DATA or ../shared/data)")
@@ -39,8 +39,11 @@ def register(sub) -> argparse.ArgumentParser:
     b.add_argument("--variants", default="motion,masks", help="--table layers: motion (no masks: the motion bootstrap), masks (the true masks given) (default: both)")
     b.add_argument("--resize", default="0.33", help="--table layers: frame scale, as hdr-video's --resize (default: 0.33)")
     b.add_argument("--layers", choices=["auto", "2"], default="auto", help="--table layers: auto, the analysis decides (default); 2: forced")
+    b.add_argument("--sizes", default="128x128,256x256,512x512,1080x1920", help="--table scaling: frame sizes HxW (default: 128x128,256x256,512x512,1080x1920)")
+    b.add_argument("--frames", type=POSITIVE_INT, default=48, help="--table scaling: frames per clip (default 48)")
+    b.add_argument("--no-baseline", action="store_true", help="--table scaling: no flow + Debevec rows")
     b.add_argument("--redraw", action="store_true", help="real suite: run nothing, write the table and figures again from the finished jobs")
-    b.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE", help="real suite, --table layers: a setting for every layercam job (repeatable)")
+    b.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE", help="real suite, --table layers and scaling: a setting for every layercam job (repeatable)")
     b.add_argument("--quiet", action="store_true")
     return b
 
@@ -55,6 +58,13 @@ def run(args) -> int:
     from layercam.bench import run_analysis_table, run_bench
 
     out = Path(args.out or "runs/bench")
+    if args.table == "scaling":
+        from layercam.bench_scaling import run_scaling
+
+        rows = run_scaling(out, _list(args.sizes), _list(args.presets), args.frames, args.threads or 2, args.overrides, not args.no_baseline, progress=not args.quiet)
+        if not args.quiet:
+            print(f"wrote {out / 'scaling.csv'} and scaling.png ({len(rows)} rows)")
+        return 0
     if args.table == "layers":
         import os
 

@@ -32,7 +32,7 @@ from layercam.synth.camera import CRFS, SynthScene, crf_apply, crf_inverse
 from layercam.synth.canvas import hdr_canvas
 from layercam.synth.shake import shake_blur
 from layercam.synth.stack import mfme_stack
-from layercam.synth.video import moving_object, pan_hdr, static_single, true_flow
+from layercam.synth.video import moving_object, pan_hdr, pan_hdr_frames, static_single, true_flow
 
 __all__ = [
     "CRFS",
@@ -45,6 +45,7 @@ __all__ = [
     "mfme_stack",
     "moving_object",
     "pan_hdr",
+    "pan_hdr_frames",
     "shake_blur",
     "static_single",
     "true_flow",

@@ -29,8 +29,29 @@ def pan_hdr(
     (scale ``1 -> 1+zoom``) across an HDR canvas, with alternating exposures: frame 0 at
     ``t=1``, frame 1 at ``t=2**ev_step``, ... The gain puts the brightest emitter at 0.9 in the
     low exposure (emitters unclipped there) so the high exposure clips them and lifts shadows.
-    ``size`` is ``(H, W)``.
+    ``size`` is ``(H, W)``. :func:`pan_hdr_frames` gives the same frames one at a time.
     """
+    meta, times, each = pan_hdr_frames(frames, size, ev_step, crf, noise, seed, zoom, speed, emitters)
+    pairs = list(each)
+    hdr = np.stack([p[0] for p in pairs])
+    ldr = np.stack([p[1] for p in pairs])
+    return SynthScene(_make_clip(ldr, "pan_hdr"), times, hdr.astype(np.float32), crf, None, meta)
+
+
+def pan_hdr_frames(
+    frames: int = 24,
+    size: tuple[int, int] = (128, 128),
+    ev_step: float = 3.0,
+    crf: str = "srgb",
+    noise: float = 0.005,
+    seed: int = 0,
+    zoom: float = 0.05,
+    speed: tuple[float, float] = (1.5, 3.0),
+    emitters: int | None = None,
+):
+    """:func:`pan_hdr` one frame at a time, for clips too large to hold (1080p): returns
+    ``(meta, exposure_times, frames)`` where ``frames`` yields ``(hdr (H,W,3), ldr (H,W,3))`` float32
+    per frame, bit-identical to ``pan_hdr``'s (the noise is drawn in the same order)."""
     h, w = _check_common(frames, size, crf, noise)
     rng = np.random.default_rng(seed)
     ctr, scale = _pan_path(rng, frames, h, w, speed, zoom)
@@ -40,15 +61,19 @@ def pan_hdr(
     canvas, info = hdr_canvas(csize, rng, emitters=_emitters_along(rng, ctr_abs, h, w, n_em))
     gain = 0.9 / float(canvas.max())
     aff = np.stack([_affine(ctr_abs[t, 0], ctr_abs[t, 1], scale[t], h, w) for t in range(frames)])
-    hdr = np.stack([_warp(canvas, aff[t], h, w) for t in range(frames)])
     times = _alternating(frames, ev_step)
-    ldr = np.stack([_expose(hdr[t], times[t], gain, crf, noise, rng) for t in range(frames)])
     meta = {
         "family": "pan_hdr", "seed": seed, "ev_step": ev_step, "noise": noise, "zoom": zoom,
         "gain": gain, "frame_affine": aff.astype(np.float32), "canvas_shape": csize,
         "canvas_median": info["median"], "emitters": info["emitters"],
     }
-    return SynthScene(_make_clip(ldr, "pan_hdr"), times, hdr.astype(np.float32), crf, None, meta)
+
+    def each():
+        for t in range(frames):
+            hdr = _warp(canvas, aff[t], h, w)
+            yield hdr, _expose(hdr, times[t], gain, crf, noise, rng)
+
+    return meta, times, each()
 
 
 # --------------------------------------------------------------------------------------------

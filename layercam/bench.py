@@ -215,15 +215,16 @@ def run_bench(out: Path, scenes: list[str], presets: list[str], quick: bool = Fa
     return rows
 
 
-def write_csv(path: Path, rows: list[dict]) -> None:
+def write_csv(path: Path, rows: list[dict], fields: list[str] = CSV_FIELDS) -> None:
+    """``rows`` as csv with the columns ``fields`` (missing values empty), atomically."""
     from layercam.io.atomic import atomic_write
 
     def w(p):
         with open(p, "w", newline="") as f:
-            wr = csv.DictWriter(f, fieldnames=CSV_FIELDS)
+            wr = csv.DictWriter(f, fieldnames=fields)
             wr.writeheader()
             for r in rows:
-                wr.writerow({k: r.get(k, "") for k in CSV_FIELDS})
+                wr.writerow({k: r.get(k, "") for k in fields})
 
     atomic_write(path, w)
 

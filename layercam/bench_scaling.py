@@ -12,7 +12,6 @@ frame by frame); per size, OpenCV Debevec on DIS-aligned neighbours next to it. 
 
 from __future__ import annotations
 
-import csv
 import json
 import resource
 import subprocess
@@ -173,16 +172,10 @@ def run_scaling(out: Path, sizes: list[str] | None = None, presets: list[str] | 
 
 
 def write_scaling(out: Path, rows: list[dict]) -> None:
+    from layercam.bench import write_csv
     from layercam.io.atomic import atomic_write
 
-    def w(p):
-        with open(p, "w", newline="") as f:
-            wr = csv.DictWriter(f, fieldnames=FIELDS)
-            wr.writeheader()
-            for r in rows:
-                wr.writerow({k: r.get(k, "") for k in FIELDS})
-
-    atomic_write(out / "scaling.csv", w)
+    write_csv(out / "scaling.csv", rows, FIELDS)
     atomic_write(out / "scaling.json", lambda p: p.write_text(json.dumps(rows, indent=1)))
     plot_scaling(out / "scaling.png", rows)
 

@@ -7,7 +7,9 @@ would (PNG folder + ``times.txt``), in its own process so that its peak memory (
 its own. Recorded per case: training steps/s and samples/s (wall and CPU time), seconds per stage,
 end-to-end wall time, peak memory, and PSNR-mu of the exported HDR against the ground truth (read
 frame by frame); per size, OpenCV Debevec on DIS-aligned neighbours next to it. Writes
-``scaling.csv``, ``scaling.json`` and ``scaling.png`` (log-log: cost against pixels per frame).
+``scaling.csv``, ``scaling.json`` and ``scaling.png`` (log-log: cost against pixels per frame) after
+each case; a later run into the same folder replaces the rows of the cases it runs and keeps the
+others (e.g. ``--presets fast`` first, then ``--presets balanced``).
 """
 
 from __future__ import annotations
@@ -146,7 +148,12 @@ def run_scaling(out: Path, sizes: list[str] | None = None, presets: list[str] | 
 
     out = ensure_writable_dir(Path(out))
     say = print if progress else (lambda *a, **k: None)
-    rows = []
+    rows = _previous_rows(out)
+
+    def add(row):  # replaces the same case's earlier row; the table is written after each case
+        rows[:] = [r for r in rows if _key(r) != _key(row)] + [row]
+        rows.sort(key=lambda r: (r["pixels"], r["method"] != "debevec"))  # stable: presets in the order run
+        write_scaling(out, rows)
     for size in sizes or SIZES:
         hw = parse_size(size)
         clip = out / "clips" / f"{hw[0]}x{hw[1]}-{frames}"
@@ -155,7 +162,7 @@ def run_scaling(out: Path, sizes: list[str] | None = None, presets: list[str] | 
         if baseline:
             d = _spawn("debevec_job", {"clip": str(clip), "frames": frames, "out": str(out / "debevec" / size), "size": size}, out / "result.json")
             s = _spawn("score_job", {"clip": str(clip), "frames": frames, "hdr": str(out / "debevec" / size)}, out / "result.json")
-            rows.append({"size": size, "pixels": hw[0] * hw[1], "method": "debevec", "preset": "", "wall_s": d["wall_s"], "peak_mem_mb": d["peak_mem_mb"],
+            add({"size": size, "pixels": hw[0] * hw[1], "method": "debevec", "preset": "", "wall_s": d["wall_s"], "peak_mem_mb": d["peak_mem_mb"],
                          **{k: round(s[k], 3) for k in ("psnr_mu", "psnr_l", "ssim_mu")}, "note": "DIS flow + OpenCV Debevec per frame and aligned neighbour, CRF per 12-frame chunk"})
             say(f"{size:>10} {'debevec':>9} {d['wall_s']:8.1f} s  PSNR-mu {s['psnr_mu']:.2f}")
         for preset in presets or PRESETS:
@@ -165,10 +172,20 @@ def run_scaling(out: Path, sizes: list[str] | None = None, presets: list[str] | 
             score = _spawn("score_job", {"clip": str(clip), "frames": frames, "hdr": str(run / "hdr")}, out / "result.json")
             score = {k: score[k] for k in ("psnr_mu", "psnr_l", "ssim_mu")}
             r = _row(size, hw, preset, run, res, score, f"{threads} thread(s); " + " ".join(overrides or []))
-            rows.append(r)
+            add(r)
             say(f"{size:>10} {preset:>9} {r['wall_s']:8.1f} s  train {r['steps_per_s']} steps/s ({r['train_cpu_ms_per_step']} ms CPU/step)  peak {r['peak_mem_mb']:.0f} MB  PSNR-mu {r['psnr_mu']:.2f}")
-    write_scaling(out, rows)
     return rows
+
+
+def _key(row: dict) -> tuple:
+    return row["size"], row["method"], row["preset"]
+
+
+def _previous_rows(out: Path) -> list[dict]:
+    """The rows of an earlier run into ``out`` (``scaling.json``): a run of other sizes or presets
+    adds its rows to them, so that the table can be made a preset at a time."""
+    p = out / "scaling.json"
+    return json.loads(p.read_text()) if p.exists() else []
 
 
 def write_scaling(out: Path, rows: list[dict]) -> None:

@@ -83,5 +83,11 @@ def test_scaling_table_writes_csv_and_plot(tmp_path, capsys):
     assert all(int(r["steps"]) == 30 and float(r["steps_per_s"]) > 0 and float(r["train_s"]) > 0 for r in lc)
     assert [int(r["pixels"]) for r in lc] == [256, 768]
     assert (out / "scaling.png").stat().st_size > 1000
+    again = ["bench", "--table", "scaling", "--out", str(out), "--sizes", "16x16", "--frames", "4", "--presets", "balanced",
+             "--no-baseline", "--threads", "1", "--set", "train.steps=20", "--quiet"]
+    assert main(again) == 0  # a later run adds its rows to the table
+    rows = list(csv.DictReader(open(out / "scaling.csv")))
+    assert [(r["size"], r["method"], r["preset"]) for r in rows][:3] == [("16x16", "debevec", ""), ("16x16", "layercam", "fast"), ("16x16", "layercam", "balanced")]
+    assert len(rows) == 5 and rows[2]["steps"] == "20"
     assert main(["bench", "--table", "scaling", "--out", str(out), "--sizes", "4x4"]) == 2
     assert "sizes start at 8x8" in capsys.readouterr().err

@@ -225,7 +225,8 @@ def plot_scaling(path: Path, rows: list[dict]) -> None:
         ax.set_xlabel("pixels per frame")
         ax.set_title(title, fontsize=9)
         ax.grid(alpha=0.3, which="both")
-        ax.legend(fontsize=7)
+        if ax.get_legend_handles_labels()[0]:
+            ax.legend(fontsize=7)
     fig.suptitle("layercam: cost against frame size (synthetic pan, alternating exposures)", fontsize=10)
     fig.tight_layout()
     atomic_write(Path(path), lambda p: fig.savefig(p))

@@ -73,3 +73,26 @@ def test_rigidity_and_gradient_losses_finite_on_degenerate_inputs():
     r = losses.rigidity_loss(lambda p, tt: p * 0.0, xy, t, 1e-3)  # a mapping that collapses everything
     g = losses.gradient_loss(ToneMapper(8, 2), torch.tensor([[-1e4] * 3, [1e4] * 3]))
     assert _finite(r, g)
+
+
+def test_mask_loss_balanced_puts_a_halo_around_a_small_object_plain_does_not():
+    """A small object (60 of 1000 samples labelled object) and 200 samples of one ambiguous pixel,
+    40 of them (20%) labelled object: the alpha minimising the plain loss there is 0.2, the
+    class-balanced one's (object samples weigh 10) is above 0.5."""
+    mask = torch.zeros(1000)
+    mask[:20] = 1.0     # the object
+    mask[100:140] = 1.0  # 40 of the ambiguous pixel's 200 samples (100..299)
+    grid = torch.linspace(0.02, 0.98, 49)
+
+    def best(balance):
+        def loss(a):
+            alpha = torch.full((1000, 1), 0.01)
+            alpha[:20] = 0.99
+            alpha[100:300] = a
+            return float(losses.mask_loss(alpha, mask, balance))
+
+        return float(grid[int(np.argmin([loss(a) for a in grid]))])
+
+    assert best(0.0) == pytest.approx(0.2, abs=0.02)
+    assert best(1.0) > 0.5
+    assert best(0.0) < best(0.5) < best(1.0)

@@ -39,10 +39,19 @@ def test_schedules_change_the_weights_over_training():
     for step in (0, 9, 10, 25, 50, 99):
         for cb in cbs:
             cb.on_step(trainer, step)
-        seen[step] = (model.loss_weights.flow, model.loss_weights.alpha_mask)
-    assert seen[0] == (100.0, 1.0) and seen[9][1] == 1.0  # masks at full weight during the bootstrap steps
+        seen[step] = (model.loss_weights.flow, model.loss_weights.alpha_mask, model.loss_weights.mask_balance)
+    assert seen[0] == (100.0, 1.0, 1.0) and seen[9][1:] == (1.0, 1.0)  # masks at full weight, class-balanced, during the bootstrap steps
+    assert seen[99][2] == 1.0  # motion masks: class-balanced all through
     assert 0 < seen[25][0] < 100 and 0 < seen[25][1] < 1  # both tapering
-    assert seen[50] == (0.0, 0.0) and seen[99] == (0.0, 0.0)  # gone at flow_decay_end
+    assert seen[50][:2] == (0.0, 0.0) and seen[99][:2] == (0.0, 0.0)  # gone at flow_decay_end
+    given = _model(layers=2)
+    trainer = SimpleNamespace(model=given, cfg=given.cfg.train)
+    balance, cbs = {}, given.training_callbacks(masks=True, given=True)
+    for step in (0, 9, 10, 99):
+        for cb in cbs:
+            cb.on_step(trainer, step)
+        balance[step] = (given.loss_weights.mask_balance, given.loss_weights.alpha_mask)
+    assert balance == {0: (1.0, 1.0), 9: (1.0, 1.0), 10: (0.0, 1.0), 99: (0.0, 1.0)}  # given masks: plain BCE after the bootstrap steps, kept at full weight
     one = _model(layers=1)
     one.training_callbacks(masks=True)
     assert one.loss_weights.alpha_mask == 0.0  # no alpha field to fit the masks to

@@ -31,7 +31,7 @@ def build_model(cfg, meta: dict):
     return ImplicitCameraModel(
         cfg, torch.as_tensor(np.asarray(meta["h0"]), dtype=torch.float32), np.asarray(meta["log2_dt"], dtype=np.float32),
         meta.get("exposure_learn", "none"), None if meta.get("phase") is None else np.asarray(meta["phase"]),
-        float(meta["init_log2"]), tuple(meta["frame_hw"]),
+        float(meta["init_log2"]), tuple(meta["frame_hw"]), meta.get("clip_levels"),
     )
 
 

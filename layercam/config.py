@@ -221,6 +221,7 @@ class ExportConfig:
     atlas_min_res: int = setting(32, 2, 8192)  # atlases/ grid side: about one texel per frame pixel, within these
     atlas_max_res: int = setting(2048, 2, 8192)
     reference: int | Literal["middle", "first", "last"] = "middle"  # fuse-stack: the view fused into (an index may be negative)
+    faithful: bool = True                   # each frame's HDR agrees with the frame where it saw well (layercam/faithful.py); off: the model alone
 
 
 @dataclass

@@ -72,6 +72,13 @@ def fit_into_atlas(pixel_maps: np.ndarray, centre: np.ndarray, half: float, marg
     return np.stack([a @ m @ n_inv for m in pixel_maps]).astype(np.float32)
 
 
+# A clip whose chained flow homographies move no frame corner by this much is registered by the
+# identity: between frames of different focus or exposure such small homographies are mostly flow
+# noise (up to 1 px on an aligned synthetic focus/exposure stack), and a wrong sub-pixel
+# registration lets the scene store each frame apart instead of the blur generator explaining it.
+STATIC_CORNER_PX = 1.5
+
+
 def max_corner_shift(pixel_maps: np.ndarray, h: int, w: int) -> float:
     """Largest displacement (px) of a frame corner under the per-frame maps ``(T, 3, 3)``."""
     c = _corners(h, w)

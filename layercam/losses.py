@@ -5,8 +5,9 @@ from __future__ import annotations
 import torch
 
 
-def color_loss(pred: torch.Tensor, target: torch.Tensor, mode: str = "plain", lo: float = 1.0 / 255, hi: float = 254.0 / 255) -> torch.Tensor:
-    """Colour reconstruction (paper Eq. 9), ``(N, 3)`` each.
+def color_loss(pred: torch.Tensor, target: torch.Tensor, mode: str = "plain", lo: float = 1.0 / 255, hi: float | torch.Tensor = 254.0 / 255) -> torch.Tensor:
+    """Colour reconstruction (paper Eq. 9), ``(N, 3)`` each; ``hi`` a float or per channel ``(3,)``
+    (a camera that clips below 255: :func:`layercam.visibility.clip_levels`).
 
     mode "plain": MSE. mode "one_sided": a target at or below ``lo`` only says "the value is at most
     ``lo``", at or above ``hi`` only "at least ``hi``", so there the error is measured against the

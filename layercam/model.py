@@ -50,7 +50,7 @@ class ImplicitCameraModel(nn.Module):
     ``init_log2`` the atlases' starting log2 irradiance; ``frame_hw`` the frames' ``(H, W)``.
     """
 
-    def __init__(self, cfg: Config, h0: torch.Tensor, log2_dt: np.ndarray, exposure_learn: str = "none", phase=None, init_log2: float = 0.0, frame_hw: tuple[int, int] = (1, 1)):
+    def __init__(self, cfg: Config, h0: torch.Tensor, log2_dt: np.ndarray, exposure_learn: str = "none", phase=None, init_log2: float = 0.0, frame_hw: tuple[int, int] = (1, 1), clip_levels=None):
         super().__init__()
         todo = unresolved(cfg)
         if todo:
@@ -60,6 +60,9 @@ class ImplicitCameraModel(nn.Module):
             raise ValueError(f"model.layers = {m.layers} but h0 holds {h0.shape[0]} layer mappings")
         self.cfg = cfg
         self.frame_hw = frame_hw
+        # per channel, the pixel value at which the clip clips (layercam.visibility.clip_levels):
+        # the one-sided colour loss reads a target there as "at least this"
+        self.clip_levels = torch.as_tensor(np.full(3, 254.0 / 255) if clip_levels is None else np.asarray(clip_levels), dtype=torch.float32)
         self.scene = LayeredScene(cfg.scene, h0, init_log2)
         self.exposure = ExposureField(log2_dt, exposure_learn if m.exposures == "learned" else "none", phase)
         learned = m.tone_mapper == "learned"
@@ -123,7 +126,7 @@ class ImplicitCameraModel(nn.Module):
     def loss_dict(self, batch: dict) -> dict:
         w = self.loss_weights
         out = self(batch["xy"], batch["t"])
-        terms = {"color": w.color * losses.color_loss(out["rgb"], batch["rgb"], self.cfg.loss.clipped)}
+        terms = {"color": w.color * losses.color_loss(out["rgb"], batch["rgb"], self.cfg.loss.clipped, hi=self.clip_levels.to(out["rgb"].device))}
         if w.flow > 0 and "xy_match" in batch:
             m = self.scene.mappings(batch["xy_match"], batch["t_match"])
             terms["flow"] = w.flow * sum(

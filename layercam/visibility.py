@@ -65,6 +65,35 @@ def noise_sigma(g: np.ndarray, mask: np.ndarray | None = None, flat: float = 0.4
     return max(float(np.sqrt(var)), QUANT_SIGMA)
 
 
+def clip_levels(frames: np.ndarray, min_share: float = 0.002, spike: float = 3.0, lowest: float = 0.75) -> np.ndarray:
+    """Per channel ``(3,)``: the value at which ``frames (..., 3)`` clip. A camera (or its encoder)
+    may clip below 255: the channel's largest value counts as its clipping level when it is at
+    least ``lowest``, at least ``min_share`` of the pixels reach it and it is a spike of the
+    histogram (``spike`` times as frequent as each of the four code values below it); otherwise
+    254.5 / 255 (what 8-bit rounding keeps)."""
+    f = np.round(np.asarray(frames, np.float32).reshape(-1, 3) * 255).astype(np.int64)
+    out = np.full(3, 254.5 / 255, np.float32)
+    for c in range(3):
+        hist = np.bincount(np.clip(f[:, c], 0, 255), minlength=256)
+        top = int(np.flatnonzero(hist).max())
+        below = hist[max(top - 4, 0) : top]
+        if top >= lowest * 255 and hist[top] >= min_share * len(f) and (below.size == 0 or hist[top] >= spike * below.max()):
+            out[c] = min((top - 0.5) / 255, 254.5 / 255)
+    return out
+
+
+def unrecoverable(frames: np.ndarray, levels: np.ndarray | None = None) -> np.ndarray:
+    """``(H, W)`` bool: pixels of registered ``frames (N, H, W, 3)`` with a channel clipped (at
+    ``levels (3,)``, default :func:`clip_levels`) in every frame or at the 8-bit floor in every
+    frame: no frame measured it, so no method can recover it (the real-capture benchmark scores the
+    others apart)."""
+    f = np.asarray(frames, np.float32)
+    lv = clip_levels(f) if levels is None else np.asarray(levels, np.float32)
+    clipped = (f >= lv).all(0)
+    floor = (f <= 0.5 / 255).all(0)
+    return (clipped | floor).any(-1)
+
+
 def well_exposed(frame: np.ndarray) -> np.ndarray:
     """``(H, W)`` bool: no channel clipped (``< CLIP_HI``) and grey above the 8-bit floor."""
     f = np.asarray(frame, np.float32)

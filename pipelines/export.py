@@ -4,11 +4,13 @@
 ====================  ======================================================================
 writer                writes
 ====================  ======================================================================
-``hdr``               ``hdr/frame_00000.exr`` (linear, camera dropped) and ``preview.mp4``
-                      (global Reinhard over the whole clip)
+``hdr``               ``hdr/frame_00000.exr`` (linear, camera dropped; with ``export.faithful``
+                      corrected towards the frame where it saw well, :mod:`layercam.faithful`)
+                      and ``preview.mp4`` (global Reinhard over the whole clip)
 ``sharp``             ``frames/frame_00000.png`` and ``deblurred.mp4``: the tone mapper at each
                       frame's own exposure, blur generator dropped; ``hdr/`` when exposures vary
-``fused``             ``fused.exr`` (the scene for the reference view, camera dropped) and
+``fused``             ``fused.exr`` (the scene for the reference view, camera dropped, faithful
+                      to the reference image like ``hdr``) and
                       ``fused.png`` (tonemapped; with the fixed sRGB curve, the input's tonality)
 ``atlases``           ``atlases/`` and ``alpha/`` (:mod:`layercam.pipelines.atlas_export`)
 ``crf``               ``crf.json`` and ``crf.png``: the learned response per channel
@@ -25,6 +27,7 @@ to the top of the run folder with the report, as one set, when the run ends
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -137,6 +140,75 @@ def first_pass(ctx: Context, model) -> tuple[dict, float]:
     return render.display_stats(np.concatenate(lum)), peak
 
 
+def faithful_hdr(ctx: Context, model, ts) -> Iterator[tuple[int, np.ndarray, dict]]:
+    """For each frame ``t`` of ``ts`` in turn: ``(t, linear HDR (H, W, 3), what the correction did)``.
+    With ``export.faithful`` the model corrected towards the frame where it saw well, and where it
+    did not towards its neighbours' corrections moved along the clip's flow
+    (:mod:`layercam.faithful`); else the model alone (and ``{}``). Each frame's correction is
+    computed once and kept while a neighbour needs it."""
+    from layercam import render
+
+    if not ctx.cfg.export.faithful:
+        for t in ts:
+            reached("export", t)
+            yield t, render.render_frame(model, t, (ctx.clip.H, ctx.clip.W), ("hdr",), chunk=ctx.cfg.export.chunk)["hdr"], {}
+        return
+    from layercam.faithful import correction, faithful_log2, neighbour_fill
+    from layercam.visibility import clip_levels
+
+    if "clip_levels" not in ctx.results:  # once per clip
+        ctx.results["clip_levels"] = clip_levels(ctx.clip.frames)
+    lv, frames, T = ctx.results["clip_levels"], ctx.clip.frames, ctx.clip.T
+    static = bool(ctx.results.get("bootstrap", {}).get("static"))  # registered by the identity: every frame sees this view
+    kept: dict[int, dict] = {}
+
+    def corr(t: int) -> dict:
+        if t not in kept:
+            kept[t] = correction(model, frames[t], t, lv, ctx.cfg.export.chunk)
+        return kept[t]
+
+    for t in ts:
+        reached("export", t)
+        neighbours = []
+        for n in (t - 1, t + 1):
+            fl = _flow_to(ctx, t, n) if 0 <= n < T else None
+            if fl is not None:
+                c = corr(n)
+                neighbours.append((c["weight"] * c["delta"], c["weight"], fl))
+        res = faithful_log2(model, frames[t], t, lv, frames if static else None, corr=corr(t), fill=neighbour_fill(neighbours))
+        for k in [k for k in kept if k < t]:
+            del kept[k]
+        yield t, np.exp2(res["log2_r"]).astype(np.float32), res["info"]
+
+
+def _flow_to(ctx: Context, t: int, n: int) -> np.ndarray | None:
+    """``(H, W, 2)``: the flow from frame ``t``'s pixels to neighbour ``n = t +- 1``'s where the
+    forward-backward check holds, elsewhere the pair's global homography's (a clipped or flat
+    region gives the flow nothing to hold on to); None without flow."""
+    fl = ctx.flow
+    if not fl or "fw" not in fl or len(fl["fw"]) != ctx.clip.T - 1:
+        return None
+    f, ok = (fl["fw"][t], fl["fw_ok"][t]) if n == t + 1 else (fl["bw"][n], fl["bw_ok"][n])
+    f = np.asarray(f, np.float32)
+    h, w = ctx.clip.H, ctx.clip.W
+    if f.shape[:2] != (h, w):
+        return None
+    hom = np.asarray(fl["homs"][min(t, n)], np.float64)
+    if not np.isfinite(hom).all() or abs(np.linalg.det(hom)) < 1e-12:  # no homography: the flow alone
+        return np.where(np.asarray(ok, bool)[..., None], f, np.nan).astype(np.float32)
+    hom = hom if n == t + 1 else np.linalg.inv(hom)
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
+    q = np.stack([xx, yy, np.ones_like(xx)], -1) @ hom.T
+    by_hom = (q[..., :2] / q[..., 2:3] - np.stack([xx, yy], -1)).astype(np.float32)
+    return np.where(np.asarray(ok, bool)[..., None], f, by_hom).astype(np.float32)
+
+
+def _faithful_summary(infos: list[dict]) -> dict:
+    if not infos or not infos[0]:
+        return {"faithful": None}
+    return {"faithful": {"mean_weight": round(float(np.mean([i["mean_weight"] for i in infos])), 4), "unseen_share": round(float(np.mean([i["unseen_share"] for i in infos])), 4)}}
+
+
 def hdr_writer(ctx: Context, model, dest: Path, cache: Path) -> dict:
     from layercam import render
     from layercam.io import VideoWriter
@@ -144,13 +216,13 @@ def hdr_writer(ctx: Context, model, dest: Path, cache: Path) -> dict:
     stats, peak = first_pass(ctx, model)
     exrs = HdrSet(ctx.cfg.export.half and peak <= HALF_MAX, ctx.say)
     (dest / "hdr").mkdir(exist_ok=True)
+    infos = []
     with VideoWriter(dest / "preview.mp4", fps=_fps(ctx)) as preview:
-        for t in _frames(ctx):
-            reached("export", t)
-            hdr = render.render_frame(model, t, (ctx.clip.H, ctx.clip.W), ("hdr",), chunk=ctx.cfg.export.chunk)["hdr"]
+        for t, hdr, info in faithful_hdr(ctx, model, _frames(ctx)):
             exrs.add(dest / "hdr" / f"frame_{t:05d}.exr", hdr)
             preview.add(render.tonemap_display(hdr, stats)[0])
-    return {"frames": int(ctx.clip.T), "hdr_min": exrs.lo, "hdr_max": exrs.hi, "exr": "half" if exrs.half else "float32", "display": stats}
+            infos.append(info)
+    return {"frames": int(ctx.clip.T), "hdr_min": exrs.lo, "hdr_max": exrs.hi, "exr": "half" if exrs.half else "float32", "display": stats, **_faithful_summary(infos)}
 
 
 def sharp_writer(ctx: Context, model, dest: Path, cache: Path) -> dict:
@@ -187,7 +259,7 @@ def fused_writer(ctx: Context, model, dest: Path, cache: Path) -> dict:
 
     hw = (ctx.clip.H, ctx.clip.W)
     ref = resolve_reference(ctx.cfg.export.reference, ctx.clip.T)
-    hdr = render.render_frame(model, ref, hw, ("hdr",), chunk=ctx.cfg.export.chunk)["hdr"]
+    _, hdr, info = next(faithful_hdr(ctx, model, [ref]))
     write_hdr_set([dest / "fused.exr"], [hdr], ctx.cfg.export.half, ctx.say)
     np.save(cache / "fused.npy", hdr.astype(np.float32))
     if ctx.cfg.model.tone_mapper == "fixed":  # one exposure: the sharp image as the camera would have recorded it
@@ -197,7 +269,7 @@ def fused_writer(ctx: Context, model, dest: Path, cache: Path) -> dict:
         png, stats = render.tonemap_display(hdr)
         how = "Reinhard global tonemap + sRGB"
     write_png(dest / "fused.png", png, bit_depth=_bits(ctx))
-    return {"reference": ref, "reference_name": ctx.clip.names[ref], "png": how, "display": stats, "hdr_min": float(hdr.min()), "hdr_max": float(hdr.max())}
+    return {"reference": ref, "reference_name": ctx.clip.names[ref], "png": how, "display": stats, "hdr_min": float(hdr.min()), "hdr_max": float(hdr.max()), **_faithful_summary([info])}
 
 
 def atlas_writer(ctx: Context, model, dest: Path, cache: Path) -> dict:
@@ -273,7 +345,7 @@ class ExportStage(Stage):
 
     name = "export"
     deps = ("train",)
-    version = 2  # 2: one stage for every task, atlases included
+    version = 3  # 2: one stage for every task, atlases included; 3: HDR faithful to the frames (layercam.faithful)
 
     def key_material(self, ctx):
         d = ctx.cfg.section_dict("export")

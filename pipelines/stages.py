@@ -52,11 +52,7 @@ class FlowStage(Stage):
         return summary
 
 
-# A clip whose chained flow homographies move no frame corner by this much is registered by the
-# identity: between frames of different focus or exposure such small homographies are mostly flow
-# noise (up to 1 px on an aligned synthetic focus/exposure stack), and a wrong sub-pixel
-# registration lets the scene store each frame apart instead of the blur generator explaining it.
-STATIC_CORNER_PX = 1.5
+from layercam.geometry import STATIC_CORNER_PX  # noqa: E402 - the static-scene threshold (see there)
 
 
 class BootstrapStage(Stage):
@@ -243,9 +239,12 @@ def device_line(asked: str, dev: str) -> str:
 
 def model_meta(ctx: Context) -> dict:
     """What :func:`layercam.checkpoint.build_model` needs besides the config, saved with the model."""
+    from layercam.visibility import clip_levels
+
     b = ctx.results["bootstrap"]
     e = ctx.exposures
     return {
+        "clip_levels": clip_levels(ctx.clip.frames).tolist(),
         "reasons": dict(ctx.reasons),
         "h0": b["h0"],
         "log2_dt": np.asarray(e.log2_dt, dtype=np.float32),

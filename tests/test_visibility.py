@@ -35,3 +35,18 @@ def test_visible_leaves_out_clipped_dark_and_noise_only_pixels():
     assert vis[:, :30].mean() == 0.0
     assert vis[:, 36:60].mean() < 0.05
     assert vis[:, 68:92].mean() > 0.6
+
+
+def test_clip_levels_and_unrecoverable_pixels():
+    """A camera that clips at 248: found from the histogram's spike; a pixel clipped (or black) in
+    every frame is unrecoverable, one that some frame saw is not."""
+    rng = np.random.default_rng(3)
+    f = rng.uniform(0.1, 0.9, (3, 16, 16, 3)).astype(np.float32)
+    f[:, :4, :, 0] = 248 / 255        # red clipped at 248 in every frame
+    f[0, 4:8, :, 1] = 248 / 255       # green clipped at 248 in one frame only
+    f[:, 8:10, :, 2] = 0.0            # blue black in every frame
+    levels = visibility.clip_levels(f)
+    assert abs(levels[0] * 255 - 247.5) < 1e-3
+    bad = visibility.unrecoverable(f, levels)
+    assert bad[:4].all() and bad[8:10].all() and not bad[4:8].any() and not bad[10:].any()
+    assert (visibility.clip_levels(np.full((2, 4, 4, 3), 0.5, np.float32)) * 255 == 254.5).all()  # mid-grey is not clipping

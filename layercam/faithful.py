@@ -1,0 +1,225 @@
+"""Faithful to the frame: the exported HDR of a frame agrees with what the frame saw.
+
+The scene model averages every frame that sees a point (less noise than any one frame), fills in
+what a frame clipped or crushed, and drops the camera's blur; but where it does not explain a
+frame (a person it smeared, a ghost of another frame's content) the frame is right and the model
+is not. Per pixel, the export adds to the model's sharp log irradiance ``w`` times the frame's
+disagreement with the model, both read through the inverse of the learned camera at the frame's
+exposure::
+
+    log2 r = log2 r_model + w * (T^-1(c_frame) - T^-1(c_model))
+
+where ``c_model`` is the model's rendering of the frame through its whole camera (blur included,
+so the blur a sharp output drops is not put back). ``w`` is a Wiener weight of the disagreement
+against the frame's noise, ``1 - kappa / rho`` clipped to [0, 1], with ``rho`` the local mean (a
+Gaussian window) of the squared residual in units of the noise: about 1 where the model explains
+the frame within its noise (then the model's average is kept), large where it does not (then the
+frame is). It is multiplied per channel by how well the frame exposes the pixel (0 where the
+channel is clipped or at the 8-bit floor: there the model fills in).
+
+Where the frame did not see well (a channel clipped or at the floor) the neighbouring frames, which
+another exposure may let see it, lend their corrections (:func:`neighbour_fill`): each neighbour's
+``w * delta``, moved into this frame's view along the clip's optical flow where the flow is
+consistent, enters with the weight the frame's own exposedness leaves, ``1 - exposedness``. In an
+alternating-exposure video the long frames' clipped window is then corrected like the short frames
+around it, instead of alternating between the model and the frames (flicker); and where a neighbour
+saw a clipped channel, its evidence replaces the lower bound below (on the Basler clip the learned
+curve's shoulder put a long frame's clipping point 0.6 stop above what the short frames around it
+measured).
+
+Clipped or at the floor (:func:`clip_bounds`): a channel at the 8-bit floor says only that the
+irradiance is below what the camera maps to the first code value at the frame's exposure; a clipped
+one, that it is above what it maps to the last. The export keeps the frame's log irradiance within
+these bounds (the model, fitted to every frame, can stray past them where its fit is loose).
+Where no frame of the clip saw a channel (:func:`unseen`: the model's irradiance is beyond the
+clipping point of the clip's shortest exposure, or below the floor of its longest) nothing was
+observed, and the export there is the model smoothed (``UNSEEN_SIGMA``): a smooth continuation, no
+structure invented by the model's fit to nothing; black everywhere, it is kept below the longest
+exposure's floor (clipped everywhere, the model's level is kept: the learned curve's shoulder, which
+places the clipping level, is where it is least reliable).
+
+Frames are ``(H, W, 3)`` float in [0, 1]; log irradiance ``(H, W, 3)``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+KAPPA = 2.0             # the disagreement must reach this many noise variances before the frame is trusted
+WINDOW_SIGMA = 1.5      # px: the Gaussian window over which the disagreement is averaged
+EXPOSED = (2.0 / 255, 12.0 / 255, 20.0 / 255, 2.5 / 255)  # well-exposedness ramps: 0 at the floor and within the
+                        # last of these below the clipping level, 1 from the second / above the third below it
+FLOOR = 0.5 / 255       # a channel at or below this is at the floor; at or above its clipping level
+                        # (visibility.clip_levels: 254.5 / 255, or lower where the camera clips lower), clipped
+UNSEEN_SIGMA = 4.0      # px: the smoothing of the model where no frame saw the pixel
+NOISE_MARGIN = 2.0      # the clipping bounds are this many noise deviations loose
+
+
+def exposure_weight(frame: np.ndarray, levels: np.ndarray | None = None) -> np.ndarray:
+    """``(H, W, 3)`` in [0, 1]: how well each channel of ``frame`` is exposed (smooth ramps from 0
+    at the 8-bit floor and at the clipping ``levels (3,)`` (default 254.5 / 255) to 1 in between,
+    ``EXPOSED``)."""
+    a, b, c, d = EXPOSED
+    lv = np.full(3, 254.5 / 255, np.float32) if levels is None else np.asarray(levels, np.float32)
+    f = np.asarray(frame, np.float32)
+    lo = np.clip((f - a) / (b - a), 0.0, 1.0)
+    hi = np.clip((lv - d - f) / (c - d), 0.0, 1.0)
+    s = lambda x: x * x * (3 - 2 * x)  # noqa: E731 - smoothstep
+    return (s(lo) * s(hi)).astype(np.float32)
+
+
+def frame_noise(frame: np.ndarray, exposed: np.ndarray) -> np.ndarray:
+    """Per channel ``(3,)``: the frame's own noise (:func:`layercam.visibility.noise_sigma` over its
+    well-exposed pixels), not the model's residual, which a model that fits each frame's noise
+    makes small."""
+    from layercam.visibility import noise_sigma
+
+    return np.array([noise_sigma(frame[..., c], exposed[..., c] > 0.5) for c in range(3)], np.float32)
+
+
+def disagreement(frame: np.ndarray, pred: np.ndarray, sigma: np.ndarray, exposed: np.ndarray) -> np.ndarray:
+    """``(H, W)``: the local mean (Gaussian window ``WINDOW_SIGMA``, over the exposed pixels only)
+    of the squared residual ``frame - pred`` in units of the noise ``sigma (3,)``, averaged over the
+    channels: about 1 where the model explains the frame within its noise."""
+    import cv2
+
+    r2 = ((np.asarray(frame, np.float32) - np.asarray(pred, np.float32)) / sigma) ** 2
+    w = np.asarray(exposed, np.float32)
+    num = cv2.GaussianBlur((r2 * w).sum(-1), (0, 0), WINDOW_SIGMA)
+    den = cv2.GaussianBlur(w.sum(-1), (0, 0), WINDOW_SIGMA)
+    return num / np.maximum(den, 1e-3)
+
+
+def fidelity_weight(frame: np.ndarray, pred: np.ndarray, kappa: float = KAPPA, levels: np.ndarray | None = None) -> tuple[np.ndarray, dict]:
+    """``(H, W, 3)`` in [0, 1]: how much of the frame's disagreement with the model's rendering
+    ``pred`` to keep (the module's docstring), and a summary ``{"noise", "mean_weight"}``;
+    ``levels (3,)``: the clipping levels (:func:`layercam.visibility.clip_levels`)."""
+    exposed = exposure_weight(frame, levels)
+    sigma = frame_noise(frame, exposed)
+    rho = disagreement(frame, pred, sigma, exposed)
+    wiener = np.clip(1.0 - kappa / np.maximum(rho, 1e-6), 0.0, 1.0)
+    w = wiener[..., None] * exposed
+    return w.astype(np.float32), {"noise": [round(float(s), 5) for s in sigma], "mean_weight": round(float(w.mean()), 4), "sigma": sigma}
+
+
+def _levels(model, log2_dt: float, levels: np.ndarray, floor=FLOOR) -> tuple[np.ndarray, np.ndarray]:
+    """Per channel ``(3,)``: the log2 irradiance the camera maps to ``floor`` (a value or ``(3,)``)
+    and to the clipping ``levels (3,)`` at ``log2_dt``."""
+    from layercam.render import inverse_tone
+
+    return (inverse_tone(model, np.broadcast_to(np.asarray(floor, np.float32), (1, 3)).copy(), log2_dt)[0],
+            inverse_tone(model, np.asarray(levels, np.float32)[None], log2_dt)[0])
+
+
+def clip_bounds(model, frame: np.ndarray, log2_dt: float, levels: np.ndarray, sigma: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """``(lower, upper)`` log2 irradiance ``(H, W, 3)`` that ``frame``'s clipped (at ``levels
+    (3,)``) and floor channels imply at its exposure ``log2_dt`` (``-inf`` / ``inf`` elsewhere).
+    With the frame's noise ``sigma (3,)`` the bounds are ``NOISE_MARGIN`` noise deviations looser: a
+    dark pixel that noise pushed to 0 may have seen more than the floor."""
+    margin = np.zeros(3, np.float32) if sigma is None else NOISE_MARGIN * np.asarray(sigma, np.float32)
+    z_floor, z_clip = _levels(model, log2_dt, np.maximum(levels - margin, 0.5), FLOOR + margin)
+    f = np.asarray(frame, np.float32)
+    upper = np.where(f <= FLOOR, z_floor, np.inf).astype(np.float32)
+    lower = np.where(f >= levels, z_clip, -np.inf).astype(np.float32)
+    return lower, upper
+
+
+def unseen(model, z: np.ndarray, log2_dts, levels: np.ndarray, stack: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """````(above, below, bound)``: ``above``, ``below`` bool ``(H, W, 3)`` where the log2 irradiance ``z`` is beyond the clipping
+    point of the shortest of the exposures ``log2_dts`` or below the floor of the longest (no frame
+    of the clip can have seen it), and ``bound (H, W, 3)``, what each side must keep to (the clip
+    level of the shortest exposure above, the floor of the longest below). With ``stack (N, H, W,
+    3)``, the clip's frames registered into this view (a static scene), the test is on the data
+    instead: clipped, or at the floor, in every frame (a model that fits its floors loosely can
+    stay above the longest exposure's floor where every frame is black)."""
+    lo_dt, hi_dt = float(np.min(log2_dts)), float(np.max(log2_dts))
+    z_clip = _levels(model, lo_dt, levels)[1]
+    z_floor = _levels(model, hi_dt, levels)[0]
+    if stack is None:
+        above, below = z >= z_clip, z <= z_floor
+    else:
+        above, below = (stack >= levels).all(0), (stack <= FLOOR).all(0)
+    bound = np.where(above, z_clip, np.where(below, z_floor, 0.0)).astype(np.float32)
+    return above, below, bound
+
+
+def smooth_within(z: np.ndarray, mask: np.ndarray, sigma: float = UNSEEN_SIGMA) -> np.ndarray:
+    """``z (H, W, 3)`` smoothed by a Gaussian of ``sigma`` px over the pixels of ``mask (H, W, 3)``
+    only, per channel (normalised convolution); unchanged outside ``mask``."""
+    import cv2
+
+    out = z.copy()
+    for c in range(z.shape[-1]):
+        m = mask[..., c].astype(np.float32)
+        if not m.any():
+            continue
+        num = cv2.GaussianBlur(np.where(m > 0, z[..., c], 0.0).astype(np.float32), (0, 0), sigma)
+        den = cv2.GaussianBlur(m, (0, 0), sigma)
+        out[..., c] = np.where(m > 0, num / np.maximum(den, 1e-6), z[..., c])
+    return out
+
+
+def correction(model, frame: np.ndarray, t: int, levels: np.ndarray | None = None, chunk: int = 65536, kappa: float = KAPPA) -> dict:
+    """What ``frame (H, W, 3)`` (frame ``t``) says about the model: ``{"model_log2_r"}`` the
+    model's log2 irradiance, ``"delta"`` the frame's disagreement with it through the inverse camera,
+    ``"weight"`` the share of it to keep (:func:`fidelity_weight`), ``"exposed"``
+    (:func:`exposure_weight`), all ``(H, W, 3)``; ``"log2_dts"`` the clip's exposures, ``"levels"``,
+    ``"info"``."""
+    import torch
+
+    from layercam.render import inverse_tone, render_frame
+
+    out = render_frame(model, t, frame.shape[:2], ("log2_r", "ldr"), blur=True, chunk=chunk)
+    with torch.no_grad():
+        dts = model.exposure.values().detach().float().cpu().numpy()
+    log2_dt = float(dts[int(t)])
+    levels = np.full(3, 254.5 / 255, np.float32) if levels is None else np.asarray(levels, np.float32)
+    w, info = fidelity_weight(frame, out["ldr"], kappa, levels)
+    delta = inverse_tone(model, frame, log2_dt) - inverse_tone(model, out["ldr"], log2_dt)
+    return {"model_log2_r": out["log2_r"], "delta": delta, "weight": w, "exposed": exposure_weight(frame, levels), "log2_dts": dts, "levels": levels, "info": info}
+
+
+def neighbour_fill(neighbours: list[tuple[np.ndarray, np.ndarray, np.ndarray]]) -> tuple[np.ndarray, np.ndarray] | None:
+    """The neighbours' corrections in this frame's view, ``sum w_n delta_n / max(sum w_n, 1)``
+    over ``neighbours``, each ``(w delta, w, flow (H, W, 2))`` in the neighbour's view with the
+    flow from this frame's pixels to the neighbour's (NaN where there is none: that neighbour lends
+    nothing there), and how much they saw, ``min(sum w_n, 1)``: ``(fill, support)``, ``(H, W, 3)``
+    each; None without neighbours."""
+    from layercam.flow import warp
+
+    num = den = None
+    for wd, w, fl in neighbours:
+        ok = np.isfinite(fl).all(-1)
+        f = np.where(ok[..., None], fl, 0.0).astype(np.float32)
+        wn = warp(w, f) * ok[..., None]
+        part = warp(wd, f) * ok[..., None]
+        num = part if num is None else num + part
+        den = wn if den is None else den + wn
+    return None if num is None else ((num / np.maximum(den, 1.0)).astype(np.float32), np.minimum(den, 1.0).astype(np.float32))
+
+
+def faithful_log2(model, frame: np.ndarray, t: int, levels: np.ndarray | None = None, stack: np.ndarray | None = None, chunk: int = 65536, kappa: float = KAPPA, corr: dict | None = None, fill: tuple[np.ndarray, np.ndarray] | None = None) -> dict:
+    """Frame ``t``'s log2 irradiance ``(H, W, 3)``: the model's, corrected where it disagrees with
+    ``frame (H, W, 3)`` beyond the frame's noise (:func:`correction`, or ``corr`` when computed
+    already), where the frame did not see well by the neighbours' corrections ``fill`` (``(fill,
+    support)``, :func:`neighbour_fill`), kept within the bounds of the frame's clipping (at the clip's
+    ``levels (3,)``, :func:`layercam.visibility.clip_levels`; default 254.5 / 255) and floor,
+    smooth where no frame of the clip saw it (:func:`unseen`; ``stack``: the clip's frames
+    registered into this view, for a static scene) (the module's docstring). Returns
+    ``{"log2_r", "model_log2_r", "weight", "unseen", "info"}``."""
+    c = correction(model, frame, t, levels, chunk, kappa) if corr is None else corr
+    out, w, dts, levels, info = {"log2_r": c["model_log2_r"]}, c["weight"], c["log2_dts"], c["levels"], dict(c["info"])
+    log2_dt = float(dts[int(t)])
+    z = out["log2_r"] + w * c["delta"]
+    if fill is not None:
+        z = z + (1.0 - c["exposed"]) * fill[0]
+    above, below, bound = unseen(model, out["log2_r"], dts, levels, stack)
+    hidden = above | below
+    z = np.where(hidden, smooth_within(out["log2_r"], hidden), z)
+    z = np.where(below, np.minimum(z, bound), z)  # black in every frame: darker than the longest exposure's floor
+    lower, upper = clip_bounds(model, frame, log2_dt, levels, info.pop("sigma"))
+    if fill is not None:  # a neighbour that saw it says more than the learned curve's shoulder
+        lower = np.where(fill[1] > 0.5, -np.inf, lower)
+    z = np.clip(z, lower, upper).astype(np.float32)
+    info["unseen_share"] = round(float(hidden.mean()), 4)
+    return {"log2_r": z, "model_log2_r": out["log2_r"], "weight": w, "unseen": hidden, "info": info}

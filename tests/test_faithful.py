@@ -1,0 +1,89 @@
+"""Faithful to the frame: the export keeps the model where it explains the frame within noise and
+takes the frame where it does not; clipped and floor channels bound the result."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from layercam import faithful, visibility
+
+
+def _textured(h=48, w=48, seed=0):
+    import cv2
+
+    rng = np.random.default_rng(seed)
+    t = cv2.GaussianBlur(rng.random((h, w)).astype(np.float32), (0, 0), 2.0)
+    t = (t - t.min()) / (t.max() - t.min())
+    return np.repeat(t[..., None], 3, -1) * 0.6 + 0.2
+
+
+def test_noise_only_keeps_the_model_a_ghost_takes_the_frame():
+    rng = np.random.default_rng(1)
+    pred = _textured()
+    frame = np.clip(pred + rng.normal(0, 0.01, pred.shape), 0, 1).astype(np.float32)
+    w, info = faithful.fidelity_weight(frame, pred)
+    assert float(w.mean()) < 0.05 and abs(info["noise"][0] - 0.01) < 0.003
+    ghost = frame.copy()
+    ghost[16:32, 16:32] = 1.0 - ghost[16:32, 16:32]  # something the model does not have
+    w, _ = faithful.fidelity_weight(ghost, pred)
+    assert float(w[19:29, 19:29].mean()) > 0.9
+    assert float(w[:, 36:].mean()) < 0.05  # away from it the model is kept
+
+
+def test_clipped_and_floor_channels_get_no_weight():
+    f = np.full((4, 4, 3), 0.5, np.float32)
+    f[0, :, 0] = 1.0
+    f[1, :, 1] = 0.0
+    f[3, :, 2] = 248 / 255  # a camera that clips at 248
+    e = faithful.exposure_weight(f)
+    assert (e[0, :, 0] == 0).all() and (e[1, :, 1] == 0).all() and (e[2] == 1).all() and (e[3, :, 2] > 0).all()
+    levels = visibility.clip_levels(f)
+    assert abs(levels[2] * 255 - 247.5) < 1e-3 and abs(levels[1] * 255 - 254.5) < 1e-3
+    assert (faithful.exposure_weight(f, levels)[3, :, 2] == 0).all()
+
+
+def test_export_agrees_with_the_frame_where_the_model_is_wrong(tiny_scene, tiny_exposures, tmp_path):
+    """A tiny trained run; a patch of one frame replaced by content no frame has: the faithful HDR of
+    that frame follows the patch (through the inverse camera), the model's does not; the frame's
+    clipped and floor channels bound it."""
+    from layercam.config import load_config
+    from layercam.pipelines.tasks import run_task
+    from layercam.render import inverse_tone
+
+    from conftest import TINY
+
+    ctx = run_task("hdr-video", tiny_scene.clip, tiny_exposures, load_config("fast", TINY + ["train.steps=60"]), tmp_path / "run", progress=False)
+    model, t = ctx.model, 1
+    frame = tiny_scene.clip.frames[t].copy()
+    frame[8:20, 8:20] = 0.5 + 0.4 * ((np.indices((12, 12)) // 3).sum(0) % 2)[..., None]  # a checkerboard of 3 px squares
+    res = faithful.faithful_log2(model, frame, t)
+    target = inverse_tone(model, frame, float(model.exposure.values()[t]))
+    inside = (slice(10, 18), slice(10, 18))
+    err_faithful = np.abs(res["log2_r"][inside] - target[inside]).mean()
+    err_model = np.abs(res["model_log2_r"][inside] - target[inside]).mean()
+    assert err_faithful < 0.25 * err_model, (err_faithful, err_model)
+    sigma = faithful.frame_noise(frame, faithful.exposure_weight(frame))
+    lower, upper = faithful.clip_bounds(model, frame, float(model.exposure.values()[t]), np.full(3, 254.5 / 255, np.float32), sigma)
+    assert (res["log2_r"] >= lower).all() and (res["log2_r"] <= upper).all()
+    assert np.isfinite(res["log2_r"]).all()
+
+
+def test_neighbour_fill_moves_corrections_along_the_flow():
+    """A neighbour's correction arrives in this frame's view along the flow, weighted by how much
+    of it the neighbour kept; where the flow is inconsistent (NaN) it lends nothing; two neighbours
+    average, one that kept little is diluted towards the model (0)."""
+    h, w = 12, 16
+    delta = np.zeros((h, w, 3), np.float32)
+    delta[:, 8:] = 1.0  # the neighbour corrected its right half by one stop
+    full = np.ones((h, w, 3), np.float32)
+    flow = np.zeros((h, w, 2), np.float32)
+    flow[..., 0] = 2.0  # this frame's pixel x is the neighbour's x + 2
+    flow[:2] = np.nan   # inconsistent in the top rows
+    fill, support = faithful.neighbour_fill([(full * delta, full, flow)])
+    assert np.allclose(fill[2:, 6:14], 1.0) and np.allclose(fill[2:, :5], 0.0) and np.allclose(fill[:2], 0.0)
+    assert np.allclose(support[:2], 0.0) and np.allclose(support[2:, :13], 1.0)
+    half, _ = faithful.neighbour_fill([(0.25 * full * delta, 0.25 * full, np.zeros((h, w, 2), np.float32))])
+    assert np.allclose(half[:, 9:], 0.25)
+    two, _ = faithful.neighbour_fill([(full * delta, full, np.zeros((h, w, 2), np.float32)), (full * 0.0, full, np.zeros((h, w, 2), np.float32))])
+    assert np.allclose(two[:, 9:], 0.5)
+    assert faithful.neighbour_fill([]) is None

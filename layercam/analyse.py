@@ -18,6 +18,7 @@ import math
 import numpy as np
 
 from layercam.config import AUTO, Config
+from layercam.geometry import STATIC_CORNER_PX
 
 # thresholds of the rules (each documented where it is used)
 IND_MOTION_PX = 1.5          # residual flow (px) beyond which a pixel moves on its own
@@ -36,6 +37,9 @@ BLUR_SIGMA = 0.8             # relative blur (Gaussian sigma, px) of a tile that
 BLUR_TILE_SHARE = 0.4        # ... on at least this share of the tiles of some pair (both signs: focus
                              # that differs by region; the real captures' shares: docs/measurements.md)
 MIN_TILES = 3                # a pair with fewer comparable tiles says nothing about blur
+MIN_TILE_FRACTION = 0.25     # ... nor one with under this fraction of the median pair's comparable tiles:
+                             # 5 of 6 tiles of one pair of a sharp composite (37 elsewhere) chose a blur
+                             # generator for an alternating-exposure video without blur
 MAX_BLUR_PAIRS = 32          # pairs compared for blur, evenly spread over a long clip
 BLUR_5X5_SIGMA = 2.5         # beyond this a 3x3 patch cannot reach: 5x5
 OFFSET_PER_SIGMA = 5.0       # max offset (px) per px of relative blur: the energy match underestimates
@@ -57,7 +61,8 @@ def _motion(frames: np.ndarray, flow: dict) -> tuple[dict, np.ndarray]:
     m = {
         "flow_consistent": float(ok.mean()),
         "seen_well": float(share.mean()),
-        "global_motion_px": float(np.median(mag[seen])) if seen.any() else float(np.median(mag)),
+        "global_motion_px": float(np.median(mag[seen])) if seen.any() else 0.0,  # nothing seen: no evidence of motion
+        "corner_shift_px": _corner_shift(flow["homs"], frames.shape[1:3]),
     }
     res = residual_motion(fw, flow["homs"])
     means = np.array([mag[t][seen[t]].mean() if seen[t].any() else 0.0 for t in range(len(fw))])
@@ -80,19 +85,31 @@ def _motion(frames: np.ndarray, flow: dict) -> tuple[dict, np.ndarray]:
     return m, moving
 
 
+def _corner_shift(homs: np.ndarray, hw: tuple[int, int]) -> float:
+    """How far (px) the chained pair homographies move a frame corner from the middle frame's view:
+    below ``STATIC_CORNER_PX`` the bootstrap registers the frames by the identity."""
+    from layercam.geometry import chain_homographies, max_corner_shift, middle_frame
+
+    homs = np.asarray(homs, np.float64)
+    return round(max_corner_shift(chain_homographies(homs, middle_frame(len(homs) + 1)), *hw), 3)
+
+
 def _blur(frames: np.ndarray, homs: np.ndarray | None, moving: np.ndarray | None) -> dict:
     """Relative blur between neighbours (:func:`layercam.sharpness.pair_relative_blur`, leaving
     out the pixels that move on their own, ``moving (T-1, H, W)``: there the homography pairs
-    different content): per pair the share of comparable tiles at least ``BLUR_SIGMA`` apart; the
-    largest share, and the 90th percentile of the tiles' relative blur in that pair."""
+    different content): per pair the share of comparable tiles at least ``BLUR_SIGMA`` apart (a pair
+    with fewer than ``MIN_TILES``, or than ``MIN_TILE_FRACTION`` of the median pair's, is not
+    measured); the largest share, and the 90th percentile of the tiles' relative blur in that pair."""
     from layercam.sharpness import pair_relative_blur
 
     n = len(frames) - 1
     pairs = np.unique(np.linspace(0, n - 1, min(n, MAX_BLUR_PAIRS)).round().astype(int)) if n > 0 else []
+    per_pair = [np.abs(pair_relative_blur(frames[t], frames[t + 1], None if homs is None else homs[t], None if moving is None else moving[t])) for t in pairs]
+    counts = [len(x) for x in per_pair if len(x) >= MIN_TILES]
+    enough = max(MIN_TILES, MIN_TILE_FRACTION * float(np.median(counts))) if counts else MIN_TILES
     shares, best, sigma = [], -1.0, 0.0
-    for t in pairs:
-        tiles = np.abs(pair_relative_blur(frames[t], frames[t + 1], None if homs is None else homs[t], None if moving is None else moving[t]))
-        if len(tiles) < MIN_TILES:
+    for tiles in per_pair:
+        if len(tiles) < enough:
             shares.append(None)
             continue
         sh = float((tiles >= BLUR_SIGMA).mean())
@@ -221,8 +238,9 @@ def decide(cfg: Config, clip, exposures, task: str, measures: dict | None = None
     if not forced("model.flow_loss", m.flow_loss):
         if clip.T < 2:
             m.flow_loss, r["flow_loss"] = False, "a single frame has no neighbours"
-        elif measures and motion < STATIC_PX and m.layers == 1:
-            m.flow_loss, r["flow_loss"] = False, f"static scene (median flow {motion:.2f} px)"
+        elif measures and m.layers == 1 and (motion < STATIC_PX or mm.get("corner_shift_px", 1e9) < STATIC_CORNER_PX):
+            m.flow_loss = False
+            r["flow_loss"] = f"static scene (median flow {motion:.2f} px on what both frames see well; the pair homographies move a corner {mm.get('corner_shift_px', 0.0):.2f} px)"
         else:
             m.flow_loss = True
             r["flow_loss"] = f"median flow {motion:.2f} px" if measures else "more than one frame"
@@ -260,7 +278,10 @@ def resolve_auto(cfg: Config, static: bool, h0, frame_hw: tuple[int, int]) -> Co
     * ``scene.grid_max_res = 0``: the finest atlas grid level from the atlas's extent in frame
       pixels (:func:`layercam.geometry.atlas_pixels` of the bootstrap mappings ``h0 (L, T, 3, 3)``),
       within 32..2048: without a blur generator the power of two at or above it (at least one cell
-      per pixel); with one, the extent itself (at most one cell per pixel). The blur generator
+      per pixel); with one, or for a static one-layer scene, the extent itself (at most one cell per
+      pixel). Every frame of a static scene samples the same pixel centres, so a finer grid gains no
+      detail, and with the per-frame homographies' sub-pixel corrections it let each frame keep its
+      own cells and its own noise instead of averaging (``docs/measurements.md``). The blur generator
       samples the scene between pixels, so a finer grid lets the scene keep sub-pixel content that
       each image's PSF reads on its own, fitting every image without one sharp scene (the PSFs
       collapsed to deltas on the focus x exposure stack: ``docs/measurements.md``).
@@ -280,7 +301,7 @@ def resolve_auto(cfg: Config, static: bool, h0, frame_hw: tuple[int, int]) -> Co
     s = cfg.scene
     if s.encoding == "grid" and s.grid_max_res == 0:
         px = atlas_pixels(h0, frame_hw)
-        res = int(round(px)) if cfg.model.blur == "on" else 2 ** math.ceil(math.log2(max(px, 2.0)))
+        res = int(round(px)) if cfg.model.blur == "on" or static else 2 ** math.ceil(math.log2(max(px, 2.0)))
         s.grid_max_res = int(min(max(res, 32), 2048))
         s.grid_min_res = min(s.grid_min_res, s.grid_max_res)
     if s.alpha_grid_res == 0:  # one cell per frame pixel along the longer side

@@ -204,6 +204,20 @@ def test_exposure_bracket_is_one_sharp_layer():
     assert "exposure, not focus" in spec.reasons["blur"] or "enough texture" in spec.reasons["blur"]
 
 
+def test_a_pair_with_few_comparable_tiles_says_nothing_about_blur(monkeypatch):
+    """One pair with 6 comparable tiles, 5 of them blurrier, among pairs of 37 tiles that agree: no
+    blur measured (it chose a blur generator for a sharp composite); alone, the same pair counts."""
+    from layercam import sharpness
+
+    tiles = {0: np.zeros(37), 1: np.array([0.0, 1.5, 1.6, 1.7, 1.8, 1.9]), 2: np.zeros(37)}
+    monkeypatch.setattr(sharpness, "pair_relative_blur", lambda a, b, h, m: tiles[int(a[0, 0, 0])])
+    frames = np.arange(4, dtype=np.float32)[:, None, None, None] * np.ones((4, 8, 8, 3), np.float32)
+    b = analyse._blur(frames, None, None)
+    assert b["blur_tile_share"] == [0.0, None, 0.0] and b["max_blur_tile_share"] < analyse.BLUR_TILE_SHARE
+    b = analyse._blur(frames[1:3], None, None)
+    assert b["max_blur_tile_share"] > 0.8
+
+
 def test_one_pair_of_motion_is_not_a_layer():
     """Independent motion seen in a single pair (a flow failure between a defocused pair) is not
     enough for a second layer."""
@@ -233,7 +247,7 @@ def test_real_static_brackets_are_one_sharp_layer(shared_data, tmp_path):
     with EXIF) is one layer without a blur generator, and its homographies move no corner by the
     static threshold (the bootstrap then registers it by the identity, no residual warp)."""
     from layercam.geometry import chain_homographies, max_corner_shift
-    from layercam.pipelines.stages import STATIC_CORNER_PX
+    from layercam.geometry import STATIC_CORNER_PX
 
     d = shared_data / "bracket_taipei"
     times = dict(line.split()[:2] for line in (d / "image_list.txt").read_text().splitlines() if line.strip() and not line.startswith("#"))

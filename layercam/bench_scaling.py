@@ -203,6 +203,7 @@ def plot_scaling(path: Path, rows: list[dict]) -> None:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    import matplotlib.ticker
 
     from layercam.io.atomic import atomic_write
 
@@ -210,11 +211,14 @@ def plot_scaling(path: Path, rows: list[dict]) -> None:
               ("end-to-end wall time (s)", lambda r: r.get("wall_s")), ("peak memory (MB)", lambda r: r.get("peak_mem_mb"))]
     fig, axes = plt.subplots(1, 3, figsize=(12, 3.8), dpi=110)
     labels = sorted({(r["method"], r["preset"]) for r in rows})
+    colours = {lab: f"C{i}" for i, lab in enumerate(labels)}  # one colour per series in every panel
+    sizes = {r["pixels"]: r["size"] for r in rows}
     for ax, (title, get) in zip(axes, panels):
         for method, preset in labels:
             pts = sorted(((r["pixels"], get(r)) for r in rows if (r["method"], r["preset"]) == (method, preset) and get(r)), key=lambda p: p[0])
             if pts:
-                ax.plot([p[0] for p in pts], [p[1] for p in pts], "o-" if method == "layercam" else "s--", label=preset or method)
+                ax.plot([p[0] for p in pts], [p[1] for p in pts], "o-" if method == "layercam" else "s--", label=preset or method,
+                        color=colours[(method, preset)])
         x = np.array(sorted({r["pixels"] for r in rows}), dtype=float)
         if title.startswith("ms") and len(x) > 1:
             base = [get(r) for r in rows if r["pixels"] == x[0] and r["method"] == "layercam" and get(r)]
@@ -222,7 +226,9 @@ def plot_scaling(path: Path, rows: list[dict]) -> None:
                 ax.plot(x, min(base) * x / x[0], ":", color="grey", label="proportional to pixels")
         ax.set_xscale("log")
         ax.set_yscale("log")
-        ax.set_xlabel("pixels per frame")
+        ax.set_xticks(sorted(sizes), [sizes[k] for k in sorted(sizes)], fontsize=7)  # the sizes measured, not 2x10^4 ...
+        ax.xaxis.set_minor_locator(matplotlib.ticker.NullLocator())
+        ax.set_xlabel("pixels per frame (HxW)")
         ax.set_title(title, fontsize=9)
         ax.grid(alpha=0.3, which="both")
         if ax.get_legend_handles_labels()[0]:

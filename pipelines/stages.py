@@ -148,6 +148,9 @@ class TrainStage(Stage):
         model = self.build(ctx, cfg)
         if cfg.scene.residual_scale == 0 and ctx.cfg.scene.residual_scale > 0:
             ctx.say("[train] static one-layer scene: per-frame homographies only, no residual warp (scene.residual=on keeps it)")
+        if cfg.train.steps < ctx.cfg.train.steps:
+            ctx.say(f"[train] {cfg.train.steps} steps instead of {ctx.cfg.train.steps}: at most {cfg.train.passes_per_frame:g} x {ctx.clip.T} passes over "
+                    f"the clip's {ctx.clip.T * ctx.clip.H * ctx.clip.W:,} pixels (more fit a short stack's noise; train.passes_per_frame=0: no cap)")
         if model.blur is not None and ctx.cfg.blur.centre == "auto":
             ctx.say(f"[train] blur PSFs {'centred on their pixel (static scene)' if cfg.blur.centre == 'on' else 'free to shift (moving scene)'}; blur.centre=on|off overrides")
         if cfg.model.tone_mapper == "learned" and not cfg.tone.monotone:

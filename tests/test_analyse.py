@@ -279,3 +279,15 @@ def test_real_moving_person_keeps_two_layers(shared_data):
     m = analyse.measure(clip, ex, _flow(clip.frames, "dis_medium"))
     cfg, reasons = analyse.decide(load_config("balanced"), clip, ex, "hdr-video", m)
     assert cfg.model.layers == 2 and cfg.model.blur == "off", (m, reasons)
+
+
+def test_short_stack_trains_fewer_steps():
+    """A 3-shot 256x256 stack: balanced's 2000 steps x 8192 capped to fast's budget (300 steps);
+    a 48-frame clip keeps its steps; train.passes_per_frame=0 turns the cap off."""
+    h0 = np.broadcast_to(np.eye(3, dtype=np.float32), (1, 3, 3, 3))
+    cfg = analyse.resolve_auto(load_config("balanced", ["model.layers=1"]), True, h0, (256, 256))
+    assert (cfg.train.steps, cfg.train.bootstrap_steps) == (300, 150)
+    h48 = np.broadcast_to(np.eye(3, dtype=np.float32), (1, 48, 3, 3))
+    assert analyse.resolve_auto(load_config("balanced", ["model.layers=1"]), False, h48, (144, 256)).train.steps == 2000
+    off = load_config("balanced", ["model.layers=1", "train.passes_per_frame=0"])
+    assert analyse.resolve_auto(off, True, h0, (256, 256)).train.steps == 2000

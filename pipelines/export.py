@@ -154,11 +154,9 @@ def faithful_hdr(ctx: Context, model, ts) -> Iterator[tuple[int, np.ndarray, dic
             yield t, render.render_frame(model, t, (ctx.clip.H, ctx.clip.W), ("hdr",), chunk=ctx.cfg.export.chunk)["hdr"], {}
         return
     from layercam.faithful import correction, faithful_log2, neighbour_fill
-    from layercam.visibility import clip_levels
+    from layercam.pipelines.stages import ctx_clip_levels
 
-    if "clip_levels" not in ctx.results:  # once per clip
-        ctx.results["clip_levels"] = clip_levels(ctx.clip.frames)
-    lv, frames, T = ctx.results["clip_levels"], ctx.clip.frames, ctx.clip.T
+    lv, frames, T = ctx_clip_levels(ctx), ctx.clip.frames, ctx.clip.T
     static = bool(ctx.results.get("bootstrap", {}).get("static"))  # registered by the identity: every frame sees this view
     kept: dict[int, dict] = {}
 

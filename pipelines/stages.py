@@ -240,14 +240,22 @@ def device_line(asked: str, dev: str) -> str:
     return f"{dev} (auto: torch sees no CUDA device)"
 
 
-def model_meta(ctx: Context) -> dict:
-    """What :func:`layercam.checkpoint.build_model` needs besides the config, saved with the model."""
+def ctx_clip_levels(ctx: Context) -> np.ndarray:
+    """The clip's clipping levels (:func:`layercam.visibility.clip_levels`), measured once per run
+    (a pass over every pixel: seconds on a 1080p clip) and kept in ``ctx.results``."""
     from layercam.visibility import clip_levels
 
+    if "clip_levels" not in ctx.results:
+        ctx.results["clip_levels"] = clip_levels(ctx.clip.frames)
+    return ctx.results["clip_levels"]
+
+
+def model_meta(ctx: Context) -> dict:
+    """What :func:`layercam.checkpoint.build_model` needs besides the config, saved with the model."""
     b = ctx.results["bootstrap"]
     e = ctx.exposures
     return {
-        "clip_levels": clip_levels(ctx.clip.frames).tolist(),
+        "clip_levels": np.asarray(ctx_clip_levels(ctx)).tolist(),
         "reasons": dict(ctx.reasons),
         "h0": b["h0"],
         "log2_dt": np.asarray(e.log2_dt, dtype=np.float32),

@@ -40,6 +40,8 @@ MIN_TILES = 3                # a pair with fewer comparable tiles says nothing a
 MIN_TILE_FRACTION = 0.25     # ... nor one with under this fraction of the median pair's comparable tiles:
                              # 5 of 6 tiles of one pair of a sharp composite (37 elsewhere) chose a blur
                              # generator for an alternating-exposure video without blur
+MIN_BLUR_PAIRS = 2           # ... in at least two pairs (one where only one was measured): the DAVIS person composite,
+                             # 2 EV, balanced's flow: one pair of 15 at 46% (6 of 13 tiles), the others at most 3%
 MAX_BLUR_PAIRS = 32          # pairs compared for blur, evenly spread over a long clip
 BLUR_5X5_SIGMA = 2.5         # beyond this a 3x3 patch cannot reach: 5x5
 OFFSET_PER_SIGMA = 5.0       # max offset (px) per px of relative blur: the energy match underestimates
@@ -116,7 +118,8 @@ def _blur(frames: np.ndarray, homs: np.ndarray | None, moving: np.ndarray | None
         shares.append(round(sh, 3))
         if sh > best:
             best, sigma = sh, float(np.percentile(tiles, 90))
-    return {"blur_tile_share": shares, "max_blur_tile_share": max(best, 0.0), "max_blur_sigma": round(sigma, 3), "blur_pairs_measured": sum(v is not None for v in shares)}
+    return {"blur_tile_share": shares, "max_blur_tile_share": max(best, 0.0), "max_blur_sigma": round(sigma, 3), "blur_pairs_measured": sum(v is not None for v in shares),
+            "blur_pairs_over": sum(v is not None and v >= BLUR_TILE_SHARE for v in shares)}
 
 
 def measure(clip, exposures, flow: dict | None) -> dict:
@@ -209,7 +212,9 @@ def decide(cfg: Config, clip, exposures, task: str, measures: dict | None = None
     # blur: some pair of frames differs in sharpness on a good share of what both see well
     share = mm.get("max_blur_tile_share", 0.0)
     sigma = mm.get("max_blur_sigma", 0.0)
-    measured = bool(measures) and share >= BLUR_TILE_SHARE
+    over, n_measured = mm.get("blur_pairs_over", MIN_BLUR_PAIRS), mm.get("blur_pairs_measured", 0)  # older measures: no count
+    lone = share >= BLUR_TILE_SHARE and over < min(MIN_BLUR_PAIRS, max(n_measured, 1))
+    measured = bool(measures) and share >= BLUR_TILE_SHARE and not lone
     if not forced("model.blur", m.blur):
         if measured:
             m.blur = "on"
@@ -218,6 +223,8 @@ def decide(cfg: Config, clip, exposures, task: str, measures: dict | None = None
             m.blur = "off"
             if not measures:
                 r["blur"] = "no blur expected (nothing measured)"
+            elif lone:
+                r["blur"] = f"sharpness differs by {BLUR_SIGMA} px on {share:.0%} of the tiles of one pair only (of {n_measured} measured; {MIN_BLUR_PAIRS} needed): not focus"
             elif mm.get("blur_pairs_measured", 0) == 0:
                 r["blur"] = "no pair of frames has enough texture that both see well to compare sharpness"
             else:

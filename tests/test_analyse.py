@@ -218,6 +218,29 @@ def test_a_pair_with_few_comparable_tiles_says_nothing_about_blur(monkeypatch):
     assert b["max_blur_tile_share"] > 0.8
 
 
+def test_blur_in_one_pair_of_many_is_not_a_blur_generator(monkeypatch):
+    """One pair of four at 6 of 13 tiles blurrier (a sharp composite under balanced's flow chose a
+    3x3 blur generator from it), the others sharp: no blur generator; the same in two pairs: one;
+    a clip of two frames (one pair) still gets one from its only pair."""
+    from layercam import sharpness
+
+    lone = np.array([0.0] * 7 + [1.5] * 6)
+    tiles = {0: np.zeros(13), 1: lone, 2: np.zeros(13), 3: np.zeros(13)}
+    monkeypatch.setattr(sharpness, "pair_relative_blur", lambda a, b, h, m: tiles[int(a[0, 0, 0])])
+    frames = np.arange(5, dtype=np.float32)[:, None, None, None] * np.ones((5, 8, 8, 3), np.float32)
+    clip = Clip(frames, "test", [f"{i:05d}" for i in range(5)])
+
+    def decided(fr):
+        m = {**analyse.measure(Clip(fr, "t", [str(i) for i in range(len(fr))]), _single(len(fr)), None), **analyse._blur(fr, None, None)}
+        return analyse.decide(load_config("fast"), clip, _single(len(fr)), "deblur-video", m)
+
+    cfg, reasons = decided(frames)
+    assert cfg.model.blur == "off" and "one pair only" in reasons["blur"], reasons["blur"]
+    tiles[3] = lone
+    assert decided(frames)[0].model.blur == "on"
+    assert decided(frames[1:3])[0].model.blur == "on"
+
+
 def test_one_pair_of_motion_is_not_a_layer():
     """Independent motion seen in a single pair (a flow failure between a defocused pair) is not
     enough for a second layer."""

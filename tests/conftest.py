@@ -21,6 +21,14 @@ try:
 except ImportError:  # pragma: no cover
     pass
 
+# A shell that starts the suite in the background (`sh -c 'pytest ...' &`) starts it with SIGINT
+# ignored, and Python then installs no KeyboardInterrupt handler: the Ctrl-C tests
+# (test_interruption, test_edit), which signal their own process, would see nothing happen.
+import signal  # noqa: E402
+
+if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+
 # settings that make any preset train in a second or two on a 16x16..32x32 clip
 TINY = [
     "train.steps=60",

@@ -118,8 +118,7 @@ def _blur(frames: np.ndarray, homs: np.ndarray | None, moving: np.ndarray | None
         shares.append(round(sh, 3))
         if sh > best:
             best, sigma = sh, float(np.percentile(tiles, 90))
-    return {"blur_tile_share": shares, "max_blur_tile_share": max(best, 0.0), "max_blur_sigma": round(sigma, 3), "blur_pairs_measured": sum(v is not None for v in shares),
-            "blur_pairs_over": sum(v is not None and v >= BLUR_TILE_SHARE for v in shares)}
+    return {"blur_tile_share": shares, "max_blur_tile_share": max(best, 0.0), "max_blur_sigma": round(sigma, 3), "blur_pairs_measured": sum(v is not None for v in shares)}
 
 
 def measure(clip, exposures, flow: dict | None) -> dict:
@@ -212,9 +211,10 @@ def decide(cfg: Config, clip, exposures, task: str, measures: dict | None = None
     # blur: some pair of frames differs in sharpness on a good share of what both see well
     share = mm.get("max_blur_tile_share", 0.0)
     sigma = mm.get("max_blur_sigma", 0.0)
-    over, n_measured = mm.get("blur_pairs_over", MIN_BLUR_PAIRS), mm.get("blur_pairs_measured", 0)  # older measures: no count
-    lone = share >= BLUR_TILE_SHARE and over < min(MIN_BLUR_PAIRS, max(n_measured, 1))
-    measured = bool(measures) and share >= BLUR_TILE_SHARE and not lone
+    shares = [v for v in mm.get("blur_tile_share", []) if v is not None]
+    over = sum(v >= BLUR_TILE_SHARE for v in shares)  # pairs that differ; all of them when only one was measured
+    lone = 0 < over < min(MIN_BLUR_PAIRS, len(shares))
+    measured = bool(measures) and over > 0 and not lone
     if not forced("model.blur", m.blur):
         if measured:
             m.blur = "on"
@@ -224,7 +224,7 @@ def decide(cfg: Config, clip, exposures, task: str, measures: dict | None = None
             if not measures:
                 r["blur"] = "no blur expected (nothing measured)"
             elif lone:
-                r["blur"] = f"sharpness differs by {BLUR_SIGMA} px on {share:.0%} of the tiles of one pair only (of {n_measured} measured; {MIN_BLUR_PAIRS} needed): not focus"
+                r["blur"] = f"sharpness differs by {BLUR_SIGMA} px on {share:.0%} of the tiles of one pair only (of {len(shares)} measured; {MIN_BLUR_PAIRS} needed): not focus"
             elif mm.get("blur_pairs_measured", 0) == 0:
                 r["blur"] = "no pair of frames has enough texture that both see well to compare sharpness"
             else:

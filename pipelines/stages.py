@@ -255,7 +255,7 @@ def model_meta(ctx: Context) -> dict:
     b = ctx.results["bootstrap"]
     e = ctx.exposures
     return {
-        "clip_levels": np.asarray(ctx_clip_levels(ctx)).tolist(),
+        "clip_levels": ctx_clip_levels(ctx).tolist(),
         "reasons": dict(ctx.reasons),
         "h0": b["h0"],
         "log2_dt": np.asarray(e.log2_dt, dtype=np.float32),

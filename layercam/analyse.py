@@ -337,8 +337,10 @@ def step_cap(train, frames: int, pixels: int) -> int:
     >>> from layercam.config import TrainConfig
     >>> step_cap(TrainConfig(steps=2000, batch=8192), 3, 256 * 256)  # a 3-shot bracket: min_samples
     300
-    >>> step_cap(TrainConfig(steps=2000, batch=8192), 3, 768 * 510)  # 12 passes over a larger one
-    1722
+    >>> step_cap(TrainConfig(steps=2000, batch=8192), 3, 768 * 510)  # 6 passes over a larger one
+    861
+    >>> step_cap(TrainConfig(steps=6000, batch=16384, passes_per_frame=4), 3, 768 * 510)  # quality: 12
+    861
     >>> step_cap(TrainConfig(steps=6000, batch=16384), 48, 256 * 144)  # a 48-frame clip: not capped
     6000
     >>> step_cap(TrainConfig(steps=600, batch=4096), 4, 32 * 32)  # a tiny clip: min_samples

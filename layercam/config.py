@@ -163,9 +163,10 @@ class TrainConfig:
     checkpoint_every: int = setting(500, 0)  # 0: only at the end (and on Ctrl-C)
     device: str = setting("auto", check=_device)  # auto: CUDA when torch sees a GPU, else the CPU
     max_bad_steps: int = setting(20, 1)
-    passes_per_frame: float = setting(4.0, 0.0)  # at most this many passes over the clip's pixels (frames x H x W) per
-                                            # frame of the clip (a 3-shot stack: 12), but never fewer samples than min_samples:
-                                            # more passes fit a short stack's noise (analyse.step_cap; 0: no cap)
+    passes_per_frame: float = setting(2.0, 0.0)  # at most this many passes over the clip's pixels (frames x H x W) per
+                                            # frame of the clip (a 3-shot stack: 6), but never fewer samples than min_samples:
+                                            # more passes fit a short stack's noise and take time (analyse.step_cap; 0: no cap;
+                                            # quality and paper: 4)
     min_samples: int = setting(2_457_600, 0)  # the cap's floor, in pixels sampled (fast's 600 steps x 4096)
 
 

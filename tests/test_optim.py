@@ -117,3 +117,18 @@ def test_lazy_rows_on_a_device(device):
     opt.step()
     st = opt.state[emb.weight]
     assert st["exp_avg"].device == emb.weight.device == opt._scratch[emb.weight]["stamp"].device
+
+
+def test_power_table_matches_the_closed_form_and_grows():
+    """The catch-up gathers b1^k, b2^k and the coast sum_{j<=k} q^j from a table instead of raising
+    to tensor powers; the table holds the closed form and grows with training."""
+    emb = torch.nn.Embedding(4, 2, sparse=True)
+    opt = Adam(emb.parameters(), lr=0.1, betas=(0.9, 0.99))
+    group = opt.param_groups[0]
+    small = opt._powers(group, 10, torch.device("cpu"))
+    big = opt._powers(group, 5000, torch.device("cpu"))
+    assert small.shape[0] > 10 and big.shape[0] > 5000 and torch.equal(big[: small.shape[0]], small)
+    q = 0.9 / 0.99**0.5
+    for k in (0, 1, 7, 300, 4999):
+        want = torch.tensor([0.9**k, 0.99**k, sum(q**j for j in range(1, k + 1))])
+        assert torch.allclose(big[k].double(), want.double(), rtol=1e-5, atol=1e-30)

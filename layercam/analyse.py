@@ -306,6 +306,8 @@ def resolve_auto(cfg: Config, static: bool, h0, frame_hw: tuple[int, int]) -> Co
     from layercam.geometry import atlas_pixels
 
     cfg = cfg.copy()
+    if cfg.scene.still_background == AUTO:
+        cfg.scene.still_background = "on" if bool(static) else "off"
     static = cfg.model.layers == 1 and bool(static)
     if cfg.scene.residual == AUTO:
         cfg.scene.residual = "off" if static else "on"

@@ -95,6 +95,9 @@ class SceneConfig:
     deform_pe_freqs: int = setting(4, 0, 16)
     residual_scale: float = setting(0.05, 0.0)  # bound of the residual deformation, atlas units
     residual: Literal["auto", "on", "off"] = AUTO  # the residual warp: auto (off for a static one-layer scene)
+    still_background: Literal["auto", "on", "off"] = AUTO  # with two layers, the background layer held still (no per-frame
+                                            # homography correction, no residual warp): auto (on when the camera is static;
+                                            # runs from before it, still auto, move it)
     bootstrap: Literal["flow", "identity"] = "flow"  # chained homographies of the cached flow | identity (paper)
     alpha_width: int = setting(64, 1)
     alpha_depth: int = setting(3, 0)
@@ -227,6 +230,8 @@ class ExportConfig:
     atlas_max_res: int = setting(2048, 2, 8192)
     reference: int | Literal["middle", "first", "last"] = "middle"  # fuse-stack: the view fused into (an index may be negative)
     faithful: bool = True                   # each frame's HDR agrees with the frame where it saw well (layercam/faithful.py); off: the model alone
+    merge_neighbours: Literal["auto", "on", "off"] = AUTO  # faithful: each frame's measurement merged with its neighbours' where
+                                            # they agree with it; auto: on for a video from a static camera (the bootstrap's identity)
 
 
 @dataclass

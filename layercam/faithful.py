@@ -27,6 +27,14 @@ saw a clipped channel, its evidence replaces the lower bound below (on the Basle
 curve's shoulder put a long frame's clipping point 0.6 stop above what the short frames around it
 measured).
 
+Then each frame's corrected irradiance is merged with its neighbours' (:func:`merge_neighbours`,
+``export.merge_neighbours``), moved into its view along the flow, weighted as a bracket merge weighs
+its exposures (well-exposedness times exposure time), where they reproduce what the frame recorded
+within its noise: on the Basler clip (static camera, alternating 3 EV) each frame keeping its own
+noise and quantisation, short and long in turn, made the static background flicker 3.2 codes
+(flow + Debevec 1.4); merged, 1.3. Where a neighbour saw something else (the person moved) the
+frame's own measurement stays.
+
 Clipped or at the floor (:func:`clip_bounds`): a channel at the 8-bit floor says only that the
 irradiance is below what the camera maps to the first code value at the frame's exposure; a clipped
 one, that it is above what it maps to the last. The export keeps the frame's log irradiance within
@@ -52,6 +60,8 @@ EXPOSED = (2.0 / 255, 12.0 / 255, 20.0 / 255, 2.5 / 255)  # well-exposedness ram
 FLOOR = 0.5 / 255       # a channel at or below this is at the floor; at or above its clipping level
                         # (visibility.clip_levels: 254.5 / 255, or lower where the camera clips lower), clipped
 UNSEEN_SIGMA = 4.0      # px: the smoothing of the model where no frame saw the pixel
+MERGE_KAPPA = 3.0       # a neighbour must reproduce the frame within this many noise deviations to be merged
+MERGE_NOISE_FLOOR = 2.0 / 255  # the noise the agreement test assumes at least (compression, quantisation)
 NOISE_MARGIN = 2.0      # the clipping bounds are this many noise deviations loose
 
 
@@ -179,6 +189,56 @@ def correction(model, frame: np.ndarray, t: int, levels: np.ndarray | None = Non
     return {"model_log2_r": out["log2_r"], "delta": delta, "weight": w, "exposed": exposure_weight(frame, levels), "log2_dts": dts, "levels": levels, "info": info}
 
 
+def merge_neighbours(own: tuple[np.ndarray, np.ndarray], neighbours: list[tuple[np.ndarray, np.ndarray, np.ndarray]], frame: np.ndarray, model, log2_dt: float, levels: np.ndarray, sigma: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Frame ``t``'s corrected log2 irradiance merged with its neighbours' where they agree with
+    what frame ``t`` recorded, as a merge of a bracket weighs its exposures:
+    ``sum a_n z_n / sum a_n`` over the frame (``own = (z_t, a_t)``) and ``neighbours`` (each
+    ``(z_n, a_n, flow)`` in the neighbour's view, moved into this one along ``flow`` (NaN: it
+    lends nothing there)), ``z`` the model corrected by that frame (:func:`correction`) and ``a``
+    its weight, how well it exposed the pixel times its exposure time relative to the longest
+    (``merge_weight``: photon noise, whose variance in log irradiance falls as the exposure
+    grows). A neighbour counts only as far as it agrees with ``frame``: through the learned camera
+    at ``log2_dt`` it must reproduce ``frame`` within ``MERGE_KAPPA`` times the frame's noise
+    ``sigma (3,)`` (at least ``MERGE_NOISE_FLOOR``), averaged over the well-exposed channels in a
+    ``WINDOW_SIGMA`` window (where no channel is well exposed, the flow alone decides). Without it
+    each frame of an alternating-exposure video kept its own noise and quantisation, short and
+    long frames in turn: flicker on a static background. Returns ``(z, weight)`` ``(H, W, 3)``:
+    the merge and the summed weight (0 where no frame saw the pixel)."""
+    import cv2
+
+    from layercam.flow import warp
+    from layercam.render import tone_map_log2
+
+    z_t, a_t = own
+    num, den = a_t * z_t, a_t.copy()
+    exposed = exposure_weight(frame, levels)
+    f = np.asarray(frame, np.float32)
+    good = exposed > 0.5
+    clipped, floor = f >= levels, f <= FLOOR
+    counted = (good | clipped | floor).astype(np.float32)
+    s = np.maximum(np.asarray(sigma, np.float32), MERGE_NOISE_FLOOR)
+    for z_n, a_n, fl in neighbours:
+        ok = np.isfinite(fl).all(-1)
+        move = np.where(ok[..., None], fl, 0.0).astype(np.float32)
+        zw = warp(z_n, move)
+        aw = warp(a_n, move) * ok[..., None]
+        c = tone_map_log2(model, zw, log2_dt)  # the neighbour's irradiance as this frame would have recorded it
+        r = np.where(good, c - f, np.where(clipped, np.maximum(levels - c, 0.0), np.where(floor, np.maximum(c - FLOOR, 0.0), 0.0)))
+        num_r = cv2.GaussianBlur(((r / s) ** 2 * counted).sum(-1), (0, 0), WINDOW_SIGMA)
+        den_r = cv2.GaussianBlur(counted.sum(-1), (0, 0), WINDOW_SIGMA)
+        rho = num_r / np.maximum(den_r, 1e-3)
+        agree = np.where(den_r > 0.5, np.exp(-0.5 * rho / MERGE_KAPPA**2), 0.0)[..., None]  # unverifiable: not merged
+        num += aw * agree * zw
+        den += aw * agree
+    return np.where(den > 1e-6, num / np.maximum(den, 1e-6), z_t).astype(np.float32), den.astype(np.float32)
+
+
+def merge_weight(exposed: np.ndarray, log2_dt: float, log2_dts) -> np.ndarray:
+    """A frame's weight in :func:`merge_neighbours`: its well-exposedness ``(H, W, 3)`` times its
+    exposure time relative to the clip's longest, ``2^(log2_dt - max log2_dts)``."""
+    return (np.asarray(exposed, np.float32) * np.float32(2.0 ** (float(log2_dt) - float(np.max(log2_dts))))).astype(np.float32)
+
+
 def neighbour_fill(neighbours: list[tuple[np.ndarray, np.ndarray, np.ndarray]]) -> tuple[np.ndarray, np.ndarray] | None:
     """The neighbours' corrections in this frame's view, ``sum w_n delta_n / max(sum w_n, 1)``
     over ``neighbours``, each ``(w delta, w, flow (H, W, 2))`` in the neighbour's view with the
@@ -198,14 +258,15 @@ def neighbour_fill(neighbours: list[tuple[np.ndarray, np.ndarray, np.ndarray]]) 
     return None if num is None else ((num / np.maximum(den, 1.0)).astype(np.float32), np.minimum(den, 1.0).astype(np.float32))
 
 
-def faithful_log2(model, frame: np.ndarray, t: int, levels: np.ndarray | None = None, stack: np.ndarray | None = None, chunk: int = 65536, kappa: float = KAPPA, corr: dict | None = None, fill: tuple[np.ndarray, np.ndarray] | None = None) -> dict:
+def faithful_log2(model, frame: np.ndarray, t: int, levels: np.ndarray | None = None, stack: np.ndarray | None = None, chunk: int = 65536, kappa: float = KAPPA, corr: dict | None = None, fill: tuple[np.ndarray, np.ndarray] | None = None, merge: list | None = None) -> dict:
     """Frame ``t``'s log2 irradiance ``(H, W, 3)``: the model's, corrected where it disagrees with
     ``frame (H, W, 3)`` beyond the frame's noise (:func:`correction`, or ``corr`` when computed
     already), where the frame did not see well by the neighbours' corrections ``fill`` (``(fill,
     support)``, :func:`neighbour_fill`), kept within the bounds of the frame's clipping (at the clip's
     ``levels (3,)``, :func:`layercam.visibility.clip_levels`; default 254.5 / 255) and floor,
     smooth where no frame of the clip saw it (:func:`unseen`; ``stack``: the clip's frames
-    registered into this view, for a static scene) (the module's docstring). Returns
+    registered into this view, for a static scene) (the module's docstring); ``merge``: the
+    neighbours' ``(z_n, a_n, flow)`` to merge with where they agree (:func:`merge_neighbours`). Returns
     ``{"log2_r", "model_log2_r", "weight", "unseen", "info"}``."""
     c = correction(model, frame, t, levels, chunk, kappa) if corr is None else corr
     out, w, dts, levels, info = {"log2_r": c["model_log2_r"]}, c["weight"], c["log2_dts"], c["levels"], dict(c["info"])
@@ -213,6 +274,8 @@ def faithful_log2(model, frame: np.ndarray, t: int, levels: np.ndarray | None = 
     z = out["log2_r"] + w * c["delta"]
     if fill is not None:
         z = z + (1.0 - c["exposed"]) * fill[0]
+    if merge:  # the neighbours' measurements where they agree with this frame's (merge_neighbours)
+        z, _ = merge_neighbours((z, merge_weight(c["exposed"], log2_dt, dts)), merge, frame, model, log2_dt, levels, info["sigma"])
     above, below, bound = unseen(model, out["log2_r"], dts, levels, stack)
     hidden = above | below
     z = np.where(hidden, smooth_within(out["log2_r"], hidden), z)

@@ -148,6 +148,8 @@ class TrainStage(Stage):
         model = self.build(ctx, cfg)
         if cfg.scene.residual_scale == 0 and ctx.cfg.scene.residual_scale > 0:
             ctx.say("[train] static one-layer scene: per-frame homographies only, no residual warp (scene.residual=on keeps it)")
+        if cfg.model.layers > 1 and cfg.scene.still_background == "on" and ctx.cfg.scene.still_background == "auto":
+            ctx.say("[train] static camera: the background layer held still, no per-frame correction or residual warp (scene.still_background=off frees it)")
         if cfg.train.steps < ctx.cfg.train.steps:
             ctx.say(f"[train] {cfg.train.steps} steps instead of {ctx.cfg.train.steps}: at most {cfg.train.passes_per_frame:g} x {ctx.clip.T} passes over "
                     f"the clip's {ctx.clip.T * ctx.clip.H * ctx.clip.W:,} pixels (more fit a short stack's noise; train.passes_per_frame=0: no cap)")

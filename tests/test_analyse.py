@@ -304,6 +304,17 @@ def test_real_moving_person_keeps_two_layers(shared_data):
     assert cfg.model.layers == 2 and cfg.model.blur == "off", (m, reasons)
 
 
+def test_static_camera_holds_the_background_still():
+    """The bootstrap's static flag (the frames registered by the identity) holds the background
+    layer still when there are two layers; a moving camera leaves it free; a given value stays."""
+    h0 = np.broadcast_to(np.eye(3, dtype=np.float32), (2, 24, 3, 3))
+    two = load_config("fast", ["model.layers=2"])
+    assert analyse.resolve_auto(two, True, h0, (64, 64)).scene.still_background == "on"
+    assert analyse.resolve_auto(two, False, h0, (64, 64)).scene.still_background == "off"
+    given = load_config("fast", ["model.layers=2", "scene.still_background=off"])
+    assert analyse.resolve_auto(given, True, h0, (64, 64)).scene.still_background == "off"
+
+
 def test_short_stack_trains_fewer_steps():
     """A 3-shot 256x256 stack: balanced's 2000 steps x 8192 capped to fast's budget (300 steps);
     a 48-frame clip keeps its steps; train.passes_per_frame=0 turns the cap off."""

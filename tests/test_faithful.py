@@ -87,3 +87,42 @@ def test_neighbour_fill_moves_corrections_along_the_flow():
     two, _ = faithful.neighbour_fill([(full * delta, full, np.zeros((h, w, 2), np.float32)), (full * 0.0, full, np.zeros((h, w, 2), np.float32))])
     assert np.allclose(two[:, 9:], 0.5)
     assert faithful.neighbour_fill([]) is None
+
+
+class _GammaCamera(__import__("torch").nn.Module):
+    """A known camera for the merge's arithmetic: ``c = clip(2^(z + dt), 0, 1)^(1/2.2)``."""
+
+    def __init__(self):
+        import torch
+
+        super().__init__()
+        self.p = torch.nn.Parameter(torch.zeros(1))
+
+    def tone_map(self, z, dt):
+        import torch
+
+        return torch.clamp(torch.exp2(z + dt), 0, 1) ** (1 / 2.2)
+
+
+def test_merge_takes_neighbours_that_agree_and_leaves_a_ghost_to_the_frame():
+    """A short frame and its long neighbour (3 stops) see the same scene: the merge weighs the long
+    one 8 times and its error falls towards the long frame's; where the neighbour holds something
+    the frame does not (a ghost), the frame's own measurement stays."""
+    rng = np.random.default_rng(0)
+    cam = _GammaCamera()
+    z = np.log2(_textured() * 0.1).astype(np.float32)  # the scene, log2 irradiance: short frame mid-grey
+    z_t = z + rng.normal(0, 0.05, z.shape).astype(np.float32)  # the short frame's noisier measurement
+    z_n = z + rng.normal(0, 0.01, z.shape).astype(np.float32)
+    z_n[16:32, 16:32] += 2.0  # the neighbour saw something else here
+    from layercam.render import tone_map_log2
+
+    frame = tone_map_log2(cam, z_t, 0.0)
+    a_t = faithful.merge_weight(faithful.exposure_weight(frame), 0.0, [0.0, 3.0])
+    a_n = faithful.merge_weight(np.ones_like(frame), 3.0, [0.0, 3.0])
+    flow = np.zeros(z.shape[:2] + (2,), np.float32)
+    merged, weight = faithful.merge_neighbours((z_t, a_t), [(z_n, a_n, flow)], frame, cam, 0.0, np.full(3, 254.5 / 255, np.float32), np.full(3, 0.01, np.float32))
+    far = np.s_[:, 40:]
+    err = lambda a: float(np.abs(a - z)[far].mean())  # noqa: E731
+    assert err(merged) < 0.3 * err(z_t)
+    assert float(np.abs(merged - z_t)[20:28, 20:28].mean()) < 0.05  # the ghost is not merged in
+    assert abs(float(weight[far].mean()) - 1.125) < 0.01  # 1 for the long frame, 1/8 for the short one

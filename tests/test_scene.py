@@ -160,3 +160,20 @@ def test_background_change_is_per_frame_and_only_in_two_layer_scenes():
     o = two(xy, t)
     assert torch.allclose(o["log2_r"][t == 1], o["layer_log2_r"][0][t == 1], atol=1e-4)
     assert torch.allclose(o["layer_log2_r"][0][t == 1] - 1.0, two.atlases[0](o["uv"][0][t == 1]), atol=1e-5)
+
+
+def test_still_background_has_no_per_frame_motion_and_the_foreground_keeps_its_own():
+    """scene.still_background=on (a static camera with two layers): the background maps every
+    frame through its bootstrap homography alone (no gradient for its correction, no residual
+    warp); the foreground's deformation stays free."""
+    cfg = SceneConfig(still_background="on", residual_scale=0.05, grid_max_res=32, alpha_grid_res=16)
+    h0 = torch.eye(3).expand(2, 4, 3, 3).clone()
+    scene = LayeredScene(cfg, h0)
+    bg, fg = scene.deformations
+    assert not bg.dh.requires_grad and bg.residual is None and fg.dh.requires_grad and fg.residual is not None
+    xy, t = torch.rand(16, 2) * 2 - 1, torch.randint(0, 4, (16,))
+    out = scene(xy, t)
+    out["log2_r"].sum().backward()
+    assert torch.allclose(out["uv"][0], xy, atol=1e-6) and bg.dh.grad is None and fg.dh.grad is not None
+    moving = LayeredScene(SceneConfig(still_background="auto", residual_scale=0.05, grid_max_res=32, alpha_grid_res=16), h0)  # runs from before it: free
+    assert moving.deformations[0].dh.requires_grad and moving.deformations[0].residual is not None

@@ -57,11 +57,12 @@ class Deformation(nn.Module):
 
     kind "homography": ``uv = (h0_t + dh_t)(xy) + s * tanh(residual(PE(x, y, t)))`` with the
     per-frame correction ``dh`` and the residual MLP both starting at zero (fast, exact at start);
-    no residual MLP when ``s = 0``.
+    no residual MLP when ``s = 0``; ``still``: neither (``uv = h0_t(xy)``, ``dh`` held at zero), for
+    the background of a static camera.
     kind "mlp" (paper): ``uv = tanh(MLP(x, y, t))``, fitted to ``h0`` during the bootstrap steps.
     """
 
-    def __init__(self, cfg: SceneConfig, h0: torch.Tensor):
+    def __init__(self, cfg: SceneConfig, h0: torch.Tensor, still: bool = False):
         super().__init__()
         if h0.ndim != 3 or h0.shape[1:] != (3, 3):
             raise ValueError(f"h0 must be (T, 3, 3), got {tuple(h0.shape)}")
@@ -69,8 +70,8 @@ class Deformation(nn.Module):
         self.n_frames = h0.shape[0]
         self.register_buffer("h0", h0.float().clone())
         if self.kind == "homography":
-            self.dh = nn.Parameter(torch.zeros(self.n_frames, 8))
-            self.residual_scale = cfg.residual_scale
+            self.dh = nn.Parameter(torch.zeros(self.n_frames, 8), requires_grad=not still)  # still: h0 alone
+            self.residual_scale = 0.0 if still else cfg.residual_scale
             self.residual = None  # residual_scale = 0: the per-frame homographies only
             if self.residual_scale > 0:
                 self.pe = PositionalEncoding(3, cfg.deform_pe_freqs)

@@ -27,7 +27,8 @@ class LayeredScene(nn.Module):
         if h0.ndim != 4:
             raise ValueError(f"h0 must be (L, T, 3, 3), got {tuple(h0.shape)}")
         self.n_layers, self.n_frames = h0.shape[0], h0.shape[1]
-        self.deformations = nn.ModuleList([Deformation(cfg, h0[i]) for i in range(self.n_layers)])
+        still_bg = self.n_layers > 1 and cfg.still_background == "on"  # a static camera: the background does not move
+        self.deformations = nn.ModuleList([Deformation(cfg, h0[i], still=i == 0 and still_bg) for i in range(self.n_layers)])
         self.atlases = nn.ModuleList([AtlasField(cfg, init_log2) for _ in range(self.n_layers)])
         self.alpha = AlphaField(cfg, self.n_frames) if self.n_layers > 1 else None
         self.bg_change = BackgroundChange(self.n_frames, cfg.bg_change_cells) if self.n_layers > 1 and cfg.bg_change_cells > 0 else None

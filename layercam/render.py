@@ -14,7 +14,7 @@ FRAME_OUTPUTS = ("hdr", "log2_r", "layers", "ldr", "uv", "alpha")
 
 
 @torch.no_grad()
-def render_frame(model, t: int, hw: tuple[int, int], what=("hdr",), *, log2_dt: float | None = None, blur: bool = False, t_blur: float | None = None, chunk: int = 65536, warp: np.ndarray | None = None) -> dict:
+def render_frame(model, t: int, hw: tuple[int, int], what=("hdr",), *, log2_dt: float | None = None, blur: bool = False, t_blur: float | None = None, chunk: int = 65536) -> dict:
     """Frame ``t`` of a trained model at ``hw = (H, W)``, rendered in chunks of ``chunk`` pixels on
     the model's device (``chunk / K`` with a ``K``-sample blur patch); the one full-frame renderer of
     the exports, ``render``, ``edit``, the notebook and the benchmark's probe.
@@ -29,9 +29,6 @@ def render_frame(model, t: int, hw: tuple[int, int], what=("hdr",), *, log2_dt: 
       index ``t_blur`` when given (focus between training images);
     * ``"uv"``: each layer's atlas coordinates ``[L x (H, W, 2)]``; ``"alpha"``: the foreground's
       opacity ``(H, W)`` (None for one layer). Asked for alone, they skip the atlases and camera.
-
-    ``warp``: a ``3x3`` homography in pixel coordinates; pixel ``(x, y)`` of the result is the
-    model's frame ``t`` at ``warp @ (x, y, 1)`` (rendered there, not resampled).
     """
     what = (what,) if isinstance(what, str) else tuple(what)
     unknown = set(what) - set(FRAME_OUTPUTS)
@@ -42,7 +39,7 @@ def render_frame(model, t: int, hw: tuple[int, int], what=("hdr",), *, log2_dt: 
     geometry_only = set(what) <= {"uv", "alpha"}
     use_blur = "ldr" in what and blur and model.blur is not None
     step = max(1, chunk // model.blur.K) if use_blur else chunk
-    xy_all = pixel_grid(h, w, dev) if warp is None else warped_grid(h, w, warp, dev)
+    xy_all = pixel_grid(h, w, dev)
     parts: dict = {k: [] for k in what}
     for s in range(0, xy_all.shape[0], step):
         xy = xy_all[s : s + step]
@@ -64,18 +61,6 @@ def render_frame(model, t: int, hw: tuple[int, int], what=("hdr",), *, log2_dt: 
         arr = torch.cat(v, 1 if k in ("uv", "layers") else 0).view(*shapes[k]).numpy()
         res[k] = list(arr) if k in ("uv", "layers") else arr
     return res
-
-
-def warped_grid(h: int, w: int, warp: np.ndarray, device="cpu") -> torch.Tensor:
-    """The pixel centres of an ``h x w`` frame moved by the homography ``warp (3, 3)`` (pixel
-    coordinates), as :func:`layercam.data.pixel_grid`'s normalised ``(h*w, 2)``."""
-    from layercam.data import normalise_xy
-
-    ys, xs = np.mgrid[0:h, 0:w].astype(np.float64)
-    q = np.stack([xs.ravel(), ys.ravel(), np.ones(h * w)], 1) @ np.asarray(warp, np.float64).T
-    q = q[:, :2] / q[:, 2:3]
-    x, y = (torch.as_tensor(q[:, i], dtype=torch.float32, device=device) for i in (0, 1))
-    return normalise_xy(x, y, w, h)
 
 
 def _through_camera(model, xy, t, out: dict, log2_dt: float | None, blur: bool, t_blur: float | None) -> torch.Tensor:

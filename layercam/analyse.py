@@ -282,6 +282,10 @@ def resolve_auto(cfg: Config, static: bool, h0, frame_hw: tuple[int, int]) -> Co
       follow, and both were used to fit the images' blur instead (README, How it works). On moving
       footage the shift stays free: centred, the PSFs of the Adobe240 triplet grew to 4 px on its
       sharp background, which came out over-sharpened.
+    * ``scene.still_background`` (two layers): ``on`` when ``static`` (a static camera): the
+      background maps every frame through its bootstrap homography alone, no per-frame correction
+      and no residual warp. On the Basler clip (a tripod) they wandered a pixel from frame to frame
+      and the rendered background flickered 3.1 codes, 1.35 held still (``docs/measurements.md``).
     * ``scene.grid_max_res = 0``: the finest atlas grid level from the atlas's extent in frame
       pixels (:func:`layercam.geometry.atlas_pixels` of the bootstrap mappings ``h0 (L, T, 3, 3)``),
       within 32..2048: without a blur generator the power of two at or above it (at least one cell

@@ -285,4 +285,5 @@ def faithful_log2(model, frame: np.ndarray, t: int, levels: np.ndarray | None = 
         lower = np.where(fill[1] > 0.5, -np.inf, lower)
     z = np.clip(z, lower, upper).astype(np.float32)
     info["unseen_share"] = round(float(hidden.mean()), 4)
+    info["merged"] = bool(merge)
     return {"log2_r": z, "model_log2_r": out["log2_r"], "weight": w, "unseen": hidden, "info": info}

@@ -164,6 +164,8 @@ def faithful_hdr(ctx: Context, model, ts) -> Iterator[tuple[int, np.ndarray, dic
     # 1.6 (its short shot reads the pixels the reference clipped 0.3-0.5 stop under the truth)
     mode = ctx.cfg.export.merge_neighbours
     merging = mode == "on" or (mode == "auto" and static and ctx.task != "fuse-stack")
+    if merging and mode == "auto":
+        ctx.say("[export] static camera: each frame merged with its neighbours where they agree with it (export.merge_neighbours=off keeps each frame's own)")
 
     def corr(t: int) -> dict:
         if t not in kept:
@@ -212,7 +214,8 @@ def _flow_to(ctx: Context, t: int, n: int) -> np.ndarray | None:
 def _faithful_summary(infos: list[dict]) -> dict:
     if not infos or not infos[0]:
         return {"faithful": None}
-    return {"faithful": {"mean_weight": round(float(np.mean([i["mean_weight"] for i in infos])), 4), "unseen_share": round(float(np.mean([i["unseen_share"] for i in infos])), 4)}}
+    return {"faithful": {"mean_weight": round(float(np.mean([i["mean_weight"] for i in infos])), 4), "unseen_share": round(float(np.mean([i["unseen_share"] for i in infos])), 4),
+                         "merged_neighbours": any(i.get("merged", False) for i in infos)}}
 
 
 def hdr_writer(ctx: Context, model, dest: Path, cache: Path) -> dict:

@@ -27,13 +27,13 @@ saw a clipped channel, its evidence replaces the lower bound below (on the Basle
 curve's shoulder put a long frame's clipping point 0.6 stop above what the short frames around it
 measured).
 
-Then each frame's corrected irradiance is merged with its neighbours' (:func:`merge_neighbours`,
-``export.merge_neighbours``), moved into its view along the flow, weighted as a bracket merge weighs
-its exposures (well-exposedness times exposure time), where they reproduce what the frame recorded
-within its noise: on the Basler clip (static camera, alternating 3 EV) each frame keeping its own
-noise and quantisation, short and long in turn, made the static background flicker 3.2 codes
-(flow + Debevec 1.4); merged, 1.3. Where a neighbour saw something else (the person moved) the
-frame's own measurement stays.
+In a video from a static camera (``export.merge_neighbours``, auto) each frame's corrected
+irradiance is then merged with its neighbours' at the same pixel (:func:`merge_neighbours`),
+weighted as a bracket merge weighs its exposures (well-exposedness times exposure time), where they
+reproduce what the frame recorded within its noise: on the Basler clip (alternating 3 EV) each
+frame keeping its own noise and quantisation, short and long in turn, made the static background
+flicker 3.2 codes (flow + Debevec 1.4); merged along the flow, 1.3; at the same pixel, 1.0. Where a
+neighbour saw something else (the person moved) the frame's own measurement stays.
 
 Clipped or at the floor (:func:`clip_bounds`): a channel at the 8-bit floor says only that the
 irradiance is below what the camera maps to the first code value at the frame's exposure; a clipped
@@ -189,7 +189,7 @@ def correction(model, frame: np.ndarray, t: int, levels: np.ndarray | None = Non
     return {"model_log2_r": out["log2_r"], "delta": delta, "weight": w, "exposed": exposure_weight(frame, levels), "log2_dts": dts, "levels": levels, "info": info}
 
 
-def merge_neighbours(own: tuple[np.ndarray, np.ndarray], neighbours: list[tuple[np.ndarray, np.ndarray, np.ndarray]], frame: np.ndarray, model, log2_dt: float, levels: np.ndarray, sigma: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def merge_neighbours(own: tuple[np.ndarray, np.ndarray], neighbours: list[tuple[np.ndarray, np.ndarray, np.ndarray]], frame: np.ndarray, model, log2_dt: float, levels: np.ndarray, sigma: np.ndarray, exposed: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Frame ``t``'s corrected log2 irradiance merged with its neighbours' where they agree with
     what frame ``t`` recorded, as a merge of a bracket weighs its exposures:
     ``sum a_n z_n / sum a_n`` over the frame (``own = (z_t, a_t)``) and ``neighbours`` (each
@@ -199,11 +199,14 @@ def merge_neighbours(own: tuple[np.ndarray, np.ndarray], neighbours: list[tuple[
     (``merge_weight``: photon noise, whose variance in log irradiance falls as the exposure
     grows). A neighbour counts only as far as it agrees with ``frame``: through the learned camera
     at ``log2_dt`` it must reproduce ``frame`` within ``MERGE_KAPPA`` times the frame's noise
-    ``sigma (3,)`` (at least ``MERGE_NOISE_FLOOR``), averaged over the well-exposed channels in a
-    ``WINDOW_SIGMA`` window (where no channel is well exposed, the flow alone decides). Without it
-    each frame of an alternating-exposure video kept its own noise and quantisation, short and
-    long frames in turn: flicker on a static background. Returns ``(z, weight)`` ``(H, W, 3)``:
-    the merge and the summed weight (0 where no frame saw the pixel)."""
+    ``sigma (3,)`` (at least ``MERGE_NOISE_FLOOR``), averaged in a ``WINDOW_SIGMA`` window over the
+    channels the frame exposed well and, as bounds, those it clipped (the neighbour must be at least
+    as bright) or left at the floor (at most as dark); where it has none of these nearby the
+    neighbour cannot be checked and is not merged. ``exposed``: the frame's
+    :func:`exposure_weight`, when known already. Without it each frame of an alternating-exposure
+    video kept its own noise and quantisation, short and long frames in turn: flicker on a static
+    background. Returns ``(z, weight)`` ``(H, W, 3)``: the merge and the summed weight (0 where no
+    frame saw the pixel)."""
     import cv2
 
     from layercam.flow import warp
@@ -211,11 +214,12 @@ def merge_neighbours(own: tuple[np.ndarray, np.ndarray], neighbours: list[tuple[
 
     z_t, a_t = own
     num, den = a_t * z_t, a_t.copy()
-    exposed = exposure_weight(frame, levels)
     f = np.asarray(frame, np.float32)
-    good = exposed > 0.5
+    good = (exposure_weight(f, levels) if exposed is None else exposed) > 0.5
     clipped, floor = f >= levels, f <= FLOOR
     counted = (good | clipped | floor).astype(np.float32)
+    den_r = cv2.GaussianBlur(counted.sum(-1), (0, 0), WINDOW_SIGMA)  # how much of the window can be checked
+    checkable = den_r > 0.5
     s = np.maximum(np.asarray(sigma, np.float32), MERGE_NOISE_FLOOR)
     for z_n, a_n, fl in neighbours:
         ok = np.isfinite(fl).all(-1)
@@ -224,10 +228,8 @@ def merge_neighbours(own: tuple[np.ndarray, np.ndarray], neighbours: list[tuple[
         aw = warp(a_n, move) * ok[..., None]
         c = tone_map_log2(model, zw, log2_dt)  # the neighbour's irradiance as this frame would have recorded it
         r = np.where(good, c - f, np.where(clipped, np.maximum(levels - c, 0.0), np.where(floor, np.maximum(c - FLOOR, 0.0), 0.0)))
-        num_r = cv2.GaussianBlur(((r / s) ** 2 * counted).sum(-1), (0, 0), WINDOW_SIGMA)
-        den_r = cv2.GaussianBlur(counted.sum(-1), (0, 0), WINDOW_SIGMA)
-        rho = num_r / np.maximum(den_r, 1e-3)
-        agree = np.where(den_r > 0.5, np.exp(-0.5 * rho / MERGE_KAPPA**2), 0.0)[..., None]  # unverifiable: not merged
+        rho = cv2.GaussianBlur(((r / s) ** 2 * counted).sum(-1), (0, 0), WINDOW_SIGMA) / np.maximum(den_r, 1e-3)
+        agree = np.where(checkable, np.exp(-0.5 * rho / MERGE_KAPPA**2), 0.0)[..., None]
         num += aw * agree * zw
         den += aw * agree
     return np.where(den > 1e-6, num / np.maximum(den, 1e-6), z_t).astype(np.float32), den.astype(np.float32)
@@ -275,7 +277,7 @@ def faithful_log2(model, frame: np.ndarray, t: int, levels: np.ndarray | None = 
     if fill is not None:
         z = z + (1.0 - c["exposed"]) * fill[0]
     if merge:  # the neighbours' measurements where they agree with this frame's (merge_neighbours)
-        z, _ = merge_neighbours((z, merge_weight(c["exposed"], log2_dt, dts)), merge, frame, model, log2_dt, levels, info["sigma"])
+        z, _ = merge_neighbours((z, merge_weight(c["exposed"], log2_dt, dts)), merge, frame, model, log2_dt, levels, info["sigma"], c["exposed"])
     above, below, bound = unseen(model, out["log2_r"], dts, levels, stack)
     hidden = above | below
     z = np.where(hidden, smooth_within(out["log2_r"], hidden), z)

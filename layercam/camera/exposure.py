@@ -44,7 +44,7 @@ class ExposureField(nn.Module):
             return self.init
         d = self.delta.clone()
         d = torch.cat([torch.zeros_like(d[:1]), d[1:]])  # the first phase / frame is the reference
-        return self.init + EV_BOUND * torch.tanh(d[self.index] / EV_BOUND)
+        return self.init + EV_BOUND * torch.tanh(d.index_select(0, self.index) / EV_BOUND)
 
     def reference(self) -> float:
         """The clip's reference exposure: the median log2 exposure of its frames (what ``layercam
@@ -52,4 +52,4 @@ class ExposureField(nn.Module):
         return float(np.median(self.values().detach().float().cpu().numpy()))
 
     def forward(self, t: torch.Tensor) -> torch.Tensor:
-        return self.values()[t][:, None]
+        return self.values().index_select(0, t)[:, None]  # (index_select: a deterministic backward on a multi-threaded CPU)

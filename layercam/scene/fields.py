@@ -89,7 +89,7 @@ class Deformation(nn.Module):
         if self.kind == "mlp":
             return torch.tanh(self.net(torch.cat([xy, tn], dim=1)).float())
         dh = torch.cat([self.dh, torch.zeros_like(self.dh[:, :1])], dim=1).view(-1, 3, 3)
-        uv = apply_homography(self.h0[t] + dh[t], xy)
+        uv = apply_homography((self.h0 + dh).index_select(0, t), xy)  # index_select: its backward is deterministic (p[t]'s is not on a multi-threaded CPU)
         if self.residual is None:
             return uv
         res = self.residual(self.pe(torch.cat([xy, tn], dim=1))).float()

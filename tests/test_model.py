@@ -101,7 +101,7 @@ def test_model_loss_terms_and_gradients_finite(ev, layers, monotone, clipped, bl
 
 def test_gradients_are_bit_identical_on_a_multithreaded_cpu():
     """Per-sample gathers of per-frame parameters (homography corrections, exposures, the blur
-    embedding) go through ``index_select``: ``p[t]``'s backward accumulates with atomic adds on a
+    embedding) go through ``gather_rows``: ``p[t]``'s backward accumulates with atomic adds on a
     multi-threaded CPU, so two identical steps gave different gradients (1e-9 on the first step)
     and a resumed run drifted from an uninterrupted one."""
     T, n = 24, 40_000

@@ -33,7 +33,7 @@ import math
 import torch
 from torch import nn
 
-from layercam.scene.encodings import PositionalEncoding
+from layercam.scene.encodings import PositionalEncoding, gather_rows
 from layercam.scene.mlp import MLP
 
 __all__ = ["patch_offsets_base", "sample_positions", "apply_patch_blur", "BlurGenerator", "psf_summary"]
@@ -190,12 +190,12 @@ class BlurGenerator(nn.Module):
                 raise ValueError("frame_embedding needs t or t_blur")
             if t.is_floating_point():
                 raise ValueError("t must be an integer frame index; pass float frame coordinates as t_blur")
-            return self.embedding.index_select(0, t)  # (a deterministic backward; embedding[t]'s is not with several CPU threads)
+            return gather_rows(self.embedding, t)  # (a deterministic backward: gather_rows)
         tb = t_blur.float().clamp(0, self.n_frames - 1)
         i0 = tb.floor().long().clamp(0, self.n_frames - 1)
         i1 = (i0 + 1).clamp(max=self.n_frames - 1)
         frac = (tb - i0.float())[:, None]
-        return self.embedding.index_select(0, i0) * (1 - frac) + self.embedding.index_select(0, i1) * frac
+        return gather_rows(self.embedding, i0) * (1 - frac) + gather_rows(self.embedding, i1) * frac
 
     def _inputs(self, xy: torch.Tensor, t: torch.Tensor | None, depth: torch.Tensor | None, t_blur: torch.Tensor | None) -> torch.Tensor:
         n = xy.shape[0]

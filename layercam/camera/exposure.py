@@ -6,6 +6,8 @@ import numpy as np
 import torch
 from torch import nn
 
+from layercam.scene.encodings import gather_rows
+
 EV_BOUND = 24.0  # guard: learned exposures stay within +-24 stops of their start
 
 
@@ -44,7 +46,7 @@ class ExposureField(nn.Module):
             return self.init
         d = self.delta.clone()
         d = torch.cat([torch.zeros_like(d[:1]), d[1:]])  # the first phase / frame is the reference
-        return self.init + EV_BOUND * torch.tanh(d.index_select(0, self.index) / EV_BOUND)
+        return self.init + EV_BOUND * torch.tanh(gather_rows(d, self.index) / EV_BOUND)
 
     def reference(self) -> float:
         """The clip's reference exposure: the median log2 exposure of its frames (what ``layercam
@@ -52,4 +54,4 @@ class ExposureField(nn.Module):
         return float(np.median(self.values().detach().float().cpu().numpy()))
 
     def forward(self, t: torch.Tensor) -> torch.Tensor:
-        return self.values().index_select(0, t)[:, None]  # (index_select: a deterministic backward on a multi-threaded CPU)
+        return gather_rows(self.values(), t)[:, None]  # (a deterministic backward: gather_rows)

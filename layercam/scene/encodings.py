@@ -27,6 +27,19 @@ def positional_encoding(x: torch.Tensor, n_freqs: int, include_input: bool = Tru
     return torch.cat([x, enc], dim=-1) if include_input else enc
 
 
+def gather_rows(table: torch.Tensor, idx: torch.Tensor) -> torch.Tensor:
+    """``table[idx]`` for a per-frame table ``(T, ...)`` and per-sample long indices ``(N,)``, with a
+    deterministic backward on every device. ``table[idx]``'s backward accumulates with atomic adds
+    on a multi-threaded CPU (two identical training steps then differ in the last bits, and a
+    resumed run drifts from an uninterrupted one), and ``index_select``'s does on CUDA; so the CPU
+    takes ``index_select`` (also the fastest there: 31 ms against 42 for ``table[idx]`` and 68 for
+    ``F.embedding``, 262144 rows of 9, two threads) and CUDA ``F.embedding``."""
+    if idx.device.type == "cpu":
+        return table.index_select(0, idx)
+    flat = table.reshape(table.shape[0], -1) if table.ndim != 2 else table
+    return F.embedding(idx, flat).reshape(idx.shape[0], *table.shape[1:])
+
+
 class PositionalEncoding(nn.Module):
     def __init__(self, in_dim: int, n_freqs: int, include_input: bool = True):
         super().__init__()

@@ -10,7 +10,7 @@ import torch
 from torch import nn
 
 from layercam.config import SceneConfig
-from layercam.scene.encodings import DenseGrid2D, DenseGrid3D, PositionalEncoding
+from layercam.scene.encodings import DenseGrid2D, DenseGrid3D, PositionalEncoding, gather_rows
 from layercam.scene.mlp import MLP
 
 LOG2_R_BOUND = 40.0  # guard: |log2 irradiance| never exceeds this (2^40 covers any sensor)
@@ -89,7 +89,7 @@ class Deformation(nn.Module):
         if self.kind == "mlp":
             return torch.tanh(self.net(torch.cat([xy, tn], dim=1)).float())
         dh = torch.cat([self.dh, torch.zeros_like(self.dh[:, :1])], dim=1).view(-1, 3, 3)
-        uv = apply_homography((self.h0 + dh).index_select(0, t), xy)  # index_select: its backward is deterministic (p[t]'s is not on a multi-threaded CPU)
+        uv = apply_homography(gather_rows(self.h0 + dh, t), xy)  # (a deterministic backward: gather_rows)
         if self.residual is None:
             return uv
         res = self.residual(self.pe(torch.cat([xy, tn], dim=1))).float()

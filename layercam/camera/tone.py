@@ -13,6 +13,7 @@ import torch
 from torch import nn
 
 from layercam.colour import srgb_decode, srgb_encode_torch
+from layercam.scene.encodings import gather_rows
 
 Z_SCALE = 0.125  # MLP input is z / 8: log exposures span about +-20 stops
 LUT_RANGE = 32.0  # the lookup-table fast path covers +-32 stops; beyond, the curve is flat
@@ -92,8 +93,8 @@ class ToneMapper(nn.Module):
         frac = pos - i0.float()
         out = []
         for c in range(3):
-            lo = cum[c][i0[:, c]]
-            hi = cum[c][i0[:, c] + 1]
+            lo = gather_rows(cum[c], i0[:, c])  # (a deterministic backward, unlike cum[c][i]'s)
+            hi = gather_rows(cum[c], i0[:, c] + 1)
             out.append(lo + frac[:, c] * (hi - lo))
         return torch.stack(out, dim=1)
 

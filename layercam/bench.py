@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from layercam.errors import LayercamError
+from layercam.config import preset_tag
 
 # scene name -> synth family, its arguments, the task it exercises; "quick" sizes for smoke tests
 SCENES = {
@@ -161,7 +162,7 @@ def _job_main() -> None:  # entry for the per-job subprocess
 
 
 def _spawn(job: dict, out: Path) -> dict:
-    res_path = out / f"result-{job.get('kind', 'job')}-{job['scene']}-{job.get('preset', '')}.json"
+    res_path = out / f"result-{job.get('kind', 'job')}-{job['scene']}-{preset_tag(job.get('preset', ''))}.json"
     job = {**job, "result": str(res_path)}
     cmd = [sys.executable, "-c", "from layercam.bench import _job_main; _job_main()", json.dumps(job)]
     p = subprocess.run(cmd, capture_output=True, text=True)
@@ -201,7 +202,7 @@ def run_bench(out: Path, scenes: list[str], presets: list[str], quick: bool = Fa
                 probe = _spawn({"scene": sc, "preset": pr, "quick": quick, "overrides": paper_overrides(None, None), "out": str(out / sc / "paper-speed"), "threads": threads, "probes": 1}, out)
                 ov = paper_overrides(quality_wall, probe["row"]["steps_per_s"])
                 note = f"paper preset at {probe['row']['steps_per_s']} steps/s: 150k steps would take {150000 / max(probe['row']['steps_per_s'], 1e-9) / 3600:.1f} h here; run for quality's wall time"
-            res = _spawn({"scene": sc, "preset": pr, "quick": quick, "overrides": ov, "out": str(out / sc / pr), "threads": threads, "note": note}, out)
+            res = _spawn({"scene": sc, "preset": pr, "quick": quick, "overrides": ov, "out": str(out / sc / preset_tag(pr)), "threads": threads, "note": note}, out)
             rows.append(res["row"])
             curves[(sc, pr)] = res["curve"]
             if pr == "quality":

@@ -48,6 +48,18 @@ def test_quick_bench_writes_csv_plot_and_speedups(tmp_path, capsys):
     assert "PSNR-mu" in capsys.readouterr().out
 
 
+def test_a_preset_file_runs_under_its_stem(tmp_path):
+    """``--presets my.toml`` (an absolute path): its run folder and result are named by the file's
+    stem (the path joined as a folder had made the run folder the preset file itself)."""
+    preset = tmp_path / "mine.toml"
+    preset.write_text("[train]\nsteps = 600\n[tone]\ninit_slope = 0.8\n")
+    out = tmp_path / "bench"
+    assert main(["bench", "--quick", "--out", str(out), "--presets", str(preset), "--threads", "1"]) == 0
+    assert (out / "pan" / "mine").is_dir() and preset.read_text().startswith("[train]")
+    rows = [r for r in csv.DictReader(open(out / "bench.csv")) if r["method"] == "layercam"]
+    assert len(rows) == 1 and rows[0]["preset"].endswith("mine.toml")
+
+
 def test_unknown_bench_scene_is_one_line_error(tmp_path, capsys):
     assert main(["bench", "--quick", "--out", str(tmp_path / "b"), "--scenes", "nope"]) == 2
     err = capsys.readouterr().err

@@ -60,7 +60,9 @@ def _spawn(job: dict, threads: int) -> None:
 
 
 def _preset_tag(preset: str) -> str:
-    return Path(preset).stem if preset.endswith(".toml") else preset
+    from layercam.config import preset_tag
+
+    return preset_tag(preset)
 
 
 class _Lock:

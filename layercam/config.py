@@ -450,6 +450,11 @@ def _read_preset(name: str) -> dict:
         raise LayercamError(f"preset {name}: {e}") from None
 
 
+def preset_tag(preset: str) -> str:
+    """A preset's name for folders and tables: the file's stem for a ``.toml`` preset file."""
+    return Path(preset).stem if preset.endswith(".toml") else preset
+
+
 def load_config(preset: str = "balanced", overrides: list[str] | None = None) -> Config:
     """Defaults, then the preset file's values, then each ``section.field=value`` override; checked."""
     cfg = Config(preset=Path(preset).stem if preset.endswith(".toml") else preset)

@@ -117,7 +117,7 @@ class ToneConfig:
     depth: int = setting(2, 0)
     monotone: bool = False          # monotone by construction (cumulative positive increments)
     c0: float = setting(0.5, above=0.0, below=1.0)  # white-balance target T(0)
-    init_slope: float = setting(0.6, above=0.0)     # initial curve sigmoid(init_slope * ln2 * z)
+    init_slope: float = setting(1.0, above=0.0)     # initial curve sigmoid(init_slope * ln2 * z); 1: r / (1 + r) (docs/measurements.md)
     lut: int = setting(1024, 0, check=_lut)  # evaluate the curves on this many knots and interpolate (0: per pixel, paper)
 
 

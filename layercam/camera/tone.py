@@ -40,7 +40,7 @@ class ToneMapper(nn.Module):
     INC_GAIN = 10.0
     SMOOTH = 2.0  # Gaussian blur (sigma, knots) of the increments (docs/measurements.md)
 
-    def __init__(self, width: int = 64, depth: int = 2, monotone: bool = False, z_max: float = 24.0, knots: int = 97, lut: int = 0, init_slope: float = 0.6):
+    def __init__(self, width: int = 64, depth: int = 2, monotone: bool = False, z_max: float = 24.0, knots: int = 97, lut: int = 0, init_slope: float = 1.0):
         super().__init__()
         self.monotone = monotone
         self.lut = lut if not monotone else 0

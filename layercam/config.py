@@ -457,7 +457,7 @@ def preset_tag(preset: str) -> str:
 
 def load_config(preset: str = "balanced", overrides: list[str] | None = None) -> Config:
     """Defaults, then the preset file's values, then each ``section.field=value`` override; checked."""
-    cfg = Config(preset=Path(preset).stem if preset.endswith(".toml") else preset)
+    cfg = Config(preset=preset_tag(preset))
     data = _read_preset(preset)
     for sec, values in data.items():
         if not isinstance(values, dict):

@@ -17,6 +17,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+from layercam.config import preset_tag
 from layercam.errors import LayercamError
 from layercam.realsuite.cases import CASES
 
@@ -57,12 +58,6 @@ def _spawn(job: dict, threads: int) -> None:
         lines = (d / "log.txt").read_text(errors="replace").strip().splitlines() or ["?"]
         row = {"method": job["kind"] if job["kind"] != "layercam" else "layercam", "preset": job.get("preset", ""), "failed": lines[-1][:200]}
         atomic_write(d / "result.json", lambda q: q.write_text(json.dumps({"rows": [row], "job": job})))
-
-
-def _preset_tag(preset: str) -> str:
-    from layercam.config import preset_tag
-
-    return preset_tag(preset)
 
 
 class _Lock:
@@ -133,7 +128,7 @@ def run_real_suite(out, cases: list[str] | None = None, presets: list[str] | Non
             s.run(s.job(name, "classical", "classical"), f"{name} classical", force)
         for p in presets:
             for name in names:
-                s.run(s.job(name, "layercam", f"layercam-{_preset_tag(p)}", preset=p, overrides=ov, threads=threads), f"{name} layercam {p}", force)
+                s.run(s.job(name, "layercam", f"layercam-{preset_tag(p)}", preset=p, overrides=ov, threads=threads), f"{name} layercam {p}", force)
     return s.outputs(names)  # tables and figures drawn again from everything on disk
 
 
@@ -195,7 +190,7 @@ def _figure(out: Path, name: str, rows: list[dict], data: Path, quick: bool, max
         if r.get("failed"):
             continue
         if r["method"] == "layercam":
-            run_dir = case_dir / f"layercam-{_preset_tag(r['preset'])}" / "run"
+            run_dir = case_dir / f"layercam-{preset_tag(r['preset'])}" / "run"
             preds[f"layercam {r['preset']}"] = read_prediction(case, run_dir, len(frames))
         else:
             preds[r["method"]] = np.load(case_dir / "classical" / f"{r['method']}.npy")

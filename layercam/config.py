@@ -232,6 +232,9 @@ class ExportConfig:
     faithful: bool = True                   # each frame's HDR agrees with the frame where it saw well (layercam/faithful.py); off: the model alone
     merge_neighbours: Literal["auto", "on", "off"] = AUTO  # faithful: each frame's measurement merged with its neighbours' where
                                             # they agree with it; auto: on for a video from a static camera (the bootstrap's identity)
+    clipped_everywhere: Literal["model", "clip"] = "model"  # faithful, where every frame clipped: the model's level (smoothed) |
+                                            # at most the shortest exposure's clipping point, the least the data says (docs/measurements.md:
+                                            # a hard-clipping camera gains, a soft filmic shoulder loses)
 
 
 @dataclass

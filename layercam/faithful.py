@@ -260,7 +260,7 @@ def neighbour_fill(neighbours: list[tuple[np.ndarray, np.ndarray, np.ndarray]]) 
     return None if num is None else ((num / np.maximum(den, 1.0)).astype(np.float32), np.minimum(den, 1.0).astype(np.float32))
 
 
-def faithful_log2(model, frame: np.ndarray, t: int, levels: np.ndarray | None = None, stack: np.ndarray | None = None, chunk: int = 65536, kappa: float = KAPPA, corr: dict | None = None, fill: tuple[np.ndarray, np.ndarray] | None = None, merge: list | None = None) -> dict:
+def faithful_log2(model, frame: np.ndarray, t: int, levels: np.ndarray | None = None, stack: np.ndarray | None = None, chunk: int = 65536, kappa: float = KAPPA, corr: dict | None = None, fill: tuple[np.ndarray, np.ndarray] | None = None, merge: list | None = None, clipped: str = "model") -> dict:
     """Frame ``t``'s log2 irradiance ``(H, W, 3)``: the model's, corrected where it disagrees with
     ``frame (H, W, 3)`` beyond the frame's noise (:func:`correction`, or ``corr`` when computed
     already), where the frame did not see well by the neighbours' corrections ``fill`` (``(fill,
@@ -268,7 +268,10 @@ def faithful_log2(model, frame: np.ndarray, t: int, levels: np.ndarray | None = 
     ``levels (3,)``, :func:`layercam.visibility.clip_levels`; default 254.5 / 255) and floor,
     smooth where no frame of the clip saw it (:func:`unseen`; ``stack``: the clip's frames
     registered into this view, for a static scene) (the module's docstring); ``merge``: the
-    neighbours' ``(z_n, a_n, flow)`` to merge with where they agree (:func:`merge_neighbours`). Returns
+    neighbours' ``(z_n, a_n, flow)`` to merge with where they agree (:func:`merge_neighbours`);
+    ``clipped``: where every frame clipped, "model" keeps the model's level (smoothed), "clip" holds
+    the irradiance at most at the clipping point of the shortest exposure (``export.clipped_everywhere``;
+    what each gains and loses: docs/measurements.md). Returns
     ``{"log2_r", "model_log2_r", "weight", "unseen", "info"}``."""
     c = correction(model, frame, t, levels, chunk, kappa) if corr is None else corr
     out, w, dts, levels, info = {"log2_r": c["model_log2_r"]}, c["weight"], c["log2_dts"], c["levels"], dict(c["info"])
@@ -282,6 +285,10 @@ def faithful_log2(model, frame: np.ndarray, t: int, levels: np.ndarray | None = 
     hidden = above | below
     z = np.where(hidden, smooth_within(out["log2_r"], hidden), z)
     z = np.where(below, np.minimum(z, bound), z)  # black in every frame: darker than the longest exposure's floor
+    if clipped == "clip":  # clipped in every frame: no brighter than the shortest exposure's clipping point
+        z = np.where(above, np.minimum(z, bound), z)
+    elif clipped != "model":
+        raise ValueError(f"unknown clipped-everywhere fill {clipped!r}")
     lower, upper = clip_bounds(model, frame, log2_dt, levels, info.pop("sigma"))
     if fill is not None:  # a neighbour that saw it says more than the learned curve's shoulder
         lower = np.where(fill[1] > 0.5, -np.inf, lower)

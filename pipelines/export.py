@@ -183,7 +183,7 @@ def faithful_hdr(ctx: Context, model, ts) -> Iterator[tuple[int, np.ndarray, dic
                 if merging:
                     still = np.zeros_like(fl) if static else fl  # a static camera: the same scene point, whatever the flow says
                     merge.append((c["model_log2_r"] + c["weight"] * c["delta"], merge_weight(c["exposed"], c["log2_dts"][n], c["log2_dts"]), still))
-        res = faithful_log2(model, frames[t], t, lv, frames if static else None, corr=corr(t), fill=neighbour_fill(neighbours), merge=merge)
+        res = faithful_log2(model, frames[t], t, lv, frames if static else None, corr=corr(t), fill=neighbour_fill(neighbours), merge=merge, clipped=ctx.cfg.export.clipped_everywhere)
         for k in [k for k in kept if k < t]:
             del kept[k]
         yield t, np.exp2(res["log2_r"]).astype(np.float32), res["info"]
@@ -360,6 +360,8 @@ class ExportStage(Stage):
         d = ctx.cfg.section_dict("export")
         if ctx.task != "fuse-stack":
             d["export"].pop("reference")  # only a stack is fused into one view
+        if d["export"]["clipped_everywhere"] == "model":
+            d["export"].pop("clipped_everywhere")  # what every run did before the setting: finished runs keep their key
         return {**d, "writers": list(writers_for(ctx.task))}
 
     def output_names(self, ctx):

@@ -4,6 +4,7 @@ takes the frame where it does not; clipped and floor channels bound the result."
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from layercam import faithful, visibility
 
@@ -126,3 +127,47 @@ def test_merge_takes_neighbours_that_agree_and_leaves_a_ghost_to_the_frame():
     assert err(merged) < 0.3 * err(z_t)
     assert float(np.abs(merged - z_t)[20:28, 20:28].mean()) < 0.05  # the ghost is not merged in
     assert abs(float(weight[far].mean()) - 1.125) < 0.01  # 1 for the long frame, 1/8 for the short one
+
+
+class _GammaTone(__import__("torch").nn.Module):
+    """The tone curve of :class:`_GammaCamera` as the export reads it (``model.tone.curve``)."""
+
+    def __init__(self):
+        import torch
+
+        super().__init__()
+        self.p = torch.nn.Parameter(torch.zeros(1))
+
+    def curve(self, z):
+        import torch
+
+        return (torch.clamp(torch.exp2(z), 0, 1) ** (1 / 2.2))[:, None].expand(-1, 3)
+
+
+def test_clipped_in_every_frame_keeps_to_the_shortest_exposures_clipping_point():
+    """Where every frame of a static stack clipped, the model's fit to nothing (here 3 stops above
+    the short frame's clipping point, with texture) is not exported with ``clipped="clip"``: the
+    irradiance is held at the clipping point of the shortest exposure, flat; elsewhere, and with
+    ``clipped="model"`` (the default), the model's own level stays."""
+    import torch
+
+    model = torch.nn.Module()
+    model.tone = _GammaTone()
+    h, w = 24, 24
+    levels = np.full(3, 254.5 / 255, np.float32)
+    dts = np.array([0.0, 2.0], np.float32)
+    z_model = np.full((h, w, 3), -3.0, np.float32)
+    z_model[:, 12:] = 3.0 + 0.5 * np.sin(np.arange(12))[None, :, None]  # invented structure where both clipped
+    frames = np.stack([np.clip(np.exp2(z_model + dt), 0, 1) ** (1 / 2.2) for dt in dts]).astype(np.float32)
+    assert (frames[:, :, 12:] >= levels).all() and (frames[:, :, :12] < levels).all()
+    corr = {"model_log2_r": z_model, "delta": np.zeros_like(z_model), "weight": np.zeros_like(z_model), "exposed": faithful.exposure_weight(frames[0], levels),
+            "log2_dts": dts, "levels": levels, "info": {"sigma": np.full(3, 0.002, np.float32)}}
+    clip = faithful.faithful_log2(model, frames[0], 0, levels, frames, corr=dict(corr, info=dict(corr["info"])), clipped="clip")
+    kept = faithful.faithful_log2(model, frames[0], 0, levels, frames, corr=dict(corr, info=dict(corr["info"])))
+    z_clip = float(np.log2(254.0 / 255) * 2.2)  # where the gamma camera reaches the last code inverse_tone reads at dt 0
+    assert clip["unseen"][:, 12:].all() and not clip["unseen"][:, :12].any()
+    assert np.allclose(clip["log2_r"][:, 12:], z_clip, atol=0.02)  # flat, at the short frame's clipping point
+    assert kept["log2_r"][:, 12:].mean() > z_clip + 2.5  # the model's level
+    assert np.allclose(clip["log2_r"][:, :12], -3.0, atol=1e-4) and np.allclose(kept["log2_r"][:, :12], -3.0, atol=1e-4)
+    with pytest.raises(ValueError, match="clipped-everywhere"):
+        faithful.faithful_log2(model, frames[0], 0, levels, frames, corr=dict(corr, info=dict(corr["info"])), clipped="bright")

@@ -150,6 +150,8 @@ class LossConfig:
     mask_given: float = setting(1.0, 0.0, 1.0)   # share of the alpha-mask weight kept all through training with --masks
     mask_motion: float = setting(0.0, 0.0, 1.0)  # ... with the motion bootstrap's masks
     bg_change: float = setting(1.0, 0.0)         # penalty on the background's per-frame change (mean square, log2 units)
+    fg_follow: float = setting(1e-3, 0.0)        # two layers: the foreground's log2 irradiance pulled to the background's
+                                                 # where alpha is low, weight 1 - alpha (losses.fg_follow_loss; 0: off)
 
 
 @dataclass

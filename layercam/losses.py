@@ -59,6 +59,16 @@ def rigidity_loss(uv_fn, xy: torch.Tensor, t: torch.Tensor, delta: float) -> tor
     return (off**2).sum(dim=(1, 2)).mean() / s.detach().clamp_min(1e-8).pow(2).mean()
 
 
+def fg_follow_loss(fg_log2: torch.Tensor, bg_log2: torch.Tensor, alpha: torch.Tensor) -> torch.Tensor:
+    """Where the foreground is not, its irradiance follows the background's: ``mean((1 - alpha) *
+    (fg_log2 - bg_log2)^2)``, ``(N, 3)`` log2 irradiance each and ``alpha (N, 1)``, with alpha and the
+    background held fixed (only the foreground atlas moves). Without it nothing bounds the foreground
+    atlas where alpha is near 0 but ``alpha * r_fg`` in the composite, and it drifts up by stops
+    until a sliver of alpha lights the background (docs/measurements.md: 8 stops on the Basler clip)."""
+    a = alpha.detach().reshape(-1, 1)
+    return ((1.0 - a) * (fg_log2.float() - bg_log2.detach().float()) ** 2).mean()
+
+
 def sparsity_loss(alpha: torch.Tensor) -> torch.Tensor:
     """Prefer a small foreground: mean alpha."""
     return alpha.float().mean()

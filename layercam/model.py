@@ -38,6 +38,7 @@ class LossWeights:
     alpha_mask: float = 0.0
     mask_balance: float = 1.0  # class balance of the alpha-mask term (1: balanced, 0: plain BCE)
     bg_change: float = 0.0
+    fg_follow: float = 0.0
 
 
 class ImplicitCameraModel(nn.Module):
@@ -84,6 +85,7 @@ class ImplicitCameraModel(nn.Module):
             sparsity=lc.sparsity if m.layers > 1 else 0.0,
             alpha_flow=lc.alpha_flow if m.layers > 1 and m.flow_loss else 0.0,
             bg_change=lc.bg_change if self.scene.bg_change is not None else 0.0,
+            fg_follow=lc.fg_follow if m.layers > 1 else 0.0,
         )
 
     def training_callbacks(self, masks: bool = False, given: bool = False) -> list:
@@ -148,6 +150,10 @@ class ImplicitCameraModel(nn.Module):
         if w.bg_change > 0 and out.get("bg_change") is not None:
             terms["bg_change"] = w.bg_change * (out["bg_change"] ** 2).mean()
         if out["alpha"] is not None:
+            if w.fg_follow > 0:  # on the first 1024 samples, the atlas alone (at its coordinates, held fixed)
+                n = 1024
+                fg = self.scene.atlases[1](out["uv"][1][:n].detach())
+                terms["fg_follow"] = w.fg_follow * losses.fg_follow_loss(fg, out["layer_log2_r"][0][:n], out["alpha"][:n])
             if w.sparsity > 0:
                 terms["sparsity"] = w.sparsity * losses.sparsity_loss(out["alpha"])
             if w.alpha_mask > 0 and "mask" in batch:

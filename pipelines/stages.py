@@ -133,6 +133,8 @@ class TrainStage(Stage):
         d = ctx.cfg.section_dict("model", "scene", "tone", "blur", "loss", "train")
         d["train"].pop("checkpoint_every", None)
         d["train"].pop("device", None)
+        if ctx.cfg.model.layers == 1:
+            d["loss"].pop("fg_follow", None)  # a two-layer term: one-layer runs trained before it keep their key
         return d
 
     def run(self, ctx, out):

@@ -29,6 +29,31 @@ def test_loss_weights_follow_the_model_components():
     w = _model(layers=2).loss_weights
     assert w.flow == 100.0 and w.sparsity > 0 and w.alpha_flow > 0 and w.alpha_mask == 0.0
     assert not hasattr(_model(layers=1).tone, "loss_weights")  # the tone mapper's own .weights are its parameters
+    assert _model(layers=1).loss_weights.fg_follow == 0.0 and _model(layers=2).loss_weights.fg_follow > 0
+
+
+def test_fg_follow_moves_only_the_foreground_atlas_towards_the_background():
+    """The term that keeps the foreground's irradiance near the background's where alpha is low:
+    its gradient reaches the foreground atlas only (not its deformation, the background or alpha),
+    and a step against it brings the foreground nearer the background."""
+    torch.manual_seed(0)
+    model = _model(layers=2)
+    w = model.loss_weights
+    batch = {"xy": torch.rand(2048, 2) * 2 - 1, "t": torch.randint(0, 3, (2048,)), "rgb": torch.rand(2048, 3)}
+    keep = w.fg_follow
+    for k in vars(w):
+        setattr(w, k, 0.0)
+    w.fg_follow = keep
+    term = model.loss_dict(batch)["fg_follow"]
+    assert term.item() > 0
+    term.backward()
+    moved = {".".join(n.split(".")[1:3]) for n, p in model.named_parameters() if p.grad is not None and p.grad.abs().sum() > 0}
+    assert moved == {"atlases.1"}, moved
+    with torch.no_grad():
+        for p in model.scene.atlases[1].parameters():
+            if p.grad is not None:
+                p -= 1e-2 * p.grad / (p.grad.norm() + 1e-12)
+    assert model.loss_dict(batch)["fg_follow"].item() < term.item()
 
 
 def test_schedules_change_the_weights_over_training():

@@ -61,7 +61,9 @@ FLOOR = 0.5 / 255       # a channel at or below this is at the floor; at or abov
                         # (visibility.clip_levels: 254.5 / 255, or lower where the camera clips lower), clipped
 UNSEEN_SIGMA = 4.0      # px: the smoothing of the model where no frame saw the pixel
 MERGE_KAPPA = 3.0       # a neighbour must reproduce the frame within this many noise deviations to be merged
-MERGE_NOISE_FLOOR = 2.0 / 255  # the noise the agreement test assumes at least (compression, quantisation)
+NOISE_FLOOR = 2.0 / 255  # the noise the fidelity weight and the merge's agreement test assume at least (compression,
+                        # quantisation: an mp4's measured noise is 0.3-1 code; docs/measurements.md)
+MERGE_NOISE_FLOOR = NOISE_FLOOR
 NOISE_MARGIN = 2.0      # the clipping bounds are this many noise deviations loose
 
 
@@ -81,10 +83,11 @@ def exposure_weight(frame: np.ndarray, levels: np.ndarray | None = None) -> np.n
 def frame_noise(frame: np.ndarray, exposed: np.ndarray) -> np.ndarray:
     """Per channel ``(3,)``: the frame's own noise (:func:`layercam.visibility.noise_sigma` over its
     well-exposed pixels), not the model's residual, which a model that fits each frame's noise
-    makes small."""
+    makes small; at least ``NOISE_FLOOR`` (a compressed video's measured noise misses its
+    compression error, and the frame's own measurement would then be kept for it, flickering)."""
     from layercam.visibility import noise_sigma
 
-    return np.array([noise_sigma(frame[..., c], exposed[..., c] > 0.5) for c in range(3)], np.float32)
+    return np.maximum(np.array([noise_sigma(frame[..., c], exposed[..., c] > 0.5) for c in range(3)], np.float32), NOISE_FLOOR)
 
 
 def disagreement(frame: np.ndarray, pred: np.ndarray, sigma: np.ndarray, exposed: np.ndarray) -> np.ndarray:

@@ -354,7 +354,7 @@ class ExportStage(Stage):
 
     name = "export"
     deps = ("train",)
-    version = 4  # 2: one stage for every task, atlases included; 3: HDR faithful to the frames (layercam.faithful); 4: merged with the neighbours
+    version = 5  # 2: one stage for every task, atlases included; 3: HDR faithful to the frames (layercam.faithful); 4: merged with the neighbours; 5: noise at least 2 codes
 
     def key_material(self, ctx):
         d = ctx.cfg.section_dict("export")

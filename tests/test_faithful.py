@@ -171,3 +171,16 @@ def test_clipped_in_every_frame_keeps_to_the_shortest_exposures_clipping_point()
     assert np.allclose(clip["log2_r"][:, :12], -3.0, atol=1e-4) and np.allclose(kept["log2_r"][:, :12], -3.0, atol=1e-4)
     with pytest.raises(ValueError, match="clipped-everywhere"):
         faithful.faithful_log2(model, frames[0], 0, levels, frames, corr=dict(corr, info=dict(corr["info"])), clipped="bright")
+
+
+def test_a_compressed_frames_small_measured_noise_is_floored():
+    """An mp4's measured noise misses its compression error: a frame whose measured noise is 0.3
+    code and which the model misses by 1.5 codes everywhere keeps the model (weight near 0), while a
+    real disagreement of 12 codes still takes the frame."""
+    rng = np.random.default_rng(0)
+    frame = np.clip(0.5 + rng.normal(0, 0.3 / 255, (32, 32, 3)), 0, 1).astype(np.float32)
+    w, info = faithful.fidelity_weight(frame, frame + 1.5 / 255)
+    assert min(info["noise"]) >= faithful.NOISE_FLOOR - 1e-5
+    assert float(w.mean()) < 0.05
+    w_far, _ = faithful.fidelity_weight(frame, frame + 12.0 / 255)
+    assert float(w_far.mean()) > 0.9

@@ -63,7 +63,6 @@ UNSEEN_SIGMA = 4.0      # px: the smoothing of the model where no frame saw the 
 MERGE_KAPPA = 3.0       # a neighbour must reproduce the frame within this many noise deviations to be merged
 NOISE_FLOOR = 2.0 / 255  # the noise the fidelity weight and the merge's agreement test assume at least (compression,
                         # quantisation: an mp4's measured noise is 0.3-1 code; docs/measurements.md)
-MERGE_NOISE_FLOOR = NOISE_FLOOR
 NOISE_MARGIN = 2.0      # the clipping bounds are this many noise deviations loose
 
 
@@ -202,7 +201,7 @@ def merge_neighbours(own: tuple[np.ndarray, np.ndarray], neighbours: list[tuple[
     (``merge_weight``: photon noise, whose variance in log irradiance falls as the exposure
     grows). A neighbour counts only as far as it agrees with ``frame``: through the learned camera
     at ``log2_dt`` it must reproduce ``frame`` within ``MERGE_KAPPA`` times the frame's noise
-    ``sigma (3,)`` (at least ``MERGE_NOISE_FLOOR``), averaged in a ``WINDOW_SIGMA`` window over the
+    ``sigma (3,)`` (at least ``NOISE_FLOOR``), averaged in a ``WINDOW_SIGMA`` window over the
     channels the frame exposed well and, as bounds, those it clipped (the neighbour must be at least
     as bright) or left at the floor (at most as dark); where it has none of these nearby the
     neighbour cannot be checked and is not merged. ``exposed``: the frame's
@@ -223,7 +222,7 @@ def merge_neighbours(own: tuple[np.ndarray, np.ndarray], neighbours: list[tuple[
     counted = (good | clipped | floor).astype(np.float32)
     den_r = cv2.GaussianBlur(counted.sum(-1), (0, 0), WINDOW_SIGMA)  # how much of the window can be checked
     checkable = den_r > 0.5
-    s = np.maximum(np.asarray(sigma, np.float32), MERGE_NOISE_FLOOR)
+    s = np.maximum(np.asarray(sigma, np.float32), NOISE_FLOOR)
     for z_n, a_n, fl in neighbours:
         ok = np.isfinite(fl).all(-1)
         move = np.where(ok[..., None], fl, 0.0).astype(np.float32)

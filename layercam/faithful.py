@@ -286,11 +286,11 @@ def faithful_log2(model, frame: np.ndarray, t: int, levels: np.ndarray | None = 
     above, below, bound = unseen(model, out["log2_r"], dts, levels, stack)
     hidden = above | below
     z = np.where(hidden, smooth_within(out["log2_r"], hidden), z)
-    z = np.where(below, np.minimum(z, bound), z)  # black in every frame: darker than the longest exposure's floor
-    if clipped == "clip":  # clipped in every frame: no brighter than the shortest exposure's clipping point
-        z = np.where(above, np.minimum(z, bound), z)
-    elif clipped != "model":
+    if clipped not in ("model", "clip"):
         raise ValueError(f"unknown clipped-everywhere fill {clipped!r}")
+    # black in every frame: darker than the longest exposure's floor; with "clip", clipped in every
+    # frame: no brighter than the shortest exposure's clipping point (``bound`` holds both)
+    z = np.where(below | (above & (clipped == "clip")), np.minimum(z, bound), z)
     lower, upper = clip_bounds(model, frame, log2_dt, levels, info.pop("sigma"))
     if fill is not None:  # a neighbour that saw it says more than the learned curve's shoulder
         lower = np.where(fill[1] > 0.5, -np.inf, lower)

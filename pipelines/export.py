@@ -360,8 +360,6 @@ class ExportStage(Stage):
         d = ctx.cfg.section_dict("export")
         if ctx.task != "fuse-stack":
             d["export"].pop("reference")  # only a stack is fused into one view
-        if d["export"]["clipped_everywhere"] == "model":
-            d["export"].pop("clipped_everywhere")  # the default, what every run did before the setting: no new key material
         return {**d, "writers": list(writers_for(ctx.task))}
 
     def output_names(self, ctx):

@@ -204,6 +204,9 @@ class SegmentConfig:
     ``grabcut``: GrabCut iterations that tighten the masks to colour edges (0: off). ``foreground``:
     the foreground layer's starting mapping, the object's own motion or the identity.
     ``margin``: the part of the foreground atlas the masked object fills at the start.
+    ``refine``: fit the model once on the motion masks, take new masks from where each frame differs
+    from its background layer near the fitted alpha (:func:`layercam.segment.refine_masks`, residual
+    above ``refine_threshold`` in pixel values) and fit again on them: twice the training time.
     """
 
     abs_px: float = setting(0.5, 0.0)
@@ -221,6 +224,8 @@ class SegmentConfig:
     grabcut: int = setting(4, 0, 32)
     foreground: Literal["object", "identity"] = "object"
     margin: float = setting(0.6, above=0.0, hi=1.0)
+    refine: bool = False
+    refine_threshold: float = setting(0.1, above=0.0, hi=1.0)
 
 
 @dataclass

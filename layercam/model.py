@@ -88,7 +88,7 @@ class ImplicitCameraModel(nn.Module):
             fg_follow=lc.fg_follow if m.layers > 1 else 0.0,
         )
 
-    def training_callbacks(self, masks: bool = False, given: bool = False) -> list:
+    def training_callbacks(self, masks: bool = False, given: bool = False, refined: bool = False) -> list:
         """The schedules of this model's loss weights over ``cfg.train.steps``: the flow terms decay
         to 0 by ``loss.flow_decay_end``; the deformation is fitted to its bootstrap mapping for the
         first ``train.bootstrap_steps``; with ``masks`` (``given`` by the user, or from motion
@@ -98,13 +98,15 @@ class ImplicitCameraModel(nn.Module):
         steps, since balanced all through it keeps a halo around a thin object (DAVIS at 0.33, fast:
         libby alpha IoU 0.766 -> 0.853, parkour 0.905 -> 0.945). Motion masks stay balanced: they
         miss parts of the object, which the halo partly covers (plain after the bootstrap steps:
-        libby 0.388 -> 0.352, cows 0.762 -> 0.756, car-roundabout 0.785 -> 0.789, parkour 0.702 -> 0.707)."""
+        libby 0.388 -> 0.352, cows 0.762 -> 0.756, car-roundabout 0.785 -> 0.789, parkour 0.702 -> 0.707).
+        ``refined`` masks (``segment.refine``) are balanced during the bootstrap steps only, like given
+        ones, and taper to ``loss.mask_motion`` like motion masks."""
         from layercam.train import BootstrapPhase, FlowDecay, MaskTaper
 
         c = self.cfg
         if masks and self.scene.alpha is not None:
             self.loss_weights.alpha_mask = 1.0
-        return [FlowDecay(c.loss.flow_decay_end), BootstrapPhase(c.train.bootstrap_steps, keys=("bootstrap", "mask_balance") if given else ("bootstrap",)), MaskTaper(c.train.bootstrap_steps, c.loss.flow_decay_end, c.loss.mask_given if given else c.loss.mask_motion)]
+        return [FlowDecay(c.loss.flow_decay_end), BootstrapPhase(c.train.bootstrap_steps, keys=("bootstrap", "mask_balance") if given or refined else ("bootstrap",)), MaskTaper(c.train.bootstrap_steps, c.loss.flow_decay_end, c.loss.mask_given if given else c.loss.mask_motion)]
 
     # -- rendering ---------------------------------------------------------------------------
     def irradiance(self, xy: torch.Tensor, t: torch.Tensor) -> dict:

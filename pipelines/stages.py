@@ -70,7 +70,10 @@ class BootstrapStage(Stage):
         if m.layers > 1:
             from layercam import segment
 
-            d["foreground"] = {**ctx.cfg.section_dict("segment"), "segment": segment.SEGMENT_VERSION}
+            seg = ctx.cfg.section_dict("segment")
+            for k in ("refine", "refine_threshold"):  # read by the refine stage, not here
+                seg.pop(k, None)
+            d["foreground"] = {**seg, "segment": segment.SEGMENT_VERSION}
         return d
 
     def run(self, ctx, out):
@@ -135,7 +138,17 @@ class TrainStage(Stage):
         d["train"].pop("device", None)
         if ctx.cfg.model.layers == 1:
             d["loss"].pop("fg_follow", None)  # a two-layer term: one-layer runs trained before it keep their key
+        if "refine" in ctx.keys and self.name == "train":
+            d["refined_masks"] = ctx.keys["refine"]  # trained on the refine stage's masks
         return d
+
+    def masks(self, ctx):
+        """The masks alpha is fitted to and whether the user gave them: given, else refined, else motion."""
+        if ctx.masks is not None:
+            return ctx.masks, "given"
+        if self.name == "train" and "refine" in ctx.results:
+            return ctx.results["refine"]["masks"], "refined"
+        return ctx.results["bootstrap"].get("masks"), "motion"
 
     def run(self, ctx, out):
         import torch
@@ -159,10 +172,10 @@ class TrainStage(Stage):
             ctx.say(f"[train] blur PSFs {'centred on their pixel (static scene)' if cfg.blur.centre == 'on' else 'free to shift (moving scene)'}; blur.centre=on|off overrides")
         if cfg.model.tone_mapper == "learned" and not cfg.tone.monotone:
             fit_init_curve(model.tone, cfg.tone.init_slope, seed=cfg.train.seed)
-        masks = ctx.masks if ctx.masks is not None else ctx.results["bootstrap"].get("masks")  # given, else motion masks
+        masks, source = self.masks(ctx)
         fl = ctx.flow if cfg.model.flow_loss else None
         dev = resolve_device(cfg.train.device)
-        ctx.say(f"[train] device: {device_line(cfg.train.device, dev)}")
+        ctx.say(f"[{self.name}] device: {device_line(cfg.train.device, dev)}")
         model.to(dev)
         if cfg.train.compile:
             for atlas in model.scene.atlases:
@@ -171,14 +184,16 @@ class TrainStage(Stage):
             ctx.clip.frames, *(fl[k] for k in ("fw", "bw", "fw_ok", "bw_ok")) if fl else (None,) * 4,
             masks=masks, device=dev, seed=distributed.rank_seed(cfg.train.seed),
         )
-        callbacks = model.training_callbacks(masks is not None, given=ctx.masks is not None)
-        callbacks += [make(model) for make in ctx.train_callbacks]  # e.g. the benchmark's quality probe
+        callbacks = model.training_callbacks(masks is not None, given=source == "given", refined=source == "refined")
+        if self.name == "train":
+            callbacks += [make(model) for make in ctx.train_callbacks]  # e.g. the benchmark's quality probe
         tcfg = dataclasses.replace(cfg.train, batch=distributed.rank_batch(cfg.train.batch))  # each rank's share
-        trainer = Trainer(model, sampler, tcfg, out / "ckpt.pt", callbacks, progress=ctx.progress, desc=f"{ctx.task} train")
+        trainer = Trainer(model, sampler, tcfg, out / "ckpt.pt", callbacks, progress=ctx.progress, desc=f"{ctx.task} {self.name}")
         if (out / "ckpt.pt").exists():
-            ctx.say(f"[train] resuming from {out / 'ckpt.pt'}")
+            ctx.say(f"[{self.name}] resuming from {out / 'ckpt.pt'}")
         res = trainer.fit()  # its last checkpoint (out / "ckpt.pt") holds the final model
-        ctx.model = model.eval()
+        if self.name == "train":
+            ctx.model = model.eval()
         losses = [h for h in res.history if "total" in h]
         return {
             "steps": res.steps,
@@ -220,6 +235,65 @@ class TrainStage(Stage):
             model.load_state_dict(torch.load(out / "ckpt.pt", map_location="cpu", weights_only=False)["model"])
             ctx.model = model.eval()
         return summary
+
+
+class PrefitStage(TrainStage):
+    """``segment.refine``: the first fit, on the motion masks, whose background layer the refine
+    stage compares each frame with. The same training as the final one; its model is read from
+    ``ckpt.pt`` by the refine stage and is not the run's model."""
+
+    name = "prefit"
+    version = 1
+
+    def load(self, ctx, out, summary):
+        return summary
+
+
+class RefineStage(Stage):
+    """``segment.refine``: new foreground masks from the first fit (:func:`layercam.segment.refine_masks`),
+    saved as ``masks.npz`` and ``masks/`` PNGs; the train stage fits alpha to them."""
+
+    name = "refine"
+    deps = ("bootstrap", "prefit")
+    version = 1
+
+    def key_material(self, ctx):
+        return {"threshold": ctx.cfg.segment.refine_threshold}
+
+    def run(self, ctx, out):
+        import torch
+
+        from layercam import segment
+        from layercam.metrics import iou
+        from layercam.render import render_frame, tone_map_log2
+
+        model = TrainStage.build(ctx, TrainStage.model_cfg(ctx))
+        model.load_state_dict(torch.load(ctx.dirs["prefit"] / "ckpt.pt", map_location="cpu", weights_only=False)["model"])
+        model.eval()
+        clip = ctx.clip
+        bg, alpha = [], []
+        with torch.no_grad():
+            for t in range(clip.T):
+                r = render_frame(model, t, (clip.H, clip.W), what=("layers", "alpha"))
+                dt = float(model.exposure(torch.tensor([t])).reshape(-1)[0])
+                bg.append(tone_map_log2(model, r["layers"][0], dt))
+                alpha.append(r["alpha"])
+        masks = segment.refine_masks(clip.frames, np.stack(bg), np.stack(alpha), ctx.cfg.segment.refine_threshold)
+        segment.save_masks(out, masks)
+        boot = ctx.results["bootstrap"].get("masks")
+        agree = float(np.mean([iou(a, b > 0.5) for a, b in zip(masks, boot)])) if boot is not None else None
+        ctx.say(f"[refine] masks from the first fit's background residual: mean coverage {masks.mean():.3f} (motion masks {boot.mean():.3f}, IoU with them {agree:.3f}), saved in {out / 'masks'}")
+        return {"coverage": float(masks.mean()), "iou_with_motion_masks": agree}
+
+    def load(self, ctx, out, summary):
+        with np.load(out / "masks.npz") as z:
+            return {**summary, "masks": z["masks"].astype(np.float32)}
+
+
+def refine_wanted(ctx) -> bool:
+    """``segment.refine`` applies: two layers whose masks came from the motion segmentation."""
+    boot = ctx.results.get("bootstrap", {})
+    return bool(ctx.cfg.segment.refine) and ctx.cfg.model.layers > 1 and ctx.masks is None and boot.get("masks") is not None
 
 
 def resolve_device(name: str) -> str:

@@ -15,7 +15,7 @@ from layercam.io.lock import run_lock
 from layercam.pipelines import publish
 from layercam.pipelines.export import ExportStage
 from layercam.pipelines.runner import Context, output_sources, run_stages, write_json
-from layercam.pipelines.stages import BootstrapStage, FlowStage, TrainStage
+from layercam.pipelines.stages import BootstrapStage, FlowStage, PrefitStage, RefineStage, TrainStage, refine_wanted
 
 
 def all_output_names() -> list[str]:
@@ -57,7 +57,10 @@ def _run(ctx: Context, stages: list, t0: float) -> None:
         ctx.measures["masks_given"] = ctx.masks is not None and bool(np.asarray(ctx.masks).any())
         ctx.cfg, ctx.reasons = analyse.decide(cfg, clip, exposures, task, ctx.measures)
         ctx.say("model chosen:\n" + analyse.format_table(ctx.cfg, ctx.reasons))
-        run_stages(ctx, stages[1:])
+        run_stages(ctx, stages[1:2])  # the bootstrap: motion masks for two layers
+        if refine_wanted(ctx):  # segment.refine: a first fit, and masks from its background residual
+            run_stages(ctx, [PrefitStage(), RefineStage()])
+        run_stages(ctx, stages[2:])
     except LayercamError as e:
         if getattr(e, "events", None) is not None:  # training stopped: say why in report_failed.json
             write_report(ctx, time.perf_counter() - t0, "report_failed.json", {"error": str(e), "train": {"stopped": True, "events": e.events}})
@@ -84,6 +87,7 @@ def write_report(ctx: Context, wall: float, name: str | None = "report.json", ex
         "wall_seconds": round(wall, 2),
         "train": train,
         "flow": ctx.results.get("flow", {}),
+        **({"refine": {k: v for k, v in ctx.results["refine"].items() if k != "masks"}} if "refine" in ctx.results else {}),
         "export": {k: v for k, v in ctx.results.get("export", {}).items() if not k.endswith("_path")},
         "metrics": ctx.results.get("evaluate", {}).get("metrics"),
         "baselines": ctx.results.get("evaluate", {}).get("baselines"),

@@ -284,8 +284,8 @@ def refine_masks(frames: np.ndarray, background: np.ndarray, alpha: np.ndarray, 
     """Foreground masks from a first fit of the two-layer model (``segment.refine``): where the frame
     differs from its background layer seen through the camera, near the fitted alpha.
 
-    ``frames``, ``background`` ``(T, H, W, 3)`` pixel values in [0, 1] (the background layer rendered
-    through the learned camera at each frame's exposure), ``alpha`` ``(T, H, W)``. The background
+    ``frames``, ``background`` ``(T, H, W, 3)`` pixel values in [0, 1] (the frames and the background
+    layer through the learned camera at one exposure), ``alpha`` ``(T, H, W)``. The background
     atlas holds what every frame saw of the background, so a leg the motion masks missed differs from
     it and the wall they took in does not (the residual's largest channel, smoothed 1 px). Per
     frame: alpha > 0.5 eroded by 2% of the short side is kept (an object's inside can match a

@@ -131,6 +131,7 @@ class TrainStage(Stage):
     deps = ("flow", "bootstrap")
     version = 4  # 2: alpha trained on bootstrap masks with balanced BCE, tapered (MaskTaper); 3: grid at most one cell per pixel with a blur generator; 4: sparse grid levels, row-wise Adam (layercam/optim.py)
     all_ranks = True  # data-parallel under torch.distributed (layercam/distributed.py)
+    final = True      # the run's model (ctx.model), probed by the benchmark's callbacks; not the refine option's first fit
 
     def key_material(self, ctx):
         d = ctx.cfg.section_dict("model", "scene", "tone", "blur", "loss", "train")
@@ -138,15 +139,15 @@ class TrainStage(Stage):
         d["train"].pop("device", None)
         if ctx.cfg.model.layers == 1:
             d["loss"].pop("fg_follow", None)  # a two-layer term: one-layer runs trained before it keep their key
-        if "refine" in ctx.keys and self.name == "train":
-            d["refined_masks"] = ctx.keys["refine"]  # trained on the refine stage's masks
+        if "refine" in ctx.keys:  # only after the first fit: trained on the refine stage's masks
+            d["refined_masks"] = ctx.keys["refine"]
         return d
 
     def masks(self, ctx):
         """The masks alpha is fitted to and whether the user gave them: given, else refined, else motion."""
         if ctx.masks is not None:
             return ctx.masks, "given"
-        if self.name == "train" and "refine" in ctx.results:
+        if "refine" in ctx.results:
             return ctx.results["refine"]["masks"], "refined"
         return ctx.results["bootstrap"].get("masks"), "motion"
 
@@ -185,14 +186,14 @@ class TrainStage(Stage):
             masks=masks, device=dev, seed=distributed.rank_seed(cfg.train.seed),
         )
         callbacks = model.training_callbacks(masks is not None, given=source == "given", refined=source == "refined")
-        if self.name == "train":
+        if self.final:
             callbacks += [make(model) for make in ctx.train_callbacks]  # e.g. the benchmark's quality probe
         tcfg = dataclasses.replace(cfg.train, batch=distributed.rank_batch(cfg.train.batch))  # each rank's share
         trainer = Trainer(model, sampler, tcfg, out / "ckpt.pt", callbacks, progress=ctx.progress, desc=f"{ctx.task} {self.name}")
         if (out / "ckpt.pt").exists():
             ctx.say(f"[{self.name}] resuming from {out / 'ckpt.pt'}")
         res = trainer.fit()  # its last checkpoint (out / "ckpt.pt") holds the final model
-        if self.name == "train":
+        if self.final:
             ctx.model = model.eval()
         losses = [h for h in res.history if "total" in h]
         return {
@@ -226,14 +227,19 @@ class TrainStage(Stage):
 
         return build_model(cfg, model_meta(ctx))
 
+    @classmethod
+    def trained(cls, ctx, out):
+        """The model a training stage's folder ``out`` holds (its last checkpoint), in eval mode."""
+        import torch
+
+        model = cls.build(ctx, cls.model_cfg(ctx))
+        model.load_state_dict(torch.load(out / "ckpt.pt", map_location="cpu", weights_only=False)["model"])
+        return model.eval()
+
     def load(self, ctx, out, summary):
         """A cached training: the model rebuilt once from its final checkpoint into ``ctx.model``."""
         if ctx.model is None:
-            import torch
-
-            model = self.build(ctx, self.model_cfg(ctx))
-            model.load_state_dict(torch.load(out / "ckpt.pt", map_location="cpu", weights_only=False)["model"])
-            ctx.model = model.eval()
+            ctx.model = self.trained(ctx, out)
         return summary
 
 
@@ -244,6 +250,7 @@ class PrefitStage(TrainStage):
 
     name = "prefit"
     version = 1
+    final = False
 
     def load(self, ctx, out, summary):
         return summary
@@ -267,28 +274,25 @@ class RefineStage(Stage):
         from layercam.metrics import iou
         from layercam.render import inverse_tone, render_frame, tone_map_log2
 
-        model = TrainStage.build(ctx, TrainStage.model_cfg(ctx))
-        model.load_state_dict(torch.load(ctx.dirs["prefit"] / "ckpt.pt", map_location="cpu", weights_only=False)["model"])
-        model.eval()
+        model = TrainStage.trained(ctx, ctx.dirs["prefit"])
         clip = ctx.clip
         # frame and background compared through the camera at one exposure (the clip's mean), so that
         # a threshold in pixel values means the same in a short and a long frame: at each frame's own
         # exposure the alternating short frames' masks came out smaller (synthetic moving object,
         # seed 2: 1305, 1061, 1220, 1068, ... pixels against 1161-1173 true)
         with torch.no_grad():
-            dts = [float(model.exposure(torch.tensor([t])).reshape(-1)[0]) for t in range(clip.T)]
-        common = float(np.mean(dts))
+            dts = model.exposure.values().float().cpu().numpy()
+        common = float(dts.mean())
         seen, bg, alpha = [], [], []
-        with torch.no_grad():
-            for t in range(clip.T):
-                r = render_frame(model, t, (clip.H, clip.W), what=("layers", "alpha"))
-                bg.append(tone_map_log2(model, r["layers"][0], common))
-                seen.append(tone_map_log2(model, inverse_tone(model, clip.frames[t], dts[t]), common))
-                alpha.append(r["alpha"])
+        for t in range(clip.T):  # render_frame, tone_map_log2 and inverse_tone run without gradients
+            r = render_frame(model, t, (clip.H, clip.W), what=("layers", "alpha"))
+            bg.append(tone_map_log2(model, r["layers"][0], common))
+            seen.append(tone_map_log2(model, inverse_tone(model, clip.frames[t], float(dts[t])), common))
+            alpha.append(r["alpha"])
         masks = segment.refine_masks(np.stack(seen), np.stack(bg), np.stack(alpha), ctx.cfg.segment.refine_threshold)
         segment.save_masks(out, masks)
         boot = ctx.results["bootstrap"].get("masks")
-        agree = float(np.mean([iou(a, b > 0.5) for a, b in zip(masks, boot)])) if boot is not None else None
+        agree = float(np.mean([iou(a, b > 0.5) for a, b in zip(masks, boot)]))  # refine_wanted: the bootstrap made masks
         ctx.say(f"[refine] masks from the first fit's background residual: mean coverage {masks.mean():.3f} (motion masks {boot.mean():.3f}, IoU with them {agree:.3f}), saved in {out / 'masks'}")
         return {"coverage": float(masks.mean()), "iou_with_motion_masks": agree}
 

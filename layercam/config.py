@@ -242,6 +242,8 @@ class ExportConfig:
     clipped_everywhere: Literal["model", "clip"] = "model"  # faithful, where every frame clipped: the model's level (smoothed) |
                                             # at most the shortest exposure's clipping point, the least the data says (docs/measurements.md:
                                             # a hard-clipping camera gains, a soft filmic shoulder loses)
+    denoise: Literal["auto", "on", "off"] = AUTO  # faithful: an adaptive Wiener filter against the frame's own noise read
+                                            # through the camera (faithful.denoise_log2); auto: on for a stack's fused view
 
 
 @dataclass

@@ -167,6 +167,9 @@ def faithful_hdr(ctx: Context, model, ts) -> Iterator[tuple[int, np.ndarray, dic
     if merging and mode == "auto":
         ctx.say("[export] static camera: each frame merged with its neighbours where they agree with it (export.merge_neighbours=off keeps each frame's own)")
 
+    dmode = ctx.cfg.export.denoise
+    denoise = dmode == "on" or (dmode == "auto" and ctx.task == "fuse-stack")
+
     def corr(t: int) -> dict:
         if t not in kept:
             kept[t] = correction(model, frames[t], t, lv, ctx.cfg.export.chunk)
@@ -183,7 +186,7 @@ def faithful_hdr(ctx: Context, model, ts) -> Iterator[tuple[int, np.ndarray, dic
                 if merging:
                     still = np.zeros_like(fl) if static else fl  # a static camera: the same scene point, whatever the flow says
                     merge.append((c["model_log2_r"] + c["weight"] * c["delta"], merge_weight(c["exposed"], c["log2_dts"][n], c["log2_dts"]), still))
-        res = faithful_log2(model, frames[t], t, lv, frames if static else None, corr=corr(t), fill=neighbour_fill(neighbours), merge=merge, clipped=ctx.cfg.export.clipped_everywhere)
+        res = faithful_log2(model, frames[t], t, lv, frames if static else None, corr=corr(t), fill=neighbour_fill(neighbours), merge=merge, clipped=ctx.cfg.export.clipped_everywhere, denoise=denoise)
         for k in [k for k in kept if k < t]:
             del kept[k]
         yield t, np.exp2(res["log2_r"]).astype(np.float32), res["info"]

@@ -184,3 +184,46 @@ def test_a_compressed_frames_small_measured_noise_is_floored():
     assert float(w.mean()) < 0.05
     w_far, _ = faithful.fidelity_weight(frame, frame + 12.0 / 255)
     assert float(w_far.mean()) > 0.9
+
+
+def test_noise_log2_reads_the_frames_noise_through_the_camera():
+    """The variance the frame's noise puts into its log irradiance is ``(sigma dz/dc)^2``: for a
+    gamma camera ``dz/dc = 2.2 / (c ln 2)``, larger in the darks; none where the frame clipped or
+    sat at the floor."""
+    import torch
+
+    model = torch.nn.Module()
+    model.tone = _GammaTone()
+    frame = np.full((4, 8, 3), 0.5, np.float32)
+    frame[1] = 0.1
+    frame[2, :, 0] = 1.0
+    frame[3, :, 1] = 0.0
+    sigma = np.full(3, 0.01, np.float32)
+    var = faithful.noise_log2(model, frame, 0.0, sigma, faithful.exposure_weight(frame))
+    want = (0.01 * 2.2 / (frame * np.log(2))) ** 2
+    assert np.allclose(var[0], want[0], rtol=0.03) and np.allclose(var[1], want[1], rtol=0.03)
+    assert var[1, 0, 0] > 20 * var[0, 0, 0]
+    assert (var[2, :, 0] == 0).all() and (var[3, :, 1] == 0).all() and (var[2, :, 1] > 0).all()
+
+
+def test_denoise_removes_the_noise_and_keeps_edges_and_texture_above_it():
+    """Lee's filter with the true noise variance: on flat regions the error to the clean signal falls
+    to under half; a step of 30 noise deviations and a texture of 5 keep their contrast; where the
+    variance is 0 nothing changes."""
+    rng = np.random.default_rng(0)
+    h, w, s = 64, 64, 0.1
+    clean = np.zeros((h, w, 3), np.float32)
+    clean[:, 32:] = 3.0  # a step: 30 deviations
+    clean[:, 48:] += 0.5 * ((np.arange(16) // 2) % 2)[None, :, None]  # a texture of 2 px stripes, 5 deviations
+    z = (clean + rng.normal(0, s, clean.shape)).astype(np.float32)
+    var = np.full(z.shape, s * s, np.float32)
+    out = faithful.denoise_log2(z, var)
+    flat = np.s_[:, 4:26]
+    rms = lambda a: float(np.sqrt(((a - clean)[flat] ** 2).mean()))  # noqa: E731
+    assert rms(out) < 0.5 * rms(z)
+    step = float(out[:, 33:36].mean() - out[:, 28:31].mean())
+    assert abs(step - 3.0) < 0.1
+    stripes = out[:, 50:62].mean((0, 2))
+    assert float(stripes[0::4].mean() - stripes[2::4].mean()) > 0.35  # most of the 0.5 contrast kept (columns 50, 51 are bright)
+    var[:, :16] = 0.0
+    assert np.array_equal(faithful.denoise_log2(z, var)[:, :16], z[:, :16])

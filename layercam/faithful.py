@@ -80,14 +80,14 @@ def exposure_weight(frame: np.ndarray, levels: np.ndarray | None = None) -> np.n
     return (s(lo) * s(hi)).astype(np.float32)
 
 
-def frame_noise(frame: np.ndarray, exposed: np.ndarray) -> np.ndarray:
+def frame_noise(frame: np.ndarray, exposed: np.ndarray, floor: float = NOISE_FLOOR) -> np.ndarray:
     """Per channel ``(3,)``: the frame's own noise (:func:`layercam.visibility.noise_sigma` over its
     well-exposed pixels), not the model's residual, which a model that fits each frame's noise
-    makes small; at least ``NOISE_FLOOR`` (a compressed video's measured noise misses its
+    makes small; at least ``floor`` (``NOISE_FLOOR``: a compressed video's measured noise misses its
     compression error, and the frame's own measurement would then be kept for it, flickering)."""
     from layercam.visibility import noise_sigma
 
-    return np.maximum(np.array([noise_sigma(frame[..., c], exposed[..., c] > 0.5) for c in range(3)], np.float32), NOISE_FLOOR)
+    return np.maximum(np.array([noise_sigma(frame[..., c], exposed[..., c] > 0.5) for c in range(3)], np.float32), floor)
 
 
 def disagreement(frame: np.ndarray, pred: np.ndarray, sigma: np.ndarray, exposed: np.ndarray) -> np.ndarray:
@@ -108,11 +108,12 @@ def fidelity_weight(frame: np.ndarray, pred: np.ndarray, kappa: float = KAPPA, l
     ``pred`` to keep (the module's docstring), and a summary ``{"noise", "mean_weight"}``;
     ``levels (3,)``: the clipping levels (:func:`layercam.visibility.clip_levels`)."""
     exposed = exposure_weight(frame, levels)
-    sigma = frame_noise(frame, exposed)
+    measured = frame_noise(frame, exposed, 0.0)
+    sigma = np.maximum(measured, NOISE_FLOOR)
     rho = disagreement(frame, pred, sigma, exposed)
     wiener = np.clip(1.0 - kappa / np.maximum(rho, 1e-6), 0.0, 1.0)
     w = wiener[..., None] * exposed
-    return w.astype(np.float32), {"noise": [round(float(s), 5) for s in sigma], "mean_weight": round(float(w.mean()), 4), "sigma": sigma}
+    return w.astype(np.float32), {"noise": [round(float(s), 5) for s in sigma], "mean_weight": round(float(w.mean()), 4), "sigma": sigma, "sigma_measured": measured}
 
 
 def _levels(model, log2_dt: float, levels: np.ndarray, floor=FLOOR) -> tuple[np.ndarray, np.ndarray]:
@@ -239,7 +240,8 @@ def merge_neighbours(own: tuple[np.ndarray, np.ndarray], neighbours: list[tuple[
 
 
 def noise_log2(model, frame: np.ndarray, log2_dt: float, sigma: np.ndarray, exposed: np.ndarray) -> np.ndarray:
-    """``(H, W, 3)``: the variance that ``frame``'s own noise ``sigma (3,)`` (in pixel values) puts
+    """``(H, W, 3)``: the variance that ``frame``'s own noise ``sigma (3,)`` (in pixel values, as
+    measured: :func:`frame_noise` without the floor) puts
     into its log2 irradiance read through the inverse of the learned camera at ``log2_dt``:
     ``(sigma * dz/dc)^2``, the slope by a central difference; 0 where the frame does not expose the
     channel well (``exposed`` below 0.5: there the model or a neighbour stands in)."""
@@ -332,8 +334,9 @@ def faithful_log2(model, frame: np.ndarray, t: int, levels: np.ndarray | None = 
     # frame: no brighter than the shortest exposure's clipping point (``bound`` holds both)
     z = np.where(below | (above & (clipped == "clip")), np.minimum(z, bound), z)
     sigma = info.pop("sigma")
-    if denoise:
-        z = denoise_log2(z, noise_log2(model, frame, log2_dt, sigma, c["exposed"]))
+    measured = info.pop("sigma_measured", sigma)
+    if denoise:  # against the noise measured, not the floor the Wiener weight assumes (on a clean synthetic stack the floor took 0.2 dB)
+        z = denoise_log2(z, noise_log2(model, frame, log2_dt, measured, c["exposed"]))
     lower, upper = clip_bounds(model, frame, log2_dt, levels, sigma)
     if fill is not None:  # a neighbour that saw it says more than the learned curve's shoulder
         lower = np.where(fill[1] > 0.5, -np.inf, lower)

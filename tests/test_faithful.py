@@ -227,3 +227,19 @@ def test_denoise_removes_the_noise_and_keeps_edges_and_texture_above_it():
     assert float(stripes[0::4].mean() - stripes[2::4].mean()) > 0.35  # most of the 0.5 contrast kept (columns 50, 51 are bright)
     var[:, :16] = 0.0
     assert np.array_equal(faithful.denoise_log2(z, var)[:, :16], z[:, :16])
+
+
+
+def test_an_isolated_floor_pixel_bounds_nothing_a_dark_region_does():
+    """A channel at the floor bounds the irradiance from above where its neighbourhood is dark too;
+    a single pixel noise took to 0 amid mid-grey bounds nothing (it came out as a black speck)."""
+    import torch
+
+    model = torch.nn.Module()
+    model.tone = _GammaTone()
+    frame = np.full((12, 12, 3), 0.3, np.float32)
+    frame[6, 6, 0] = 0.0  # noise took it to 0
+    frame[:, :3] = 0.0  # a dark region
+    lower, upper = faithful.clip_bounds(model, frame, 0.0, np.full(3, 254.5 / 255, np.float32), np.full(3, 0.01, np.float32))
+    assert np.isinf(upper[6, 6, 0]) and np.isfinite(upper[:, :2]).all()
+    assert np.isinf(upper[:, 3:]).all()

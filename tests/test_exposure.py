@@ -16,7 +16,7 @@ from layercam.io import Clip, Exposures, load_clip, parse_exposures
 
 from props import EV, _finite, props
 
-DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
+from conftest import SHARED_DATA as DATA  # noqa: E402 - $LAYERCAM_DATA, else beside the checkout
 needs_data = pytest.mark.skipif(not DATA.is_dir(), reason=f"shared data folder {DATA} is absent")
 
 

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
 import torch
@@ -16,7 +14,8 @@ from layercam.io import Clip, Exposures, load_clip, parse_exposures
 
 from props import EV, _finite, props
 
-from conftest import SHARED_DATA as DATA  # noqa: E402 - $LAYERCAM_DATA, else beside the checkout
+from conftest import SHARED_DATA as DATA  # $LAYERCAM_DATA, else beside the checkout
+
 needs_data = pytest.mark.skipif(not DATA.is_dir(), reason=f"shared data folder {DATA} is absent")
 
 

@@ -17,7 +17,7 @@ from layercam.io.images import read_exif_exposure
 
 from props import props
 
-from conftest import SHARED_DATA as DATA  # noqa: E402 - $LAYERCAM_DATA, else beside the checkout
+from conftest import SHARED_DATA as DATA  # $LAYERCAM_DATA, else beside the checkout
 needs_data = pytest.mark.skipif(not DATA.is_dir(), reason=f"shared data folder {DATA} is absent")
 
 

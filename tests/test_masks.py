@@ -12,7 +12,7 @@ from layercam.errors import LayercamError
 from layercam.io import Clip, load_clip
 from layercam.io.masks import list_masks, load_masks
 
-from conftest import SHARED_DATA as DATA  # noqa: E402 - $LAYERCAM_DATA, else beside the checkout
+from conftest import SHARED_DATA as DATA  # $LAYERCAM_DATA, else beside the checkout
 LIBBY = DATA / "layers_davis_libby"
 
 

@@ -341,7 +341,7 @@ def faithful_log2(model, frame: np.ndarray, t: int, levels: np.ndarray | None = 
     z = np.where(below | (above & (clipped == "clip")), np.minimum(z, bound), z)
     sigma = info.pop("sigma")
     measured = info.pop("sigma_measured", sigma)
-    if denoise:  # against the noise measured, not the floor the Wiener weight assumes (on a clean synthetic stack the floor took 0.2 dB)
+    if denoise:  # the noise as measured: with the Wiener weight's floor a clean synthetic stack lost 0.2 dB
         z = denoise_log2(z, noise_log2(model, frame, log2_dt, measured, c["exposed"]))
     lower, upper = clip_bounds(model, frame, log2_dt, levels, sigma)
     if fill is not None:  # a neighbour that saw it says more than the learned curve's shoulder

@@ -167,8 +167,8 @@ def faithful_hdr(ctx: Context, model, ts) -> Iterator[tuple[int, np.ndarray, dic
     if merging and mode == "auto":
         ctx.say("[export] static camera: each frame merged with its neighbours where they agree with it (export.merge_neighbours=off keeps each frame's own)")
 
-    # auto: a stack's fused view (NTIRE crops +1.6-2.9 dB on two, taipei +1.8); not videos (Basler `fast`
-    # flicker 0.86 -> 1.04: short and long frames filtered by their own, different noise)
+    # auto: a stack's fused view (NTIRE crops 000000 / 000003 +1.6-2.9 dB, taipei +0.2-0.4); not videos
+    # (Basler `fast` flicker 0.86 -> 1.04: short and long frames filtered by their own, different noise)
     dmode = ctx.cfg.export.denoise
     denoise = dmode == "on" or (dmode == "auto" and ctx.task == "fuse-stack")
     if denoise and dmode == "auto":

@@ -343,6 +343,17 @@ def foreground_bootstrap(frames: np.ndarray, flows: dict | None, masks: np.ndarr
     return {"h0": h0, "masks": masks, "computed": computed, "how": desc, "info": info}
 
 
+def load_masks(folder) -> np.ndarray | None:
+    """The masks :func:`save_masks` wrote in ``folder``, ``(T, H, W)`` float32 in {0, 1}; None without."""
+    from pathlib import Path
+
+    path = Path(folder) / "masks.npz"
+    if not path.exists():
+        return None
+    with np.load(path) as z:
+        return z["masks"].astype(np.float32)
+
+
 def save_masks(folder, masks: np.ndarray) -> None:
     """``masks.npz`` (what training reads) and ``masks/frame_00000.png`` (to look at) in ``folder``."""
     from pathlib import Path

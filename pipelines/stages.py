@@ -117,10 +117,12 @@ class BootstrapStage(Stage):
         return res
 
     def load(self, ctx, out, summary):
+        from layercam.segment import load_masks
+
         res = {**summary, "h0": np.load(out / "h0.npy")}
-        if (out / "masks.npz").exists():
-            with np.load(out / "masks.npz") as z:
-                res["masks"] = z["masks"].astype(np.float32)
+        masks = load_masks(out)
+        if masks is not None:
+            res["masks"] = masks
         return res
 
 
@@ -297,8 +299,9 @@ class RefineStage(Stage):
         return {"coverage": float(masks.mean()), "iou_with_motion_masks": agree}
 
     def load(self, ctx, out, summary):
-        with np.load(out / "masks.npz") as z:
-            return {**summary, "masks": z["masks"].astype(np.float32)}
+        from layercam.segment import load_masks
+
+        return {**summary, "masks": load_masks(out)}
 
 
 def refine_wanted(ctx) -> bool:

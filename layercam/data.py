@@ -32,6 +32,10 @@ def compact_frames(frames: np.ndarray) -> np.ndarray:
     return out
 
 
+PROBES = 256  # rows of a batch's "probe" draws
+PROBE_SEED = 104729  # their stream's seed, from the sampler's
+
+
 class PixelSampler:
     """Holds a clip compactly and draws batches.
 
@@ -40,6 +44,8 @@ class PixelSampler:
     ``bw_ok`` ``(T-1, h, w)`` consistency masks, or None: ``h x w`` may be a working resolution
     below the frames' (the flow is then read at the nearest flow pixel and scaled to frame pixels),
     kept in float16. ``masks (T, H, W)`` optional foreground masks for alpha bootstrapping.
+    Every random number a training step uses comes from this sampler's two generators (pixels, and
+    a batch's ``probe`` draws for the model's regularisers), so their state is all a resume needs.
     A batch is converted to float32; memory is that of the compact arrays, whatever the batch.
     """
 
@@ -61,21 +67,24 @@ class PixelSampler:
         # the generator lives where the data does, so that a batch is drawn without host transfers
         self.seed, self.draws = int(seed), 0
         self.gen = torch.Generator(device=self.device).manual_seed(self.seed)
+        self.probe_gen = torch.Generator(device=self.device).manual_seed(self.seed + PROBE_SEED)
 
     def state_dict(self) -> dict:
-        return {"gen": self.gen.get_state(), "seed": self.seed, "draws": self.draws}
+        return {"gen": self.gen.get_state(), "probe_gen": self.probe_gen.get_state(), "seed": self.seed, "draws": self.draws}
 
     def load_state_dict(self, s: dict) -> None:
         """Continues the saved stream. A state saved by another stream (another data-parallel
         rank's seed) or on another device type reseeds this one deterministically instead."""
         self.draws = int(s.get("draws", 0))
-        if s.get("seed", self.seed) == self.seed:
+        if s.get("seed", self.seed) == self.seed and "probe_gen" in s:
             try:
                 self.gen.set_state(s["gen"])
+                self.probe_gen.set_state(s["probe_gen"])
                 return
             except RuntimeError:  # e.g. a CUDA generator state loaded on the CPU
                 pass
         self.gen.manual_seed(self.seed + 7919 * self.draws)
+        self.probe_gen.manual_seed(self.seed + PROBE_SEED + 7919 * self.draws)
 
     def colours(self, t: torch.Tensor, y: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
         """Frame values at integer pixels -> ``(N, 3)`` float32 in ``[0, 1]``."""
@@ -109,6 +118,10 @@ class PixelSampler:
         }
         if self.masks is not None:
             batch["mask"] = self.masks[t, y, x].float()
+        # uniform draws for the model's own regularisers (the tone mapper's monotonicity probe),
+        # from a second stream saved with the first (a resumed run draws what an uninterrupted one
+        # would); a stream of their own leaves the pixels drawn as they were before they existed
+        batch["probe"] = torch.rand(PROBES, 3, generator=self.probe_gen, device=dev)
         if self.has_flow:
             forward = torch.rand(n, generator=g, device=dev) < 0.5
             forward = torch.where(t == self.T - 1, torch.zeros_like(forward), forward)

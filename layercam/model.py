@@ -142,7 +142,7 @@ class ImplicitCameraModel(nn.Module):
             zero = torch.zeros(1, 3, device=batch["xy"].device)
             terms["white_balance"] = w.white_balance * losses.white_balance_loss(self.tone(zero), self.cfg.tone.c0)
         if w.gradient > 0:
-            z = torch.rand(256, 3, device=batch["xy"].device) * 40 - 20
+            z = self._probe_z(batch)
             terms["gradient"] = w.gradient * losses.gradient_loss(self.tone, z)
         if w.bootstrap > 0:
             terms["bootstrap"] = w.bootstrap * sum(
@@ -166,6 +166,16 @@ class ImplicitCameraModel(nn.Module):
                 losses.rigidity_loss(d, xy, t, 2.0 / max(self.frame_hw)) for d in self.scene.deformations
             )
         return terms
+
+    @staticmethod
+    def _probe_z(batch: dict) -> torch.Tensor:
+        """``(N, 3)`` exposed log irradiance in [-20, 20] where the tone mapper's slope is probed:
+        the batch's ``probe`` draws (the sampler's stream: a resumed run probes where an
+        uninterrupted one does; the global RNG would not), or evenly spaced midpoints without them."""
+        u = batch.get("probe")
+        if u is None:
+            u = ((torch.arange(256, device=batch["xy"].device, dtype=torch.float32) + 0.5) / 256)[:, None].expand(256, 3)
+        return u * 40 - 20
 
     @staticmethod
     def _layer_flow_weights(out: dict, ok: torch.Tensor) -> list:

@@ -77,6 +77,15 @@ class Adam(torch.optim.Adam):
             p.grad = g
         return loss
 
+    def load_state_dict(self, state_dict: dict) -> None:
+        """``torch.optim.Optimizer.load_state_dict``, with each row's ``last`` step kept an integer
+        (the base class casts every tensor of a floating parameter's state to its dtype)."""
+        last = {i: s["last"] for i, s in state_dict["state"].items() if "last" in s}
+        super().load_state_dict(state_dict)
+        params = [p for g in self.param_groups for p in g["params"]]
+        for i, v in last.items():
+            self.state[params[i]]["last"] = v.to(device=params[i].device, dtype=torch.int32)
+
     @torch.no_grad()
     def flush(self) -> None:
         """Brings every row of the sparse parameters up to the current step (the coasting dense

@@ -105,11 +105,13 @@ def test_ranks_draw_different_pixels_and_resume_their_own_stream(tiny_scene):
     a = PixelSampler(frames, seed=0)
     a.sample(64)
     state = a.state_dict()
-    nxt = a.sample(64)["xy"]
-    # the same rank continues its stream exactly
+    nxt = a.sample(64)
+    # the same rank continues its streams exactly (pixels and the regularisers' probe draws)
     a2 = PixelSampler(frames, seed=0)
     a2.load_state_dict(state)
-    assert np.array_equal(a2.sample(64)["xy"].numpy(), nxt.numpy())
+    again = a2.sample(64)
+    assert np.array_equal(again["xy"].numpy(), nxt["xy"].numpy()) and np.array_equal(again["probe"].numpy(), nxt["probe"].numpy())
+    nxt = nxt["xy"]
     # another rank (another seed) does not replay rank 0's pixels
     seed1 = distributed._SEED_STRIDE  # rank 1's seed for train.seed=0
     b = PixelSampler(frames, seed=seed1)

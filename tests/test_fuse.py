@@ -110,3 +110,26 @@ def test_single_image_is_refused(tmp_path, capsys):
     paths = _write_stack(tmp_path / "in", np.full((1, 16, 16, 3), 0.5, np.float32), ["a"])
     assert main(_argv(paths, tmp_path / "run")) == 2
     assert "at least 2" in capsys.readouterr().err
+
+
+def test_an_interrupted_exposure_stack_resumes_to_the_uninterrupted_result(tmp_path, monkeypatch):
+    """Ctrl-C in the middle of a bracket's training, then the same command: the fused EXR is the
+    one a run that was never interrupted writes (bit for bit). The video path has its own tests
+    (test_interruption.py); this one covers the stack's one-layer, learned-tone path. (Its tone
+    curve stays monotone, so it passed with the global-RNG probe too: the model test
+    ``test_loss_terms_do_not_read_the_global_rng`` is the one that catches that.)"""
+    from layercam import synth
+
+    sc = synth.mfme_stack(size=(24, 24), focus_settings=1, exposures_ev=(0.0, 2.0, 4.0), planes=2, seed=2)
+    paths = _write_stack(tmp_path / "in", sc.clip.frames, sc.clip.names)
+    times = tmp_path / "times.txt"
+    times.write_text("".join(f"{n}.png {t:g}\n" for n, t in zip(sc.clip.names, sc.exposure_times)))
+    argv = lambda run: _argv(paths, run, "--exposures", str(times), "--blur", "off")  # noqa: E731
+    assert main(argv(tmp_path / "ref")) == 0
+    monkeypatch.setenv("LAYERCAM_SIGNAL_AT", "train:30:INT")
+    assert main(argv(tmp_path / "run")) == 130
+    monkeypatch.delenv("LAYERCAM_SIGNAL_AT")
+    assert main(argv(tmp_path / "run")) == 0
+    rep = json.loads((tmp_path / "run" / "report.json").read_text())
+    assert rep["train"]["resumed_from"] == 30
+    assert np.array_equal(read_exr(tmp_path / "run" / "fused.exr"), read_exr(tmp_path / "ref" / "fused.exr"))

@@ -84,6 +84,7 @@ def test_dense_and_sparse_parameters_in_one_optimiser_and_its_state_round_trip()
     lin.load_state_dict(saved["lin"])
     opt2 = Adam([{"params": lin.parameters(), "lr": 1e-2}, {"params": emb.parameters(), "lr": 1e-1}], betas=(0.9, 0.99))
     opt2.load_state_dict(saved["opt"])
+    assert opt2.state[emb.weight]["last"].dtype == torch.int32  # a row's step stays an integer (torch casts state to the parameter's dtype)
     step(opt2)
     assert torch.equal(emb.weight, after[0]) and torch.equal(lin.weight, after[1])
     assert emb.weight.grad.is_sparse and lin.weight.grad.layout == torch.strided  # gradients are left in place

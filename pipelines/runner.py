@@ -11,6 +11,7 @@ too, and published as one set when every stage has finished (``pipelines/publish
 
 from __future__ import annotations
 
+import hashlib
 import json
 import shutil
 import sys
@@ -18,6 +19,8 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 from layercam import distributed
 from layercam.config import Config, config_hash
@@ -92,8 +95,17 @@ def input_key(ctx: Context) -> dict:
     return {
         "clip": ctx.clip.fingerprint(),
         "exposures": {"log2_dt": [round(float(v), 6) for v in e.log2_dt], "learn": e.learn},
-        "masks": None if ctx.masks is None else config_hash(ctx.masks.sum(axis=(1, 2)).tolist()),
+        "masks": None if ctx.masks is None else masks_fingerprint(ctx.masks),
     }
+
+
+def masks_fingerprint(masks: np.ndarray) -> str:
+    """SHA-1 hex of the masks' shape and their values at 8 bits: masks that cover as much but not
+    the same pixels (a corrected mask, moved) are other input (per-frame sums were not)."""
+    h = hashlib.sha1(repr(tuple(masks.shape)).encode())
+    for m in masks:
+        h.update(np.ascontiguousarray(np.rint(np.clip(m, 0, 1) * 255), dtype=np.uint8).tobytes())
+    return h.hexdigest()
 
 
 def run_stages(ctx: Context, stages: list[Stage]) -> Context:

@@ -228,3 +228,15 @@ def test_flow_at_a_working_size_runs_end_to_end(tiny_scene, tiny_exposures, tmp_
     assert ctx.results["flow"]["working_size"] == [16, 16] and ctx.flow["fw"].shape[1:3] == (16, 16)
     rep = json.loads((tmp_path / "run" / "report.json").read_text())
     assert rep["train"]["final_loss"]["color"] < 0.5 * rep["train"]["first_loss"]["color"]
+
+
+def test_masks_that_cover_as_much_elsewhere_are_other_input():
+    """The stages' input key reads the masks' pixels: a corrected mask that covers as many pixels
+    somewhere else is not the cached one (it was keyed on per-frame sums)."""
+    from layercam.pipelines.runner import masks_fingerprint
+
+    m = np.zeros((2, 8, 8), np.float32)
+    m[:, 2:4, 2:4] = 1
+    moved = np.roll(m, 3, axis=2)
+    assert moved.sum(axis=(1, 2)).tolist() == m.sum(axis=(1, 2)).tolist()
+    assert masks_fingerprint(moved) != masks_fingerprint(m) and masks_fingerprint(m.copy()) == masks_fingerprint(m)

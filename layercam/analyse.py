@@ -228,7 +228,10 @@ def decide(cfg: Config, clip, exposures, task: str, measures: dict | None = None
             elif mm.get("blur_pairs_measured", 0) == 0:
                 r["blur"] = "no pair of frames has enough texture that both see well to compare sharpness"
             else:
-                r["blur"] = f"sharpness differs by {BLUR_SIGMA} px on at most {share:.0%} of the tiles of a pair (< {BLUR_TILE_SHARE:.0%}): exposure, not focus"
+                why = "exposure, not focus" if n_exp > 1 else "the frames are equally sharp"
+                r["blur"] = f"sharpness differs by {BLUR_SIGMA} px on at most {share:.0%} of the tiles of a pair (< {BLUR_TILE_SHARE:.0%}): {why}"
+            if task == "deblur-video" and measures:  # the user asked for sharper frames: say why there are none
+                r["blur"] += "; a frame is sharpened from sharper views of the same place, so the frames come out as sharp as they went in (--blur 3x3 forces the blur generator)"
     if not forced("blur.n", b.n):
         b.n = 5 if measured and sigma >= BLUR_5X5_SIGMA else 3
     if not forced("blur.max_offset", b.max_offset):

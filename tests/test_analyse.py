@@ -53,6 +53,16 @@ def test_static_sharp_single_exposure_gets_the_minimal_model():
     spec, m = _decide(np.stack([tex] * 4))
     assert spec.layers == 1 and spec.tone_mapper == "fixed" and spec.blur == "off" and not spec.flow_loss
     assert all(spec.reasons[k] for k in ("layers", "tone_mapper", "blur", "flow_loss"))
+    assert "equally sharp" in spec.reasons["blur"] and "exposure" not in spec.reasons["blur"]
+
+
+def test_deblur_video_of_equally_sharp_frames_says_they_stay_as_sharp():
+    """``deblur-video`` on frames that are all equally sharp (or equally blurred) has no blur
+    generator to fit; the reason the user reads says the frames come out as sharp as they went in
+    and how to force one (the Adobe240 triplet, whose blur is the same motion blur in each frame)."""
+    tex = _texture(48, 48)
+    spec, _ = _decide(np.stack([tex] * 4), task="deblur-video")
+    assert spec.blur == "off" and "as sharp as they went in" in spec.reasons["blur"] and "--blur 3x3" in spec.reasons["blur"]
 
 
 def _panning_square(T: int, where) -> np.ndarray:

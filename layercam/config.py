@@ -144,6 +144,10 @@ class LossConfig:
     white_balance: float = setting(1.0, 0.0)  # lambda_w
     gradient: float = setting(100.0, 0.0)   # lambda_g
     clipped: Literal["plain", "one_sided"] = "plain"  # MSE (paper) | one-sided at 0 / 1 pixels
+    robust: float | Literal["auto"] = setting(AUTO, 0.0, 1.0)  # colour error: 0 MSE (paper); c > 0 Cauchy c^2 ln(1 + (e / c)^2),
+                                                 # errors past c (pixel value) count less; auto: the analysis sets
+                                                 # analyse.ROBUST_STACK for fuse-stack, 0 for videos (a model built
+                                                 # without it, or a run from before the setting: 0)
     rigidity: float = setting(0.01, 0.0)
     sparsity: float = setting(0.001, 0.0)
     alpha_flow: float = setting(1.0, 0.0)

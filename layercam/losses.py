@@ -5,7 +5,7 @@ from __future__ import annotations
 import torch
 
 
-def color_loss(pred: torch.Tensor, target: torch.Tensor, mode: str = "plain", lo: float = 1.0 / 255, hi: float | torch.Tensor = 254.0 / 255) -> torch.Tensor:
+def color_loss(pred: torch.Tensor, target: torch.Tensor, mode: str = "plain", lo: float = 1.0 / 255, hi: float | torch.Tensor = 254.0 / 255, robust: float = 0.0) -> torch.Tensor:
     """Colour reconstruction (paper Eq. 9), ``(N, 3)`` each; ``hi`` a float or per channel ``(3,)``
     (a camera that clips below 255: :func:`layercam.visibility.clip_levels`).
 
@@ -22,6 +22,8 @@ def color_loss(pred: torch.Tensor, target: torch.Tensor, mode: str = "plain", lo
         err = torch.where(t >= hi, (pred.float() - hi).clamp_max(0.0), err)
     elif mode != "plain":
         raise ValueError(f"unknown colour loss mode {mode!r}")
+    if robust > 0:  # Cauchy: quadratic for small errors, log-growing past c
+        return (robust**2 * torch.log1p((err / robust) ** 2)).mean()
     return (err**2).mean()
 
 

@@ -214,6 +214,26 @@ def test_exposure_bracket_is_one_sharp_layer():
     assert "exposure, not focus" in spec.reasons["blur"] or "enough texture" in spec.reasons["blur"]
 
 
+def test_robust_colour_loss_only_for_an_exposure_bracket():
+    """``loss.robust = auto``: the Cauchy scale for a stack without a blur generator (its shots come
+    from different moments), MSE for a focus stack (its PSFs are fitted by the errors at edges) and
+    for videos; a value given is kept."""
+    from layercam import analyse
+
+    frames = _bracket(_texture(64, 64, 3), (-2.0, 0.0, 2.0))
+    ex = Exposures(np.array([-2.0, 0.0, 2.0]), "none", None, "times", "given")
+    clip = Clip(frames, "test", ["a", "b", "c"])
+    m = analyse.measure(clip, ex, _flow(clip.frames, "dis_fast"))
+
+    def robust(task, *sets):
+        return analyse.decide(load_config("fast", list(sets)), clip, ex, task, m)[0].loss.robust
+
+    assert robust("fuse-stack") == analyse.ROBUST_STACK > 0
+    assert robust("fuse-stack", "model.blur=on") == 0.0
+    assert robust("hdr-video") == 0.0 and robust("deblur-video") == 0.0
+    assert robust("fuse-stack", "loss.robust=0") == 0.0 and robust("hdr-video", "loss.robust=0.1") == 0.1
+
+
 def test_a_pair_with_few_comparable_tiles_says_nothing_about_blur(monkeypatch):
     """One pair with 6 comparable tiles, 5 of them blurrier, among pairs of 37 tiles that agree: no
     blur measured (it chose a blur generator for a sharp composite); alone, the same pair counts."""

@@ -96,3 +96,22 @@ def test_mask_loss_balanced_puts_a_halo_around_a_small_object_plain_does_not():
     assert best(0.0) == pytest.approx(0.2, abs=0.02)
     assert best(1.0) > 0.5
     assert best(0.0) < best(0.5) < best(1.0)
+
+
+def test_robust_colour_loss_is_mse_for_small_errors_and_grows_slowly_past_its_scale():
+    """``loss.robust = c``: the Cauchy loss ``c^2 ln(1 + (e/c)^2)``, ``e^2`` for errors well under
+    ``c`` (noise is fitted as under MSE) and far less than ``e^2`` past it (a shot where the scene
+    changed pulls the shared tone curve much less); its gradient falls past ``c``."""
+    target = torch.zeros(4, 3)
+    small = torch.full((4, 3), 0.005)
+    assert torch.allclose(losses.color_loss(small, target, robust=0.05), losses.color_loss(small, target), rtol=0.01)
+    big = torch.full((4, 3), 0.3)
+    assert losses.color_loss(big, target, robust=0.05) < 0.2 * losses.color_loss(big, target)  # 0.009 against 0.09
+    grads = []
+    for e in (0.05, 0.3):
+        p = torch.full((1, 3), e, requires_grad=True)
+        losses.color_loss(p, torch.zeros(1, 3), robust=0.05).backward()
+        grads.append(float(p.grad[0, 0]))
+    assert grads[1] < grads[0]  # past the scale a larger error pulls less
+    # one-sided clipping still applies first: a clipped target above the prediction costs nothing
+    assert float(losses.color_loss(torch.ones(2, 3), torch.ones(2, 3), mode="one_sided", robust=0.05)) == 0.0

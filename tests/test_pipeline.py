@@ -240,3 +240,18 @@ def test_masks_that_cover_as_much_elsewhere_are_other_input():
     moved = np.roll(m, 3, axis=2)
     assert moved.sum(axis=(1, 2)).tolist() == m.sum(axis=(1, 2)).tolist()
     assert masks_fingerprint(moved) != masks_fingerprint(m) and masks_fingerprint(m.copy()) == masks_fingerprint(m)
+
+
+def test_train_key_leaves_out_an_mse_colour_loss():
+    """``loss.robust`` 0 (or unresolved) is the MSE every run before the setting trained with: the
+    training's cache key does not name it, so those runs keep their key; a Cauchy scale is named."""
+    from types import SimpleNamespace
+
+    from layercam.pipelines.stages import TrainStage
+
+    def key(robust):
+        cfg = load_config("fast", [f"loss.robust={robust}", "model.layers=1"])
+        return TrainStage().key_material(SimpleNamespace(cfg=cfg, keys={}))
+
+    assert "robust" not in key(0)["loss"] and "robust" not in key("auto")["loss"]
+    assert key(0.05)["loss"]["robust"] == 0.05

@@ -33,16 +33,11 @@ LONG_REACH = 8               # ... or of pairs this many frames apart (layercam.
 LONG_MIN_PAIRS = 2           # ... at least two of them
 MIN_EVIDENCE = 0.03          # a pair counts for motion when both frames see well this share of its pixels
 STATIC_PX = 0.3              # below this median flow the scene is static: no flow loss needed
-ROBUST_STACK = 0.05          # loss.robust=auto for fuse-stack: the colour error's Cauchy scale (pixel value).
-                             # A bracket has a few looks at each scene point and its shots come from
-                             # different moments: under MSE the shared tone curve bent to fit where the
-                             # scene changed between them (NTIRE 000001's moving stage light: a kink in the
-                             # red curve, contour bands in the beam). `balanced` PSNR-mu on NTIRE
-                             # 000000-000003, MSE -> 0.05: 38.37 / 23.06 / 32.79 / 35.58 -> 38.00 / 25.95 /
-                             # 33.91 / 35.55 (0.07: 38.05 / 26.13 / 33.40 / 35.55; 0.1: 38.29 / 24.43 /
-                             # 33.14 / 35.52; 0.02: 000001 23.69, 000002 33.52). Only without a blur
-                             # generator: the synthetic focus x exposure stack (fast) fell 44.04 -> 43.09
-                             # (its PSFs are fitted by the large errors at edges). Videos keep MSE (not measured).
+ROBUST_STACK = 0.05          # loss.robust=auto for fuse-stack without a blur generator: the colour error's
+                             # Cauchy scale (pixel value). A bracket's shots come from different moments,
+                             # and under MSE the shared tone curve bent to fit where the scene changed
+                             # between them (NTIRE 000001); with a blur generator (a focus stack) the PSFs
+                             # are fitted by the large errors at edges, so MSE. docs/measurements.md
 BLUR_SIGMA = 0.8             # relative blur (Gaussian sigma, px) of a tile that needs a blur generator
 BLUR_TILE_SHARE = 0.4        # ... on at least this share of the tiles of some pair (both signs: focus
                              # that differs by region; the real captures' shares: docs/measurements.md)

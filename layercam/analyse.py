@@ -38,6 +38,10 @@ ROBUST_STACK = 0.05          # loss.robust=auto for fuse-stack without a blur ge
                              # and under MSE the shared tone curve bent to fit where the scene changed
                              # between them (NTIRE 000001); with a blur generator (a focus stack) the PSFs
                              # are fitted by the large errors at edges, so MSE. docs/measurements.md
+FLOOR_GRID_LEVELS = 6        # a clip whose training the step cap shortens (a short stack: few looks at each
+                             # scene point) gets at most this many atlas grid levels (`quality` has 8):
+                             # more scales between the same coarsest and finest fitted its few shots'
+                             # disagreements. docs/measurements.md
 BLUR_SIGMA = 0.8             # relative blur (Gaussian sigma, px) of a tile that needs a blur generator
 BLUR_TILE_SHARE = 0.4        # ... on at least this share of the tiles of some pair (both signs: focus
                              # that differs by region; the real captures' shares: docs/measurements.md)
@@ -309,7 +313,8 @@ def resolve_auto(cfg: Config, static: bool, h0, frame_hw: tuple[int, int]) -> Co
     * ``scene.alpha_grid_res = 0``: the alpha grid's finest level has one cell per pixel along the
       frame's longer side, at most ``ALPHA_GRID_MAX``.
     * ``train.steps`` at most ``train.passes_per_frame`` x frames passes over the clip's pixels
-      (frames x H x W), never fewer pixels sampled than ``train.min_samples`` (:func:`step_cap`).
+      (frames x H x W), never fewer pixels sampled than ``train.min_samples`` (:func:`step_cap`);
+      where that cap shortens training, ``scene.grid_levels`` at most :data:`FLOOR_GRID_LEVELS`.
       On the NTIRE 3-shot brackets (256x256, real noise) the model's HDR got noisier the longer it
       trained: crop 000000 PSNR-mu 34.94 dB after 12.5 passes (600 steps x 4096, fast), 32.92 after
       42, 32.10 after 83 (2000 x 8192, balanced); the gap closes under a 1 px Gaussian blur (38.2 /
@@ -341,6 +346,7 @@ def resolve_auto(cfg: Config, static: bool, h0, frame_hw: tuple[int, int]) -> Co
     if cap < cfg.train.steps:
         cfg.train.steps = cap
         cfg.train.bootstrap_steps = min(cfg.train.bootstrap_steps, cap // 2)
+        s.grid_levels = min(s.grid_levels, FLOOR_GRID_LEVELS)
     return cfg
 
 

@@ -355,3 +355,8 @@ def test_short_stack_trains_fewer_steps():
     assert analyse.resolve_auto(load_config("balanced", ["model.layers=1"]), False, h48, (144, 256)).train.steps == 2000
     off = load_config("balanced", ["model.layers=1", "train.passes_per_frame=0"])
     assert analyse.resolve_auto(off, True, h0, (256, 256)).train.steps == 2000
+    # where the cap shortens training, quality's 8 grid levels become 6; a long clip keeps them
+    q = load_config("quality", ["model.layers=1"])
+    assert q.scene.grid_levels == 8 and analyse.resolve_auto(q, True, h0, (256, 256)).scene.grid_levels == analyse.FLOOR_GRID_LEVELS == 6
+    assert analyse.resolve_auto(q, False, h48, (144, 256)).scene.grid_levels == 8
+    assert analyse.resolve_auto(load_config("fast", ["model.layers=1"]), True, h0, (256, 256)).scene.grid_levels == 5

@@ -340,7 +340,7 @@ def faithful_log2(model, frame: np.ndarray, t: int, levels: np.ndarray | None = 
     # frame: no brighter than the shortest exposure's clipping point (``bound`` holds both)
     z = np.where(below | (above & (clipped == "clip")), np.minimum(z, bound), z)
     sigma = info.pop("sigma")
-    measured = info.pop("sigma_measured", sigma)
+    measured = info.pop("sigma_measured", sigma)  # a corr made by hand may carry only "sigma"
     if denoise:  # the noise as measured: with the Wiener weight's floor a clean synthetic stack lost 0.2 dB
         z = denoise_log2(z, noise_log2(model, frame, log2_dt, measured, c["exposed"]))
     lower, upper = clip_bounds(model, frame, log2_dt, levels, sigma)

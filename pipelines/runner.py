@@ -11,7 +11,6 @@ too, and published as one set when every stage has finished (``pipelines/publish
 
 from __future__ import annotations
 
-import hashlib
 import json
 import shutil
 import sys
@@ -20,12 +19,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from layercam import distributed
 from layercam.config import Config, config_hash
 from layercam.errors import LayercamError
 from layercam.io.atomic import atomic_write, ensure_writable_dir
+from layercam.io.clip import fingerprint
 
 
 @dataclass
@@ -95,17 +93,9 @@ def input_key(ctx: Context) -> dict:
     return {
         "clip": ctx.clip.fingerprint(),
         "exposures": {"log2_dt": [round(float(v), 6) for v in e.log2_dt], "learn": e.learn},
-        "masks": None if ctx.masks is None else masks_fingerprint(ctx.masks),
+        # the masks' pixels, not their per-frame sums: a corrected mask covering as much elsewhere is new input
+        "masks": None if ctx.masks is None else fingerprint(ctx.masks),
     }
-
-
-def masks_fingerprint(masks: np.ndarray) -> str:
-    """SHA-1 hex of the masks' shape and their values at 8 bits: masks that cover as much but not
-    the same pixels (a corrected mask, moved) are other input (per-frame sums were not)."""
-    h = hashlib.sha1(repr(tuple(masks.shape)).encode())
-    for m in masks:
-        h.update(np.ascontiguousarray(np.rint(np.clip(m, 0, 1) * 255), dtype=np.uint8).tobytes())
-    return h.hexdigest()
 
 
 def run_stages(ctx: Context, stages: list[Stage]) -> Context:

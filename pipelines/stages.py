@@ -141,7 +141,7 @@ class TrainStage(Stage):
         d["train"].pop("device", None)
         if ctx.cfg.model.layers == 1:
             d["loss"].pop("fg_follow", None)  # a two-layer term: one-layer runs trained before it keep their key
-        if d["loss"].get("robust") in (0, 0.0, "auto"):
+        if d["loss"].get("robust") in (0.0, "auto"):
             d["loss"].pop("robust")  # MSE, as before the setting: those runs keep their key
         if "refine" in ctx.keys:  # only after the first fit: trained on the refine stage's masks
             d["refined_masks"] = ctx.keys["refine"]

@@ -233,7 +233,7 @@ def test_flow_at_a_working_size_runs_end_to_end(tiny_scene, tiny_exposures, tmp_
 def test_masks_that_cover_as_much_elsewhere_are_other_input():
     """The stages' input key reads the masks' pixels: a corrected mask that covers as many pixels
     somewhere else is not the cached one (it was keyed on per-frame sums)."""
-    from layercam.pipelines.runner import masks_fingerprint
+    from layercam.io.clip import fingerprint as masks_fingerprint  # what the stages' input key calls
 
     m = np.zeros((2, 8, 8), np.float32)
     m[:, 2:4, 2:4] = 1

@@ -80,17 +80,24 @@ class Clip:
 
     def fingerprint(self) -> str:
         """SHA-1 hex of the shape and the float16-quantised frames: a cache key for this content."""
-        h = hashlib.sha1()
-        h.update(repr(tuple(self.frames.shape)).encode())
-        for f in self.frames:  # one frame at a time: the same bytes as the whole clip's
-            h.update(np.ascontiguousarray(f, dtype=np.float16).tobytes())
-        return h.hexdigest()
+        return fingerprint(self.frames)
 
     def __repr__(self) -> str:
         return (
             f"Clip(source={self.source!r}, T={self.T}, H={self.H}, W={self.W}, "
             f"fps={self.fps:g}, bit_depth={self.bit_depth})"
         )
+
+
+def fingerprint(frames: np.ndarray) -> str:
+    """SHA-1 hex of an array of frames ``(T, ...)``: its shape and its values quantised to float16,
+    one frame at a time (no float16 copy of the whole clip): a cache key for this content (the
+    clip's frames, the user's masks)."""
+    h = hashlib.sha1()
+    h.update(repr(tuple(frames.shape)).encode())
+    for f in frames:
+        h.update(np.ascontiguousarray(f, dtype=np.float16).tobytes())
+    return h.hexdigest()
 
 
 def natural_key(name: str) -> list:

@@ -42,6 +42,14 @@ FLOOR_GRID_LEVELS = 6        # a clip whose training the step cap shortens (a sh
                              # scene point) gets at most this many atlas grid levels (`quality` has 8):
                              # more scales between the same coarsest and finest fitted its few shots'
                              # disagreements. docs/measurements.md
+FLOOR = {"scene.grid_levels": FLOOR_GRID_LEVELS, "scene.atlas_width": 64, "train.batch": 4096}
+                             # ... and one the cap puts at its floor (train.min_steps; a 3-shot stack of
+                             # up to ~300x300 px) trains this model whatever the preset (the batch at most
+                             # this): on the NTIRE crops and twelve taipei crops no preset's difference
+                             # there was larger than the spread of three seeds, larger batches learned a
+                             # softer tone shoulder (000001, 300 steps: 4096 27.31 dB, 8192 25.95) and
+                             # more steps fitted the shots' noise (taipei crops, 4096: 300 34.83, 600
+                             # 34.32). docs/measurements.md
 BLUR_SIGMA = 0.8             # relative blur (Gaussian sigma, px) of a tile that needs a blur generator
 BLUR_TILE_SHARE = 0.4        # ... on at least this share of the tiles of some pair (both signs: focus
                              # that differs by region; the real captures' shares: docs/measurements.md)
@@ -313,8 +321,9 @@ def resolve_auto(cfg: Config, static: bool, h0, frame_hw: tuple[int, int]) -> Co
     * ``scene.alpha_grid_res = 0``: the alpha grid's finest level has one cell per pixel along the
       frame's longer side, at most ``ALPHA_GRID_MAX``.
     * ``train.steps`` at most ``train.passes_per_frame`` x frames passes over the clip's pixels
-      (frames x H x W), never fewer pixels sampled than ``train.min_samples`` (:func:`step_cap`);
-      where that cap shortens training, ``scene.grid_levels`` at most :data:`FLOOR_GRID_LEVELS`.
+      (frames x H x W), never fewer than ``train.min_steps`` (:func:`step_cap`); where that cap
+      shortens training, ``scene.grid_levels`` at most :data:`FLOOR_GRID_LEVELS`, and at the floor
+      (``train.min_steps``) the model and batch of :data:`FLOOR`, whatever the preset.
       On the NTIRE 3-shot brackets (256x256, real noise) the model's HDR got noisier the longer it
       trained: crop 000000 PSNR-mu 34.94 dB after 12.5 passes (600 steps x 4096, fast), 32.92 after
       42, 32.10 after 83 (2000 x 8192, balanced); the gap closes under a 1 px Gaussian blur (38.2 /
@@ -342,22 +351,27 @@ def resolve_auto(cfg: Config, static: bool, h0, frame_hw: tuple[int, int]) -> Co
         s.grid_min_res = min(s.grid_min_res, s.grid_max_res)
     if s.alpha_grid_res == 0:  # one cell per frame pixel along the longer side
         s.alpha_grid_res = int(min(max(frame_hw), ALPHA_GRID_MAX))
-    cap = step_cap(cfg.train, np.asarray(h0).shape[-3], frame_hw[0] * frame_hw[1])
-    if cap < cfg.train.steps:
-        cfg.train.steps = cap
-        cfg.train.bootstrap_steps = min(cfg.train.bootstrap_steps, cap // 2)
+    t = cfg.train
+    cap = step_cap(t, np.asarray(h0).shape[-3], frame_hw[0] * frame_hw[1])
+    if cap < t.steps:
+        t.steps = cap
+        t.bootstrap_steps = min(t.bootstrap_steps, cap // 2)
         s.grid_levels = min(s.grid_levels, FLOOR_GRID_LEVELS)
+        if cap == t.min_steps:  # the floor: its model, whatever the preset
+            s.grid_levels, s.atlas_width = FLOOR["scene.grid_levels"], min(s.atlas_width, FLOOR["scene.atlas_width"])
+            t.batch = min(t.batch, FLOOR["train.batch"])
     return cfg
 
 
 def step_cap(train, frames: int, pixels: int) -> int:
     """The most steps ``train`` (a :class:`layercam.config.TrainConfig`) may take on a clip of
     ``frames`` frames of ``pixels`` pixels each: ``passes_per_frame * frames`` passes over its
-    ``frames * pixels`` pixels, but never fewer pixels sampled than ``min_samples``;
-    ``passes_per_frame = 0``: ``train.steps``.
+    ``frames * pixels`` pixels in batches of ``train.batch``, but never fewer than ``min_steps``
+    (the floor, where :func:`resolve_auto` also sets :data:`FLOOR`); ``passes_per_frame = 0``:
+    ``train.steps``.
 
     >>> from layercam.config import TrainConfig
-    >>> step_cap(TrainConfig(steps=2000, batch=8192), 3, 256 * 256)  # a 3-shot bracket: min_samples
+    >>> step_cap(TrainConfig(steps=2000, batch=8192), 3, 256 * 256)  # a 3-shot bracket: the floor
     300
     >>> step_cap(TrainConfig(steps=2000, batch=8192), 3, 768 * 510)  # 6 passes over a larger one
     861
@@ -365,10 +379,10 @@ def step_cap(train, frames: int, pixels: int) -> int:
     861
     >>> step_cap(TrainConfig(steps=6000, batch=16384), 48, 256 * 144)  # a 48-frame clip: not capped
     6000
-    >>> step_cap(TrainConfig(steps=600, batch=4096), 4, 32 * 32)  # a tiny clip: min_samples
-    600
+    >>> step_cap(TrainConfig(steps=600, batch=4096), 4, 32 * 32)  # a tiny clip: the floor
+    300
     """
     if train.passes_per_frame <= 0:
         return int(train.steps)
-    samples = max(train.passes_per_frame * frames * frames * pixels, train.min_samples)
-    return int(min(train.steps, max(1, math.ceil(samples / train.batch))))
+    need = math.ceil(train.passes_per_frame * frames * frames * pixels / train.batch)
+    return int(min(train.steps, max(need, train.min_steps)))

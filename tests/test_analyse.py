@@ -346,17 +346,27 @@ def test_static_camera_holds_the_background_still():
 
 
 def test_short_stack_trains_fewer_steps():
-    """A 3-shot 256x256 stack: balanced's 2000 steps x 8192 capped to fast's budget (300 steps);
-    a 48-frame clip keeps its steps; train.passes_per_frame=0 turns the cap off."""
+    """A 3-shot 256x256 stack: balanced's 2000 steps x 8192 capped to the floor (300 steps) and
+    the floor's model (analyse.FLOOR) whatever the preset; a 48-frame clip keeps its steps;
+    train.passes_per_frame=0 turns the cap off; a larger stack is capped above the floor and keeps
+    the preset's batch."""
     h0 = np.broadcast_to(np.eye(3, dtype=np.float32), (1, 3, 3, 3))
     cfg = analyse.resolve_auto(load_config("balanced", ["model.layers=1"]), True, h0, (256, 256))
-    assert (cfg.train.steps, cfg.train.bootstrap_steps) == (300, 150)
+    assert (cfg.train.steps, cfg.train.bootstrap_steps, cfg.train.batch) == (300, 150, 4096)
     h48 = np.broadcast_to(np.eye(3, dtype=np.float32), (1, 48, 3, 3))
     assert analyse.resolve_auto(load_config("balanced", ["model.layers=1"]), False, h48, (144, 256)).train.steps == 2000
     off = load_config("balanced", ["model.layers=1", "train.passes_per_frame=0"])
     assert analyse.resolve_auto(off, True, h0, (256, 256)).train.steps == 2000
-    # where the cap shortens training, quality's 8 grid levels become 6; a long clip keeps them
+    # at the floor every preset trains the floor's model: quality's 8 levels and width 128, fast's 5 levels
+    floor = {p: analyse.resolve_auto(load_config(p, ["model.layers=1"]), True, h0, (256, 256)) for p in ("fast", "balanced", "quality")}
+    for c in floor.values():
+        assert (c.train.steps, c.train.batch, c.scene.grid_levels, c.scene.atlas_width) == (300, 4096, 6, 64)
+    # above the floor the cap keeps the preset's batch and width, at most 6 grid levels
     q = load_config("quality", ["model.layers=1"])
-    assert q.scene.grid_levels == 8 and analyse.resolve_auto(q, True, h0, (256, 256)).scene.grid_levels == analyse.FLOOR_GRID_LEVELS == 6
-    assert analyse.resolve_auto(q, False, h48, (144, 256)).scene.grid_levels == 8
-    assert analyse.resolve_auto(load_config("fast", ["model.layers=1"]), True, h0, (256, 256)).scene.grid_levels == 5
+    big = analyse.resolve_auto(q, True, h0, (510, 768))
+    assert (big.train.steps, big.train.batch, big.scene.grid_levels, big.scene.atlas_width) == (861, 16384, analyse.FLOOR_GRID_LEVELS, 128)
+    assert q.scene.grid_levels == 8 and analyse.resolve_auto(q, False, h48, (144, 256)).scene.grid_levels == 8
+    assert analyse.resolve_auto(load_config("fast", ["model.layers=1"]), True, h0, (510, 768)).scene.grid_levels == 5
+    # a smaller batch asked for is kept at the floor
+    small = load_config("balanced", ["model.layers=1", "train.batch=1024"])
+    assert analyse.resolve_auto(small, True, h0, (64, 64)).train.batch == 1024

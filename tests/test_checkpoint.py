@@ -62,7 +62,7 @@ def test_saved_now_loads_back_the_same(tmp_path):
 def test_saved_run_keeps_its_grid_sizes(tmp_path):
     """A run saved with the derived sizes left at 0 (older runs) is rebuilt from its saved grids;
     a run saved now stores the sizes it was built with."""
-    cfg = load_config("fast", ["scene.grid_levels=3"])
+    cfg = load_config("fast", ["scene.grid_levels=3", "train.passes_per_frame=0"])  # no step cap: its floor sets the levels
     h0 = scaled_h0(0.8, frames=3)
     meta = {"h0": h0, "log2_dt": np.zeros(3), "exposure_learn": "none", "phase": None, "init_log2": 0.0, "frame_hw": (40, 40)}
     model = ImplicitCameraModel(decided(cfg, h0, (40, 40), blur="3x3"), torch.as_tensor(h0, dtype=torch.float32), np.zeros(3), frame_hw=(40, 40))

@@ -49,7 +49,7 @@ FLOOR = {"scene.grid_levels": FLOOR_GRID_LEVELS, "scene.atlas_width": 64, "train
                              # there was larger than the spread of three seeds, larger batches learned a
                              # softer tone shoulder (000001, 300 steps: 4096 27.31 dB, 8192 25.95) and
                              # more steps fitted the shots' noise (taipei crops, 4096: 300 34.83, 600
-                             # 34.32). docs/measurements.md
+                             # 34.32). Not with a blur generator (train.min_samples). docs/measurements.md
 BLUR_SIGMA = 0.8             # relative blur (Gaussian sigma, px) of a tile that needs a blur generator
 BLUR_TILE_SHARE = 0.4        # ... on at least this share of the tiles of some pair (both signs: focus
                              # that differs by region; the real captures' shares: docs/measurements.md)
@@ -323,7 +323,8 @@ def resolve_auto(cfg: Config, static: bool, h0, frame_hw: tuple[int, int]) -> Co
     * ``train.steps`` at most ``train.passes_per_frame`` x frames passes over the clip's pixels
       (frames x H x W), never fewer than ``train.min_steps`` (:func:`step_cap`); where that cap
       shortens training, ``scene.grid_levels`` at most :data:`FLOOR_GRID_LEVELS`, and at the floor
-      (``train.min_steps``) the model and batch of :data:`FLOOR`, whatever the preset.
+      (``train.min_steps``; without a blur generator) the model and batch of :data:`FLOOR`,
+      whatever the preset.
       On the NTIRE 3-shot brackets (256x256, real noise) the model's HDR got noisier the longer it
       trained: crop 000000 PSNR-mu 34.94 dB after 12.5 passes (600 steps x 4096, fast), 32.92 after
       42, 32.10 after 83 (2000 x 8192, balanced); the gap closes under a 1 px Gaussian blur (38.2 /
@@ -352,23 +353,26 @@ def resolve_auto(cfg: Config, static: bool, h0, frame_hw: tuple[int, int]) -> Co
     if s.alpha_grid_res == 0:  # one cell per frame pixel along the longer side
         s.alpha_grid_res = int(min(max(frame_hw), ALPHA_GRID_MAX))
     t = cfg.train
-    cap = step_cap(t, np.asarray(h0).shape[-3], frame_hw[0] * frame_hw[1])
+    blur = cfg.model.blur == "on"
+    cap = step_cap(t, np.asarray(h0).shape[-3], frame_hw[0] * frame_hw[1], blur)
     if cap < t.steps:
         t.steps = cap
         t.bootstrap_steps = min(t.bootstrap_steps, cap // 2)
         s.grid_levels = min(s.grid_levels, FLOOR_GRID_LEVELS)
-        if cap == t.min_steps:  # the floor: its model, whatever the preset
+        if cap == t.min_steps and not blur:  # the floor: its model, whatever the preset
             s.grid_levels, s.atlas_width = FLOOR["scene.grid_levels"], min(s.atlas_width, FLOOR["scene.atlas_width"])
             t.batch = min(t.batch, FLOOR["train.batch"])
     return cfg
 
 
-def step_cap(train, frames: int, pixels: int) -> int:
+def step_cap(train, frames: int, pixels: int, blur: bool = False) -> int:
     """The most steps ``train`` (a :class:`layercam.config.TrainConfig`) may take on a clip of
     ``frames`` frames of ``pixels`` pixels each: ``passes_per_frame * frames`` passes over its
     ``frames * pixels`` pixels in batches of ``train.batch``, but never fewer than ``min_steps``
-    (the floor, where :func:`resolve_auto` also sets :data:`FLOOR`); ``passes_per_frame = 0``:
-    ``train.steps``.
+    (the floor, where :func:`resolve_auto` also sets :data:`FLOOR`), or with a ``blur``
+    generator never fewer pixels sampled than ``min_samples`` (its PSFs learn after a warm-up:
+    the synthetic 9-image focus x exposure stack, `fast`, 41.03 dB PSNR-mu with 600 steps, 38.01 at
+    the floor's 300); ``passes_per_frame = 0``: ``train.steps``.
 
     >>> from layercam.config import TrainConfig
     >>> step_cap(TrainConfig(steps=2000, batch=8192), 3, 256 * 256)  # a 3-shot bracket: the floor
@@ -381,8 +385,13 @@ def step_cap(train, frames: int, pixels: int) -> int:
     6000
     >>> step_cap(TrainConfig(steps=600, batch=4096), 4, 32 * 32)  # a tiny clip: the floor
     300
+    >>> step_cap(TrainConfig(steps=2000, batch=8192), 3, 256 * 256, blur=True)  # a focus stack: min_samples
+    300
+    >>> step_cap(TrainConfig(steps=600, batch=4096), 4, 32 * 32, blur=True)
+    600
     """
     if train.passes_per_frame <= 0:
         return int(train.steps)
     need = math.ceil(train.passes_per_frame * frames * frames * pixels / train.batch)
-    return int(min(train.steps, max(need, train.min_steps)))
+    floor = math.ceil(train.min_samples / train.batch) if blur else train.min_steps
+    return int(min(train.steps, max(need, floor, 1)))

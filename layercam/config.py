@@ -178,6 +178,8 @@ class TrainConfig:
                                             # quality and paper: 4)
     min_steps: int = setting(300, 1)        # the cap's floor: a clip the cap gives fewer steps trains this many, and the
                                             # floor's model whatever the preset (analyse.FLOOR)
+    min_samples: int = setting(2_457_600, 0)  # ... with a blur generator, the floor in pixels sampled instead (fast's
+                                            # 600 steps x 4096), in the preset's model and batch: its PSFs need the steps
 
 
 @dataclass

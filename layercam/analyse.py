@@ -323,8 +323,8 @@ def resolve_auto(cfg: Config, static: bool, h0, frame_hw: tuple[int, int]) -> Co
     * ``train.steps`` at most ``train.passes_per_frame`` x frames passes over the clip's pixels
       (frames x H x W), never fewer than ``train.min_steps`` (:func:`step_cap`); where that cap
       shortens training, ``scene.grid_levels`` at most :data:`FLOOR_GRID_LEVELS`, and at the floor
-      (``train.min_steps``; without a blur generator) the model and batch of :data:`FLOOR`,
-      whatever the preset.
+      (``train.min_steps``; without a blur generator, grid atlases) the model and batch of
+      :data:`FLOOR`, whatever the preset (`paper`'s positional encoding keeps its own).
       On the NTIRE 3-shot brackets (256x256, real noise) the model's HDR got noisier the longer it
       trained: crop 000000 PSNR-mu 34.94 dB after 12.5 passes (600 steps x 4096, fast), 32.92 after
       42, 32.10 after 83 (2000 x 8192, balanced); the gap closes under a 1 px Gaussian blur (38.2 /
@@ -359,7 +359,7 @@ def resolve_auto(cfg: Config, static: bool, h0, frame_hw: tuple[int, int]) -> Co
         t.steps = cap
         t.bootstrap_steps = min(t.bootstrap_steps, cap // 2)
         s.grid_levels = min(s.grid_levels, FLOOR_GRID_LEVELS)
-        if cap == t.min_steps and not blur:  # the floor: its model, whatever the preset
+        if cap == t.min_steps and not blur and s.encoding == "grid":  # the floor: its model, whatever the (grid) preset
             s.grid_levels, s.atlas_width = FLOOR["scene.grid_levels"], min(s.atlas_width, FLOOR["scene.atlas_width"])
             t.batch = min(t.batch, FLOOR["train.batch"])
     return cfg

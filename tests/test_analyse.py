@@ -371,6 +371,9 @@ def test_short_stack_trains_fewer_steps():
     for p, want in (("fast", (600, 4096, 5)), ("balanced", (300, 8192, 6)), ("quality", (150, 16384, 6))):
         c = analyse.resolve_auto(load_config(p, ["model.layers=1", "model.blur=on"]), True, h0, (256, 256))
         assert (c.train.steps, c.train.batch, c.scene.grid_levels) == want, p
+    # the paper's positional-encoding atlas keeps its own width and batch at the floor
+    paper = analyse.resolve_auto(load_config("paper", ["model.layers=1"]), True, h0, (256, 256))
+    assert (paper.train.steps, paper.train.batch, paper.scene.atlas_width) == (300, 30000, 512)
     # a smaller batch asked for is kept at the floor
     small = load_config("balanced", ["model.layers=1", "train.batch=1024"])
     assert analyse.resolve_auto(small, True, h0, (64, 64)).train.batch == 1024

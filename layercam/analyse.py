@@ -353,16 +353,22 @@ def resolve_auto(cfg: Config, static: bool, h0, frame_hw: tuple[int, int]) -> Co
     if s.alpha_grid_res == 0:  # one cell per frame pixel along the longer side
         s.alpha_grid_res = int(min(max(frame_hw), ALPHA_GRID_MAX))
     t = cfg.train
-    blur = cfg.model.blur == "on"
-    cap = step_cap(t, np.asarray(h0).shape[-3], frame_hw[0] * frame_hw[1], blur)
+    cap = step_cap(t, np.asarray(h0).shape[-3], frame_hw[0] * frame_hw[1], cfg.model.blur == "on")
     if cap < t.steps:
         t.steps = cap
         t.bootstrap_steps = min(t.bootstrap_steps, cap // 2)
         s.grid_levels = min(s.grid_levels, FLOOR_GRID_LEVELS)
-        if cap == t.min_steps and not blur and s.encoding == "grid":  # the floor: its model, whatever the (grid) preset
+        if cap == t.min_steps and has_floor_model(cfg):  # the floor: its model, whatever the preset
             s.grid_levels, s.atlas_width = FLOOR["scene.grid_levels"], min(s.atlas_width, FLOOR["scene.atlas_width"])
             t.batch = min(t.batch, FLOOR["train.batch"])
     return cfg
+
+
+def has_floor_model(cfg: Config) -> bool:
+    """Whether a clip ``cfg`` trains at the step cap's floor gets :data:`FLOOR`'s model: grid
+    atlases without a blur generator (the floor was measured there; a blur generator keeps
+    ``train.min_samples``, and `paper`'s positional encoding its own width and batch)."""
+    return cfg.model.blur != "on" and cfg.scene.encoding == "grid"
 
 
 def step_cap(train, frames: int, pixels: int, blur: bool = False) -> int:

@@ -159,6 +159,7 @@ class TrainStage(Stage):
         import torch
 
         from layercam import distributed
+        from layercam.analyse import has_floor_model
         from layercam.camera.tone import fit_init_curve
         from layercam.data import PixelSampler
         from layercam.train import Trainer
@@ -170,7 +171,7 @@ class TrainStage(Stage):
             ctx.say("[train] static one-layer scene: per-frame homographies only, no residual warp (scene.residual=on keeps it)")
         if cfg.model.layers > 1 and cfg.scene.still_background == "on" and ctx.cfg.scene.still_background == "auto":
             ctx.say("[train] static camera: the background layer held still, no per-frame correction or residual warp (scene.still_background=off frees it)")
-        if cfg.train.steps < ctx.cfg.train.steps and cfg.train.steps == cfg.train.min_steps and cfg.model.blur != "on" and cfg.scene.encoding == "grid":
+        if cfg.train.steps < ctx.cfg.train.steps and cfg.train.steps == cfg.train.min_steps and has_floor_model(cfg):
             ctx.say(f"[train] {cfg.train.steps} steps of {cfg.train.batch} pixels instead of {ctx.cfg.train.steps}: a clip this short trains at the step cap's floor, "
                     f"one model whatever the preset ({cfg.scene.grid_levels} grid levels, atlas width {cfg.scene.atlas_width}; more fit a short stack's noise; "
                     "train.passes_per_frame=0: no cap)")

@@ -27,7 +27,7 @@ import numpy as np
 from layercam.config import SegmentConfig
 from layercam.errors import LayercamError
 
-__all__ = ["SegmentConfig", "motion_masks", "clean_mask", "object_motion", "foreground_mappings"]
+__all__ = ["SegmentConfig", "textured", "motion_masks", "clean_mask", "object_motion", "foreground_mappings"]
 
 
 def _check_flows(fw, bw) -> tuple[np.ndarray, np.ndarray]:
@@ -148,10 +148,41 @@ def motion_offsets(reach: int) -> tuple[int, ...]:
     return tuple(2**i for i in range(int(np.log2(max(int(reach), 1))) + 1))
 
 
-def motion_masks(fw, bw, fw_ok=None, bw_ok=None, cfg: SegmentConfig | None = None) -> tuple[np.ndarray, dict]:
+def textured(frames: np.ndarray, cfg: SegmentConfig | None = None) -> np.ndarray:
+    """Where each frame has texture the flow can follow: ``(T, H, W)`` bool. The smaller
+    eigenvalue of the grey level's structure tensor (Gaussian window of ``cfg.texture_window`` of
+    the short side; its square root: grey levels per pixel in the least textured direction), over
+    the local mean grey level plus 0.05 (so a frame exposed darker is judged alike), at least
+    ``cfg.texture``. In a smooth patch (sky, a plain wall) dense flow is interpolated from its edges
+    and its disagreement with the camera's motion is no evidence that anything moves there: DAVIS
+    parkour's sky above the runner was a second "object" (at ``--resize 0.5`` the masks followed it
+    instead of the runner in frames 15-18; docs/measurements.md). ``cfg.texture = 0``: all True."""
+    import cv2
+
+    cfg = cfg or SegmentConfig()
+    f = np.asarray(frames, np.float32)
+    if f.ndim == 4:
+        f = f.mean(-1)
+    if cfg.texture <= 0:
+        return np.ones(f.shape, bool)
+    s = max(cfg.texture_window * min(f.shape[1:3]), 0.5)
+    out = np.empty(f.shape, bool)
+    for t, g in enumerate(f):
+        ix = cv2.Sobel(g, cv2.CV_32F, 1, 0, ksize=3) / 8
+        iy = cv2.Sobel(g, cv2.CV_32F, 0, 1, ksize=3) / 8
+        a, b, c = (cv2.GaussianBlur(v, (0, 0), s) for v in (ix * ix, iy * iy, ix * iy))
+        tr, det = a + b, a * b - c * c
+        lam = np.sqrt(np.maximum(tr / 2 - np.sqrt(np.maximum(tr * tr / 4 - det, 0)), 0))
+        out[t] = lam >= cfg.texture * (cv2.GaussianBlur(g, (0, 0), s) + 0.05)
+    return out
+
+
+def motion_masks(fw, bw, fw_ok=None, bw_ok=None, cfg: SegmentConfig | None = None, frames=None) -> tuple[np.ndarray, dict]:
     """Foreground masks of whatever moves on its own: ``(T, H, W)`` float32 in {0, 1}, and an info
     dict (coverage per frame, frames filled from neighbours, the static scene's model). ``fw_ok``,
-    ``bw_ok`` ``(T-1, H, W)``: the flows' forward-backward checks (computed when None)."""
+    ``bw_ok`` ``(T-1, H, W)``: the flows' forward-backward checks (computed when None). With the
+    ``frames`` ``(T, H, W[, C])``, only where they have texture (:func:`textured`) is a pixel's
+    disagreement with the static scene evidence."""
     from layercam.flow import flow_consistency
     from layercam.motion import long_range_evidence
 
@@ -160,8 +191,17 @@ def motion_masks(fw, bw, fw_ok=None, bw_ok=None, cfg: SegmentConfig | None = Non
     fo = flow_consistency(f, b) if fw_ok is None else np.asarray(fw_ok, bool)
     bo = flow_consistency(b, f) if bw_ok is None else np.asarray(bw_ok, bool)
     soft, share = long_range_evidence(f, b, fo, bo, motion_offsets(cfg.reach), cfg.abs_px, cfg.k_sigma, cfg.f_vote)
+    smooth = None
+    if frames is not None and cfg.texture > 0:
+        tex = textured(frames, cfg)
+        if tex.shape != soft["homography"].shape:
+            raise LayercamError(f"motion segmentation: frames {tex.shape} do not match the flows {soft['homography'].shape}")
+        soft = {k: None if v is None else v * tex for k, v in soft.items()}
+        smooth = float(1 - tex.mean())
     masks = _voted_masks(soft["homography"], f, b, cfg)
     model = {"model": "homography", "epipolar_votes": round(share, 3)}
+    if smooth is not None:
+        model["untextured"] = round(smooth, 4)
     if soft["epipolar"] is not None:  # parallax: unless the epipolar model explained the object away too
         alt = _voted_masks(soft["epipolar"], f, b, cfg)
         left = float(np.median(alt.reshape(len(alt), -1).mean(1)))
@@ -312,7 +352,7 @@ def refine_masks(frames: np.ndarray, background: np.ndarray, alpha: np.ndarray, 
     return out
 
 
-SEGMENT_VERSION = 2               # bump when motion_masks changes what it returns
+SEGMENT_VERSION = 3               # bump when motion_masks changes what it returns
 
 
 def foreground_bootstrap(frames: np.ndarray, flows: dict | None, masks: np.ndarray | None = None, cfg: SegmentConfig | None = None) -> dict:
@@ -329,7 +369,7 @@ def foreground_bootstrap(frames: np.ndarray, flows: dict | None, masks: np.ndarr
     computed = False
     if masks is None and flows is not None and T > 1:
         fw, bw = flows["fw"].astype(np.float32), flows["bw"].astype(np.float32)
-        masks, info = motion_masks(fw, bw, flows.get("fw_ok"), flows.get("bw_ok"), cfg)
+        masks, info = motion_masks(fw, bw, flows.get("fw_ok"), flows.get("bw_ok"), cfg, frames=frames)
         if cfg.grabcut > 0:
             masks = np.stack([grabcut_refine(frames[t], masks[t], cfg.grabcut) for t in range(T)]).astype(np.float32)
             info["coverage_after_grabcut"] = float(masks.mean())

@@ -131,3 +131,39 @@ def test_refine_masks_follow_the_background_residual():
     frames[:, 5:15, 80:90] = 1.0
     far = segment.refine_masks(frames, np.stack([bg, bg]), alpha, threshold=0.1)
     assert not far[:, 5:15, 80:90].any()
+
+
+def test_textured_tells_sky_from_texture_at_any_exposure():
+    import cv2
+
+    rng = np.random.default_rng(0)
+    tex = cv2.GaussianBlur(rng.uniform(0, 1, (64, 64)).astype(np.float32), (0, 0), 1.0)
+    f = np.empty((64, 128), np.float32)
+    f[:, :64] = 0.2 + 0.6 * (tex - tex.min()) / (tex.max() - tex.min())  # texture
+    f[:, 64:] = np.linspace(0.55, 0.75, 64)[:, None]  # a sky's smooth gradient
+    frames = np.stack([f, 0.25 * f])[..., None].repeat(3, -1)  # and two stops darker
+    got = segment.textured(frames)
+    assert got.shape == (2, 64, 128) and got.dtype == bool
+    for t in range(2):
+        assert got[t, 8:-8, 8:56].mean() > 0.95 and got[t, 8:-8, 72:-8].mean() < 0.05, t
+    assert segment.textured(frames, segment.SegmentConfig(texture=0)).all()
+
+
+def test_flow_in_a_smooth_sky_is_no_evidence(square):
+    """Dense flow over a smooth patch is interpolated from its edges: a wrong vector there is not an
+    object. A smooth patch beside the square whose flow is off by 3 px: without the frames the
+    masks take it (and lose the square: one object per frame), with them only the square."""
+    frames = square["frames"].copy()
+    sky = np.s_[:, 44:60, 40:62]
+    frames[sky] = np.linspace(0.6, 0.7, 22, dtype=np.float32)[None, None, :, None]
+    fw, bw = square["fw"].copy(), square["bw"].copy()
+    fw[sky + (0,)] += 3.0
+    bw[sky + (0,)] -= 3.0
+    blind, _ = segment.motion_masks(fw, bw)
+    seen, info = segment.motion_masks(fw, bw, frames=frames)
+    assert blind[sky].mean() > 0.3  # the patch taken for an object
+    assert seen[sky].mean() < 0.05 and info["untextured"] > 0.05
+    ious = [metrics.iou(seen[t] > 0.5, square["masks"][t]) for t in range(len(seen))]
+    assert np.mean(ious) > 0.5, ious
+    with pytest.raises(LayercamError, match="do not match"):
+        segment.motion_masks(fw, bw, frames=frames[:, :32])

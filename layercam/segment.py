@@ -5,7 +5,8 @@ fitted by RANSAC (:func:`layercam.flow.global_homographies`). Per frame the evid
 *smaller* of the forward residual (flow to the next frame) and the backward residual (flow to the
 previous frame): a moving object disagrees in both directions, while the background it is about
 to cover (leading edge, forward flow ill-defined) or has just uncovered (trailing edge, backward
-flow ill-defined) disagrees in one only. The evidence is thresholded against the frame's own
+flow ill-defined) disagrees in one only. It counts only where the frame has texture the flow
+can follow (:func:`textured`: flow over a smooth sky is interpolated, not measured). The evidence is thresholded against the frame's own
 residual noise, averaged with its neighbours along the flow (temporal consistency), cleaned with
 morphology (open, close, fill holes, drop small components), and frames where the object stands
 still (no evidence) inherit their neighbours' masks along the flow. :func:`foreground_bootstrap`

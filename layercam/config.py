@@ -208,9 +208,10 @@ class SegmentConfig:
     ``keep_fraction`` of the frame's largest or farther from it than ``gap`` times its size (one
     object per frame). ``still_fraction``: a frame whose mask is smaller than
     this fraction of the clip's median area inherits its neighbours' masks (the object stood still).
-    ``texture``: a pixel's flow is evidence only where its frame has texture the flow can follow
+    ``texture``: where a frame has texture the flow can follow
     (:func:`layercam.segment.textured`: the structure tensor's smaller eigenvalue, in a Gaussian
-    window of ``texture_window`` of the short side, over the local grey level; 0: everywhere).
+    window of ``texture_window`` of the short side, over the local grey level; 0: off); a part of
+    the voted evidence less than ``texture_share`` of which has texture is dropped.
     ``grabcut``: GrabCut iterations that tighten the masks to colour edges (0: off). ``foreground``:
     the foreground layer's starting mapping, the object's own motion or the identity.
     ``margin``: the part of the foreground atlas the masked object fills at the start.
@@ -229,6 +230,7 @@ class SegmentConfig:
     vote: float = setting(0.4, 0.0, 1.0)
     texture: float = setting(0.006, 0.0)
     texture_window: float = setting(0.0125, above=0.0, hi=1.0)
+    texture_share: float = setting(0.5, 0.0, 1.0)
     min_area: float = setting(0.002, 0.0, 1.0)
     keep_fraction: float = setting(0.15, 0.0, 1.0)
     gap: float = setting(0.25, 0.0)

@@ -5,9 +5,10 @@ fitted by RANSAC (:func:`layercam.flow.global_homographies`). Per frame the evid
 *smaller* of the forward residual (flow to the next frame) and the backward residual (flow to the
 previous frame): a moving object disagrees in both directions, while the background it is about
 to cover (leading edge, forward flow ill-defined) or has just uncovered (trailing edge, backward
-flow ill-defined) disagrees in one only. It counts only where the frame has texture the flow
-can follow (:func:`textured`: flow over a smooth sky is interpolated, not measured). The evidence is thresholded against the frame's own
-residual noise, averaged with its neighbours along the flow (temporal consistency), cleaned with
+flow ill-defined) disagrees in one only. The evidence is thresholded against the frame's own
+residual noise, averaged with its neighbours along the flow (temporal consistency), rid of
+parts that lie mostly where the frame has no texture the flow can follow (:func:`textured`: flow
+over a smooth sky is interpolated, not measured), cleaned with
 morphology (open, close, fill holes, drop small components), and frames where the object stands
 still (no evidence) inherit their neighbours' masks along the flow. :func:`foreground_bootstrap`
 then tightens each mask to the object's colour edges with GrabCut (flow masks overshoot by about a
@@ -136,12 +137,24 @@ def _fill_still_frames(masks: np.ndarray, fw: np.ndarray, bw: np.ndarray, frac: 
     return out, filled
 
 
-def _voted_masks(soft: np.ndarray, f: np.ndarray, b: np.ndarray, cfg: SegmentConfig) -> np.ndarray:
+def _voted_masks(soft: np.ndarray, f: np.ndarray, b: np.ndarray, cfg: SegmentConfig, tex: np.ndarray | None = None) -> np.ndarray:
     """Soft evidence ``(T, H, W)`` -> cleaned masks ``(T, H, W)`` bool: thresholded at
-    ``cfg.evidence``, averaged with its neighbours along the flow, thresholded at ``cfg.vote``."""
+    ``cfg.evidence``, averaged with its neighbours along the flow, thresholded at ``cfg.vote``;
+    with ``tex`` (:func:`textured`), each connected part less than ``cfg.texture_share`` of which
+    has texture is dropped before one object is kept."""
+    import cv2
+
     ev = soft >= cfg.evidence
     vote = _temporal_vote(ev, f, b, cfg.window) if cfg.window > 0 else ev.astype(np.float32)
-    return np.stack([clean_mask(v >= cfg.vote, cfg) for v in vote])
+    out = []
+    for t, v in enumerate(vote):
+        m = v >= cfg.vote
+        if tex is not None and m.any():
+            n, lab = cv2.connectedComponents(m.astype(np.uint8), connectivity=8)
+            share = np.bincount(lab.ravel(), weights=tex[t].ravel(), minlength=n) / np.maximum(np.bincount(lab.ravel(), minlength=n), 1)
+            m = m & (share >= cfg.texture_share)[lab]
+        out.append(clean_mask(m, cfg))
+    return np.stack(out)
 
 
 def motion_offsets(reach: int) -> tuple[int, ...]:
@@ -155,9 +168,11 @@ def textured(frames: np.ndarray, cfg: SegmentConfig | None = None) -> np.ndarray
     the short side; its square root: grey levels per pixel in the least textured direction), over
     the local mean grey level plus 0.05 (so a frame exposed darker is judged alike), at least
     ``cfg.texture``. In a smooth patch (sky, a plain wall) dense flow is interpolated from its edges
-    and its disagreement with the camera's motion is no evidence that anything moves there: DAVIS
-    parkour's sky above the runner was a second "object" (at ``--resize 0.5`` the masks followed it
-    instead of the runner in frames 15-18; docs/measurements.md). ``cfg.texture = 0``: all True."""
+    and its disagreement with the camera's motion is no evidence that anything moves there: at
+    ``--resize 0.5`` DAVIS parkour's masks followed a patch of sky instead of the runner in frames
+    15-18. Whole parts of the evidence are judged, not pixels (:func:`motion_masks`): a person in
+    plain dark clothes has no texture inside either (the Basler clip; docs/measurements.md).
+    ``cfg.texture = 0``: all True."""
     import cv2
 
     cfg = cfg or SegmentConfig()
@@ -182,8 +197,8 @@ def motion_masks(fw, bw, fw_ok=None, bw_ok=None, cfg: SegmentConfig | None = Non
     """Foreground masks of whatever moves on its own: ``(T, H, W)`` float32 in {0, 1}, and an info
     dict (coverage per frame, frames filled from neighbours, the static scene's model). ``fw_ok``,
     ``bw_ok`` ``(T-1, H, W)``: the flows' forward-backward checks (computed when None). With the
-    ``frames`` ``(T, H, W[, C])``, only where they have texture (:func:`textured`) is a pixel's
-    disagreement with the static scene evidence."""
+    ``frames`` ``(T, H, W[, C])``, a part of a frame's evidence that lies mostly where the frame has
+    no texture (:func:`textured`) is not an object."""
     from layercam.flow import flow_consistency
     from layercam.motion import long_range_evidence
 
@@ -192,19 +207,18 @@ def motion_masks(fw, bw, fw_ok=None, bw_ok=None, cfg: SegmentConfig | None = Non
     fo = flow_consistency(f, b) if fw_ok is None else np.asarray(fw_ok, bool)
     bo = flow_consistency(b, f) if bw_ok is None else np.asarray(bw_ok, bool)
     soft, share = long_range_evidence(f, b, fo, bo, motion_offsets(cfg.reach), cfg.abs_px, cfg.k_sigma, cfg.f_vote)
-    smooth = None
+    tex = smooth = None
     if frames is not None and cfg.texture > 0:
         tex = textured(frames, cfg)
         if tex.shape != soft["homography"].shape:
             raise LayercamError(f"motion segmentation: frames {tex.shape} do not match the flows {soft['homography'].shape}")
-        soft = {k: None if v is None else v * tex for k, v in soft.items()}
         smooth = float(1 - tex.mean())
-    masks = _voted_masks(soft["homography"], f, b, cfg)
+    masks = _voted_masks(soft["homography"], f, b, cfg, tex)
     model = {"model": "homography", "epipolar_votes": round(share, 3)}
     if smooth is not None:
         model["untextured"] = round(smooth, 4)
     if soft["epipolar"] is not None:  # parallax: unless the epipolar model explained the object away too
-        alt = _voted_masks(soft["epipolar"], f, b, cfg)
+        alt = _voted_masks(soft["epipolar"], f, b, cfg, tex)
         left = float(np.median(alt.reshape(len(alt), -1).mean(1)))
         model["epipolar_coverage"] = round(left, 4)
         if left >= cfg.min_object:

@@ -209,7 +209,7 @@ class SegmentConfig:
     object per frame). ``still_fraction``: a frame whose mask is smaller than
     this fraction of the clip's median area inherits its neighbours' masks (the object stood still).
     ``texture``: where a frame has texture the flow can follow
-    (:func:`layercam.segment.textured`: the structure tensor's smaller eigenvalue, in a Gaussian
+    (:func:`layercam.visibility.textured`: the structure tensor's smaller eigenvalue, in a Gaussian
     window of ``texture_window`` of the short side, over the local grey level; 0: off); a part of
     the voted evidence less than ``texture_share`` of which has texture is dropped.
     ``grabcut``: GrabCut iterations that tighten the masks to colour edges (0: off). ``foreground``:

@@ -7,8 +7,8 @@ previous frame): a moving object disagrees in both directions, while the backgro
 to cover (leading edge, forward flow ill-defined) or has just uncovered (trailing edge, backward
 flow ill-defined) disagrees in one only. The evidence is thresholded against the frame's own
 residual noise, averaged with its neighbours along the flow (temporal consistency), rid of
-parts that lie mostly where the frame has no texture the flow can follow (:func:`textured`: flow
-over a smooth sky is interpolated, not measured), cleaned with
+parts that lie mostly where the frame has no texture the flow can follow (:func:`layercam.visibility.textured`:
+flow over a smooth sky is interpolated, not measured), cleaned with
 morphology (open, close, fill holes, drop small components), and frames where the object stands
 still (no evidence) inherit their neighbours' masks along the flow. :func:`foreground_bootstrap`
 then tightens each mask to the object's colour edges with GrabCut (flow masks overshoot by about a
@@ -29,7 +29,7 @@ import numpy as np
 from layercam.config import SegmentConfig
 from layercam.errors import LayercamError
 
-__all__ = ["SegmentConfig", "textured", "motion_masks", "clean_mask", "object_motion", "foreground_mappings"]
+__all__ = ["SegmentConfig", "motion_masks", "clean_mask", "object_motion", "foreground_mappings"]
 
 
 def _check_flows(fw, bw) -> tuple[np.ndarray, np.ndarray]:
@@ -140,7 +140,7 @@ def _fill_still_frames(masks: np.ndarray, fw: np.ndarray, bw: np.ndarray, frac: 
 def _voted_masks(soft: np.ndarray, f: np.ndarray, b: np.ndarray, cfg: SegmentConfig, tex: np.ndarray | None = None) -> np.ndarray:
     """Soft evidence ``(T, H, W)`` -> cleaned masks ``(T, H, W)`` bool: thresholded at
     ``cfg.evidence``, averaged with its neighbours along the flow, thresholded at ``cfg.vote``;
-    with ``tex`` (:func:`textured`), each connected part less than ``cfg.texture_share`` of which
+    with ``tex`` (:func:`layercam.visibility.textured`), each connected part less than ``cfg.texture_share`` of which
     has texture is dropped before one object is kept."""
     import cv2
 
@@ -162,45 +162,15 @@ def motion_offsets(reach: int) -> tuple[int, ...]:
     return tuple(2**i for i in range(int(np.log2(max(int(reach), 1))) + 1))
 
 
-def textured(frames: np.ndarray, cfg: SegmentConfig | None = None) -> np.ndarray:
-    """Where each frame has texture the flow can follow: ``(T, H, W)`` bool. The smaller
-    eigenvalue of the grey level's structure tensor (Gaussian window of ``cfg.texture_window`` of
-    the short side; its square root: grey levels per pixel in the least textured direction), over
-    the local mean grey level plus 0.05 (so a frame exposed darker is judged alike), at least
-    ``cfg.texture``. In a smooth patch (sky, a plain wall) dense flow is interpolated from its edges
-    and its disagreement with the camera's motion is no evidence that anything moves there: at
-    ``--resize 0.5`` DAVIS parkour's masks followed a patch of sky instead of the runner in frames
-    15-18. Whole parts of the evidence are judged, not pixels (:func:`motion_masks`): a person in
-    plain dark clothes has no texture inside either (the Basler clip; docs/measurements.md).
-    ``cfg.texture = 0``: all True."""
-    import cv2
-
-    cfg = cfg or SegmentConfig()
-    f = np.asarray(frames, np.float32)
-    if f.ndim == 4:
-        f = f.mean(-1)
-    if cfg.texture <= 0:
-        return np.ones(f.shape, bool)
-    s = max(cfg.texture_window * min(f.shape[1:3]), 0.5)
-    out = np.empty(f.shape, bool)
-    for t, g in enumerate(f):
-        ix = cv2.Sobel(g, cv2.CV_32F, 1, 0, ksize=3) / 8
-        iy = cv2.Sobel(g, cv2.CV_32F, 0, 1, ksize=3) / 8
-        a, b, c = (cv2.GaussianBlur(v, (0, 0), s) for v in (ix * ix, iy * iy, ix * iy))
-        tr, det = a + b, a * b - c * c
-        lam = np.sqrt(np.maximum(tr / 2 - np.sqrt(np.maximum(tr * tr / 4 - det, 0)), 0))
-        out[t] = lam >= cfg.texture * (cv2.GaussianBlur(g, (0, 0), s) + 0.05)
-    return out
-
-
 def motion_masks(fw, bw, fw_ok=None, bw_ok=None, cfg: SegmentConfig | None = None, frames=None) -> tuple[np.ndarray, dict]:
     """Foreground masks of whatever moves on its own: ``(T, H, W)`` float32 in {0, 1}, and an info
     dict (coverage per frame, frames filled from neighbours, the static scene's model). ``fw_ok``,
     ``bw_ok`` ``(T-1, H, W)``: the flows' forward-backward checks (computed when None). With the
     ``frames`` ``(T, H, W[, C])``, a part of a frame's evidence that lies mostly where the frame has
-    no texture (:func:`textured`) is not an object."""
+    no texture (:func:`layercam.visibility.textured`) is not an object."""
     from layercam.flow import flow_consistency
     from layercam.motion import long_range_evidence
+    from layercam.visibility import textured
 
     cfg = cfg or SegmentConfig()
     f, b = _check_flows(fw, bw)
@@ -209,7 +179,7 @@ def motion_masks(fw, bw, fw_ok=None, bw_ok=None, cfg: SegmentConfig | None = Non
     soft, share = long_range_evidence(f, b, fo, bo, motion_offsets(cfg.reach), cfg.abs_px, cfg.k_sigma, cfg.f_vote)
     tex = smooth = None
     if frames is not None and cfg.texture > 0:
-        tex = textured(frames, cfg)
+        tex = textured(frames, cfg.texture, cfg.texture_window)
         if tex.shape != soft["homography"].shape:
             raise LayercamError(f"motion segmentation: frames {tex.shape} do not match the flows {soft['homography'].shape}")
         smooth = float(1 - tex.mean())

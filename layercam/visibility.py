@@ -128,3 +128,33 @@ def pair_visible(frames: np.ndarray, fw: np.ndarray) -> np.ndarray:
     for t in range(len(out)):
         out[t] = vis[t] & (warp(vis[t + 1].astype(np.float32), np.asarray(fw[t], np.float32)) > 0.5)
     return out
+
+
+def textured(frames: np.ndarray, threshold: float = 0.006, window: float = 0.0125) -> np.ndarray:
+    """Where each frame has texture dense flow can follow: ``(T, H, W)`` bool for frames ``(T, H,
+    W[, 3])``. The smaller eigenvalue of the grey level's structure tensor (Gaussian window of
+    ``window`` times the short side; its square root: grey levels per pixel in the least textured
+    direction, so a lone straight edge does not count), over the local mean grey level plus 0.05
+    (a frame exposed darker is judged alike), at least ``threshold``; ``threshold <= 0``: all True.
+    In a smooth patch (sky, a plain wall) dense flow is interpolated from its edges: at ``--resize
+    0.5`` DAVIS parkour's motion masks followed a patch of sky instead of the runner in frames
+    15-18 (:func:`layercam.segment.motion_masks` drops parts of its evidence that are mostly
+    untextured; per pixel it also lost the Basler clip's person in plain dark clothes:
+    docs/measurements.md)."""
+    import cv2
+
+    f = np.asarray(frames, np.float32)
+    if f.ndim == 4:
+        f = np.stack([grey(x) for x in f])
+    if threshold <= 0:
+        return np.ones(f.shape, bool)
+    s = max(window * min(f.shape[1:3]), 0.5)
+    out = np.empty(f.shape, bool)
+    for t, g in enumerate(f):
+        ix = cv2.Sobel(g, cv2.CV_32F, 1, 0, ksize=3) / 8
+        iy = cv2.Sobel(g, cv2.CV_32F, 0, 1, ksize=3) / 8
+        a, b, c = (cv2.GaussianBlur(v, (0, 0), s) for v in (ix * ix, iy * iy, ix * iy))
+        tr, det = a + b, a * b - c * c
+        lam = np.sqrt(np.maximum(tr / 2 - np.sqrt(np.maximum(tr * tr / 4 - det, 0)), 0))
+        out[t] = lam >= threshold * (cv2.GaussianBlur(g, (0, 0), s) + 0.05)
+    return out

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from layercam import flow, metrics, segment
+from layercam import flow, metrics, segment, visibility
 from layercam.errors import LayercamError
 
 
@@ -142,11 +142,11 @@ def test_textured_tells_sky_from_texture_at_any_exposure():
     f[:, :64] = 0.2 + 0.6 * (tex - tex.min()) / (tex.max() - tex.min())  # texture
     f[:, 64:] = np.linspace(0.55, 0.75, 64)[:, None]  # a sky's smooth gradient
     frames = np.stack([f, 0.25 * f])[..., None].repeat(3, -1)  # and two stops darker
-    got = segment.textured(frames)
+    got = visibility.textured(frames)
     assert got.shape == (2, 64, 128) and got.dtype == bool
     for t in range(2):
         assert got[t, 8:-8, 8:56].mean() > 0.95 and got[t, 8:-8, 72:-8].mean() < 0.05, t
-    assert segment.textured(frames, segment.SegmentConfig(texture=0)).all()
+    assert visibility.textured(frames, threshold=0).all()
 
 
 def test_flow_in_a_smooth_sky_is_no_evidence(square):

@@ -212,7 +212,12 @@ class SegmentConfig:
     (:func:`layercam.visibility.textured`: the structure tensor's smaller eigenvalue, in a Gaussian
     window of ``texture_window`` of the short side, over the local grey level; 0: off); a part of
     the voted evidence less than ``texture_share`` of which has texture is dropped.
-    ``grabcut``: GrabCut iterations that tighten the masks to colour edges (0: off). ``foreground``:
+    ``grabcut``: GrabCut iterations that tighten the masks to colour edges (0: off). ``background``:
+    then each mask is corrected by the frame's residual against the background its neighbours show
+    (:func:`layercam.segment.background_refine`; pixels in a ring of ``background_ring`` of the short
+    side above ``background`` join, mask pixels within ``background_keep`` of it leave, judged by
+    neighbours whose object overlaps this frame's by IoU under ``background_apart``; neighbours up
+    to ``2 * background_reach`` frames away; 0: off). ``foreground``:
     the foreground layer's starting mapping, the object's own motion or the identity.
     ``margin``: the part of the foreground atlas the masked object fills at the start.
     ``refine``: fit the model once on the motion masks, take new masks from where each frame differs
@@ -236,6 +241,11 @@ class SegmentConfig:
     gap: float = setting(0.25, 0.0)
     still_fraction: float = setting(0.3, 0.0, 1.0)
     grabcut: int = setting(4, 0, 32)
+    background: float = setting(0.15, 0.0, 1.0)
+    background_keep: float = setting(0.075, 0.0, 1.0)
+    background_apart: float = setting(0.5, 0.0, 1.0)
+    background_reach: int = setting(4, 1, 32)
+    background_ring: float = setting(0.05, 0.0, 1.0)
     foreground: Literal["object", "identity"] = "object"
     margin: float = setting(0.6, above=0.0, hi=1.0)
     refine: bool = False

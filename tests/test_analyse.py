@@ -364,11 +364,11 @@ def test_short_stack_trains_fewer_steps():
     # above the floor the cap keeps the preset's batch and width, at most 6 grid levels
     q = load_config("quality", ["model.layers=1"])
     big = analyse.resolve_auto(q, True, h0, (510, 768))
-    assert (big.train.steps, big.train.batch, big.scene.grid_levels, big.scene.atlas_width) == (861, 16384, analyse.FLOOR_GRID_LEVELS, 128)
+    assert (big.train.steps, big.train.batch, big.scene.grid_levels, big.scene.atlas_width) == (861, 8192, analyse.FLOOR_GRID_LEVELS, 128)
     assert q.scene.grid_levels == 8 and analyse.resolve_auto(q, False, h48, (144, 256)).scene.grid_levels == 8
     assert analyse.resolve_auto(load_config("fast", ["model.layers=1"]), True, h0, (510, 768)).scene.grid_levels == 5
     # with a blur generator the floor is min_samples in the preset's own model and batch (as before the floor's model)
-    for p, want in (("fast", (600, 4096, 5)), ("balanced", (300, 8192, 6)), ("quality", (150, 16384, 6))):
+    for p, want in (("fast", (600, 4096, 5)), ("balanced", (300, 8192, 6)), ("quality", (300, 8192, 6))):
         c = analyse.resolve_auto(load_config(p, ["model.layers=1", "model.blur=on"]), True, h0, (256, 256))
         assert (c.train.steps, c.train.batch, c.scene.grid_levels) == want, p
     # the paper's positional-encoding atlas keeps its own width and batch at the floor

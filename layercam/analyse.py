@@ -385,8 +385,8 @@ def step_cap(train, frames: int, pixels: int, blur: bool = False) -> int:
     300
     >>> step_cap(TrainConfig(steps=2000, batch=8192), 3, 768 * 510)  # 6 passes over a larger one
     861
-    >>> step_cap(TrainConfig(steps=6000, batch=16384, passes_per_frame=4), 3, 768 * 510)  # quality: 12
-    861
+    >>> step_cap(TrainConfig(steps=150000, batch=30000, passes_per_frame=4), 3, 768 * 510)  # paper: 12
+    471
     >>> step_cap(TrainConfig(steps=6000, batch=16384), 48, 256 * 144)  # a 48-frame clip: not capped
     6000
     >>> step_cap(TrainConfig(steps=600, batch=4096), 4, 32 * 32)  # a tiny clip: the floor

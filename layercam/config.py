@@ -175,7 +175,7 @@ class TrainConfig:
     passes_per_frame: float = setting(2.0, 0.0)  # at most this many passes over the clip's pixels (frames x H x W) per
                                             # frame of the clip (a 3-shot stack: 6), but never fewer steps than min_steps:
                                             # more passes fit a short stack's noise and take time (analyse.step_cap; 0: no cap;
-                                            # quality and paper: 4)
+                                            # paper: 4)
     min_steps: int = setting(300, 1)        # the cap's floor: a clip the cap gives fewer steps trains this many, and the
                                             # floor's model whatever the preset (analyse.FLOOR)
     min_samples: int = setting(2_457_600, 0)  # ... with a blur generator, the floor in pixels sampled instead (fast's

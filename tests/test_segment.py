@@ -194,3 +194,25 @@ def test_background_refine_finds_a_missed_limb_at_alternating_exposures():
     assert out[bleed].mean() < 0.6  # partly: the slow object hid that background in most neighbours
     off = segment.foreground_bootstrap(frames, None, given.astype(np.float32))  # given masks are kept as given
     assert np.array_equal(off["masks"] > 0.5, given)
+
+
+def test_background_median_and_level_map_shortcuts():
+    """The background check's shortcuts give what the plain numpy calls give: the one-sort median
+    equals ``np.nanmedian`` (samples missing in every channel), and on a frame above the sample
+    limit the subsampled, tabled level map stays within a level of the exact one."""
+    rng = np.random.default_rng(0)
+    stack = rng.uniform(0, 1, (7, 20, 30, 3)).astype(np.float32)
+    stack[rng.uniform(size=(7, 20, 30)) < 0.4] = np.nan
+    stack[:, 0, 0] = np.nan  # a pixel no neighbour sees
+    count = (~np.isnan(stack[..., 0])).sum(0)
+    with np.errstate(all="ignore"), pytest.warns(RuntimeWarning):
+        want = np.nanmedian(stack, 0)
+    got = segment._nan_median(stack, count)
+    assert np.allclose(got[count > 0], want[count > 0]) and np.isnan(got[0, 0]).all()
+    src = rng.uniform(0, 1, (400, 400, 3)).astype(np.float32)  # 160,000 pixels: above the limit
+    dst = src**0.6
+    ok = np.ones((400, 400), bool)
+    fast = segment._matched(src, dst, ok)
+    exact = segment._matched(src, dst, ok, samples=10**7)
+    assert np.abs(fast - exact).max() < 1 / 255
+    assert np.abs(fast - dst).max() < np.abs(exact - dst).max() + 1 / 255 < 0.03  # 65 levels of a curve

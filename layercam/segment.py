@@ -359,12 +359,6 @@ def _matched(src: np.ndarray, dst: np.ndarray, ok: np.ndarray, levels: int = 65,
     return out
 
 
-def _max3(x: np.ndarray) -> np.ndarray:
-    """The largest of the last axis' three channels (NaN stays NaN): ``x.max(-1)`` without the slow
-    reduction over a short last axis."""
-    return np.maximum(np.maximum(x[..., 0], x[..., 1]), x[..., 2])
-
-
 def _nan_median(stack: np.ndarray, count: np.ndarray) -> np.ndarray:
     """Median over axis 0 of ``stack (K, H, W, C)`` whose missing samples are NaN in every channel,
     ``count (H, W)`` the samples present (NaN where none): ``np.nanmedian``'s values, by one sort."""
@@ -380,7 +374,8 @@ def background_refine(frames: np.ndarray, masks: np.ndarray, homs: np.ndarray, c
     show (``segment.background``): frames ``t +- 2, 4, .., 2 * background_reach`` warped into frame
     ``t`` by the chained global homographies (``homs (T-1, 3, 3)``, frame t -> t+1 pixels), their
     object (its mask, dilated) left out, each mapped onto frame ``t``'s levels by quantiles (another
-    exposure reads the same), clipped or black samples left out; the per-pixel median is the
+    exposure reads the same), samples not well exposed (:func:`layercam.visibility.well_exposed`)
+    left out; the per-pixel median is the
     background behind the object. A limb the flow was too coarse to see differs from it: within a
     ring of ``background_ring`` of the short side around the mask, pixels whose residual (largest
     channel, smoothed 1 px) exceeds ``background`` join the mask; mask pixels that match it within
@@ -393,6 +388,7 @@ def background_refine(frames: np.ndarray, masks: np.ndarray, homs: np.ndarray, c
     import cv2
 
     from layercam.geometry import chain_homographies
+    from layercam.visibility import well_exposed
 
     cfg = cfg or SegmentConfig()
     m = np.asarray(masks) > 0.5
@@ -404,7 +400,7 @@ def background_refine(frames: np.ndarray, masks: np.ndarray, homs: np.ndarray, c
     r = max(2, int(round(cfg.background_ring * min(h, w))))
     ko = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
     kd = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (5, 5))
-    lo, hi = 2.0 / 255, 245.0 / 255  # samples no exposure can show (the real suite's clipped-everywhere levels)
+    objects = [cv2.dilate(x.astype(np.uint8), kd, iterations=2) for x in m]  # each frame's object, with a margin
     out = m.copy()
     for t in range(T):
         stack, fars = [], []
@@ -414,13 +410,12 @@ def background_refine(frames: np.ndarray, masks: np.ndarray, homs: np.ndarray, c
                     continue
                 hm = np.linalg.inv(M[t]) @ M[s]
                 ws = cv2.warpPerspective(fr[s], hm, (w, h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=(np.nan,) * 3)
-                obj = cv2.warpPerspective(cv2.dilate(m[s].astype(np.uint8), kd, iterations=2), hm, (w, h), flags=cv2.INTER_NEAREST, borderValue=1) > 0
+                obj = cv2.warpPerspective(objects[s], hm, (w, h), flags=cv2.INTER_NEAREST, borderValue=1) > 0
                 ms = cv2.warpPerspective(m[s].astype(np.uint8), hm, (w, h), flags=cv2.INTER_NEAREST) > 0
                 union = np.count_nonzero(ms | m[t])
                 far = union == 0 or np.count_nonzero(ms & m[t]) / union < cfg.background_apart  # the object moved off its place
-                top = _max3(ws)  # NaN outside the neighbour's view (every channel)
                 with np.errstate(invalid="ignore"):
-                    bad = obj | np.isnan(top) | (top >= hi) | (top <= lo)
+                    bad = obj | ~well_exposed(ws)  # NaN outside the neighbour's view: not well exposed either
                 ok = ~bad & ~m[t]
                 if np.count_nonzero(ok) < 100:
                     continue
@@ -436,9 +431,8 @@ def background_refine(frames: np.ndarray, masks: np.ndarray, homs: np.ndarray, c
         count = present.sum(0)
         apart = present[fars].sum(0) if fars.any() else np.zeros_like(count)
         bg = _nan_median(stack, count)
-        ft = _max3(fr[t])
-        seen = (count > 0) & (ft < hi) & (ft > lo)
-        res = np.where(seen, _max3(np.abs(np.nan_to_num(bg) - fr[t])), 0.0).astype(np.float32)
+        seen = (count > 0) & well_exposed(fr[t])
+        res = np.where(seen, np.abs(np.nan_to_num(bg) - fr[t]).max(-1), 0.0).astype(np.float32)
         res = cv2.GaussianBlur(res, (0, 0), 1.0)
         ring = cv2.dilate(m[t].astype(np.uint8), ko) > 0
         drop = seen & (apart >= 3) & (res < cfg.background_keep)

@@ -217,7 +217,11 @@ class SegmentConfig:
     (:func:`layercam.segment.background_refine`; pixels in a ring of ``background_ring`` of the short
     side above ``background`` join, mask pixels within ``background_keep`` of it leave, judged by
     neighbours whose object overlaps this frame's by IoU under ``background_apart``; neighbours up
-    to ``2 * background_reach`` frames away; 0: off). ``foreground``:
+    to ``2 * background_reach`` frames away; 0: off). ``colour``: then each mask is grown to the
+    object's colours learned over the clip by a graph cut (:func:`layercam.segment.colour_cut`),
+    within ``colour_reach`` times the object's size of it and only where the frame's relative
+    residual against that background exceeds ``colour`` (0: off; it needs ``background``);
+    ``colour_smooth``: the cut's weight on following colour edges. ``foreground``:
     the foreground layer's starting mapping, the object's own motion or the identity.
     ``margin``: the part of the foreground atlas the masked object fills at the start.
     ``refine``: fit the model once on the motion masks, take new masks from where each frame differs
@@ -246,6 +250,9 @@ class SegmentConfig:
     background_apart: float = setting(0.5, 0.0, 1.0)
     background_reach: int = setting(4, 1, 32)
     background_ring: float = setting(0.05, 0.0, 1.0)
+    colour: float = setting(0.3, 0.0)
+    colour_reach: float = setting(2.0, above=0.0)
+    colour_smooth: float = setting(2.0, 0.0)
     foreground: Literal["object", "identity"] = "object"
     margin: float = setting(0.6, above=0.0, hi=1.0)
     refine: bool = False

@@ -12,7 +12,9 @@ flow over a smooth sky is interpolated, not measured), cleaned with
 morphology (open, close, fill holes, drop small components), and frames where the object stands
 still (no evidence) inherit their neighbours' masks along the flow. :func:`foreground_bootstrap`
 then tightens each mask to the object's colour edges with GrabCut (flow masks overshoot by about a
-DIS patch). The masks' measured IoU with the true ones: ``docs/measurements.md``. Every threshold
+DIS patch), checks it against the background its neighbours show (:func:`background_refine`) and
+grows it to the object's colours learned over the whole clip, where the frame differs from that
+background (:func:`colour_cut`: the flow often finds only part of the object). The masks' measured IoU with the true ones: ``docs/measurements.md``. Every threshold
 is a setting (``segment`` section of :mod:`layercam.config`).
 
 :func:`foreground_mappings` turns the masks into the foreground layer's bootstrap mapping: the
@@ -29,7 +31,7 @@ import numpy as np
 from layercam.config import SegmentConfig
 from layercam.errors import LayercamError
 
-__all__ = ["SegmentConfig", "motion_masks", "clean_mask", "object_motion", "foreground_mappings"]
+__all__ = ["SegmentConfig", "motion_masks", "clean_mask", "object_motion", "foreground_mappings", "background_refine", "colour_cut"]
 
 
 def _check_flows(fw, bw) -> tuple[np.ndarray, np.ndarray]:
@@ -525,8 +527,9 @@ def colour_cut(frames: np.ndarray, masks: np.ndarray, residual: np.ndarray, homs
     already is: background of the object's colours does not join. A frame whose mask is under
     ``still_fraction`` of the median area starts from its nearest good neighbour's, carried by the
     global homographies (``homs``). Then :func:`clean_mask`.
-    DAVIS at 282x158 (bootstrap IoU; docs/layers/colour/): car 0.767 -> 0.778, cows 0.724 ->
-    0.795, libby 0.396 -> 0.539, parkour 0.766 -> 0.805."""
+    Without the residual gate the cut spreads into background of the object's colours (the grey
+    road beside a silver car). DAVIS at 282x158 (bootstrap IoU; docs/layers/colour/): car 0.767 ->
+    0.808, cows 0.724 -> 0.763, libby 0.396 -> 0.533, parkour 0.766 -> 0.805."""
     import cv2
 
     from layercam.geometry import chain_homographies
@@ -578,7 +581,8 @@ def foreground_bootstrap(frames: np.ndarray, flows: dict | None, masks: np.ndarr
     "computed": bool, "how": str, "info": dict}``.
 
     ``masks`` given by the user win; otherwise, with flow (``flows`` holds ``fw``, ``bw``,
-    ``fw_ok``, ``homs`` as the flow stage caches them), motion masks refined by GrabCut; with
+    ``fw_ok``, ``homs`` as the flow stage caches them), motion masks refined by GrabCut, the
+    background check and the colour cut; with
     neither (one frame), no masks and the identity mapping.
     """
     cfg = cfg or SegmentConfig()

@@ -569,7 +569,8 @@ def colour_cut(frames: np.ndarray, masks: np.ndarray, residual: np.ndarray, homs
         unary = np.where(region[box], llr[bins[t][box]] + prior[box], -50.0).astype(np.float32)
         cut = np.zeros((h, w), bool)
         cut[box] = _graph_cut(unary, _equalised_lab(frames[t])[box] / 100.0, cfg.colour_smooth)
-        out[t] = clean_mask(cut, cfg)
+        cut = clean_mask(cut, cfg)
+        out[t] = cut if cut.any() else m[t]  # a cut that leaves nothing keeps the mask it had
     return out
 
 

@@ -491,12 +491,10 @@ def _equalised_lab(frame: np.ndarray, samples: int = 1 << 17) -> np.ndarray:
     another exposure through any camera curve gives the same colours up to clipping), in CIELAB."""
     import cv2
 
+    from layercam.flow import _midrank
+
     f = np.asarray(frame, np.float32)
-    out = np.empty_like(f)
-    for c in range(3):
-        x = f[..., c].ravel()
-        ref = np.sort(x[:: -(-x.size // samples)])
-        out[..., c] = (0.5 * (np.searchsorted(ref, x, "left") + np.searchsorted(ref, x, "right")) / len(ref)).reshape(f.shape[:2])
+    out = np.stack([np.clip(_midrank(f[..., c], samples), 0, 1) for c in range(3)], -1).astype(np.float32)
     return cv2.cvtColor(out, cv2.COLOR_RGB2Lab)
 
 

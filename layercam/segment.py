@@ -371,8 +371,11 @@ def _nan_median(stack: np.ndarray, count: np.ndarray) -> np.ndarray:
     return 0.5 * (np.take_along_axis(srt, lo, 0)[0] + np.take_along_axis(srt, hi, 0)[0])
 
 
-def background_refine(frames: np.ndarray, masks: np.ndarray, homs: np.ndarray, cfg: SegmentConfig | None = None, residuals: bool = False):
-    """Masks ``(T, H, W)`` corrected by each frame's residual against the background its neighbours
+_REL_EPS = 0.03  # the relative residual's floor: near-black noise does not read as a large ratio
+
+
+def background_refine(frames: np.ndarray, masks: np.ndarray, homs: np.ndarray, cfg: SegmentConfig | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Masks ``(T, H, W)`` bool corrected by each frame's residual against the background its neighbours
     show (``segment.background``): frames ``t +- 2, 4, .., 2 * background_reach`` warped into frame
     ``t`` by the chained global homographies (``homs (T-1, 3, 3)``, frame t -> t+1 pixels), their
     object (its mask, dilated) left out, each mapped onto frame ``t``'s levels by quantiles (another
@@ -388,8 +391,8 @@ def background_refine(frames: np.ndarray, masks: np.ndarray, homs: np.ndarray, c
     neighbours a frame keeps its mask. DAVIS at 282x158 (bootstrap IoU; docs/layers/background/):
     car 0.760 -> 0.767, cows 0.727 -> 0.724, libby 0.387 -> 0.396, parkour 0.720 -> 0.766.
 
-    With ``residuals``, returns ``(masks, residual)``: also each frame's relative residual against
-    that background, ``(T, H, W)`` float16, the largest channel of ``|log(bg + 0.03) - log(frame +
+    Returns ``(masks, residual)``: the residual is each frame's relative difference from that
+    background, ``(T, H, W)`` float16, the largest channel of ``|log(bg + 0.03) - log(frame +
     0.03)|`` smoothed 1 px, 0 where no neighbour shows the background (what :func:`colour_cut`
     gates on)."""
     import cv2
@@ -401,9 +404,9 @@ def background_refine(frames: np.ndarray, masks: np.ndarray, homs: np.ndarray, c
     m = np.asarray(masks) > 0.5
     fr = np.asarray(frames, np.float32)
     T, h, w = m.shape
-    rel = np.zeros((T, h, w), np.float16) if residuals else None
+    rel = np.zeros((T, h, w), np.float16)
     if T < 3:
-        return (m, rel) if residuals else m
+        return m, rel
     M = chain_homographies(np.asarray(homs, np.float64), T // 2)
     r = max(2, int(round(cfg.background_ring * min(h, w))))
     ko = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
@@ -445,13 +448,9 @@ def background_refine(frames: np.ndarray, masks: np.ndarray, homs: np.ndarray, c
         ring = cv2.dilate(m[t].astype(np.uint8), ko) > 0
         drop = seen & (apart >= 3) & (res < cfg.background_keep)
         out[t] = clean_mask((m[t] & ~drop) | (ring & (res > cfg.background)), cfg)
-        if residuals:
-            lr = np.abs(np.log(np.nan_to_num(bg) + _REL_EPS) - np.log(np.maximum(fr[t], 0) + _REL_EPS)).max(-1)
-            rel[t] = cv2.GaussianBlur(np.where(seen, lr, 0.0).astype(np.float32), (0, 0), 1.0)
-    return (out, rel) if residuals else out
-
-
-_REL_EPS = 0.03  # the relative residual's floor: near-black noise does not read as a large ratio
+        lr = np.abs(np.log(np.nan_to_num(bg) + _REL_EPS) - np.log(np.maximum(fr[t], 0) + _REL_EPS)).max(-1)
+        rel[t] = cv2.GaussianBlur(np.where(seen, lr, 0.0).astype(np.float32), (0, 0), 1.0)
+    return out, rel
 
 
 def _graph_cut(unary: np.ndarray, guide: np.ndarray, smooth: float, scale: float = 100.0) -> np.ndarray:
@@ -509,7 +508,7 @@ def _colour_bins(lab: np.ndarray) -> np.ndarray:
     return (lq * b + aq) * b + bq
 
 
-def colour_cut(frames: np.ndarray, masks: np.ndarray, residual: np.ndarray, homs: np.ndarray | None = None, cfg: SegmentConfig | None = None) -> np.ndarray:
+def colour_cut(frames: np.ndarray, masks: np.ndarray, residual: np.ndarray, cfg: SegmentConfig | None = None) -> np.ndarray:
     """Masks ``(T, H, W)`` grown to the whole object by its colours (``segment.colour``): the
     motion masks find where the object is, often only part of it (the flow of a running dog's head
     and legs is the background's); the object's colours, learned over the whole clip, find the rest.
@@ -522,15 +521,12 @@ def colour_cut(frames: np.ndarray, masks: np.ndarray, residual: np.ndarray, homs
     (the square root of the clip's median mask area) of the mask, the mask counting +1 towards
     the object, and only where the frame differs from the background its neighbours show
     (``residual``, :func:`background_refine`'s relative residual, above ``colour``) or the mask
-    already is: background of the object's colours does not join. A frame whose mask is under
-    ``still_fraction`` of the median area starts from its nearest good neighbour's, carried by the
-    global homographies (``homs``). Then :func:`clean_mask`.
+    already is: background of the object's colours does not join. Then :func:`clean_mask`; a cut
+    that leaves nothing keeps the mask.
     Without the residual gate the cut spreads into background of the object's colours (the grey
     road beside a silver car). DAVIS at 282x158 (bootstrap IoU; docs/layers/colour/): car 0.767 ->
     0.808, cows 0.724 -> 0.763, libby 0.396 -> 0.533, parkour 0.766 -> 0.805."""
     import cv2
-
-    from layercam.geometry import chain_homographies
 
     cfg = cfg or SegmentConfig()
     m = np.asarray(masks) > 0.5
@@ -549,15 +545,10 @@ def colour_cut(frames: np.ndarray, masks: np.ndarray, residual: np.ndarray, homs
         bg_hist += np.bincount(bins[t][cv2.dilate(u, k7, iterations=3) == 0], minlength=nb)
     llr = np.clip(np.log(fg_hist / fg_hist.sum()) - np.log(bg_hist / bg_hist.sum()), -4.0, 4.0).astype(np.float32)
     rad = max(2.0, cfg.colour_reach * np.sqrt(ref))
-    good = np.flatnonzero(area >= cfg.still_fraction * ref)
-    M = chain_homographies(np.asarray(homs, np.float64), T // 2) if homs is not None and T > 1 else None
     out = m.copy()
     for t in range(T):
         prior = m[t]
-        if area[t] < cfg.still_fraction * ref and M is not None and len(good):
-            s = int(good[np.argmin(np.abs(good - t))])
-            prior = cv2.warpPerspective(m[s].astype(np.uint8), np.linalg.inv(M[t]) @ M[s], (w, h), flags=cv2.INTER_NEAREST) > 0
-        if prior.sum() < 16:
+        if area[t] < 16:
             continue
         near = cv2.distanceTransform((~prior).astype(np.uint8), cv2.DIST_L2, 5) <= rad  # a dilation, at any reach in one pass
         region = near & ((np.asarray(residual[t], np.float32) > cfg.colour) | prior)
@@ -566,13 +557,14 @@ def colour_cut(frames: np.ndarray, masks: np.ndarray, residual: np.ndarray, homs
         box = (slice(y0, y1), slice(x0, x1))
         unary = np.where(region[box], llr[bins[t][box]] + prior[box], -50.0).astype(np.float32)
         cut = np.zeros((h, w), bool)
-        cut[box] = _graph_cut(unary, _equalised_lab(frames[t])[box] / 100.0, cfg.colour_smooth)
+        guide = _equalised_lab(frames[t])[box] / 100.0  # again, not kept from the histogram pass: 12 bytes a pixel of the clip
+        cut[box] = _graph_cut(unary, guide, cfg.colour_smooth)
         cut = clean_mask(cut, cfg)
         out[t] = cut if cut.any() else m[t]  # a cut that leaves nothing keeps the mask it had
     return out
 
 
-SEGMENT_VERSION = 5               # bump when foreground_bootstrap changes the masks it returns (4: background_refine, 5: colour_cut)
+SEGMENT_VERSION = 6               # bump when foreground_bootstrap changes the masks it returns (4: background_refine, 5: colour_cut, 6: its empty frames refilled along the flow)
 
 
 def foreground_bootstrap(frames: np.ndarray, flows: dict | None, masks: np.ndarray | None = None, cfg: SegmentConfig | None = None) -> dict:
@@ -595,10 +587,10 @@ def foreground_bootstrap(frames: np.ndarray, flows: dict | None, masks: np.ndarr
             masks = np.stack([grabcut_refine(frames[t], masks[t], cfg.grabcut) for t in range(T)]).astype(np.float32)
             info["coverage_after_grabcut"] = float(masks.mean())
         if cfg.background > 0 and flows.get("homs") is not None:
-            masks, rel = background_refine(frames, masks, flows["homs"], cfg, residuals=True)
+            masks, rel = background_refine(frames, masks, flows["homs"], cfg)
             info["coverage_after_background"] = float(masks.mean())
-            if cfg.colour > 0:
-                masks = colour_cut(frames, masks, rel, flows["homs"], cfg)
+            if cfg.colour > 0:  # frames the checks emptied start again from their neighbours'
+                masks = colour_cut(frames, _fill_still_frames(masks, fw, bw, cfg.still_fraction)[0], rel, cfg)
                 info["coverage_after_colour"] = float(masks.mean())
             masks = masks.astype(np.float32)
         computed = True

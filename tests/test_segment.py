@@ -185,7 +185,7 @@ def test_background_refine_finds_a_missed_limb_at_alternating_exposures():
         limb[t, y0 : y0 + side, x1 - 4 : x1] = True   # the object's right edge, missed
         bleed[t, y0 - 4 : y0, x1 - side : x1 - 4] = True  # background above it, taken in
     given = (truth & ~limb) | bleed
-    out = segment.background_refine(frames, given.astype(np.float32), homs)
+    out, _ = segment.background_refine(frames, given.astype(np.float32), homs)
     assert out.shape == truth.shape and out.dtype == bool
     before = np.mean([metrics.iou(given[t], truth[t]) for t in range(T)])
     after = np.mean([metrics.iou(out[t], truth[t]) for t in range(T)])
@@ -277,9 +277,9 @@ def test_colour_cut_grows_a_half_mask_to_the_object_not_to_its_colours_elsewhere
         y, x = 100 - 60 - int(np.ceil(0.5 * t)), 45 - 10 - t
         patch[t, y + 1 : y + 19, max(x + 1, 0) : x + 19] = True  # its inside (sub-pixel pan)
     patch &= ~truth
-    kept, rel = segment.background_refine(frames, half.astype(np.float32), homs, residuals=True)
+    kept, rel = segment.background_refine(frames, half.astype(np.float32), homs)
     assert rel.shape == truth.shape and rel.dtype == np.float16
-    out = segment.colour_cut(frames, kept, rel, homs)
+    out = segment.colour_cut(frames, kept, rel)
     assert out.shape == truth.shape and out.dtype == bool
     before = np.mean([metrics.iou(half[t], truth[t]) for t in range(T)])
     after = np.mean([metrics.iou(out[t], truth[t]) for t in range(T)])
@@ -287,7 +287,7 @@ def test_colour_cut_grows_a_half_mask_to_the_object_not_to_its_colours_elsewhere
     assert out[patch].mean() < 0.05
     from layercam.config import SegmentConfig
 
-    ungated = segment.colour_cut(frames, kept, rel, homs, SegmentConfig(colour=1e-6))
+    ungated = segment.colour_cut(frames, kept, rel, SegmentConfig(colour=1e-6))
     assert ungated[patch].mean() > 0.5
-    off = segment.colour_cut(frames, np.zeros_like(truth), rel, homs)  # no mask anywhere: nothing to grow
+    off = segment.colour_cut(frames, np.zeros_like(truth), rel)  # no mask anywhere: nothing to grow
     assert not off.any()

@@ -525,7 +525,7 @@ def colour_cut(frames: np.ndarray, masks: np.ndarray, residual: np.ndarray, cfg:
     that leaves nothing keeps the mask.
     Without the residual gate the cut spreads into background of the object's colours (the grey
     road beside a silver car). DAVIS at 282x158 (bootstrap IoU; docs/layers/colour/): car 0.767 ->
-    0.808, cows 0.724 -> 0.763, libby 0.396 -> 0.533, parkour 0.766 -> 0.805."""
+    0.808, cows 0.724 -> 0.764, libby 0.396 -> 0.535, parkour 0.766 -> 0.805."""
     import cv2
 
     cfg = cfg or SegmentConfig()

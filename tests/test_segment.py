@@ -88,6 +88,27 @@ def test_clean_mask_drops_specks_and_fills_holes():
     assert c[10:30, 10:30].mean() > 0.95
 
 
+def test_clean_mask_keeps_a_split_off_part_of_the_objects_colours_within_reach():
+    """An object a trunk cuts in two (8 px apart, beyond the gap for its size) keeps both halves
+    where the far half has the object's colours and lies within reach; a far part of the
+    background's colours, or one out of reach, goes."""
+    m = np.zeros((60, 80), bool)
+    m[20:40, 10:30] = True  # the larger half
+    m[22:38, 38:50] = True  # the other half, 8 px beyond a trunk
+    m[22:38, 64:72] = True  # a third part, 34 px away
+    colour = np.full(m.shape, -2.0)
+    colour[20:40, 10:30] = 0.5
+    colour[22:38, 38:50] = 2.0
+    assert not segment.clean_mask(m)[30, 44]  # one object: the gap is 0.25 x 20 px
+    c = segment.clean_mask(m, colour=colour, reach=20.0)
+    assert c[30, 20] and c[30, 44] and not c[30, 68]
+    assert not segment.clean_mask(m, colour=colour, reach=5.0)[30, 44]
+    colour[22:38, 38:50] = 0.5  # not clearly the object's colours
+    assert not segment.clean_mask(m, colour=colour, reach=20.0)[30, 44]
+    colour[22:38, 64:72] = 3.0  # the object's colours but out of reach
+    assert not segment.clean_mask(m, colour=colour, reach=20.0)[30, 68]
+
+
 def test_still_object_inherits_neighbour_masks(square):
     fw, bw = square["fw"].copy(), square["bw"].copy()
     # the object's evidence vanishes in frame 5 (as if it stood still): its mask comes from frame 4
@@ -291,3 +312,35 @@ def test_colour_cut_grows_a_half_mask_to_the_object_not_to_its_colours_elsewhere
     assert ungated[patch].mean() > 0.5
     off = segment.colour_cut(frames, np.zeros_like(truth), rel)  # no mask anywhere: nothing to grow
     assert not off.any()
+
+
+def test_colour_cut_pays_for_distance_from_the_mask():
+    """A post of colours between the object's and the background's, moving (the residual marks
+    it), runs from the object to the frame's edges: without the distance cost the cut follows it
+    across the frame; with it, the post's far ends stay out and the object stays in."""
+    from layercam.config import SegmentConfig
+
+    rng = np.random.default_rng(2)
+    T, h, w = 4, 64, 96
+    frames = np.empty((T, h, w, 3), np.float32)
+    frames[...] = [0.1, 0.5, 0.6]
+    frames += rng.uniform(-0.05, 0.05, frames.shape).astype(np.float32)
+    masks = np.zeros((T, h, w), bool)
+    post = np.zeros((T, h, w), bool)
+    red, grey = [0.8, 0.2, 0.1], [0.55, 0.3, 0.3]
+    for t in range(T):
+        x0 = 20 + 2 * t
+        frames[t, 22:42, x0 : x0 + 20] = red  # the object, all in its mask...
+        frames[t, 30:34, x0 : x0 + 20] = grey  # ...with a stripe of the post's colour
+        masks[t, 22:42, x0 : x0 + 20] = True
+        frames[t, :, x0 + 20 : x0 + 26] = grey  # the post, touching it
+        post[t, :, x0 + 20 : x0 + 26] = True
+        frames[t, 4:12, 80:88] = grey  # both colours in the background too, far off
+        frames[t, 50:58, 80:88] = red
+    rel = (masks | post).astype(np.float16)
+    far = post.copy()
+    far[:, 12:52] = False  # the post more than 10 px above or below the object
+    free = segment.colour_cut(frames, masks, rel, SegmentConfig(colour_distance=0.0))
+    paid = segment.colour_cut(frames, masks, rel)  # the default cost, 1 an object size
+    assert free[far].mean() > 0.5
+    assert paid[far].mean() < 0.2 and paid[masks].mean() > 0.95

@@ -79,6 +79,8 @@ def _temporal_vote(ev: np.ndarray, fw: np.ndarray, bw: np.ndarray, window: int) 
 
 _PART_LLR = 1.0  # clean_mask: a part this far above the background's colours (log-likelihood ratio) is the object's
                  # (DAVIS libby at 282x158, bootstrap IoU with the colour cut's parts: 0.5 -> 0.540, 1.0 -> 0.554, 1.5 -> 0.546)
+_THIN_LLR = 3.0  # clean_mask: a thin part the opening took comes back at this ratio (docs/layers/parts/: libby
+                 # 0.562 -> 0.572 at 3, 0.579 at 2 and 1.5 but car 0.804 / 0.802)
 
 
 def clean_mask(mask: np.ndarray, cfg: SegmentConfig | None = None, colour: np.ndarray | None = None, reach: float = 0.0) -> np.ndarray:
@@ -88,7 +90,9 @@ def clean_mask(mask: np.ndarray, cfg: SegmentConfig | None = None, colour: np.nd
     railings: bootstrap IoU 0.65 -> 0.70). With ``colour`` (``(H, W)``, the object : background
     colour log-likelihood ratio of :func:`colour_cut`), a component farther than that is kept too
     when its mean ratio is at least ``_PART_LLR`` (the object's colours) and it lies within
-    ``reach`` pixels of the largest: a small dog that a trunk cuts in two keeps both halves."""
+    ``reach`` pixels of the largest: a small dog that a trunk cuts in two keeps both halves; and
+    what the opening took comes back where its ratio is at least ``_THIN_LLR`` and it touches what
+    the opening left (a small dog's legs and tail are thinner than the opening)."""
     import cv2
 
     cfg = cfg or SegmentConfig()
@@ -98,6 +102,12 @@ def clean_mask(mask: np.ndarray, cfg: SegmentConfig | None = None, colour: np.nd
     ko = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
     kc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (4 * r + 1, 4 * r + 1))
     m = cv2.morphologyEx(m, cv2.MORPH_OPEN, ko)
+    if colour is not None:  # thin parts of the object's colours (legs, a tail) the opening took: back where they touch the rest
+        thin = (mask.astype(bool) & (m == 0) & (np.asarray(colour) >= _THIN_LLR)).astype(np.uint8)
+        n, lab = cv2.connectedComponents(m | thin, connectivity=8)
+        touch = np.zeros(n, bool)
+        touch[lab[m > 0]] = True
+        m = (m.astype(bool) | (thin.astype(bool) & touch[lab])).astype(np.uint8)
     m = cv2.morphologyEx(m, cv2.MORPH_CLOSE, kc)
     # fill holes: background is what the border reaches
     pad = np.pad(m, 1)
@@ -580,7 +590,7 @@ def colour_cut(frames: np.ndarray, masks: np.ndarray, residual: np.ndarray, cfg:
     return out
 
 
-SEGMENT_VERSION = 7               # bump when foreground_bootstrap changes the masks it returns (4: background_refine, 5: colour_cut, 6: its empty frames refilled along the flow, 7: its distance cost and split parts)
+SEGMENT_VERSION = 8               # bump when foreground_bootstrap changes the masks it returns (4: background_refine, 5: colour_cut, 6: its empty frames refilled along the flow, 7: its distance cost and split parts, 8: thin parts)
 
 
 def foreground_bootstrap(frames: np.ndarray, flows: dict | None, masks: np.ndarray | None = None, cfg: SegmentConfig | None = None) -> dict:

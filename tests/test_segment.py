@@ -109,6 +109,22 @@ def test_clean_mask_keeps_a_split_off_part_of_the_objects_colours_within_reach()
     assert not segment.clean_mask(m, colour=colour, reach=20.0)[30, 68]
 
 
+def test_clean_mask_gives_back_thin_parts_of_the_objects_colours():
+    """A 2 px leg under a body: the opening takes it; with the colour ratio it comes back where the
+    leg has the object's colours and touches the body, not where its colours are weak, and a thin
+    line of strong colour that touches nothing stays out."""
+    m = np.zeros((60, 60), bool)
+    m[10:30, 10:40] = True  # the body
+    m[30:45, 20:22] = True  # a thin leg
+    m[50:52, 5:55] = True  # a thin line apart from it
+    colour = np.full(m.shape, 4.0)
+    assert not segment.clean_mask(m)[40, 20]
+    c = segment.clean_mask(m, colour=colour)
+    assert c[40, 20] and c[20, 25] and not c[51, 30]
+    colour[30:45, 20:22] = 1.0
+    assert not segment.clean_mask(m, colour=colour)[40, 20]
+
+
 def test_still_object_inherits_neighbour_masks(square):
     fw, bw = square["fw"].copy(), square["bw"].copy()
     # the object's evidence vanishes in frame 5 (as if it stood still): its mask comes from frame 4

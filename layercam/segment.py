@@ -83,6 +83,11 @@ _THIN_LLR = 3.0  # clean_mask: a thin part the opening took comes back at this r
                  # 0.562 -> 0.572 at 3, 0.579 at 2 and 1.5 but car 0.804 / 0.802)
 
 
+def _part_means(lab: np.ndarray, n: int, values: np.ndarray) -> np.ndarray:
+    """Mean of ``values (H, W)`` over each of the ``n`` labels of ``lab`` (0 included) ``(n,)``."""
+    return np.bincount(lab.ravel(), weights=np.asarray(values, np.float64).ravel(), minlength=n) / np.maximum(np.bincount(lab.ravel(), minlength=n), 1)
+
+
 def clean_mask(mask: np.ndarray, cfg: SegmentConfig | None = None, colour: np.ndarray | None = None, reach: float = 0.0) -> np.ndarray:
     """Morphology on one ``(H, W)`` bool mask: open, close, fill holes, drop small components, and
     keep one object: the largest component and those within ``cfg.gap`` times its size (the square
@@ -94,6 +99,7 @@ def clean_mask(mask: np.ndarray, cfg: SegmentConfig | None = None, colour: np.nd
     what the opening took comes back where its ratio is at least ``_THIN_LLR`` and it touches what
     the opening left (a small dog's legs and tail are thinner than the opening)."""
     import cv2
+    from scipy import ndimage
 
     cfg = cfg or SegmentConfig()
     h, w = mask.shape
@@ -104,10 +110,8 @@ def clean_mask(mask: np.ndarray, cfg: SegmentConfig | None = None, colour: np.nd
     m = cv2.morphologyEx(m, cv2.MORPH_OPEN, ko)
     if colour is not None:  # thin parts of the object's colours (legs, a tail) the opening took: back where they touch the rest
         thin = (mask.astype(bool) & (m == 0) & (np.asarray(colour) >= _THIN_LLR)).astype(np.uint8)
-        n, lab = cv2.connectedComponents(m | thin, connectivity=8)
-        touch = np.zeros(n, bool)
-        touch[lab[m > 0]] = True
-        m = (m.astype(bool) | (thin.astype(bool) & touch[lab])).astype(np.uint8)
+        nt, lt = cv2.connectedComponents(m | thin, connectivity=8)
+        m = (_part_means(lt, nt, m) > 0)[lt].astype(np.uint8)  # the parts of mask + thin that hold some of the mask
     m = cv2.morphologyEx(m, cv2.MORPH_CLOSE, kc)
     # fill holes: background is what the border reaches
     pad = np.pad(m, 1)
@@ -124,11 +128,10 @@ def clean_mask(mask: np.ndarray, cfg: SegmentConfig | None = None, colour: np.nd
     if keep.sum() > 1:
         main = 1 + int(np.argmax(areas))
         dist = cv2.distanceTransform((lab != main).astype(np.uint8), cv2.DIST_L2, 3)
-        gaps = np.array([dist[lab == i + 1].min() for i in range(n - 1)])
+        gaps = ndimage.minimum(dist, lab, np.arange(1, n))
         near = gaps <= cfg.gap * np.sqrt(areas.max())
         if colour is not None:
-            mean = np.bincount(lab.ravel(), weights=np.asarray(colour, np.float64).ravel(), minlength=n)[1:] / areas
-            near |= (gaps <= reach) & (mean >= _PART_LLR)
+            near |= (gaps <= reach) & (_part_means(lab, n, colour)[1:] >= _PART_LLR)
         keep &= near
     return np.isin(lab, 1 + np.flatnonzero(keep))
 
@@ -174,8 +177,7 @@ def _voted_masks(soft: np.ndarray, f: np.ndarray, b: np.ndarray, cfg: SegmentCon
         m = v >= cfg.vote
         if tex is not None and m.any():
             n, lab = cv2.connectedComponents(m.astype(np.uint8), connectivity=8)
-            share = np.bincount(lab.ravel(), weights=tex[t].ravel(), minlength=n) / np.maximum(np.bincount(lab.ravel(), minlength=n), 1)
-            m = m & (share >= cfg.texture_share)[lab]
+            m = m & (_part_means(lab, n, tex[t]) >= cfg.texture_share)[lab]
         out.append(clean_mask(m, cfg))
     return np.stack(out)
 

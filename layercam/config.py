@@ -222,7 +222,8 @@ class SegmentConfig:
     within ``colour_reach`` times the object's size of it and only where the frame's relative
     residual against that background exceeds ``colour`` (0: off; it needs ``background``);
     ``colour_smooth``: the cut's weight on following colour edges; ``colour_distance``: its cost per
-    object size a pixel lies away from the mask. ``foreground``:
+    object size a pixel lies away from the mask; ``colour_failure``: its weight on where the flow
+    loses a pixel within 4 frames (:func:`layercam.motion.flow_failure`; 0: off). ``foreground``:
     the foreground layer's starting mapping, the object's own motion or the identity.
     ``margin``: the part of the foreground atlas the masked object fills at the start.
     ``refine``: fit the model once on the motion masks, take new masks from where each frame differs
@@ -255,6 +256,7 @@ class SegmentConfig:
     colour_reach: float = setting(2.0, above=0.0)
     colour_smooth: float = setting(2.0, 0.0)
     colour_distance: float = setting(1.0, 0.0)
+    colour_failure: float = setting(1.0, 0.0)
     foreground: Literal["object", "identity"] = "object"
     margin: float = setting(0.6, above=0.0, hi=1.0)
     refine: bool = False

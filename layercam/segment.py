@@ -531,7 +531,7 @@ def _colour_bins(lab: np.ndarray) -> np.ndarray:
     return (lq * b + aq) * b + bq
 
 
-def colour_cut(frames: np.ndarray, masks: np.ndarray, residual: np.ndarray, cfg: SegmentConfig | None = None) -> np.ndarray:
+def colour_cut(frames: np.ndarray, masks: np.ndarray, residual: np.ndarray, cfg: SegmentConfig | None = None, failure: np.ndarray | None = None) -> np.ndarray:
     """Masks ``(T, H, W)`` grown to the whole object by its colours (``segment.colour``): the
     motion masks find where the object is, often only part of it (the flow of a running dog's head
     and legs is the background's); the object's colours, learned over the whole clip, find the rest.
@@ -546,13 +546,19 @@ def colour_cut(frames: np.ndarray, masks: np.ndarray, residual: np.ndarray, cfg:
     (``residual``, :func:`background_refine`'s relative residual, above ``colour``) or the mask
     already is: background of the object's colours does not join; each pixel pays
     ``colour_distance`` per object size it lies away from the mask (a near post that crosses the
-    object does not run into the cut over the whole frame). Then :func:`clean_mask`, which keeps
+    object does not run into the cut over the whole frame). With ``failure`` ``(T, H, W)``
+    (:func:`layercam.motion.flow_failure`: where the flow loses a pixel within a few frames), each
+    pixel counts ``colour_failure * (failure - 0.5)`` towards the object: a running dog's legs and
+    head that the flow smooths into the background's motion are lost by it, a rigid post or
+    trunk with parallax is followed. Then :func:`clean_mask`, which keeps
     parts of the object's colours within its size of the largest (an object an occluder splits);
     a cut that leaves nothing keeps the mask.
     Without the residual gate the cut spreads into background of the object's colours (the grey
     road beside a silver car). DAVIS at 282x158 (bootstrap IoU; docs/layers/colour/): car 0.767 ->
     0.808, cows 0.724 -> 0.764, libby 0.396 -> 0.535, parkour 0.766 -> 0.805; the distance cost and
-    the split parts: libby 0.535 -> 0.562, the others unchanged."""
+    the split parts: libby 0.535 -> 0.562, the others unchanged; the flow's failure
+    (docs/layers/failure/): car 0.808 -> 0.811, cows 0.765 -> 0.765, libby 0.572 -> 0.589, parkour
+    0.808 -> 0.807."""
     import cv2
 
     cfg = cfg or SegmentConfig()
@@ -583,7 +589,10 @@ def colour_cut(frames: np.ndarray, masks: np.ndarray, residual: np.ndarray, cfg:
         ys, xs = np.nonzero(region)
         y0, y1, x0, x1 = ys.min(), ys.max() + 1, xs.min(), xs.max() + 1
         box = (slice(y0, y1), slice(x0, x1))
-        unary = np.where(region[box], llr[bins[t][box]] + prior[box] - cfg.colour_distance * away[box] / size, -50.0).astype(np.float32)
+        unary = llr[bins[t][box]] + prior[box] - cfg.colour_distance * away[box] / size
+        if failure is not None and cfg.colour_failure > 0:
+            unary = unary + cfg.colour_failure * (np.asarray(failure[t][box], np.float32) - 0.5)
+        unary = np.where(region[box], unary, -50.0).astype(np.float32)
         cut = np.zeros((h, w), bool)
         guide = _equalised_lab(frames[t])[box] / 100.0  # again, not kept from the histogram pass: 12 bytes a pixel of the clip
         cut[box] = _graph_cut(unary, guide, cfg.colour_smooth)
@@ -592,7 +601,7 @@ def colour_cut(frames: np.ndarray, masks: np.ndarray, residual: np.ndarray, cfg:
     return out
 
 
-SEGMENT_VERSION = 8               # bump when foreground_bootstrap changes the masks it returns (4: background_refine, 5: colour_cut, 6: its empty frames refilled along the flow, 7: its distance cost and split parts, 8: thin parts)
+SEGMENT_VERSION = 9               # bump when foreground_bootstrap changes the masks it returns (4: background_refine, 5: colour_cut, 6: its empty frames refilled along the flow, 7: its distance cost and split parts, 8: thin parts, 9: the flow's failure)
 
 
 def foreground_bootstrap(frames: np.ndarray, flows: dict | None, masks: np.ndarray | None = None, cfg: SegmentConfig | None = None) -> dict:
@@ -618,7 +627,15 @@ def foreground_bootstrap(frames: np.ndarray, flows: dict | None, masks: np.ndarr
             masks, rel = background_refine(frames, masks, flows["homs"], cfg)
             info["coverage_after_background"] = float(masks.mean())
             if cfg.colour > 0:  # frames the checks emptied start again from their neighbours'
-                masks = colour_cut(frames, _fill_still_frames(masks, fw, bw, cfg.still_fraction)[0], rel, cfg)
+                failure = None
+                if cfg.colour_failure > 0:
+                    from layercam.flow import flow_consistency
+                    from layercam.motion import flow_failure
+
+                    fo = flow_consistency(fw, bw) if flows.get("fw_ok") is None else flows["fw_ok"]
+                    bo = flow_consistency(bw, fw) if flows.get("bw_ok") is None else flows["bw_ok"]
+                    failure = flow_failure(fw, bw, fo, bo)
+                masks = colour_cut(frames, _fill_still_frames(masks, fw, bw, cfg.still_fraction)[0], rel, cfg, failure)
                 info["coverage_after_colour"] = float(masks.mean())
             masks = masks.astype(np.float32)
         computed = True

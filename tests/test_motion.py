@@ -112,3 +112,24 @@ def test_an_object_the_epipolar_model_explains_away_keeps_the_homography(monkeyp
 @pytest.mark.parametrize("reach,offsets", [(1, (1,)), (5, (1, 2, 4)), (8, (1, 2, 4, 8))])
 def test_motion_offsets(reach, offsets):
     assert segment.motion_offsets(reach) == offsets
+
+
+def test_flow_failure_marks_what_the_flow_loses_not_the_rigid_background():
+    """A background panning 1.5 px a frame with consistent flows, and a patch whose forward and
+    backward flows disagree (a leg that changes shape between frames): the patch is lost (near 1),
+    the background followed (near 0), and where a track leaves the frame it does not count."""
+    T, h, w = 6, 40, 60
+    fw = np.zeros((T - 1, h, w, 2), np.float32)
+    fw[..., 0] = 1.5
+    bw = -fw
+    patch = np.zeros((h, w), bool)
+    patch[15:25, 25:35] = True
+    bw[:, patch] = [3.0, 2.0]  # backward flow that does not undo the forward flow
+    fo = flow.flow_consistency(fw, bw)
+    bo = flow.flow_consistency(bw, fw)
+    fail = motion.flow_failure(fw, bw, fo, bo, reach=2)
+    assert fail.shape == (T, h, w) and fail.dtype == np.float32
+    assert fail.min() >= 0.0 and fail.max() <= 1.0
+    assert fail[:, 18:22, 28:32].mean() > 0.8
+    assert fail[:, 2:8, 10:20].max() < 0.05  # far from the patch: followed
+    assert fail[:, 2:8, -3:].max() < 0.05  # near the right edge, where the tracks leave the frame

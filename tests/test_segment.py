@@ -360,3 +360,35 @@ def test_colour_cut_pays_for_distance_from_the_mask():
     paid = segment.colour_cut(frames, masks, rel)  # the default cost, 1 an object size
     assert free[far].mean() > 0.5
     assert paid[far].mean() < 0.2 and paid[masks].mean() > 0.95
+
+
+def test_colour_cut_takes_in_what_the_flow_loses():
+    """A head of a colour the background holds a little more of than the object (log-likelihood
+    ratio just below 0) beside the mask: by colour alone the cut leaves it out; where the flow
+    fails to follow it (a running animal's head) and follows the background, it joins."""
+    from layercam.config import SegmentConfig
+
+    rng = np.random.default_rng(3)
+    T, h, w = 4, 64, 96
+    frames = np.empty((T, h, w, 3), np.float32)
+    frames[...] = [0.1, 0.5, 0.6]
+    frames += rng.uniform(-0.05, 0.05, frames.shape).astype(np.float32)
+    masks = np.zeros((T, h, w), bool)
+    head = np.zeros((T, h, w), bool)
+    red, grey = [0.8, 0.2, 0.1], [0.55, 0.3, 0.3]
+    for t in range(T):
+        x0 = 20 + 2 * t
+        frames[t, 22:42, x0 : x0 + 20] = red  # the body, in its mask, with a thin grey stripe
+        frames[t, 31:33, x0 : x0 + 20] = grey
+        masks[t, 22:42, x0 : x0 + 20] = True
+        frames[t, 26:38, x0 + 20 : x0 + 30] = grey  # the head, outside the mask
+        head[t, 26:38, x0 + 20 : x0 + 30] = True
+        frames[t, 0:4, 60:96] = grey  # grey background far off
+    rel = (masks | head).astype(np.float16)
+    failure = (masks | head).astype(np.float32)
+    by_colour = segment.colour_cut(frames, masks, rel, SegmentConfig(colour_failure=0.0), failure)
+    with_flow = segment.colour_cut(frames, masks, rel, SegmentConfig(), failure)  # the default weight, 1
+    assert by_colour[head].mean() < 0.1 and by_colour[masks].mean() > 0.95
+    assert with_flow[head].mean() > 0.9 and with_flow[masks].mean() > 0.95
+    assert with_flow[~(masks | head)].mean() < 0.01
+    assert (segment.colour_cut(frames, masks, rel) == by_colour).all()  # no failure map: colour alone

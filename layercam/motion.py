@@ -206,7 +206,7 @@ def flow_failure(fw, bw, fw_ok, bw_ok, reach: int = 4) -> np.ndarray:
     """Where the flow fails to follow a pixel: for each pixel of each frame, the share of the
     frames 1 .. ``reach`` away on either side that it lands inside of along the chained flow but
     not on a forward-backward consistent track (:func:`chained_displacements`), blurred by 1% of the
-    short side; 0 where no track is judged (the last row and column). ``(T, H, W)`` float32 in [0, 1].
+    short side; 0 where no track is judged (the last row and column). ``(T, H, W)`` float16 in [0, 1].
 
     A rigid background, moving or not, is followed for frames (near 0). A running animal's
     legs, head and tail change shape from frame to frame and the flow loses them within a few
@@ -219,7 +219,7 @@ def flow_failure(fw, bw, fw_ok, bw_ok, reach: int = 4) -> np.ndarray:
     T = fw.shape[0] + 1
     h, w = fw.shape[1:3]
     base = _grid(h, w)
-    out = np.zeros((T, h, w), np.float32)
+    out = np.zeros((T, h, w), np.float16)  # 2 bytes a pixel, as the background check's residual: long 1080p clips fit
     sigma = 0.01 * min(h, w)
     judged = (base[..., 0] < w - 1) & (base[..., 1] < h - 1)  # the last column and row: no bilinear neighbour to look up
     for t in range(T):

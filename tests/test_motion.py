@@ -128,7 +128,7 @@ def test_flow_failure_marks_what_the_flow_loses_not_the_rigid_background():
     fo = flow.flow_consistency(fw, bw)
     bo = flow.flow_consistency(bw, fw)
     fail = motion.flow_failure(fw, bw, fo, bo, reach=2)
-    assert fail.shape == (T, h, w) and fail.dtype == np.float32
+    assert fail.shape == (T, h, w) and fail.dtype == np.float16
     assert fail.min() >= 0.0 and fail.max() <= 1.0
     assert fail[:, 18:22, 28:32].mean() > 0.8
     assert fail[:, 2:8, 10:20].max() < 0.05  # far from the patch: followed

@@ -44,6 +44,15 @@ def _check_flows(fw, bw) -> tuple[np.ndarray, np.ndarray]:
     return f, b
 
 
+def _flow_checks(f: np.ndarray, b: np.ndarray, fw_ok=None, bw_ok=None) -> tuple[np.ndarray, np.ndarray]:
+    """The flows' forward-backward checks ``(T-1, H, W)`` bool: the given ones, else computed."""
+    from layercam.flow import flow_consistency
+
+    fo = flow_consistency(f, b) if fw_ok is None else np.asarray(fw_ok, bool)
+    bo = flow_consistency(b, f) if bw_ok is None else np.asarray(bw_ok, bool)
+    return fo, bo
+
+
 def _warp_to(mask_next: np.ndarray, flow_t: np.ndarray) -> np.ndarray:
     from layercam.flow import warp
 
@@ -193,14 +202,12 @@ def motion_masks(fw, bw, fw_ok=None, bw_ok=None, cfg: SegmentConfig | None = Non
     ``bw_ok`` ``(T-1, H, W)``: the flows' forward-backward checks (computed when None). With the
     ``frames`` ``(T, H, W[, C])``, a part of a frame's evidence that lies mostly where the frame has
     no texture (:func:`layercam.visibility.textured`) is not an object."""
-    from layercam.flow import flow_consistency
     from layercam.motion import long_range_evidence
     from layercam.visibility import textured
 
     cfg = cfg or SegmentConfig()
     f, b = _check_flows(fw, bw)
-    fo = flow_consistency(f, b) if fw_ok is None else np.asarray(fw_ok, bool)
-    bo = flow_consistency(b, f) if bw_ok is None else np.asarray(bw_ok, bool)
+    fo, bo = _flow_checks(f, b, fw_ok, bw_ok)
     soft, share = long_range_evidence(f, b, fo, bo, motion_offsets(cfg.reach), cfg.abs_px, cfg.k_sigma, cfg.f_vote)
     tex = smooth = None
     if frames is not None and cfg.texture > 0:
@@ -629,12 +636,9 @@ def foreground_bootstrap(frames: np.ndarray, flows: dict | None, masks: np.ndarr
             if cfg.colour > 0:  # frames the checks emptied start again from their neighbours'
                 failure = None
                 if cfg.colour_failure > 0:
-                    from layercam.flow import flow_consistency
                     from layercam.motion import flow_failure
 
-                    fo = flow_consistency(fw, bw) if flows.get("fw_ok") is None else flows["fw_ok"]
-                    bo = flow_consistency(bw, fw) if flows.get("bw_ok") is None else flows["bw_ok"]
-                    failure = flow_failure(fw, bw, fo, bo)
+                    failure = flow_failure(fw, bw, *_flow_checks(fw, bw, flows.get("fw_ok"), flows.get("bw_ok")))
                 masks = colour_cut(frames, _fill_still_frames(masks, fw, bw, cfg.still_fraction)[0], rel, cfg, failure)
                 info["coverage_after_colour"] = float(masks.mean())
             masks = masks.astype(np.float32)

@@ -330,29 +330,40 @@ def test_colour_cut_grows_a_half_mask_to_the_object_not_to_its_colours_elsewhere
     assert not off.any()
 
 
+_RED, _GREY = [0.8, 0.2, 0.1], [0.55, 0.3, 0.3]
+
+
+def _red_object_clip(seed: int, stripe: slice) -> tuple[np.ndarray, np.ndarray]:
+    """4 frames 64x96 of a noisy blue-green background and a red 20x20 object moving 2 px a frame
+    (rows 22-41, from column 20), with a grey stripe of rows ``stripe`` across it; and its masks."""
+    rng = np.random.default_rng(seed)
+    T, h, w = 4, 64, 96
+    frames = np.empty((T, h, w, 3), np.float32)
+    frames[...] = [0.1, 0.5, 0.6]
+    frames += rng.uniform(-0.05, 0.05, frames.shape).astype(np.float32)
+    masks = np.zeros((T, h, w), bool)
+    for t in range(T):
+        x0 = 20 + 2 * t
+        frames[t, 22:42, x0 : x0 + 20] = _RED
+        frames[t, stripe, x0 : x0 + 20] = _GREY
+        masks[t, 22:42, x0 : x0 + 20] = True
+    return frames, masks
+
+
 def test_colour_cut_pays_for_distance_from_the_mask():
     """A post of colours between the object's and the background's, moving (the residual marks
     it), runs from the object to the frame's edges: without the distance cost the cut follows it
     across the frame; with it, the post's far ends stay out and the object stays in."""
     from layercam.config import SegmentConfig
 
-    rng = np.random.default_rng(2)
-    T, h, w = 4, 64, 96
-    frames = np.empty((T, h, w, 3), np.float32)
-    frames[...] = [0.1, 0.5, 0.6]
-    frames += rng.uniform(-0.05, 0.05, frames.shape).astype(np.float32)
-    masks = np.zeros((T, h, w), bool)
-    post = np.zeros((T, h, w), bool)
-    red, grey = [0.8, 0.2, 0.1], [0.55, 0.3, 0.3]
-    for t in range(T):
+    frames, masks = _red_object_clip(2, slice(30, 34))  # the object with a stripe of the post's colour
+    post = np.zeros_like(masks)
+    for t in range(len(frames)):
         x0 = 20 + 2 * t
-        frames[t, 22:42, x0 : x0 + 20] = red  # the object, all in its mask...
-        frames[t, 30:34, x0 : x0 + 20] = grey  # ...with a stripe of the post's colour
-        masks[t, 22:42, x0 : x0 + 20] = True
-        frames[t, :, x0 + 20 : x0 + 26] = grey  # the post, touching it
+        frames[t, :, x0 + 20 : x0 + 26] = _GREY  # the post, touching it
         post[t, :, x0 + 20 : x0 + 26] = True
-        frames[t, 4:12, 80:88] = grey  # both colours in the background too, far off
-        frames[t, 50:58, 80:88] = red
+        frames[t, 4:12, 80:88] = _GREY  # both colours in the background too, far off
+        frames[t, 50:58, 80:88] = _RED
     rel = (masks | post).astype(np.float16)
     far = post.copy()
     far[:, 12:52] = False  # the post more than 10 px above or below the object
@@ -368,22 +379,13 @@ def test_colour_cut_takes_in_what_the_flow_loses():
     fails to follow it (a running animal's head) and follows the background, it joins."""
     from layercam.config import SegmentConfig
 
-    rng = np.random.default_rng(3)
-    T, h, w = 4, 64, 96
-    frames = np.empty((T, h, w, 3), np.float32)
-    frames[...] = [0.1, 0.5, 0.6]
-    frames += rng.uniform(-0.05, 0.05, frames.shape).astype(np.float32)
-    masks = np.zeros((T, h, w), bool)
-    head = np.zeros((T, h, w), bool)
-    red, grey = [0.8, 0.2, 0.1], [0.55, 0.3, 0.3]
-    for t in range(T):
+    frames, masks = _red_object_clip(3, slice(31, 33))  # the body, in its mask, with a thin grey stripe
+    head = np.zeros_like(masks)
+    for t in range(len(frames)):
         x0 = 20 + 2 * t
-        frames[t, 22:42, x0 : x0 + 20] = red  # the body, in its mask, with a thin grey stripe
-        frames[t, 31:33, x0 : x0 + 20] = grey
-        masks[t, 22:42, x0 : x0 + 20] = True
-        frames[t, 26:38, x0 + 20 : x0 + 30] = grey  # the head, outside the mask
+        frames[t, 26:38, x0 + 20 : x0 + 30] = _GREY  # the head, outside the mask
         head[t, 26:38, x0 + 20 : x0 + 30] = True
-        frames[t, 0:4, 60:96] = grey  # grey background far off
+        frames[t, 0:4, 60:96] = _GREY  # grey background far off
     rel = (masks | head).astype(np.float16)
     failure = (masks | head).astype(np.float32)
     by_colour = segment.colour_cut(frames, masks, rel, SegmentConfig(colour_failure=0.0), failure)

@@ -151,7 +151,12 @@ class Trainer:
         if sampler_state is not None:
             state["sampler"] = sampler_state
         tmp = self.ckpt_path.with_name(self.ckpt_path.name + ".tmp")
-        torch.save(state, tmp)
+        try:
+            torch.save(state, tmp)
+        except (OSError, RuntimeError) as e:  # torch reports a full disk as a RuntimeError of its zip writer
+            with contextlib.suppress(OSError):
+                tmp.unlink()
+            raise LayercamError(f"cannot write the checkpoint {self.ckpt_path} (is the disk full?): {str(e).splitlines()[0] if str(e) else type(e).__name__}; the previous checkpoint is kept") from None
         tmp.replace(self.ckpt_path)
         return True
 

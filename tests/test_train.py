@@ -160,6 +160,26 @@ def test_divergence_before_any_checkpoint_says_so(tmp_path):
     assert not (tmp_path / "ckpt.pt").exists()
 
 
+def test_a_checkpoint_that_cannot_be_written_is_one_clear_error_and_keeps_the_last(tmp_path, monkeypatch):
+    """A full disk mid-save (torch's zip writer raises a RuntimeError): a LayercamError naming the
+    checkpoint, no temp file left, the previous checkpoint untouched."""
+    from layercam.errors import LayercamError
+
+    tr = _trainer(ToyModel(), tmp_path, steps=4)
+    tr.fit()
+    before = (tmp_path / "ckpt.pt").read_bytes()
+
+    def full_disk(obj, f, *a, **k):
+        type(tmp_path)(f).write_bytes(b"partial")
+        raise RuntimeError("[enforce fail at inline_container.cc:672] . unexpected pos 570991360 vs 570991248")
+
+    monkeypatch.setattr(torch, "save", full_disk)
+    with pytest.raises(LayercamError, match="cannot write the checkpoint .*disk full"):
+        tr.save()
+    assert (tmp_path / "ckpt.pt").read_bytes() == before
+    assert not (tmp_path / "ckpt.pt.tmp").exists()
+
+
 def test_checkpoint_refuses_non_finite_state_and_final_state_is_checked(tmp_path):
     model = ToyModel()
     tr = _trainer(model, tmp_path, steps=4)

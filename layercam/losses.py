@@ -83,17 +83,18 @@ def alpha_flow_loss(alpha: torch.Tensor, alpha_match: torch.Tensor, valid: torch
     return (d * v).sum() / v.sum().clamp_min(1.0)
 
 
-def mask_loss(alpha: torch.Tensor, mask: torch.Tensor, balance: float = 1.0, max_pos_weight: float = 10.0) -> torch.Tensor:
+def mask_loss(alpha: torch.Tensor, mask: torch.Tensor, balance: float = 1.0, max_pos_weight: float = 10.0, keep: torch.Tensor | None = None) -> torch.Tensor:
     """Alpha against masks: binary cross-entropy, ``alpha (N, 1)`` and ``mask (N,)`` in {0, 1}.
     With ``balance`` 1 it is class-balanced: foreground pixels weigh ``n_bg / n_fg`` (at most
     ``max_pos_weight``), so that a small object is not learnt as "all background" first (plain BCE
     on a mask covering 3% of DAVIS libby left alpha at 0 after 100 steps); with 0 it is plain BCE,
     whose alpha > 0.5 is the mask itself (balanced, it is where the field gives the object more than
     1 / (1 + weight) of the odds: a halo around a thin object; ``balance`` in between interpolates
-    the weight)."""
+    the weight). ``keep (N,)`` bool: only those pixels count (0 when none is kept)."""
     a = alpha.float().squeeze(-1).clamp(1e-5, 1 - 1e-5)
     m = mask.float()
-    n_fg = m.sum()
-    pos_w = ((m.numel() - n_fg) / n_fg.clamp_min(1.0)).clamp(1.0, max_pos_weight).detach()
-    w = torch.where(m > 0.5, 1.0 + balance * (pos_w - 1.0), torch.ones_like(m))
-    return (w * torch.nn.functional.binary_cross_entropy(a, m, reduction="none")).sum() / w.sum()
+    k = torch.ones_like(m) if keep is None else keep.float()
+    n_fg = (m * k).sum()
+    pos_w = ((k.sum() - n_fg) / n_fg.clamp_min(1.0)).clamp(1.0, max_pos_weight).detach()
+    w = torch.where(m > 0.5, 1.0 + balance * (pos_w - 1.0), torch.ones_like(m)) * k
+    return (w * torch.nn.functional.binary_cross_entropy(a, m, reduction="none")).sum() / w.sum().clamp_min(1e-12)

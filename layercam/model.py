@@ -37,6 +37,7 @@ class LossWeights:
     alpha_flow: float = 0.0
     alpha_mask: float = 0.0
     mask_balance: float = 1.0  # class balance of the alpha-mask term (1: balanced, 0: plain BCE)
+    alpha_anchor: float = 0.0  # alpha against motion masks where they are sure, all through training
     bg_change: float = 0.0
     fg_follow: float = 0.0
 
@@ -109,6 +110,8 @@ class ImplicitCameraModel(nn.Module):
         c = self.cfg
         if masks and self.scene.alpha is not None:
             self.loss_weights.alpha_mask = 1.0
+            if not given:
+                self.loss_weights.alpha_anchor = c.loss.mask_anchor
         return [FlowDecay(c.loss.flow_decay_end), BootstrapPhase(c.train.bootstrap_steps, keys=("bootstrap", "mask_balance") if given or refined else ("bootstrap",)), MaskTaper(c.train.bootstrap_steps, c.loss.flow_decay_end, c.loss.mask_given if given else c.loss.mask_motion)]
 
     # -- rendering ---------------------------------------------------------------------------
@@ -163,6 +166,8 @@ class ImplicitCameraModel(nn.Module):
                 terms["sparsity"] = w.sparsity * losses.sparsity_loss(out["alpha"])
             if w.alpha_mask > 0 and "mask" in batch:
                 terms["alpha_mask"] = w.alpha_mask * losses.mask_loss(out["alpha"], batch["mask"], w.mask_balance)
+            if w.alpha_anchor > 0 and "mask_sure" in batch:
+                terms["alpha_anchor"] = w.alpha_anchor * losses.mask_loss(out["alpha"], batch["mask"], 1.0, keep=batch["mask_sure"])
         if w.rigidity > 0 and self.cfg.scene.deformation == "homography" and self.scene.n_layers > 1:
             xy, t = batch["xy"][:1024], batch["t"][:1024]
             terms["rigidity"] = w.rigidity * sum(

@@ -140,7 +140,8 @@ class TrainStage(Stage):
         d["train"].pop("checkpoint_every", None)
         d["train"].pop("device", None)
         if ctx.cfg.model.layers == 1:
-            d["loss"].pop("fg_follow", None)  # a two-layer term: one-layer runs trained before it keep their key
+            for k in ("fg_follow", "mask_anchor", "anchor_band"):
+                d["loss"].pop(k, None)  # two-layer terms: one-layer runs trained before them keep their key
         if d["loss"].get("robust") in (0.0, "auto"):
             d["loss"].pop("robust")  # MSE, as before the setting: those runs keep their key
         if "refine" in ctx.keys:  # only after the first fit: trained on the refine stage's masks
@@ -162,6 +163,7 @@ class TrainStage(Stage):
         from layercam.analyse import has_floor_model
         from layercam.camera.tone import fit_init_curve
         from layercam.data import PixelSampler
+        from layercam.segment import sure_pixels
         from layercam.train import Trainer
 
         cfg = self.model_cfg(ctx)
@@ -193,6 +195,7 @@ class TrainStage(Stage):
         sampler = PixelSampler(
             ctx.clip.frames, *(fl[k] for k in ("fw", "bw", "fw_ok", "bw_ok")) if fl else (None,) * 4,
             masks=masks, device=dev, seed=distributed.rank_seed(cfg.train.seed),
+            sure=sure_pixels(masks, cfg.loss.anchor_band) if masks is not None and source != "given" and cfg.loss.mask_anchor > 0 and cfg.model.layers > 1 else None,
         )
         callbacks = model.training_callbacks(masks is not None, given=source == "given", refined=source == "refined")
         if self.final:

@@ -75,6 +75,17 @@ def test_rigidity_and_gradient_losses_finite_on_degenerate_inputs():
     assert _finite(r, g)
 
 
+def test_mask_loss_counts_only_the_pixels_it_keeps():
+    g = torch.Generator().manual_seed(0)
+    alpha, mask = torch.rand(256, 1, generator=g), (torch.rand(256, generator=g) > 0.8).float()
+    keep = torch.rand(256, generator=g) > 0.5
+    moved = alpha.clone()
+    moved[~keep] = 1.0 - moved[~keep]  # alpha changed only where it is not kept
+    assert float(losses.mask_loss(moved, mask, keep=keep)) == pytest.approx(float(losses.mask_loss(alpha, mask, keep=keep)))
+    assert float(losses.mask_loss(alpha[keep], mask[keep])) == pytest.approx(float(losses.mask_loss(alpha, mask, keep=keep)))
+    assert float(losses.mask_loss(alpha, mask, keep=torch.zeros(256, dtype=torch.bool))) == 0.0
+
+
 def test_mask_loss_balanced_puts_a_halo_around_a_small_object_plain_does_not():
     """A small object (60 of 1000 samples labelled object) and 200 samples of one ambiguous pixel,
     40 of them (20%) labelled object: the alpha minimising the plain loss there is 0.2, the

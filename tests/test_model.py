@@ -80,6 +80,22 @@ def test_schedules_change_the_weights_over_training():
     one = _model(layers=1)
     one.training_callbacks(masks=True)
     assert one.loss_weights.alpha_mask == 0.0  # no alpha field to fit the masks to
+    assert model.loss_weights.alpha_anchor == model.cfg.loss.mask_anchor > 0  # motion masks: anchored where sure, all through
+    assert given.loss_weights.alpha_anchor == 0.0 and one.loss_weights.alpha_anchor == 0.0
+
+
+def test_the_anchor_counts_only_where_the_motion_masks_are_sure():
+    model = _model(layers=2)
+    model.training_callbacks(masks=True)
+    g = torch.Generator().manual_seed(0)
+    n = 512
+    batch = {"xy": torch.rand(n, 2, generator=g) * 2 - 1, "t": torch.randint(0, 3, (n,), generator=g), "rgb": torch.rand(n, 3, generator=g),
+             "mask": (torch.rand(n, generator=g) > 0.7).float(), "mask_sure": torch.rand(n, generator=g) > 0.5}
+    term = model.loss_dict(batch)["alpha_anchor"]
+    assert term.item() > 0
+    unsure = dict(batch, mask=torch.where(batch["mask_sure"], batch["mask"], 1.0 - batch["mask"]))  # other labels where unsure
+    assert model.loss_dict(unsure)["alpha_anchor"].item() == pytest.approx(term.item())
+    assert "alpha_anchor" not in model.loss_dict({k: v for k, v in batch.items() if k != "mask_sure"})
 
 
 def test_blur_group_carries_the_warmup():

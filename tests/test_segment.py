@@ -394,3 +394,13 @@ def test_colour_cut_takes_in_what_the_flow_loses():
     assert with_flow[head].mean() > 0.9 and with_flow[masks].mean() > 0.95
     assert with_flow[~(masks | head)].mean() < 0.01
     assert (segment.colour_cut(frames, masks, rel) == by_colour).all()  # no failure map: colour alone
+
+
+def test_sure_pixels_leave_a_band_around_each_mask_edge():
+    masks = np.zeros((2, 40, 40), bool)
+    masks[0, 10:30, 10:30] = True  # frame 1: no object at all
+    sure = segment.sure_pixels(masks, band=0.1)  # 4 px of 40
+    assert sure[0, 20, 20] and sure[0, 2, 2] and sure[0, 20, 36]  # deep inside, far outside
+    assert not sure[0, 10, 20] and not sure[0, 29, 20] and not sure[0, 20, 8] and not sure[0, 20, 32]  # on and near the edge
+    assert sure[1].all()  # nothing to be unsure about
+    assert segment.sure_pixels(masks, band=0.0).all()

@@ -140,8 +140,10 @@ class TrainStage(Stage):
         d["train"].pop("checkpoint_every", None)
         d["train"].pop("device", None)
         if ctx.cfg.model.layers == 1:
-            for k in ("fg_follow", "mask_anchor", "anchor_band"):
-                d["loss"].pop(k, None)  # two-layer terms: one-layer runs trained before them keep their key
+            d["loss"].pop("fg_follow", None)  # a two-layer term: one-layer runs trained before it keep their key
+        if ctx.cfg.model.layers == 1 or not d["loss"].get("mask_anchor"):
+            for k in ("mask_anchor", "anchor_band"):
+                d["loss"].pop(k, None)  # off (the default) or one layer: runs trained before the anchor keep their key
         if d["loss"].get("robust") in (0.0, "auto"):
             d["loss"].pop("robust")  # MSE, as before the setting: those runs keep their key
         if "refine" in ctx.keys:  # only after the first fit: trained on the refine stage's masks

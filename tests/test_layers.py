@@ -128,3 +128,21 @@ def test_refine_fits_twice_and_trains_on_the_refined_masks(two_layer_run, tmp_pa
     assert ctx.keys["bootstrap"] == two_layer_run["ctx"].keys["bootstrap"]
     again = run_task("hdr-video", scene.clip, exposures, cfg, run, progress=False)
     assert all(again.times[k]["cached"] for k in ("prefit", "refine", "train", "export"))
+
+
+def test_the_anchor_trains_on_the_sure_pixels_and_keys_its_own_run(two_layer_run, tmp_path):
+    """``loss.mask_anchor`` (opt-in): the final loss carries the anchor term, the training is keyed
+    apart from the shared (anchor-off) run, and the alpha still finds the object."""
+    from layercam.pipelines.tasks import run_task
+
+    assert "alpha_anchor" not in json.loads((two_layer_run["run"] / "report.json").read_text())["train"]["final_loss"]
+    scene, exposures = two_layer_run["scene"], two_layer_run["exposures"]
+    cfg = copy.deepcopy(two_layer_run["cfg"])
+    cfg.loss.mask_anchor = 0.05
+    run = tmp_path / "anchored"
+    ctx = run_task("hdr-video", scene.clip, exposures, cfg, run, progress=False)
+    fl = json.loads((run / "report.json").read_text())["train"]["final_loss"]
+    assert fl["alpha_anchor"] > 0 and np.isfinite(fl["alpha_anchor"])
+    assert ctx.keys["train"] != two_layer_run["ctx"].keys["train"] and ctx.keys["bootstrap"] == two_layer_run["ctx"].keys["bootstrap"]
+    ious = [metrics.iou(read_image(p)[..., 0] > 0.5, scene.fg_mask[t]) for t, p in enumerate(sorted((run / "alpha").glob("frame_*.png")))]
+    assert np.mean(ious) > 0.5, ious

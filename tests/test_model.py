@@ -80,12 +80,19 @@ def test_schedules_change_the_weights_over_training():
     one = _model(layers=1)
     one.training_callbacks(masks=True)
     assert one.loss_weights.alpha_mask == 0.0  # no alpha field to fit the masks to
-    assert model.loss_weights.alpha_anchor == model.cfg.loss.mask_anchor > 0  # motion masks: anchored where sure, all through
-    assert given.loss_weights.alpha_anchor == 0.0 and one.loss_weights.alpha_anchor == 0.0
+    assert model.loss_weights.alpha_anchor == 0.0  # the anchor is opt-in (loss.mask_anchor)
+    anchored = _model(layers=2)
+    anchored.cfg.loss.mask_anchor = 0.05
+    anchored.training_callbacks(masks=True)
+    given_anchored = _model(layers=2)
+    given_anchored.cfg.loss.mask_anchor = 0.05
+    given_anchored.training_callbacks(masks=True, given=True)
+    assert anchored.loss_weights.alpha_anchor == 0.05 and given_anchored.loss_weights.alpha_anchor == 0.0  # motion masks only
 
 
 def test_the_anchor_counts_only_where_the_motion_masks_are_sure():
     model = _model(layers=2)
+    model.cfg.loss.mask_anchor = 0.05
     model.training_callbacks(masks=True)
     g = torch.Generator().manual_seed(0)
     n = 512

@@ -194,12 +194,12 @@ class TrainStage(Stage):
         if cfg.train.compile:
             for atlas in model.scene.atlases:
                 atlas.compile()
+        callbacks = model.training_callbacks(masks is not None, given=source == "given", refined=source == "refined")
         sampler = PixelSampler(
             ctx.clip.frames, *(fl[k] for k in ("fw", "bw", "fw_ok", "bw_ok")) if fl else (None,) * 4,
             masks=masks, device=dev, seed=distributed.rank_seed(cfg.train.seed),
-            sure=sure_pixels(masks, cfg.loss.anchor_band) if masks is not None and source != "given" and cfg.loss.mask_anchor > 0 and cfg.model.layers > 1 else None,
+            sure=sure_pixels(masks, cfg.loss.anchor_band) if model.loss_weights.alpha_anchor > 0 else None,  # the model decides (motion masks, two layers)
         )
-        callbacks = model.training_callbacks(masks is not None, given=source == "given", refined=source == "refined")
         if self.final:
             callbacks += [make(model) for make in ctx.train_callbacks]  # e.g. the benchmark's quality probe
         tcfg = dataclasses.replace(cfg.train, batch=distributed.rank_batch(cfg.train.batch))  # each rank's share

@@ -151,6 +151,11 @@ class LossConfig:
     rigidity: float = setting(0.01, 0.0)
     sparsity: float = setting(0.001, 0.0)
     alpha_flow: float = setting(1.0, 0.0)
+    alpha_flow_keep: float = setting(0.25, 0.0, 1.0)  # two layers: share of the alpha flow weight kept once the flow has
+                                                 # decayed (1: all through training, as in Kasten et al.; 0: gone with the
+                                                 # flow, as before 2026-11-25). Without it nothing stops the foreground from
+                                                 # taking in background it fits better in a long fit (balanced: DAVIS parkour
+                                                 # alpha IoU 0.31, 0.79 with 0.25; docs/layers/alphaflow/)
     mask_given: float = setting(1.0, 0.0, 1.0)   # share of the alpha-mask weight kept all through training with --masks
     mask_motion: float = setting(0.0, 0.0, 1.0)  # ... with the motion bootstrap's masks
     mask_anchor: float = setting(0.0, 0.0, 1.0)  # alpha held to the motion masks where they are sure (farther than

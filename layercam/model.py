@@ -93,8 +93,9 @@ class ImplicitCameraModel(nn.Module):
         )
 
     def training_callbacks(self, masks: bool = False, given: bool = False, refined: bool = False) -> list:
-        """The schedules of this model's loss weights over ``cfg.train.steps``: the flow terms decay
-        to 0 by ``loss.flow_decay_end``; the deformation is fitted to its bootstrap mapping for the
+        """The schedules of this model's loss weights over ``cfg.train.steps``: the flow term decays
+        to 0 by ``loss.flow_decay_end``, the alpha flow term to the share ``loss.alpha_flow_keep`` of
+        its weight (1: it keeps it all through training, as in Kasten et al.); the deformation is fitted to its bootstrap mapping for the
         first ``train.bootstrap_steps``; with ``masks`` (``given`` by the user, or from motion
         segmentation) and an alpha field, alpha is fitted to them at first, the weight tapering off
         with the flow's to the share ``loss.mask_given`` or ``loss.mask_motion`` of it. The term is
@@ -112,7 +113,7 @@ class ImplicitCameraModel(nn.Module):
             self.loss_weights.alpha_mask = 1.0
             if not given:
                 self.loss_weights.alpha_anchor = c.loss.mask_anchor
-        return [FlowDecay(c.loss.flow_decay_end), BootstrapPhase(c.train.bootstrap_steps, keys=("bootstrap", "mask_balance") if given or refined else ("bootstrap",)), MaskTaper(c.train.bootstrap_steps, c.loss.flow_decay_end, c.loss.mask_given if given else c.loss.mask_motion)]
+        return [FlowDecay(c.loss.flow_decay_end, keys=("flow",)), FlowDecay(c.loss.flow_decay_end, keys=("alpha_flow",), floor=c.loss.alpha_flow_keep), BootstrapPhase(c.train.bootstrap_steps, keys=("bootstrap", "mask_balance") if given or refined else ("bootstrap",)), MaskTaper(c.train.bootstrap_steps, c.loss.flow_decay_end, c.loss.mask_given if given else c.loss.mask_motion)]
 
     # -- rendering ---------------------------------------------------------------------------
     def irradiance(self, xy: torch.Tensor, t: torch.Tensor) -> dict:
@@ -142,8 +143,9 @@ class ImplicitCameraModel(nn.Module):
             terms["flow"] = w.flow * sum(
                 losses.flow_loss(uv, uvm, ok) for uv, uvm, ok in zip(out["uv"], m["uv"], self._layer_flow_weights(out, batch["match_ok"]))
             )
-            if w.alpha_flow > 0 and out["alpha"] is not None:
-                terms["alpha_flow"] = w.alpha_flow * losses.alpha_flow_loss(out["alpha"], m["alpha"], batch["match_ok"])
+        if w.alpha_flow > 0 and out["alpha"] is not None and "xy_match" in batch:  # held after the flow's decay: alpha at the matches only
+            match_alpha = m["alpha"] if w.flow > 0 else self.scene.alpha(batch["xy_match"], batch["t_match"])
+            terms["alpha_flow"] = w.alpha_flow * losses.alpha_flow_loss(out["alpha"], match_alpha, batch["match_ok"])
         if w.white_balance > 0:
             zero = torch.zeros(1, 3, device=batch["xy"].device)
             terms["white_balance"] = w.white_balance * losses.white_balance_loss(self.tone(zero), self.cfg.tone.c0)

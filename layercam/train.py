@@ -53,14 +53,17 @@ class WeightSchedule(Callback):
 
 @dataclass
 class FlowDecay(WeightSchedule):
-    """The ``keys`` weights decay linearly from their start to 0 at ``end`` (a fraction of training)."""
+    """The ``keys`` weights decay linearly from their start to ``floor`` (a share of it) at ``end``
+    (a fraction of training)."""
 
     end: float
     keys: tuple = ("flow", "alpha_flow")
+    floor: float = 0.0
 
     def factor(self, trainer, step):
         frac = step / max(trainer.cfg.steps, 1)
-        return max(0.0, 1.0 - frac / max(self.end, 1e-9)) if self.end > 0 else 1.0
+        k = max(0.0, 1.0 - frac / max(self.end, 1e-9)) if self.end > 0 else 1.0
+        return self.floor + (1.0 - self.floor) * k
 
 
 @dataclass

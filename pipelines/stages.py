@@ -141,6 +141,8 @@ class TrainStage(Stage):
         d["train"].pop("device", None)
         if ctx.cfg.model.layers == 1:
             d["loss"].pop("fg_follow", None)  # a two-layer term: one-layer runs trained before it keep their key
+        if ctx.cfg.model.layers == 1 or d["loss"].get("alpha_flow_keep") == 0:
+            d["loss"].pop("alpha_flow_keep", None)  # one layer, or the decay as before the setting: those runs keep their key
         if ctx.cfg.model.layers == 1 or not d["loss"].get("mask_anchor"):
             for k in ("mask_anchor", "anchor_band"):
                 d["loss"].pop(k, None)  # off (the default) or one layer: runs trained before the anchor keep their key

@@ -65,6 +65,8 @@ def test_schedules_change_the_weights_over_training():
         for cb in cbs:
             cb.on_step(trainer, step)
         seen[step] = (model.loss_weights.flow, model.loss_weights.alpha_mask, model.loss_weights.mask_balance)
+        if step >= 50:  # the alpha flow term outlives the flow, at its kept share (loss.alpha_flow_keep)
+            assert model.loss_weights.alpha_flow == pytest.approx(model.cfg.loss.alpha_flow * model.cfg.loss.alpha_flow_keep) > 0
     assert seen[0] == (100.0, 1.0, 1.0) and seen[9][1:] == (1.0, 1.0)  # masks at full weight, class-balanced, during the bootstrap steps
     assert seen[99][2] == 1.0  # motion masks: class-balanced all through
     assert 0 < seen[25][0] < 100 and 0 < seen[25][1] < 1  # both tapering
@@ -88,6 +90,39 @@ def test_schedules_change_the_weights_over_training():
     given_anchored.cfg.loss.mask_anchor = 0.05
     given_anchored.training_callbacks(masks=True, given=True)
     assert anchored.loss_weights.alpha_anchor == 0.05 and given_anchored.loss_weights.alpha_anchor == 0.0  # motion masks only
+
+
+def test_the_alpha_flow_term_outlives_the_flow_at_its_kept_share():
+    """After the flow has decayed, alpha is still compared along the flow's matches at the share
+    ``loss.alpha_flow_keep`` of its weight (the term needs alpha at the matches only); at 0 it goes
+    with the flow, as before the setting."""
+    g = torch.Generator().manual_seed(0)
+    n = 512
+    xy = torch.rand(n, 2, generator=g) * 2 - 1
+    batch = {"xy": xy, "t": torch.zeros(n, dtype=torch.long), "rgb": torch.rand(n, 3, generator=g),
+             "xy_match": (xy + 0.05).clamp(-1, 1), "t_match": torch.ones(n, dtype=torch.long), "match_ok": torch.ones(n, dtype=torch.bool)}
+    for keep in (1.0, 0.25, 0.0):
+        model = _model(layers=2)
+        model.cfg.loss.alpha_flow_keep = keep
+        cbs = model.training_callbacks()
+        trainer = SimpleNamespace(model=model, cfg=model.cfg.train)
+        for step in (0, 25, 60):  # 60: past flow_decay_end (0.5 of 100 steps)
+            for cb in cbs:
+                cb.on_step(trainer, step)
+            if step == 25:
+                assert model.loss_weights.alpha_flow == pytest.approx(model.cfg.loss.alpha_flow * (keep + (1 - keep) * 0.5))
+        terms = model.loss_dict(batch)
+        assert "flow" not in terms and model.loss_weights.flow == 0.0
+        assert model.loss_weights.alpha_flow == pytest.approx(model.cfg.loss.alpha_flow * keep)
+        if keep == 0:
+            assert "alpha_flow" not in terms
+            continue
+        with torch.no_grad():
+            a, am = model.scene.alpha(xy, batch["t"]), model.scene.alpha(batch["xy_match"], batch["t_match"])
+        assert terms["alpha_flow"].item() == pytest.approx(keep * model.cfg.loss.alpha_flow * (a - am).abs().mean().item(), rel=1e-5)
+        terms["alpha_flow"].backward()
+        grads = {n.split(".")[1] for n, p in model.named_parameters() if p.grad is not None and p.grad.abs().sum() > 0}
+        assert grads == {"alpha"}, grads  # only the alpha field moves with it
 
 
 def test_the_anchor_counts_only_where_the_motion_masks_are_sure():

@@ -255,3 +255,19 @@ def test_train_key_leaves_out_an_mse_colour_loss():
 
     assert "robust" not in key(0)["loss"] and "robust" not in key("auto")["loss"]
     assert key(0.05)["loss"]["robust"] == 0.05
+
+
+def test_train_key_names_the_alpha_flow_share_only_where_it_trains_something_new():
+    """``loss.alpha_flow_keep``: a one-layer run has no alpha, and 0 is the decay every run before
+    the setting trained with, so neither names it (those runs keep their key); a two-layer run
+    with the share kept (the default, 1) is keyed by it."""
+    from types import SimpleNamespace
+
+    from layercam.pipelines.stages import TrainStage
+
+    def key(layers, keep):
+        cfg = load_config("fast", [f"loss.alpha_flow_keep={keep}", f"model.layers={layers}"])
+        return TrainStage().key_material(SimpleNamespace(cfg=cfg, keys={}))["loss"]
+
+    assert "alpha_flow_keep" not in key(1, 1.0) and "alpha_flow_keep" not in key(2, 0)
+    assert key(2, 1.0)["alpha_flow_keep"] == 1.0 and key(2, 0.25)["alpha_flow_keep"] == 0.25

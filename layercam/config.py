@@ -155,7 +155,8 @@ class LossConfig:
                                                  # decayed (1: all through training, as in Kasten et al.; 0: gone with the
                                                  # flow, as before 2026-11-25). Without it nothing stops the foreground from
                                                  # taking in background it fits better in a long fit (balanced: DAVIS parkour
-                                                 # alpha IoU 0.31, 0.79 with 0.25; docs/layers/alphaflow/)
+                                                 # alpha IoU 0.31, 0.79 with 0.25; docs/layers/alphaflow/); fast: 0 (its short
+                                                 # free phase refines alpha; held there, libby's faded to 0)
     mask_given: float = setting(1.0, 0.0, 1.0)   # share of the alpha-mask weight kept all through training with --masks
     mask_motion: float = setting(0.0, 0.0, 1.0)  # ... with the motion bootstrap's masks
     mask_anchor: float = setting(0.0, 0.0, 1.0)  # alpha held to the motion masks where they are sure (farther than

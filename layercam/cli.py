@@ -61,7 +61,7 @@ def common_model_args(p: argparse.ArgumentParser) -> None:
     g.add_argument("--steps", type=POSITIVE_INT, help="shortcut for --set train.steps=N")
     g.add_argument("--device", choices=["cpu", "cuda", "auto"], help="where to train and render: auto (default: CUDA when torch sees a GPU, else the CPU), cpu or cuda")
     m = p.add_argument_group("model (default: chosen by analysis of the clip)")
-    m.add_argument("--layers", type=int, choices=[1, 2], help="scene layers: 1, or 2 for an object that moves on its own (for the layers themselves, alpha and atlases to edit, add --set loss.mask_anchor=0.05: alpha held to the motion masks; the HDR frames are better without)")
+    m.add_argument("--layers", type=int, choices=[1, 2], help="scene layers: 1, or 2 for an object that moves on its own (alpha and atlases per layer, editable with layercam edit); the analysis chooses when not given")
     m.add_argument("--tone-mapper", choices=["learned", "fixed"], help="learn the camera response, or assume sRGB")
     m.add_argument("--blur", choices=["off", "3x3", "5x5"], help="blur generator patch size, or off")
     m.add_argument("--max-offset", type=number(float, 0), help="blur generator's maximum offset in pixels")

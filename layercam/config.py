@@ -160,12 +160,10 @@ class LossConfig:
     mask_given: float = setting(1.0, 0.0, 1.0)   # share of the alpha-mask weight kept all through training with --masks
     mask_motion: float = setting(0.0, 0.0, 1.0)  # ... with the motion bootstrap's masks
     mask_anchor: float = setting(0.0, 0.0, 1.0)  # alpha held to the motion masks where they are sure (farther than
-                                                 # anchor_band from their edge), all through training. Off by default: the
-                                                 # long fit (balanced) without it gives the foreground background it explains
-                                                 # better (DAVIS parkour's near wall: alpha IoU 0.31, 0.79 at 0.05), and that
-                                                 # freer split is the better HDR (Basler flicker 0.80 -> 1.09 at fast and
-                                                 # 0.51 -> 1.33 at balanced with 0.05; docs/layers/balanced/). 0.05: for the
-                                                 # layers themselves (alpha, atlases, layercam edit)
+                                                 # anchor_band from their edge), all through training. Off by default: it
+                                                 # kept balanced's layers (DAVIS parkour alpha IoU 0.31 -> 0.79 at 0.05) at a
+                                                 # cost to the HDR (Basler flicker 0.51 -> 1.33; docs/layers/balanced/);
+                                                 # alpha_flow_keep now holds them for less (docs/layers/alphaflow/)
     anchor_band: float = setting(0.03, 0.0, 0.5)  # ... the band left free, a share of the frame's short side
     bg_change: float = setting(1.0, 0.0)         # penalty on the background's per-frame change (mean square, log2 units)
     fg_follow: float = setting(1e-3, 0.0)        # two layers: the foreground's log2 irradiance pulled to the background's

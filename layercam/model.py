@@ -113,7 +113,7 @@ class ImplicitCameraModel(nn.Module):
             self.loss_weights.alpha_mask = 1.0
             if not given:
                 self.loss_weights.alpha_anchor = c.loss.mask_anchor
-        return [FlowDecay(c.loss.flow_decay_end, keys=("flow",)), FlowDecay(c.loss.flow_decay_end, keys=("alpha_flow",), floor=c.loss.alpha_flow_keep), BootstrapPhase(c.train.bootstrap_steps, keys=("bootstrap", "mask_balance") if given or refined else ("bootstrap",)), MaskTaper(c.train.bootstrap_steps, c.loss.flow_decay_end, c.loss.mask_given if given else c.loss.mask_motion)]
+        return [FlowDecay(c.loss.flow_decay_end), FlowDecay(c.loss.flow_decay_end, keys=("alpha_flow",), floor=c.loss.alpha_flow_keep), BootstrapPhase(c.train.bootstrap_steps, keys=("bootstrap", "mask_balance") if given or refined else ("bootstrap",)), MaskTaper(c.train.bootstrap_steps, c.loss.flow_decay_end, c.loss.mask_given if given else c.loss.mask_motion)]
 
     # -- rendering ---------------------------------------------------------------------------
     def irradiance(self, xy: torch.Tensor, t: torch.Tensor) -> dict:

@@ -54,10 +54,11 @@ class WeightSchedule(Callback):
 @dataclass
 class FlowDecay(WeightSchedule):
     """The ``keys`` weights decay linearly from their start to ``floor`` (a share of it) at ``end``
-    (a fraction of training)."""
+    (a fraction of training): the flow's to 0, the alpha flow term's (its own instance) to
+    ``loss.alpha_flow_keep``."""
 
     end: float
-    keys: tuple = ("flow", "alpha_flow")
+    keys: tuple = ("flow",)
     floor: float = 0.0
 
     def factor(self, trainer, step):

@@ -92,7 +92,7 @@ class ImplicitCameraModel(nn.Module):
             fg_follow=lc.fg_follow if m.layers > 1 else 0.0,
         )
 
-    def training_callbacks(self, masks: bool = False, given: bool = False, refined: bool = False) -> list:
+    def training_callbacks(self, masks: bool = False, given: bool = False) -> list:
         """The schedules of this model's loss weights over ``cfg.train.steps``: the flow term decays
         to 0 by ``loss.flow_decay_end``, the alpha flow term to the share ``loss.alpha_flow_keep`` of
         its weight (1: it keeps it all through training, as in Kasten et al.); the deformation is fitted to its bootstrap mapping for the
@@ -104,8 +104,10 @@ class ImplicitCameraModel(nn.Module):
         libby alpha IoU 0.766 -> 0.853, parkour 0.905 -> 0.945). Motion masks stay balanced: they
         miss parts of the object, which the halo partly covers (plain after the bootstrap steps:
         libby 0.388 -> 0.352, cows 0.762 -> 0.756, car-roundabout 0.785 -> 0.789, parkour 0.702 -> 0.707).
-        ``refined`` masks (``segment.refine``) are balanced during the bootstrap steps only, like given
-        ones, and taper to ``loss.mask_motion`` like motion masks."""
+        ``refined`` masks (``segment.refine``) come from the motion masks and miss parts as they do:
+        balanced all through like them, and tapered to ``loss.mask_motion`` (balanced during the
+        bootstrap steps only, at ``balanced`` the plain term's pull to the background faded libby's
+        alpha to nothing: IoU 0.051, against 0.526 balanced; docs/layers/ceiling/)."""
         from layercam.train import BootstrapPhase, FlowDecay, MaskTaper
 
         c = self.cfg
@@ -113,7 +115,7 @@ class ImplicitCameraModel(nn.Module):
             self.loss_weights.alpha_mask = 1.0
             if not given:
                 self.loss_weights.alpha_anchor = c.loss.mask_anchor
-        return [FlowDecay(c.loss.flow_decay_end), FlowDecay(c.loss.flow_decay_end, keys=("alpha_flow",), floor=c.loss.alpha_flow_keep), BootstrapPhase(c.train.bootstrap_steps, keys=("bootstrap", "mask_balance") if given or refined else ("bootstrap",)), MaskTaper(c.train.bootstrap_steps, c.loss.flow_decay_end, c.loss.mask_given if given else c.loss.mask_motion)]
+        return [FlowDecay(c.loss.flow_decay_end), FlowDecay(c.loss.flow_decay_end, keys=("alpha_flow",), floor=c.loss.alpha_flow_keep), BootstrapPhase(c.train.bootstrap_steps, keys=("bootstrap", "mask_balance") if given else ("bootstrap",)), MaskTaper(c.train.bootstrap_steps, c.loss.flow_decay_end, c.loss.mask_given if given else c.loss.mask_motion)]
 
     # -- rendering ---------------------------------------------------------------------------
     def irradiance(self, xy: torch.Tensor, t: torch.Tensor) -> dict:

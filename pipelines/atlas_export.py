@@ -77,6 +77,7 @@ def export_atlases(model, run_dir: Path, frames: np.ndarray, fps: float = 24.0, 
     acc = [np.zeros(r * r, np.float64) for r in res]
     to8 = lambda x: np.round(np.clip(x, 0, 1) * 255).astype(np.uint8)  # noqa: E731 - videos kept as 8-bit
     two = m["alpha"] is not None
+    fg = []  # per frame, the share of pixels the foreground's alpha holds (> 0.5)
     if two:
         (run_dir / "alpha").mkdir(exist_ok=True)
     with contextlib.ExitStack() as open_videos:  # written as the frames are rendered: memory of one frame
@@ -93,6 +94,7 @@ def export_atlases(model, run_dir: Path, frames: np.ndarray, fps: float = 24.0, 
                     alpha_videos[k].add(to8(ws[k]))
             if two:
                 write_png(run_dir / "alpha" / f"frame_{t:05d}.png", m["alpha"])
+                fg.append(float(np.mean(np.asarray(m["alpha"]) > 0.5)))
     log2_dt = model.exposure.reference()
     layers = []
     for k in range(L):
@@ -115,4 +117,5 @@ def export_atlases(model, run_dir: Path, frames: np.ndarray, fps: float = 24.0, 
         "frame_hw": [H, W],
     }
     write_json(adir / "atlas.json", info)
-    return {"layers": [{k: v for k, v in e.items() if k in ("layer", "res", "coverage")} for e in layers], "alpha_mattes": T if two else 0}
+    return {"layers": [{k: v for k, v in e.items() if k in ("layer", "res", "coverage")} for e in layers], "alpha_mattes": T if two else 0,
+            **({"foreground_share": float(np.mean(fg))} if two else {})}

@@ -150,6 +150,7 @@ class TrainStage(Stage):
             d["loss"].pop("robust")  # MSE, as before the setting: those runs keep their key
         if "refine" in ctx.keys:  # only after the first fit: trained on the refine stage's masks
             d["refined_masks"] = ctx.keys["refine"]
+            d["refined_balance"] = "all"  # class-balanced all through, as motion masks (runs before it balanced them during the bootstrap steps only)
         return d
 
     def masks(self, ctx):
@@ -196,7 +197,7 @@ class TrainStage(Stage):
         if cfg.train.compile:
             for atlas in model.scene.atlases:
                 atlas.compile()
-        callbacks = model.training_callbacks(masks is not None, given=source == "given", refined=source == "refined")
+        callbacks = model.training_callbacks(masks is not None, given=source == "given")
         sampler = PixelSampler(
             ctx.clip.frames, *(fl[k] for k in ("fw", "bw", "fw_ok", "bw_ok")) if fl else (None,) * 4,
             masks=masks, device=dev, seed=distributed.rank_seed(cfg.train.seed),

@@ -61,6 +61,9 @@ def _run(ctx: Context, stages: list, t0: float) -> None:
         if refine_wanted(ctx):  # segment.refine: a first fit, and masks from its background residual
             run_stages(ctx, [PrefitStage(), RefineStage()])
         run_stages(ctx, stages[2:])
+        faded = faded_foreground(ctx)
+        if faded:
+            ctx.warn(faded)
     except LayercamError as e:
         if getattr(e, "events", None) is not None:  # training stopped: say why in report_failed.json
             write_report(ctx, time.perf_counter() - t0, "report_failed.json", {"error": str(e), "train": {"stopped": True, "events": e.events}})
@@ -70,6 +73,30 @@ def _run(ctx: Context, stages: list, t0: float) -> None:
         sources, keys = output_sources(ctx, stages)
         publish.publish(ctx.run_dir, sources, report, publish.set_key(keys), ctx.say)
         (ctx.run_dir / "report_failed.json").unlink(missing_ok=True)
+
+
+FADED_SHARE = 0.25  # the foreground's alpha over less than this share of its masks' area: it lost the object
+
+
+def faded_foreground(ctx: Context) -> str | None:
+    """A warning when a two-layer run's foreground layer lost its object in training: the trained
+    alpha (> 0.5, ``export["atlas"]["foreground_share"]``) covers less than ``FADED_SHARE`` of the
+    area the masks it was fitted to cover (given, refined or motion masks; a share of the frames,
+    over the clip). Alpha that is 0 everywhere satisfies the flow terms, and the plain mask term
+    pulls a small object towards the background: DAVIS libby's dog faded so with ``--preset fast
+    --set loss.alpha_flow_keep=0.25`` (alpha IoU 0.000) and with ``segment.refine`` at ``balanced``
+    before its masks were class-balanced (0.051). None when it did not, or without masks or
+    the atlas export (one layer, a run exported before the share was kept)."""
+    share = (ctx.results.get("export", {}).get("atlas") or {}).get("foreground_share")
+    masks, source = TrainStage().masks(ctx)
+    if share is None or masks is None:
+        return None
+    ref = float(np.mean(np.asarray(masks) > 0.5))
+    if ref <= 0 or share >= FADED_SHARE * ref:
+        return None
+    hint = "" if source == "given" else "; --set loss.mask_anchor=0.05 holds alpha to the masks where they are sure, --masks gives masks"
+    return (f"the foreground layer faded in training: its alpha holds {share:.2%} of the frames, the {source} masks it started from "
+            f"{ref:.2%}; alpha/, the atlases and `layercam edit` miss the object{hint}")
 
 
 def write_report(ctx: Context, wall: float, name: str | None = "report.json", extra: dict | None = None) -> dict:

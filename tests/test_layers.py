@@ -32,6 +32,32 @@ def test_two_layer_run_separates_the_moving_object(two_layer_run):
     assert len(mattes) == T
     ious = [metrics.iou(read_image(p)[..., 0] > 0.5, scene.fg_mask[t]) for t, p in enumerate(mattes)]
     assert np.mean(ious) > 0.5, ious
+    # the report keeps the share of the frames alpha holds: the mattes' own, and the object's size
+    share = rep["export"]["atlas"]["foreground_share"]
+    assert abs(share - np.mean([np.mean(read_image(p)[..., 0] > 0.5) for p in mattes])) <= 1.0 / scene.fg_mask[0].size  # a pixel at most (8-bit rounding)
+    assert 0.5 < share / scene.fg_mask.mean() < 2.0
+    assert not any("faded" in w for w in rep["warnings"])
+
+
+def test_a_foreground_that_faded_in_training_is_said(two_layer_run):
+    """``faded_foreground``: alpha holding less than a quarter of its masks' area is a warning, with
+    the way out for masks the tool made (not for masks the user gave); none where it holds them, or
+    without the share or masks."""
+    from types import SimpleNamespace
+
+    from layercam.pipelines.tasks import FADED_SHARE, faded_foreground
+
+    masks = np.zeros((4, 10, 10), np.float32)
+    masks[:, :2, :2] = 1  # 4% of the frames
+    def ctx(share, given=False, boot=masks):
+        return SimpleNamespace(masks=masks if given else None, results={"bootstrap": {"masks": boot}, "export": {"atlas": {} if share is None else {"foreground_share": share}}})
+    faded = faded_foreground(ctx(0.001))
+    assert "faded" in faded and "0.10%" in faded and "4.00%" in faded and "motion masks" in faded and "mask_anchor" in faded
+    given = faded_foreground(ctx(0.001, given=True))
+    assert "given masks" in given and "mask_anchor" not in given
+    assert faded_foreground(ctx(FADED_SHARE * 0.04 * 1.01)) is None and faded_foreground(ctx(0.05)) is None
+    assert faded_foreground(ctx(None)) is None and faded_foreground(ctx(0.0, boot=None)) is None
+    assert faded_foreground(ctx(0.0, boot=np.zeros_like(masks))) is None  # masks that found nothing: nothing to lose
 
 
 def test_atlas_outputs_per_layer(two_layer_run):
@@ -126,6 +152,10 @@ def test_refine_fits_twice_and_trains_on_the_refined_masks(two_layer_run, tmp_pa
     # the final training is keyed on the refined masks: not the shared run's training
     assert ctx.keys["train"] != two_layer_run["ctx"].keys["train"]
     assert ctx.keys["bootstrap"] == two_layer_run["ctx"].keys["bootstrap"]
+    # the refined masks miss parts as the motion masks do: class-balanced all through (plain after the
+    # bootstrap steps, DAVIS libby's alpha faded to nothing at balanced), and keyed apart from runs before it
+    assert ctx.model.loss_weights.mask_balance == 1.0
+    assert json.loads((ctx.dirs["train"] / "settings.json").read_text())["settings"]["refined_balance"] == "all"
     again = run_task("hdr-video", scene.clip, exposures, cfg, run, progress=False)
     assert all(again.times[k]["cached"] for k in ("prefit", "refine", "train", "export"))
 

@@ -76,6 +76,7 @@ def _run(ctx: Context, stages: list, t0: float) -> None:
 
 
 FADED_SHARE = 0.25  # the foreground's alpha over less than this share of its masks' area: it lost the object
+FADED = "the foreground layer faded in training"  # how the warning begins (layercam edit repeats it)
 
 
 def faded_foreground(ctx: Context) -> str | None:
@@ -95,7 +96,7 @@ def faded_foreground(ctx: Context) -> str | None:
     if ref <= 0 or share >= FADED_SHARE * ref:
         return None
     hint = "" if source == "given" else "; --set loss.mask_anchor=0.05 holds alpha to the masks where they are sure, --masks gives masks"
-    return (f"the foreground layer faded in training: its alpha holds {share:.2%} of the frames, the {source} masks it started from "
+    return (f"{FADED}: its alpha holds {share:.2%} of the frames, the {source} masks it started from "
             f"{ref:.2%}; alpha/, the atlases and `layercam edit` miss the object{hint}")
 
 

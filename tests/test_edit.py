@@ -116,3 +116,24 @@ def test_interrupted_edit_leaves_no_partial_edit_and_is_redone(two_layer_run, tm
     assert main(argv) == 0
     assert sorted(p.name for p in out.iterdir()) == ["edit.json", "edited.mp4", "hdr", "preview.mp4"]
     assert len(list((out / "hdr").glob("*.exr"))) == two_layer_run["scene"].clip.T
+
+
+def test_edit_of_a_faded_foreground_repeats_the_runs_warning(two_layer_run, tmp_path, capsys):
+    """A run whose report says its foreground faded: editing layer 1 says it again (the edit shows
+    only where alpha is left); editing the background does not, nor does a run without it."""
+    from layercam.pipelines.tasks import FADED
+
+    run = tmp_path / "run"
+    shutil.copytree(two_layer_run["run"], run)
+    edited = tmp_path / "edited.png"
+    _paint_on_object(run, two_layer_run["scene"], edited)
+    assert main(["edit", str(run), "--atlas", str(edited), "--out", str(tmp_path / "e0"), "--quiet"]) == 0
+    assert FADED not in capsys.readouterr().err  # the shared run did not fade
+    rep = json.loads((run / "report.json").read_text())
+    rep["warnings"] = rep["warnings"] + [f"{FADED}: its alpha holds 0.00% of the frames, the motion masks it started from 2.91%"]
+    (run / "report.json").write_text(json.dumps(rep))
+    assert main(["edit", str(run), "--atlas", str(edited), "--out", str(tmp_path / "e1"), "--quiet"]) == 0
+    assert f"warning: {FADED}: its alpha holds 0.00%" in capsys.readouterr().err
+    assert main(["edit", str(run), "--layer", "0", "--atlas", str(edited), "--out", str(tmp_path / "e2"), "--quiet"]) == 0
+    assert FADED not in capsys.readouterr().err
+

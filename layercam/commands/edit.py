@@ -147,6 +147,22 @@ def run(args) -> int:
         return _edit(args, run_dir)
 
 
+def _say_faded(run_dir: Path) -> None:
+    """Repeats the run's warning that its foreground faded in training (``report.json``): an edit
+    of that layer shows only where alpha is left."""
+    import sys
+
+    from layercam.pipelines.tasks import FADED
+
+    try:
+        warnings = json.loads((run_dir / "report.json").read_text()).get("warnings") or []
+    except (OSError, ValueError, AttributeError):
+        return
+    for w in warnings:
+        if isinstance(w, str) and w.startswith(FADED):
+            print(f"warning: {w}", file=sys.stderr, flush=True)
+
+
 def _edit(args, run_dir: Path) -> int:
     from layercam.checkpoint import load_run_model
     from layercam.interrupts import reached
@@ -161,6 +177,8 @@ def _edit(args, run_dir: Path) -> int:
     L = model.scene.n_layers
     if not 0 <= args.layer < L:
         raise LayercamError(f"--layer {args.layer}: this run has {L} layer{'s' if L > 1 else ''} (0{'' if L == 1 else f'..{L - 1}'})")
+    if args.layer > 0:
+        _say_faded(run_dir)
     out = Path(args.out) if args.out else run_dir / "edit"
     if (out / "edit.json").exists() and not args.overwrite:
         raise LayercamError(f"{out} already holds an edit; pass --overwrite or choose another --out")

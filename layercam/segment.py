@@ -97,7 +97,7 @@ def _part_means(lab: np.ndarray, n: int, values: np.ndarray) -> np.ndarray:
     return np.bincount(lab.ravel(), weights=np.asarray(values, np.float64).ravel(), minlength=n) / np.maximum(np.bincount(lab.ravel(), minlength=n), 1)
 
 
-def clean_mask(mask: np.ndarray, cfg: SegmentConfig | None = None, colour: np.ndarray | None = None, reach: float = 0.0) -> np.ndarray:
+def clean_mask(mask: np.ndarray, cfg: SegmentConfig | None = None, colour: np.ndarray | None = None, reach: float = 0.0, scale: float = 1.0) -> np.ndarray:
     """Morphology on one ``(H, W)`` bool mask: open, close, fill holes, drop small components, and
     keep one object: the largest component and those within ``cfg.gap`` times its size (the square
     root of its area) of it (parts an occluder splits off; DAVIS parkour's other blobs are sky and
@@ -106,7 +106,8 @@ def clean_mask(mask: np.ndarray, cfg: SegmentConfig | None = None, colour: np.nd
     when its mean ratio is at least ``_PART_LLR`` (the object's colours) and it lies within
     ``reach`` pixels of the largest: a small dog that a trunk cuts in two keeps both halves; and
     what the opening took comes back where its ratio is at least ``_THIN_LLR`` and it touches what
-    the opening left (a small dog's legs and tail are thinner than the opening)."""
+    the opening left (a small dog's legs and tail are thinner than the opening). ``scale``: the
+    radii of the opening (1% of the short side) and the closing (2%) times this (0: neither)."""
     import cv2
     from scipy import ndimage
 
@@ -114,14 +115,15 @@ def clean_mask(mask: np.ndarray, cfg: SegmentConfig | None = None, colour: np.nd
     h, w = mask.shape
     m = mask.astype(np.uint8)
     r = max(1, int(round(0.01 * min(h, w))))
-    ko = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
-    kc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (4 * r + 1, 4 * r + 1))
-    m = cv2.morphologyEx(m, cv2.MORPH_OPEN, ko)
+    ro, rc = int(round(scale * r)), int(round(scale * 2 * r))
+    if ro > 0:
+        m = cv2.morphologyEx(m, cv2.MORPH_OPEN, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * ro + 1, 2 * ro + 1)))
     if colour is not None:  # thin parts of the object's colours (legs, a tail) the opening took: back where they touch the rest
         thin = (mask.astype(bool) & (m == 0) & (np.asarray(colour) >= _THIN_LLR)).astype(np.uint8)
         nt, lt = cv2.connectedComponents(m | thin, connectivity=8)
         m = (_part_means(lt, nt, m) > 0)[lt].astype(np.uint8)  # the parts of mask + thin that hold some of the mask
-    m = cv2.morphologyEx(m, cv2.MORPH_CLOSE, kc)
+    if rc > 0:
+        m = cv2.morphologyEx(m, cv2.MORPH_CLOSE, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * rc + 1, 2 * rc + 1)))
     # fill holes: background is what the border reaches
     pad = np.pad(m, 1)
     flood = pad.copy()
@@ -603,7 +605,7 @@ def colour_cut(frames: np.ndarray, masks: np.ndarray, residual: np.ndarray, cfg:
         cut = np.zeros((h, w), bool)
         guide = _equalised_lab(frames[t])[box] / 100.0  # again, not kept from the histogram pass: 12 bytes a pixel of the clip
         cut[box] = _graph_cut(unary, guide, cfg.colour_smooth)
-        cut = clean_mask(cut, cfg, colour=llr[bins[t]], reach=size)
+        cut = clean_mask(cut, cfg, colour=llr[bins[t]], reach=size, scale=cfg.colour_clean)
         out[t] = cut if cut.any() else m[t]  # a cut that leaves nothing keeps the mask it had
     return out
 

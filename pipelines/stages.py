@@ -69,11 +69,15 @@ class BootstrapStage(Stage):
         d = {"bootstrap": ctx.cfg.scene.bootstrap, "layers": m.layers, "init_slope": ctx.cfg.tone.init_slope, "tone": m.tone_mapper}
         if m.layers > 1:
             from layercam import segment
+            from layercam.config import SegmentConfig
 
-            seg = ctx.cfg.section_dict("segment")
-            for k in ("refine", "refine_threshold"):  # read by the refine stage, not here
-                seg.pop(k, None)
-            d["foreground"] = {**seg, "segment": segment.SEGMENT_VERSION}
+            # the segment settings that differ from their defaults (the defaults are the code's, named
+            # by SEGMENT_VERSION: bump it when one changes); refine's are read by the refine stage.
+            # Before 2026-11-25 none were keyed (the version overwrote them): a run made again with
+            # another segment.* setting reused its masks. Runs at the defaults keep their key.
+            seg, default = ctx.cfg.section_dict("segment")["segment"], dataclasses.asdict(SegmentConfig())
+            changed = {k: v for k, v in seg.items() if k not in ("refine", "refine_threshold") and v != default[k]}
+            d["foreground"] = {"segment": segment.SEGMENT_VERSION, **({"settings": changed} if changed else {})}
         return d
 
     def run(self, ctx, out):

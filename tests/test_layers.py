@@ -160,6 +160,27 @@ def test_refine_fits_twice_and_trains_on_the_refined_masks(two_layer_run, tmp_pa
     assert all(again.times[k]["cached"] for k in ("prefit", "refine", "train", "export"))
 
 
+def test_a_segment_setting_changed_makes_the_masks_again(two_layer_run, tmp_path):
+    """The bootstrap's key holds the segment settings that differ from their defaults: the same run
+    folder made again with another one computes its masks again (before, the stale masks were
+    reused); at the defaults the key is the one runs made before had (refine's own two settings
+    are the refine stage's)."""
+    from layercam.pipelines.tasks import run_task
+
+    scene, exposures = two_layer_run["scene"], two_layer_run["exposures"]
+    run = tmp_path / "run"
+    shutil.copytree(two_layer_run["run"], run)
+    cfg = copy.deepcopy(two_layer_run["cfg"])
+    cfg.segment.colour_clean = 0.5
+    ctx = run_task("hdr-video", scene.clip, exposures, cfg, run, progress=False)
+    assert not ctx.times["bootstrap"]["cached"] and ctx.keys["bootstrap"] != two_layer_run["ctx"].keys["bootstrap"]
+    assert ctx.keys["train"] != two_layer_run["ctx"].keys["train"]  # trained on the new masks
+    material = json.loads((ctx.dirs["bootstrap"] / "settings.json").read_text())["settings"]["foreground"]
+    assert material["settings"] == {"colour_clean": 0.5}
+    shared = json.loads((two_layer_run["ctx"].dirs["bootstrap"] / "settings.json").read_text())["settings"]["foreground"]
+    assert "settings" not in shared  # the defaults: keyed by SEGMENT_VERSION alone, as before
+
+
 def test_the_anchor_trains_on_the_sure_pixels_and_keys_its_own_run(two_layer_run, tmp_path):
     """``loss.mask_anchor`` (opt-in): the final loss carries the anchor term, the training is keyed
     apart from the shared (anchor-off) run, and the alpha still finds the object."""

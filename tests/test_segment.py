@@ -125,6 +125,21 @@ def test_clean_mask_gives_back_thin_parts_of_the_objects_colours():
     assert not segment.clean_mask(m, colour=colour)[40, 20]
 
 
+def test_clean_mask_at_half_scale_keeps_a_thin_leg_and_the_gap_between_legs():
+    """``scale`` (``segment.colour_clean`` in the colour cut): on a 200 px short side the opening is
+    2 px and the closing 4 px at 1; at 0.5 (1 px, 2 px) two 3 px legs stay, without any colour,
+    and the 5 px gap between them stays open; at 0 neither runs; 1 is the cleaning as before."""
+    m = np.zeros((200, 200), bool)
+    m[40:80, 40:120] = True  # the body
+    m[80:110, 50:53] = True  # a 3 px leg
+    m[80:110, 58:61] = True  # another, 5 px apart
+    full, half, none = (segment.clean_mask(m, scale=s) for s in (1.0, 0.5, 0.0))
+    assert not full[100, 51] and not full[100, 59]  # the opening took the legs
+    assert half[100, 51] and half[100, 59] and not half[100, 55]  # kept, and the gap between them open
+    assert (none == m).all()  # neither opening nor closing (no holes, one component)
+    assert (segment.clean_mask(m) == full).all()
+
+
 def test_still_object_inherits_neighbour_masks(square):
     fw, bw = square["fw"].copy(), square["bw"].copy()
     # the object's evidence vanishes in frame 5 (as if it stood still): its mask comes from frame 4

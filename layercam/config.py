@@ -238,7 +238,7 @@ class SegmentConfig:
     loses a pixel within 4 frames (:func:`layercam.motion.flow_failure`; 0: off); ``colour_clean``:
     the radii of the opening and closing that clean the cut (:func:`layercam.segment.clean_mask`),
     as a share of the other cleanings' (1% and 2% of the short side; 0.5 keeps legs and tails 1-3 px
-    wide at 282x158; 0: neither). ``foreground``:
+    wide at 282x158; 1: the same radii; 0: neither). ``foreground``:
     the foreground layer's starting mapping, the object's own motion or the identity.
     ``margin``: the part of the foreground atlas the masked object fills at the start.
     ``refine``: fit the model once on the motion masks, take new masks from where each frame differs
@@ -272,7 +272,7 @@ class SegmentConfig:
     colour_smooth: float = setting(2.0, 0.0)
     colour_distance: float = setting(1.0, 0.0)
     colour_failure: float = setting(1.0, 0.0)
-    colour_clean: float = setting(1.0, 0.0, 1.0)  # 0.5: DAVIS at balanced, libby 0.610 -> 0.635 (docs/layers/ceiling/); the default once the real suite is re-run with it
+    colour_clean: float = setting(0.5, 0.0, 1.0)  # 1 until 2026-11-25: DAVIS at balanced, libby 0.610 -> 0.635; the real suite within its spread (docs/layers/ceiling/)
     foreground: Literal["object", "identity"] = "object"
     margin: float = setting(0.6, above=0.0, hi=1.0)
     refine: bool = False

@@ -610,7 +610,7 @@ def colour_cut(frames: np.ndarray, masks: np.ndarray, residual: np.ndarray, cfg:
     return out
 
 
-SEGMENT_VERSION = 9               # bump when foreground_bootstrap changes the masks it returns (4: background_refine, 5: colour_cut, 6: its empty frames refilled along the flow, 7: its distance cost and split parts, 8: thin parts, 9: the flow's failure)
+SEGMENT_VERSION = 10              # bump when foreground_bootstrap changes the masks it returns (4: background_refine, 5: colour_cut, 6: its empty frames refilled along the flow, 7: its distance cost and split parts, 8: thin parts, 9: the flow's failure, 10: the colour cut cleaned at half radii)
 
 
 def foreground_bootstrap(frames: np.ndarray, flows: dict | None, masks: np.ndarray | None = None, cfg: SegmentConfig | None = None) -> dict:

@@ -171,12 +171,12 @@ def test_a_segment_setting_changed_makes_the_masks_again(two_layer_run, tmp_path
     run = tmp_path / "run"
     shutil.copytree(two_layer_run["run"], run)
     cfg = copy.deepcopy(two_layer_run["cfg"])
-    cfg.segment.colour_clean = 0.5
+    cfg.segment.colour_clean = 1.0  # the default until 2026-11-25
     ctx = run_task("hdr-video", scene.clip, exposures, cfg, run, progress=False)
     assert not ctx.times["bootstrap"]["cached"] and ctx.keys["bootstrap"] != two_layer_run["ctx"].keys["bootstrap"]
     assert ctx.keys["train"] != two_layer_run["ctx"].keys["train"]  # trained on the new masks
     material = json.loads((ctx.dirs["bootstrap"] / "settings.json").read_text())["settings"]["foreground"]
-    assert material["settings"] == {"colour_clean": 0.5}
+    assert material["settings"] == {"colour_clean": 1.0}
     shared = json.loads((two_layer_run["ctx"].dirs["bootstrap"] / "settings.json").read_text())["settings"]["foreground"]
     assert "settings" not in shared  # the defaults: keyed by SEGMENT_VERSION alone, as before
 

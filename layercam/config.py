@@ -31,6 +31,7 @@ import copy
 import dataclasses
 import json
 import math
+import os
 import re
 import tomllib
 import types
@@ -244,6 +245,10 @@ class SegmentConfig:
     ``refine``: fit the model once on the motion masks, take new masks from where each frame differs
     from its background layer near the fitted alpha (:func:`layercam.segment.refine_masks`, residual
     above ``refine_threshold`` in pixel values) and fit again on them: twice the training time.
+    ``detector``: a local torchvision Mask R-CNN state dict (never downloaded); its instances scoring
+    at least ``detector_score``, seen with the frame's short side at ``detector_size`` px, replace
+    a frame's motion mask where at least ``detector_overlap`` of their area lies in it
+    (:func:`layercam.detect.pick_instances`).
     """
 
     abs_px: float = setting(0.5, 0.0)
@@ -277,6 +282,10 @@ class SegmentConfig:
     margin: float = setting(0.6, above=0.0, hi=1.0)
     refine: bool = False
     refine_threshold: float = setting(0.1, above=0.0, hi=1.0)
+    detector: str = ""                       # a torchvision Mask R-CNN weights file (layercam.detect); "": the motion masks alone
+    detector_score: float = setting(0.5, 0.0, 1.0)
+    detector_overlap: float = setting(0.3, above=0.0, hi=1.0)
+    detector_size: int = setting(800, 64, 4096)
 
 
 @dataclass
@@ -454,6 +463,8 @@ def validate(cfg: Config) -> Config:
         raise LayercamError(f"export.atlas_max_res ({cfg.export.atlas_max_res}) must be at least export.atlas_min_res ({cfg.export.atlas_min_res})")
     if cfg.flow.method.startswith("raft") and not cfg.flow.raft_weights:
         raise LayercamError(f"flow.method={cfg.flow.method} needs a weights file: --set flow.raft_weights=PATH")
+    if cfg.segment.detector and not os.path.isfile(cfg.segment.detector):
+        raise LayercamError(f"segment.detector: no such file: {cfg.segment.detector!r}")
     return cfg
 
 

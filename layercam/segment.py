@@ -613,13 +613,14 @@ def colour_cut(frames: np.ndarray, masks: np.ndarray, residual: np.ndarray, cfg:
 SEGMENT_VERSION = 10              # bump when foreground_bootstrap changes the masks it returns (4: background_refine, 5: colour_cut, 6: its empty frames refilled along the flow, 7: its distance cost and split parts, 8: thin parts, 9: the flow's failure, 10: the colour cut cleaned at half radii)
 
 
-def foreground_bootstrap(frames: np.ndarray, flows: dict | None, masks: np.ndarray | None = None, cfg: SegmentConfig | None = None) -> dict:
+def foreground_bootstrap(frames: np.ndarray, flows: dict | None, masks: np.ndarray | None = None, cfg: SegmentConfig | None = None, progress: bool = False) -> dict:
     """What a two-layer scene starts from: ``{"h0": (T, 3, 3), "masks": (T, H, W) | None,
     "computed": bool, "how": str, "info": dict}``.
 
     ``masks`` given by the user win; otherwise, with flow (``flows`` holds ``fw``, ``bw``,
     ``fw_ok``, ``homs`` as the flow stage caches them), motion masks refined by GrabCut, the
-    background check and the colour cut; with
+    background check and the colour cut, then, with ``cfg.detector``, a local Mask R-CNN's instances
+    that lie in them (:mod:`layercam.detect`); with
     neither (one frame), no masks and the identity mapping.
     """
     cfg = cfg or SegmentConfig()
@@ -644,6 +645,12 @@ def foreground_bootstrap(frames: np.ndarray, flows: dict | None, masks: np.ndarr
                 masks = colour_cut(frames, _fill_still_frames(masks, fw, bw, cfg.still_fraction)[0], rel, cfg, failure)
                 info["coverage_after_colour"] = float(masks.mean())
             masks = masks.astype(np.float32)
+        if cfg.detector:  # a local Mask R-CNN's instances where they lie in the motion masks
+            from layercam.detect import detect_instances, pick_instances
+
+            found = detect_instances(frames, cfg.detector, cfg.detector_score, cfg.detector_size, progress)
+            masks, picked = pick_instances(found, masks, cfg.detector_overlap)
+            info.update(picked, coverage_after_detector=float(masks.mean()))
         computed = True
     fw = flows["fw"].astype(np.float32) if flows is not None and T > 1 else None
     fw_ok = flows.get("fw_ok") if flows is not None else None

@@ -107,11 +107,13 @@ class BootstrapStage(Stage):
         if ctx.cfg.model.layers > 1:  # foreground: user masks, else motion segmentation of the flow
             from layercam import segment
 
-            fg = segment.foreground_bootstrap(clip.frames, fl, ctx.masks, ctx.cfg.segment)
+            fg = segment.foreground_bootstrap(clip.frames, fl, ctx.masks, ctx.cfg.segment, progress=ctx.progress)
             h0.append(fg["h0"])
             if fg["computed"]:
                 segment.save_masks(out, fg["masks"])
                 ctx.say(f"[bootstrap] motion masks (no --masks given): mean coverage {fg['masks'].mean():.3f}, saved in {out / 'masks'}")
+                if "detector_frames" in fg["info"]:
+                    ctx.say(f"[bootstrap] the detector's instances replaced the motion masks in {fg['info']['detector_frames']} of {T} frames")
         h0 = np.stack(h0)
         init_log2 = initial_log2(clip.frames, ctx.exposures.log2_dt, ctx.cfg.tone.init_slope, ctx.cfg.model.tone_mapper)  # layercam.camera.tone
         np.save(out / "h0.npy", h0)

@@ -97,3 +97,35 @@ def test_interrupted_and_resumed_training_ends_where_one_run_ends(tmp_path, monk
     assert again.fit().resumed_from == 17
     for (name, a), b in zip(whole.model.state_dict().items(), again.model.state_dict().values()):
         assert torch.equal(a, b), name
+
+
+def test_a_finished_trainings_checkpoint_keeps_the_model_not_the_optimiser(tmp_path, monkeypatch):
+    """The last checkpoint of a finished training leaves Adam's moments out (under half the file on
+    the tiny model: they are two more copies of the parameters); one taken mid-training keeps
+    them. A training started again on it resumes at its end with the same model, and training on
+    to more steps from it is one clear error."""
+    from layercam import interrupts
+    from layercam.errors import LayercamError
+
+    mid = _tiny_trainer("cpu", steps=30)
+    mid.ckpt_path = tmp_path / "mid.pt"
+    monkeypatch.setenv(interrupts.ENV, "train:17:INT")
+    with pytest.raises(KeyboardInterrupt):
+        mid.fit()
+    monkeypatch.delenv(interrupts.ENV)
+    done = _tiny_trainer("cpu", steps=30)
+    done.ckpt_path = tmp_path / "done.pt"
+    done.fit()
+    saved = torch.load(done.ckpt_path, map_location="cpu", weights_only=False)
+    assert "opt" not in saved and saved["step"] == 30
+    assert "opt" in torch.load(mid.ckpt_path, map_location="cpu", weights_only=False)
+    assert done.ckpt_path.stat().st_size < 0.5 * mid.ckpt_path.stat().st_size
+    again = _tiny_trainer("cpu", steps=30)
+    again.ckpt_path = done.ckpt_path
+    assert again.fit().resumed_from == 30
+    for (name, a), b in zip(done.model.state_dict().items(), again.model.state_dict().values()):
+        assert torch.equal(a, b), name
+    more = _tiny_trainer("cpu", steps=40)
+    more.ckpt_path = done.ckpt_path
+    with pytest.raises(LayercamError, match="finished training's checkpoint"):
+        more.fit()

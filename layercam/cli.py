@@ -79,7 +79,9 @@ def input_args(p: argparse.ArgumentParser, exposures_default: str | None) -> Non
     g.add_argument("--max-frames", type=POSITIVE_INT, help="use at most N frames")
     g.add_argument("--stride", type=POSITIVE_INT, default=1, help="use every K-th frame")
     g.add_argument("--resize", help="scale factor (0.5) or size WxH")
-    g.add_argument("--masks", help="folder of foreground masks, one PNG per frame (two-layer scenes)")
+    g.add_argument("--masks", help="folder of foreground masks, one PNG per frame (two-layer scenes); without it the foreground "
+                   "is found from its motion, helped by a local Mask R-CNN weights file if you pass one "
+                   "(--set segment.detector=PATH; nothing is downloaded)")
 
 
 COMMAND_MODULES = ["hdr_video", "demo", "bench", "deblur_video", "fuse_stack", "render", "batch", "edit"]  # each layercam/commands/<name>.py has register(sub) and run(args)

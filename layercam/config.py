@@ -230,7 +230,9 @@ class SegmentConfig:
     (:func:`layercam.segment.background_refine`; pixels in a ring of ``background_ring`` of the short
     side above ``background`` join, mask pixels within ``background_keep`` of it leave, judged by
     neighbours whose object overlaps this frame's by IoU under ``background_apart``; neighbours up
-    to ``2 * background_reach`` frames away; 0: off). ``colour``: then each mask is grown to the
+    to ``2 * background_reach`` frames away; 0: off; the residual that joins and drops pixels is
+    the smallest over the background shifted by up to ``background_shift`` of the short side, so a
+    post whose parallax the homography misses by a pixel matches it; 0: unshifted). ``colour``: then each mask is grown to the
     object's colours learned over the clip by a graph cut (:func:`layercam.segment.colour_cut`),
     within ``colour_reach`` times the object's size of it and only where the frame's relative
     residual against that background exceeds ``colour`` (0: off; it needs ``background``);
@@ -272,6 +274,7 @@ class SegmentConfig:
     background_apart: float = setting(0.5, 0.0, 1.0)
     background_reach: int = setting(4, 1, 32)
     background_ring: float = setting(0.05, 0.0, 1.0)
+    background_shift: float = setting(0.0, 0.0, 0.05)
     colour: float = setting(0.3, 0.0)
     colour_reach: float = setting(2.0, above=0.0)
     colour_smooth: float = setting(2.0, 0.0)

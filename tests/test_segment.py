@@ -248,6 +248,25 @@ def test_background_refine_finds_a_missed_limb_at_alternating_exposures():
     assert np.array_equal(off["masks"] > 0.5, given)
 
 
+def test_the_shifted_residual_lets_a_post_with_a_pixel_of_parallax_match():
+    """``segment.background_shift``: a thin post the homography misregisters by one pixel differs
+    from the background by its whole contrast unshifted and matches it with one pixel of shift; an
+    object that is not in the background differs either way; 0 is the plain residual."""
+    bg = np.full((40, 40, 3), 0.2, np.float32)
+    bg[:, 10:12] = 0.8  # the post, where the neighbours show it
+    frame = bg.copy()
+    frame[:, 10:13] = 0.2
+    frame[:, 11:13] = 0.8  # here one pixel to the right (parallax)
+    frame[20:30, 25:32] = 0.6  # an object
+    plain = segment._shifted_residual(bg, frame, 0)
+    assert np.allclose(plain, np.abs(bg - frame).max(-1))
+    assert plain[:, 10].max() > 0.5 and plain[:, 12].max() > 0.5
+    one = segment._shifted_residual(bg, frame, 1)
+    assert one[:, 8:14].max() < 1e-6
+    assert one[20:30, 26:31].min() > 0.3
+    assert (one <= plain + 1e-7).all()
+
+
 def test_background_median_and_level_map_shortcuts():
     """The background check's shortcuts give what the plain numpy calls give: the one-sort median
     equals ``np.nanmedian`` (samples missing in every channel), and on a frame above the sample

@@ -52,10 +52,12 @@ def detect_instances(frames: np.ndarray, path: str, score: float = 0.5, size: in
     """Per frame of ``frames`` ``(T, H, W, 3)`` in [0, 1], the instances scoring at least ``score``:
     ``{"masks": (N, H, W) bool, "scores": (N,), "labels": (N,)}``. Each frame is scaled to the
     clip's mean brightness first (alternating exposures), and the detector sees it with its short
-    side at ``size`` pixels (torchvision's default 800: small frames are scaled up)."""
+    side at ``size`` pixels (torchvision's default 800: small frames are scaled up). On a GPU when
+    torch sees one."""
     import torch
 
-    model = load_detector(path)
+    dev = "cuda" if torch.cuda.is_available() else "cpu"
+    model = load_detector(path, dev)
     model.transform.min_size = (int(size),)
     model.transform.max_size = max(int(size) * 1333 // 800, int(size))
     f = np.asarray(frames, np.float32)
@@ -69,8 +71,8 @@ def detect_instances(frames: np.ndarray, path: str, score: float = 0.5, size: in
         it = tqdm(it, total=len(f), desc="detector", unit="frame", leave=False, disable=None)
     with torch.no_grad():
         for t in it:
-            x = torch.from_numpy(np.clip(f[t] * gains[t], 0.0, 1.0)).permute(2, 0, 1).contiguous()
-            d = model([x])[0]
+            x = torch.from_numpy(np.clip(f[t] * gains[t], 0.0, 1.0)).permute(2, 0, 1).contiguous().to(dev)
+            d = {k: v.cpu() for k, v in model([x])[0].items()}
             keep = (d["scores"] >= score).numpy()
             out.append({"masks": (d["masks"][:, 0].numpy() > 0.5)[keep], "scores": d["scores"].numpy()[keep], "labels": d["labels"].numpy()[keep]})
     return out

@@ -123,10 +123,11 @@ class Trainer:
         self.bad_total = 0
 
     # -- checkpoints -------------------------------------------------------------------------
-    def state(self) -> dict:
+    def state(self, final: bool = False) -> dict:
+        """What a checkpoint holds; ``final``: without the optimiser's moments (see :meth:`save`)."""
         return {
             "model": self.model.state_dict(),
-            "opt": self.opt.state_dict(),
+            **({} if final else {"opt": self.opt.state_dict()}),
             "step": self.step,
             "history": self.history,
             "lr_scale": self.lr_scale,
@@ -145,8 +146,7 @@ class Trainer:
     def save(self, sampler_state: dict | None = None, final: bool = False) -> bool:
         """Write the checkpoint atomically; refuses (keeping the previous one) a non-finite state.
         ``final``: training has ended, so the optimiser's moments are left out (two thirds of the
-        file: 585 MB -> about 200 MB for a 49-frame DAVIS clip at ``balanced``); a finished
-        checkpoint resumes to its end without them."""
+        file, docs/measurements.md); a finished checkpoint resumes to its end without them."""
         if self.ckpt_path is None:
             return False
         if not distributed.is_main():
@@ -154,9 +154,7 @@ class Trainer:
         if not self.finite_state():
             self.history.append({"step": self.step, "event": "non-finite parameters: checkpoint not written, previous one kept"})
             return False
-        state = self.state()
-        if final:
-            del state["opt"]
+        state = self.state(final)
         if sampler_state is not None:
             state["sampler"] = sampler_state
         tmp = self.ckpt_path.with_name(self.ckpt_path.name + ".tmp")

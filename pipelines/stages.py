@@ -104,6 +104,8 @@ class BootstrapStage(Stage):
             how = "identity"
         h0 = [atlas_mappings(H, W, bg)]
         fg = {}
+        if ctx.cfg.segment.detector and (ctx.cfg.model.layers == 1 or ctx.masks is not None):
+            ctx.say(f"[bootstrap] segment.detector unused: {'one layer, no foreground' if ctx.cfg.model.layers == 1 else '--masks given'}")
         if ctx.cfg.model.layers > 1:  # foreground: user masks, else motion segmentation of the flow
             from layercam import segment
 

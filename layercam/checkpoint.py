@@ -39,9 +39,10 @@ def save_run_model(path: Path, model, meta: dict) -> None:
     """Write ``model`` with ``meta`` atomically; ``cfg`` is the model's own (decided, with the sizes
     derived in code filled in), so a later change to a derivation cannot change the shapes a saved
     run is rebuilt with."""
-    tmp = Path(path).with_name(Path(path).name + ".tmp")
-    torch.save({**meta, "format": FORMAT, "state": model.state_dict(), "cfg": model.cfg.to_dict()}, tmp)
-    tmp.replace(path)
+    from layercam.io.atomic import atomic_write
+
+    state = {**meta, "format": FORMAT, "state": model.state_dict(), "cfg": model.cfg.to_dict()}
+    atomic_write(path, lambda tmp: torch.save(state, tmp))
 
 
 def upgrade(ck: dict) -> dict:

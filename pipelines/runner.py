@@ -11,6 +11,7 @@ too, and published as one set when every stage has finished (``pipelines/publish
 
 from __future__ import annotations
 
+import errno
 import json
 import shutil
 import sys
@@ -127,12 +128,17 @@ def run_stages(ctx: Context, stages: list[Stage]) -> Context:
             if alone and main:
                 distributed.barrier()
             continue
-        out.mkdir(parents=True, exist_ok=True)
-        if main:
-            (out / "settings.json").write_text(json.dumps(material, indent=1, default=str))
-            _clear_outputs(st.output_names(ctx), out)  # an interrupted attempt's partial outputs
         t0 = time.perf_counter()
-        summary = st.run(ctx, out)
+        try:
+            out.mkdir(parents=True, exist_ok=True)
+            if main:
+                (out / "settings.json").write_text(json.dumps(material, indent=1, default=str))
+                _clear_outputs(st.output_names(ctx), out)  # an interrupted attempt's partial outputs
+            summary = st.run(ctx, out)
+        except OSError as e:  # a full disk where a stage writes without atomic_write (np.savez, ...)
+            if e.errno not in (errno.ENOSPC, errno.EDQUOT, errno.EROFS):
+                raise
+            raise LayercamError(f"[{st.name}] cannot write in {out}: {e.strerror}; free some space and run the same command again: the finished stages are kept") from None
         secs = time.perf_counter() - t0
         summary["_seconds"] = secs
         summary["_outputs"] = [n for n in st.output_names(ctx) if (out / n).exists()]

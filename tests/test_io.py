@@ -346,3 +346,49 @@ def test_video_writer_streams_frames_and_leaves_nothing_on_error(tmp_path):
             vw.add(np.zeros((4, 8, 3), np.uint8))
     write_video(tmp_path / "g.mp4", (np.zeros((5, 7)) for _ in range(2)))  # any iterable, odd sizes padded
     assert read_video(tmp_path / "g.mp4")[0].shape == (2, 6, 8, 3)
+
+
+def test_a_full_disk_is_one_clear_error_and_leaves_no_temporary_file(tmp_path):
+    """``atomic_write``: a writer that runs out of disk (an ``OSError`` ENOSPC, as numpy and PNG
+    writers raise it; torch's zip writer's and OpenEXR's ``RuntimeError``) ends as one
+    ``LayercamError`` naming the file and the full disk, with no temporary file left; the file it
+    would have replaced stays; other errors pass through unchanged."""
+    import errno
+
+    target = tmp_path / "a.exr"
+    target.write_text("before")
+
+    def fails(err):
+        def writer(p: Path) -> None:
+            p.write_text("partial")
+            raise err
+        return writer
+
+    for err, said in [
+        (OSError(errno.ENOSPC, "No space left on device"), "(the disk is full): No space left on device"),
+        (RuntimeError("[enforce fail at inline_container.cc:672] . unexpected pos 96640 vs 96528"), "(is the disk full?)"),
+        (RuntimeError('Failed to write pixel data to image file "x.exr". No space left on device.'), "(the disk is full)"),
+    ]:
+        with pytest.raises(LayercamError, match="cannot write .*a.exr") as e:
+            atomic_write(target, fails(err))
+        assert said in str(e.value) and "\n" not in str(e.value)
+        assert target.read_text() == "before" and sorted(os.listdir(tmp_path)) == ["a.exr"]
+    with pytest.raises(ValueError, match="not about the disk"):
+        atomic_write(target, fails(ValueError("not about the disk")))
+
+
+def test_mp4_complete_tells_a_whole_video_from_a_truncated_one(tmp_path):
+    """imageio-ffmpeg does not raise when ffmpeg fails at the end (a full disk: "Error writing
+    trailer") and leaves a truncated file; the writer checks the container's top-level boxes before
+    the file takes its name. A whole video passes; the same cut short anywhere, or without its
+    index, does not."""
+    from layercam.io.video import mp4_complete
+
+    write_video(tmp_path / "v.mp4", np.random.default_rng(0).uniform(0, 1, (6, 16, 24, 3)))
+    data = (tmp_path / "v.mp4").read_bytes()
+    assert mp4_complete(tmp_path / "v.mp4")
+    for cut in (len(data) - 1, len(data) // 2, 40, 7):
+        (tmp_path / "cut.mp4").write_bytes(data[:cut])
+        assert not mp4_complete(tmp_path / "cut.mp4"), cut
+    (tmp_path / "ftyp.mp4").write_bytes(data[: int.from_bytes(data[:4], "big")])  # the first box alone
+    assert not mp4_complete(tmp_path / "ftyp.mp4")

@@ -271,3 +271,30 @@ def test_train_key_names_the_alpha_flow_share_only_where_it_trains_something_new
 
     assert "alpha_flow_keep" not in key(1, 1.0) and "alpha_flow_keep" not in key(2, 0)
     assert key(2, 1.0)["alpha_flow_keep"] == 1.0 and key(2, 0.25)["alpha_flow_keep"] == 0.25
+
+
+def test_a_stage_that_fills_the_disk_is_one_error_and_the_run_goes_on_after(tiny_scene, tiny_exposures, tmp_path):
+    """A stage writing without ``atomic_write`` (``np.savez``, a folder of frames) that meets a full
+    disk (``OSError`` ENOSPC) ends the run with one ``LayercamError`` naming the stage and its
+    folder; the stages before it stay finished, and the same run without the failure is cached up
+    to there."""
+    import errno
+
+    from layercam.errors import LayercamError
+    from layercam.pipelines.runner import Stage
+
+    class FullDisk(Stage):
+        name, deps = "fulldisk", ("export",)
+
+        def run(self, ctx, out):
+            (out / "partial.npz").write_bytes(b"part")
+            raise OSError(errno.ENOSPC, "No space left on device")
+
+    run = tmp_path / "run"
+    cfg = load_config("fast", TINY)
+    with pytest.raises(LayercamError, match=r"\[fulldisk\] cannot write in .*fulldisk-.*: No space left on device; free some space") as e:
+        run_task("hdr-video", tiny_scene.clip, tiny_exposures, cfg, run, progress=False, extra_stages=[FullDisk()])
+    assert "\n" not in str(e.value)
+    assert len(list((run / "cache").glob("export-*/done.json"))) == 1
+    ctx = _run(tiny_scene, tiny_exposures, run)
+    assert all(ctx.times[k]["cached"] for k in ("flow", "bootstrap", "train", "export"))

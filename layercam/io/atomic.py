@@ -6,6 +6,7 @@ under the final name.
 
 from __future__ import annotations
 
+import errno
 import os
 import shutil
 import tempfile
@@ -15,7 +16,22 @@ from typing import Callable
 
 from layercam.errors import LayercamError
 
-__all__ = ["atomic_write", "ensure_writable_dir", "staging_dir", "commit_staged", "replace_entry", "temp_name"]
+__all__ = ["atomic_write", "ensure_writable_dir", "staging_dir", "commit_staged", "replace_entry", "temp_name", "write_failure"]
+
+
+def write_failure(path: Path, e: BaseException) -> LayercamError | None:
+    """The one-line error for a write of ``path`` that failed with ``e``, or None when ``e`` is not
+    a failure to write: an ``OSError`` (a full disk, a quota, a read-only or vanished folder) or
+    the ``RuntimeError`` torch's zip writer and OpenEXR raise for a full disk."""
+    first = (str(e).splitlines() or [type(e).__name__])[0]
+    if isinstance(e, OSError):
+        full = e.errno in (errno.ENOSPC, errno.EDQUOT)
+        return LayercamError(f"cannot write {path}{' (the disk is full)' if full else ''}: {e.strerror or first}")
+    if isinstance(e, RuntimeError) and "No space left on device" in str(e):  # OpenEXR's writer
+        return LayercamError(f"cannot write {path} (the disk is full): {first}")
+    if isinstance(e, RuntimeError) and any(k in first for k in ("inline_container", "iostream error", "Failed to write")):
+        return LayercamError(f"cannot write {path} (is the disk full?): {first}")
+    return None
 
 
 def ensure_writable_dir(path: str | os.PathLike) -> Path:
@@ -73,13 +89,16 @@ def atomic_write(path: str | os.PathLike, writer: Callable[[Path], None]) -> Pat
         if not tmp.exists():
             raise LayercamError(f"writing {final} produced no file")
         os.replace(tmp, final)
-    except BaseException:
+    except BaseException as e:
         try:
             tmp.unlink()
         except FileNotFoundError:
             pass
         except OSError:
             pass
+        failed = write_failure(final, e)
+        if failed is not None:
+            raise failed from None
         raise
     return final
 

@@ -196,7 +196,39 @@ class VideoWriter:
             return
         if self.frames == 0:
             raise ValueError("write_video got an empty clip")
+        if not mp4_complete(tmp):  # ffmpeg's failure (a full disk) is not raised by imageio-ffmpeg
+            tmp.unlink(missing_ok=True)
+            raise LayercamError(f"cannot write video {self.path}: ffmpeg left an incomplete file (is the disk full?)")
         os.replace(tmp, self.path)
+
+
+def mp4_complete(path: str | os.PathLike) -> bool:
+    """True when the file at ``path`` is whole as an mp4 container: its top-level boxes tile it
+    exactly, and it holds the index (``moov``) and the media (``mdat``). imageio-ffmpeg does not
+    report an ffmpeg that failed (a full disk: "Error writing trailer"), and leaves a truncated
+    file; this reads only the boxes' 8- or 16-byte headers."""
+    import struct
+
+    size, pos, kinds = os.path.getsize(path), 0, set()
+    with open(path, "rb") as f:
+        while pos < size:
+            f.seek(pos)
+            head = f.read(8)
+            if len(head) < 8:
+                return False
+            n, kind = struct.unpack(">I4s", head)
+            if n == 1:  # a 64-bit size follows
+                big = f.read(8)
+                if len(big) < 8:
+                    return False
+                n = struct.unpack(">Q", big)[0]
+            elif n == 0:  # to the end of the file
+                n = size - pos
+            if n < 8 or pos + n > size:
+                return False
+            kinds.add(kind)
+            pos += n
+    return {b"moov", b"mdat"} <= kinds
 
 
 def write_video(path: str | os.PathLike, frames, fps: float = 24.0, crf: int = 18) -> Path:

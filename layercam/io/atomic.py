@@ -25,8 +25,8 @@ def write_failure(path: Path, e: BaseException) -> LayercamError | None:
     the ``RuntimeError`` torch's zip writer and OpenEXR raise for a full disk."""
     first = (str(e).splitlines() or [type(e).__name__])[0]
     if isinstance(e, OSError):
-        full = e.errno in (errno.ENOSPC, errno.EDQUOT)
-        return LayercamError(f"cannot write {path}{' (the disk is full)' if full else ''}: {e.strerror or first}")
+        said = " (the disk is full)" if e.errno in (errno.ENOSPC, errno.EDQUOT) else " (is the disk full?)" if e.errno is None else ""
+        return LayercamError(f"cannot write {path}{said}: {e.strerror or first}")  # no errno: PIL's short write
     if isinstance(e, RuntimeError) and "No space left on device" in str(e):  # OpenEXR's writer
         return LayercamError(f"cannot write {path} (the disk is full): {first}")
     if isinstance(e, RuntimeError) and any(k in first for k in ("inline_container", "iostream error", "Failed to write")):

@@ -102,8 +102,9 @@ def test_inverse_tone_round_trip(two_layer_run):
 
 
 def test_interrupted_edit_leaves_no_partial_edit_and_is_redone(two_layer_run, tmp_path, monkeypatch):
-    """Ctrl-C half-way through an edit: nothing under the final names (no edit.json), and the
-    same command then writes the whole edit (issue 18: an interrupted render is redone)."""
+    """Ctrl-C half-way through an edit: nothing under the final names (no edit.json), nor its
+    staging folder (the frames it had written are given back), and the same command then writes
+    the whole edit (issue 18: an interrupted render is redone)."""
     run = two_layer_run["run"]
     edited = tmp_path / "edited.png"
     _paint_on_object(run, two_layer_run["scene"], edited)
@@ -111,7 +112,7 @@ def test_interrupted_edit_leaves_no_partial_edit_and_is_redone(two_layer_run, tm
     argv = ["edit", str(run), "--atlas", str(edited), "--out", str(out), "--quiet"]
     monkeypatch.setenv("LAYERCAM_SIGNAL_AT", "edit:3:INT")
     assert main(argv) == 130
-    assert sorted(p.name for p in out.iterdir()) == [".partial-edit"]
+    assert sorted(p.name for p in out.iterdir()) == []
     monkeypatch.delenv("LAYERCAM_SIGNAL_AT")
     assert main(argv) == 0
     assert sorted(p.name for p in out.iterdir()) == ["edit.json", "edited.mp4", "hdr", "preview.mp4"]

@@ -392,3 +392,23 @@ def test_mp4_complete_tells_a_whole_video_from_a_truncated_one(tmp_path):
         assert not mp4_complete(tmp_path / "cut.mp4"), cut
     (tmp_path / "ftyp.mp4").write_bytes(data[: int.from_bytes(data[:4], "big")])  # the first box alone
     assert not mp4_complete(tmp_path / "ftyp.mp4")
+
+
+def test_a_failed_command_gives_back_its_staging_folders(tmp_path):
+    """``partials_removed_on_error`` (around ``render`` and ``edit``): a command that fails midway
+    (a full disk) removes the ``.partial-*`` folders it wrote into, and what it finished stays; one
+    that succeeds is left as it is."""
+    from layercam.io.atomic import commit_staged, partials_removed_on_error, staging_dir
+
+    with pytest.raises(LayercamError, match="full"):
+        with partials_removed_on_error(tmp_path):
+            done = staging_dir(tmp_path, "a")
+            (done / "a.png").write_bytes(b"a")
+            commit_staged(done, tmp_path, ["a.png"])
+            half = staging_dir(tmp_path, "b")
+            (half / "b0.png").write_bytes(b"b")
+            raise LayercamError("cannot write b1.png (the disk is full)")
+    assert sorted(os.listdir(tmp_path)) == ["a.png"]
+    with partials_removed_on_error(tmp_path):
+        (staging_dir(tmp_path, "c") / "c.png").write_bytes(b"c")
+    assert (tmp_path / ".partial-c" / "c.png").exists()

@@ -142,9 +142,16 @@ def run(args) -> int:
 
     from layercam.io.lock import run_lock
 
+    from layercam.io.atomic import partials_removed_on_error
+
     run_dir = Path(args.run)
     with run_lock(run_dir) if (run_dir / "checkpoint.pt").is_file() else contextlib.nullcontext():  # one writer per run folder
-        return _edit(args, run_dir)
+        with partials_removed_on_error(_out_dir(args, run_dir)):
+            return _edit(args, run_dir)
+
+
+def _out_dir(args, run_dir: Path) -> Path:
+    return Path(args.out) if args.out else run_dir / "edit"
 
 
 def _say_faded(run_dir: Path) -> None:
@@ -179,7 +186,7 @@ def _edit(args, run_dir: Path) -> int:
         raise LayercamError(f"--layer {args.layer}: this run has {L} layer{'s' if L > 1 else ''} (0{'' if L == 1 else f'..{L - 1}'})")
     if args.layer > 0:
         _say_faded(run_dir)
-    out = Path(args.out) if args.out else run_dir / "edit"
+    out = _out_dir(args, run_dir)
     if (out / "edit.json").exists() and not args.overwrite:
         raise LayercamError(f"{out} already holds an edit; pass --overwrite or choose another --out")
     edit = load_edit(model, run_dir, args.layer, Path(args.atlas))

@@ -140,8 +140,15 @@ def run(args) -> int:
 
     if args.exposure is None and args.focus is None and args.sweep is None:
         raise LayercamError("nothing to render: give --exposure EV, --focus F or --sweep exposure|focus")
+    from layercam.io.atomic import partials_removed_on_error
+
     with run_lock(args.run) if Path(args.run, "checkpoint.pt").is_file() else contextlib.nullcontext():  # one writer per run folder
-        return _render(args)
+        with partials_removed_on_error(_out_dir(args)):
+            return _render(args)
+
+
+def _out_dir(args) -> Path:
+    return Path(args.out) if args.out else Path(args.run) / "render"
 
 
 def _render(args) -> int:
@@ -172,7 +179,7 @@ def _render(args) -> int:
         if not (0 <= min(sweep_range) and max(sweep_range) <= T - 1):
             raise LayercamError(f"focus --range must lie within 0..{T - 1}, got {args.sweep_range}")
     default_view = int(meta.get("reference", middle_frame(T)))
-    out = ensure_writable_dir(Path(args.out) if args.out else Path(args.run) / "render")
+    out = ensure_writable_dir(_out_dir(args))
     products = _products(args, out)
     z0 = model.exposure.reference()
     say = (lambda m: None) if args.quiet else print

@@ -6,6 +6,7 @@ under the final name.
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import os
 import shutil
@@ -16,7 +17,7 @@ from typing import Callable
 
 from layercam.errors import LayercamError
 
-__all__ = ["atomic_write", "ensure_writable_dir", "staging_dir", "commit_staged", "replace_entry", "temp_name", "write_failure"]
+__all__ = ["atomic_write", "ensure_writable_dir", "staging_dir", "commit_staged", "replace_entry", "temp_name", "write_failure", "partials_removed_on_error"]
 
 
 def write_failure(path: Path, e: BaseException) -> LayercamError | None:
@@ -111,6 +112,20 @@ def staging_dir(dest: str | os.PathLike, tag: str) -> Path:
     shutil.rmtree(stage, ignore_errors=True)
     stage.mkdir(parents=True)
     return stage
+
+
+@contextlib.contextmanager
+def partials_removed_on_error(dest: str | os.PathLike):
+    """Around a command that writes sets of outputs into ``dest`` through :func:`staging_dir`: when
+    it ends with an error (a full disk, Ctrl-C), the staging folders it left there are removed, so a
+    failed write gives back the room it took (a render that filled the disk left each attempt's
+    frames in ``.partial-*``). One command writes a folder at a time (``layercam.lock``)."""
+    try:
+        yield
+    except BaseException:
+        for p in Path(dest).glob(".partial-*"):
+            shutil.rmtree(p, ignore_errors=True)
+        raise
 
 
 def replace_entry(src: Path, dst: Path) -> None:

@@ -90,7 +90,7 @@ def pick_instances(instances: list[dict], motion: np.ndarray, overlap: float = 0
         masks = np.asarray(inst["masks"], bool).reshape(-1, *m.shape[1:])
         area = masks.sum((1, 2))
         inside = (masks & m[t]).sum((1, 2))
-        chosen = (area > 0) & (inside >= overlap * np.maximum(area, 1))
+        chosen = (area > 0) & (inside >= overlap * area)
         if chosen.any():
             out[t] = masks[chosen].any(0)
             frames += 1

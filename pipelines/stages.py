@@ -69,13 +69,12 @@ class BootstrapStage(Stage):
         d = {"bootstrap": ctx.cfg.scene.bootstrap, "layers": m.layers, "init_slope": ctx.cfg.tone.init_slope, "tone": m.tone_mapper}
         if m.layers > 1:
             from layercam import segment
-            from layercam.config import SegmentConfig
 
             # the segment settings that differ from their defaults (the defaults are the code's, named
             # by SEGMENT_VERSION: bump it when one changes); refine's are read by the refine stage.
             # Before 2026-11-25 none were keyed (the version overwrote them): a run made again with
             # another segment.* setting reused its masks. Runs at the defaults keep their key.
-            seg, default = ctx.cfg.section_dict("segment")["segment"], dataclasses.asdict(SegmentConfig())
+            seg, default = ctx.cfg.section_dict("segment")["segment"], dataclasses.asdict(segment.SegmentConfig())
             changed = {k: v for k, v in seg.items() if k not in ("refine", "refine_threshold") and v != default[k]}
             d["foreground"] = {"segment": segment.SEGMENT_VERSION, **({"settings": changed} if changed else {})}
         return d
@@ -161,7 +160,8 @@ class TrainStage(Stage):
             d["refined_balance"] = "all"  # class-balanced all through, as motion masks (runs before it balanced them during the bootstrap steps only)
         return d
 
-    def masks(self, ctx):
+    @staticmethod
+    def masks(ctx):
         """The masks alpha is fitted to and whether the user gave them: given, else refined, else motion."""
         if ctx.masks is not None:
             return ctx.masks, "given"

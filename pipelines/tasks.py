@@ -89,7 +89,7 @@ def faded_foreground(ctx: Context) -> str | None:
     before its masks were class-balanced (0.051). None when it did not, or without masks or
     the atlas export (one layer, a run exported before the share was kept)."""
     share = (ctx.results.get("export", {}).get("atlas") or {}).get("foreground_share")
-    masks, source = TrainStage().masks(ctx)
+    masks, source = TrainStage.masks(ctx)
     if share is None or masks is None:
         return None
     ref = float(np.mean(np.asarray(masks) > 0.5))

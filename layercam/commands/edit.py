@@ -140,9 +140,8 @@ EDIT_OUTPUTS = ["hdr", "edited.mp4", "preview.mp4", "edit.json"]  # edit.json la
 def run(args) -> int:
     import contextlib
 
-    from layercam.io.lock import run_lock
-
     from layercam.io.atomic import partials_removed_on_error
+    from layercam.io.lock import run_lock
 
     run_dir = Path(args.run)
     with run_lock(run_dir) if (run_dir / "checkpoint.pt").is_file() else contextlib.nullcontext():  # one writer per run folder

@@ -157,7 +157,9 @@ def test_static_stack_drops_the_residual_warp(tmp_path, mode, expect_residual):
 
     from conftest import SMALL_BLUR, TINY
 
-    sc = synth.mfme_stack(size=(64, 64), focus_settings=2, exposures_ev=(0.0,), planes=2, seed=3)
+    # 96 px: at 64 px the DIS flow between the two focus settings is noisy enough that RANSAC fits a
+    # 2.5 px zoom on some CPUs / OpenCV builds (seeds 2, 3 on an AMD EPYC with OpenCV 5.0 and 4.14)
+    sc = synth.mfme_stack(size=(96, 96), focus_settings=2, exposures_ev=(0.0,), planes=2, seed=3)
     exp = Exposures(np.zeros(2), "none", None, "none", "single")
     cfg = load_config("fast", TINY + SMALL_BLUR + ["train.steps=20", f"scene.residual={mode}", "model.layers=1", "model.blur=on"])
     ctx = run_task("fuse-stack", sc.clip, exp, cfg, tmp_path / "run", progress=False)

@@ -150,20 +150,21 @@ def compute_flow(
     """Forward and backward flow between consecutive frames.
 
     frames: ``(T,H,W,3)`` float in [0,1]. method: one of ``FLOW_METHODS`` (OpenCV DIS
-    presets), or "raft_small"/"raft_large" with ``weights_path`` (see ``raft_flow``).
+    presets), or "raft" / "raft_small" / "raft_large" with ``weights_path`` (see ``raft_flow``;
+    "raft": the variant the file holds).
     Returns ``(fw, bw)``, each ``(T-1,H,W,2)`` float32 (``(0,H,W,2)`` when T == 1):
     ``fw[t]`` from frame t to t+1, ``bw[t]`` from t+1 to t.
     """
     f = _check_frames(frames)
     t, h, w = f.shape[:3]
-    if method in ("raft_small", "raft_large"):
-        if weights_path is None:
+    if method in ("raft", "raft_small", "raft_large"):
+        if not weights_path:
             raise LayercamError(f"flow method {method!r} needs a weights file (weights_path)")
-        return raft_flow(f, weights_path, variant=method[5:], progress=progress)
+        return raft_flow(f, weights_path, variant=method[5:] or None, progress=progress)
     if method not in FLOW_METHODS:
         raise LayercamError(
             f"unknown flow method {method!r}; choose one of {', '.join(FLOW_METHODS)}, "
-            "raft_small, raft_large"
+            "raft, raft_small, raft_large"
         )
     fw = np.zeros((max(t - 1, 0), h, w, 2), np.float32)
     bw = np.zeros_like(fw)
@@ -426,9 +427,15 @@ def raft_flow(
 # --------------------------------------------------------------------------------------------
 
 
-def working_size(hw: tuple[int, int], short_side: int) -> tuple[int, int]:
+WORKING_SHORT_SIDE = 540  # flow of frames whose short side is longer is computed on copies scaled to it and read
+                          # back scaled up: DIS's cost and memory grow with the pixels, its accuracy barely
+
+
+def working_size(hw: tuple[int, int], short_side: int | None = None) -> tuple[int, int]:
     """The ``(h, w)`` flow is computed at for frames of ``hw = (H, W)``: the frames' own size when
-    their short side is at most ``short_side`` (or ``short_side`` is 0), else scaled down to it."""
+    their short side is at most ``short_side`` (default :data:`WORKING_SHORT_SIDE`; 0: always),
+    else scaled down to it."""
+    short_side = WORKING_SHORT_SIDE if short_side is None else short_side
     h, w = int(hw[0]), int(hw[1])
     if not short_side or min(h, w) <= short_side:
         return h, w

@@ -19,11 +19,11 @@ def register(sub) -> argparse.ArgumentParser:
 
 def run(args) -> int:
     from layercam.io import load_clip, parse_exposures
-    from layercam.pipelines.stages import resolve_device
+    from layercam.pipelines.stages import device_of
     from layercam.pipelines.tasks import run_task
 
     cfg = load_cfg(args)
-    device = resolve_device(cfg.train.device)  # a missing GPU is said before any work
+    device = device_of(cfg.train.device)  # a missing GPU is said before any work
     if distributed.launch_requested(args):
         return distributed.launch(args, device)
     with distributed.session(device):  # joins the process group under torchrun, else nothing

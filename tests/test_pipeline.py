@@ -289,3 +289,19 @@ def test_a_stage_that_fills_the_disk_is_one_error_and_the_run_goes_on_after(tiny
     assert len(list((run / "cache").glob("export-*/done.json"))) == 1
     ctx = _run(tiny_scene, tiny_exposures, run)
     assert all(ctx.times[k]["cached"] for k in ("flow", "bootstrap", "train", "export"))
+
+
+@pytest.mark.parametrize("method", ["raft_small", "raft"])
+def test_a_raft_flow_method_with_its_weights_file_runs_end_to_end(tiny_scene, tiny_exposures, tmp_path, method):
+    """``flow.method=raft_small`` (or ``raft``: the variant the file holds) with a local weights
+    file: the flow stage reads the file (it was passed validation, then called without it). A
+    torchvision RAFT with random weights stands in for trained ones (none are downloaded)."""
+    import torch
+    from torchvision.models.optical_flow import raft_small
+
+    weights = tmp_path / "raft_small.pth"
+    torch.manual_seed(0)
+    torch.save(raft_small(weights=None, progress=False).state_dict(), weights)
+    ctx = _run(tiny_scene, tiny_exposures, tmp_path / "run", [f"flow.method={method}", f"flow.raft_weights={weights}"])
+    assert ctx.results["flow"]["pairs"] == tiny_scene.clip.T - 1 and np.isfinite(ctx.flow["fw"]).all()
+    assert len(list((tmp_path / "run" / "hdr").glob("*.exr"))) == tiny_scene.clip.T

@@ -19,6 +19,7 @@ import numpy as np
 
 from layercam.config import AUTO, Config
 from layercam.geometry import STATIC_CORNER_PX
+from layercam.visibility import at_floor, clipped
 
 # thresholds of the rules (each documented where it is used)
 IND_MOTION_PX = 1.5          # residual flow (px) beyond which a pixel moves on its own
@@ -152,8 +153,8 @@ def measure(clip, exposures, flow: dict | None) -> dict:
         "frames": clip.T,
         "distinct_exposures": exposures.count_distinct,
         "exposure_range_ev": float(np.ptp(exposures.log2_dt)) if exposures.T else 0.0,
-        "clipped_high": sum(int((f.max(-1) >= 0.99).sum()) for f in frames) / n,  # a frame at a time
-        "clipped_low": sum(int((f.max(-1) <= 0.01).sum()) for f in frames) / n,
+        "clipped_high": sum(int(clipped(f).any(-1).sum()) for f in frames) / n,  # a frame at a time
+        "clipped_low": sum(int(at_floor(f).all(-1).sum()) for f in frames) / n,
     }
     if flow is not None and len(flow.get("fw", ())) and tuple(flow["fw"].shape[1:3]) != frames.shape[1:3]:
         from layercam.flow import resize_frames

@@ -206,7 +206,9 @@ def _flow_to(ctx: Context, t: int, n: int) -> np.ndarray | None:
     if not np.isfinite(hom).all() or abs(np.linalg.det(hom)) < 1e-12:  # no homography: the flow alone
         return np.where(np.asarray(ok, bool)[..., None], f, np.nan).astype(np.float32)
     hom = hom if n == t + 1 else np.linalg.inv(hom)
-    yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
+    from layercam.geometry import pixel_grid
+
+    xx, yy = (g.astype(np.float64) for g in pixel_grid(h, w))
     q = np.stack([xx, yy, np.ones_like(xx)], -1) @ hom.T
     by_hom = (q[..., :2] / q[..., 2:3] - np.stack([xx, yy], -1)).astype(np.float32)
     return np.where(np.asarray(ok, bool)[..., None], f, by_hom).astype(np.float32)

@@ -118,12 +118,6 @@ def default_out(inputs: list[str]) -> Path:
     return Path("runs") / (first.stem if first.suffix else first.name or "run")
 
 
-def load_masks(folder: str, clip):
-    from layercam.io.masks import load_masks as _load
-
-    return _load(folder, clip)
-
-
 def finish(ctx) -> None:
     """One closing line: where the outputs are and how training ended."""
     if ctx.progress:

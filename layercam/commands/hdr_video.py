@@ -6,7 +6,7 @@ import argparse
 from pathlib import Path
 
 from layercam import distributed
-from layercam.cli import EPILOG, common_model_args, default_out, finish, input_args, load_cfg, load_masks
+from layercam.cli import EPILOG, common_model_args, default_out, finish, input_args, load_cfg
 
 
 def register(sub) -> argparse.ArgumentParser:
@@ -19,6 +19,7 @@ def register(sub) -> argparse.ArgumentParser:
 
 def run(args) -> int:
     from layercam.io import load_clip, parse_exposures
+    from layercam.io.masks import load_masks
     from layercam.pipelines.stages import device_of
     from layercam.pipelines.tasks import run_task
 

@@ -307,6 +307,8 @@ class ExportConfig:
                                             # a hard-clipping camera gains, a soft filmic shoulder loses)
     denoise: Literal["auto", "on", "off"] = AUTO  # faithful: an adaptive Wiener filter against the frame's own noise read
                                             # through the camera (faithful.denoise_log2); auto: on for a stack's fused view
+    hdr_format: Literal["pq", "hlg", "none"] = "pq"  # hdr.mp4 (hdr-video): HDR10 (SMPTE ST 2084), HLG (ARIB STD-B67) or none
+    nits_white: float = setting(203.0, above=0.0, hi=1000.0)  # hdr.mp4: cd/m2 of diffuse white (BT.2408's reference white)
 
 
 @dataclass

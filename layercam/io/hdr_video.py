@@ -42,14 +42,14 @@ import numpy as np
 from layercam import bt2100
 from layercam.errors import LayercamError
 
-__all__ = ["FORMATS", "TRANSFER", "HdrMapping", "missing_for_hdr", "write_hdr_video", "read_hdr_video", "probe_video", "ANCHOR"]
+__all__ = ["FORMATS", "TRANSFER", "HdrMapping", "missing_for_hdr", "write_hdr_video", "read_hdr_video", "probe_video", "sdr_view", "ANCHOR"]
 
 FORMATS = ("pq", "hlg", "none")
 TRANSFER = {"pq": "smpte2084", "hlg": "arib-std-b67"}
-CRF = 18  # x265's quality, as x264's 18 for the previews
-PRESET = "medium"
+CRF = 10  # x265's quality: the codec's error within 2% of the light on most well-exposed pixels (docs/notes/hdr.md); 18 left 3%
+PRESET = "fast"  # as medium's error and size, in three quarters of its time
 MIN_SIDE = 16  # libx265 refuses smaller frames
-EXTRA: list = []
+NARROW = 64  # narrower frames are encoded padded to this width and cropped back (libx265 4.3's 10-bit encoder crashes at widths 34..48)
 ANCHOR = ("diffuse white = the radiance an SDR camera at the run's reference exposure (the median of its frames') records as signal 1.0: "
           "the learned camera's half signal at that exposure taken as sRGB's 0.5, i.e. 21.4% of white; it is shown at nits_white cd/m2 "
           "(BT.2408's HDR reference white, where SDR's 100% lands)")
@@ -152,9 +152,10 @@ def _yuv420(rgb_signal: np.ndarray) -> bytes:
     return y.tobytes() + np.ascontiguousarray(uv[..., 0]).tobytes() + np.ascontiguousarray(uv[..., 1]).tobytes()
 
 
-def _even(img: np.ndarray) -> np.ndarray:
+def _even(img: np.ndarray, pad: int = 0) -> np.ndarray:
+    """``img`` padded (repeating its last row / column) to an even size, and ``pad`` columns wider."""
     h, w = img.shape[:2]
-    return np.pad(img, ((0, h % 2), (0, w % 2), (0, 0)), mode="edge") if h % 2 or w % 2 else img
+    return np.pad(img, ((0, h % 2), (0, w % 2 + pad), (0, 0)), mode="edge") if h % 2 or w % 2 or pad else img
 
 
 def _master_display(primaries: str, hi: float) -> str:
@@ -212,14 +213,15 @@ def write_hdr_video(path: str | os.PathLike, frames: Callable[[], Iterable[np.nd
 
     ensure_writable_dir(path.parent)
     h, w = size[0] + size[0] % 2, size[1] + size[1] % 2
+    pad = max(0, NARROW - w)  # encoded wider, cropped back by the stream's conformance window
     side = _side_data_options(exe)
     params = [f"log-level=error", "colorprim=bt2020", f"transfer={trc}", "colormatrix=bt2020nc", "range=limited", "chromaloc=0",
-              f"master-display={master}", f"max-cll={max_cll},{max_fall}", "hdr10=1"] + (["hdr10-opt=1"] if fmt == "pq" else []) + EXTRA
+              f"master-display={master}", f"max-cll={max_cll},{max_fall}", "hdr10=1"]
     colour = ["-color_primaries", "bt2020", "-color_trc", trc, "-colorspace", "bt2020nc", "-color_range", "tv"]
-    cmd = [exe, "-hide_banner", "-loglevel", "error", "-y", "-f", "rawvideo", "-pix_fmt", "yuv420p10le", "-s", f"{w}x{h}", "-framerate", rate_text(fps),
+    cmd = [exe, "-hide_banner", "-loglevel", "error", "-y", "-f", "rawvideo", "-pix_fmt", "yuv420p10le", "-s", f"{w + pad}x{h}", "-framerate", rate_text(fps),
            *(["-mastering_display", master, "-content_light", f"{max_cll},{max_fall}"] if side else []), *colour, "-i", "-",
            "-c:v", "libx265", "-preset", PRESET, "-crf", str(crf), "-profile:v", "main10", "-pix_fmt", "yuv420p10le", "-x265-params", ":".join(params),
-           *colour, "-chroma_sample_location", "left",
+           *colour, "-chroma_sample_location", "left", *(["-bsf:v", f"hevc_metadata=crop_right={pad}"] if pad else []),
            "-tag:v", "hvc1", "-movflags", "+faststart"]  # fmt: skip
     tmp = temp_name(path)
     with tempfile.TemporaryFile() as log:
@@ -227,7 +229,7 @@ def write_hdr_video(path: str | os.PathLike, frames: Callable[[], Iterable[np.nd
         try:
             try:
                 for img in bar(frames(), total=n, desc=f"{path.name} ({fmt})", unit="frame", enabled=progress):  # pass 3: encode
-                    proc.stdin.write(_yuv420(mp.signal(_even(np.asarray(img, np.float32)))))
+                    proc.stdin.write(_yuv420(mp.signal(_even(np.asarray(img, np.float32), pad))))
                 proc.stdin.close()
             except (BrokenPipeError, OSError):
                 pass  # ffmpeg stopped: its log says why
@@ -297,6 +299,21 @@ def read_hdr_video(path: str | os.PathLike) -> tuple[np.ndarray, dict]:
         light = bt2100.hlg_ootf(bt2100.hlg_inverse_oetf(sig))
     info["signal"] = sig.astype(np.float32)
     return light.astype(np.float32), info
+
+
+def sdr_view(light: np.ndarray, source_peak: float, white: float = bt2100.REFERENCE_WHITE) -> np.ndarray:
+    """HDR display light ``(..., 3)`` (BT.2020, cd/m2) as an SDR screen shows it when the player tone
+    maps it (as mpv / libplacebo do): diffuse white ``white`` becomes SDR's 100%, the light above it
+    is rolled off by the BT.2390 EETF from ``source_peak`` (the file's MaxCLL) to ``white`` on each
+    pixel's largest component, then BT.2020 -> BT.709 (clipped to its gamut) and the sRGB curve.
+    Returns ``(..., 3)`` float32 in [0, 1]."""
+    from layercam.colour import srgb_encode
+
+    light = np.maximum(np.asarray(light, np.float64), 0.0)
+    m = light.max(-1)
+    ratio = np.where(m > 0, bt2100.eetf(m, max(source_peak, white), white) / np.maximum(m, 1e-30), 1.0)
+    rgb = (light * ratio[..., None] / white) @ bt2100.primaries_matrix("bt2020", "bt709").T
+    return srgb_encode(np.clip(rgb, 0.0, 1.0)).astype(np.float32)
 
 
 _NUM = r"([\d.]+)"

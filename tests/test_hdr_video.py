@@ -74,7 +74,7 @@ def hdr_run(tone_clip, tmp_path_factory) -> Path:
 
 def test_hdr_mp4_is_hevc_main10_bt2020_pq_with_hdr10_metadata(hdr_run):
     p = probe_video(hdr_run / "hdr.mp4")
-    assert (p["codec"], p["profile"], p["pix_fmt"]) == ("hevc", "Main 10", "yuv420p10le")
+    assert (p["codec"], p["profile"], p["pix_fmt"]) == ("hevc", "Main 10", "yuv420p10le") and "hvc1" in p["video"]  # the tag Apple's players want
     assert (p["color_range"], p["color_space"], p["color_primaries"], p["transfer"]) == ("tv", "bt2020nc", "bt2020", "smpte2084")
     rep = json.loads((hdr_run / "report.json").read_text())["export"]["hdr_video"]
     md, cl = p["mastering_display"], p["content_light"]

@@ -246,16 +246,12 @@ def write_hdr_video(path: str | os.PathLike, frames: Callable[[], Iterable[np.nd
         full = " (is the disk full?)" if "No space left" in text or rc == 0 else ""
         raise LayercamError(f"cannot write {path}{full}: ffmpeg failed ({_last_line(text)})")
 
-    class _Audio:
-        audio_info = None
-
-    got = _Audio()
-    finish_with_audio(tmp, path, audio, got)
+    sound = finish_with_audio(tmp, path, audio)
     return {"file": path.name, "format": fmt, "transfer": trc, "codec": "hevc main10 yuv420p10le bt2020nc", "frames": n, "fps": rate_text(fps),
-            "nits_white": nits_white, "white_radiance": white, "scale": mp.scale, "primaries_in": primaries,
+            "nits_white": nits_white, "white_radiance": white, "scale": float(mp.scale), "primaries_in": primaries,
             "source_peak": round(mp.source_peak, 2), "display_peak": mp.peak, "rolled_off": bool(mp.source_peak > mp.peak),
             "max_cll": max_cll, "max_fall": max_fall, "master_display": master, "metadata": "mp4 boxes and SEI" if side else "SEI",
-            "audio": got.audio_info, "seconds": round(time.perf_counter() - t0, 2)}  # fmt: skip
+            "audio": sound, "seconds": round(time.perf_counter() - t0, 2)}  # fmt: skip
 
 
 # -- reading back: checks and figures --------------------------------------------------------------

@@ -273,14 +273,15 @@ class VideoWriter:
         if not mp4_complete(tmp):  # ffmpeg's failure (a full disk) is not raised by imageio-ffmpeg
             tmp.unlink(missing_ok=True)
             raise LayercamError(f"cannot write video {self.path}: ffmpeg left an incomplete file (is the disk full?)")
-        finish_with_audio(tmp, self.path, self.audio, self)
+        self.audio_info = finish_with_audio(tmp, self.path, self.audio)
 
 
-def finish_with_audio(tmp: Path, path: Path, audio: dict | None, owner=None) -> None:
+def finish_with_audio(tmp: Path, path: Path, audio: dict | None) -> dict | None:
     """The complete video ``tmp`` becomes ``path`` (a rename), with ``audio``'s sound carried over
-    first when given (:func:`mux_audio`; ``owner.audio_info`` says what became of it)."""
+    first when given (:func:`mux_audio`). Returns what became of the sound (None without)."""
     from layercam.io.atomic import temp_name
 
+    info = None
     if audio:
         out = temp_name(path)
         try:
@@ -289,14 +290,13 @@ def finish_with_audio(tmp: Path, path: Path, audio: dict | None, owner=None) -> 
             out.unlink(missing_ok=True)
             tmp.unlink(missing_ok=True)
             raise
-        if owner is not None:
-            owner.audio_info = info
         if info["kept"]:
             tmp.unlink(missing_ok=True)
             tmp = out
         else:
             out.unlink(missing_ok=True)
     os.replace(tmp, path)
+    return info
 
 
 def mux_audio(video: Path, audio: dict, out: Path) -> dict:

@@ -161,3 +161,29 @@ exec "{real}" "$@"
     assert json.loads((run / "report.json").read_text())["export"]["hdr_video"]["format"] == "none"
     assert main(["render", str(run), "--hdr-format", "pq", "--quiet"]) == 2  # asked for by name: one error line
     assert capsys.readouterr().err.strip().count("\n") == 0
+
+
+def test_the_mapping_puts_diffuse_white_at_203_nits_and_rolls_highlights_off():
+    from layercam import bt2100
+    from layercam.io.hdr_video import HdrMapping
+
+    white = np.full((1, 1, 3), 2.5, np.float32)  # the radiance named diffuse white
+    pq = HdrMapping.anchored("pq", 2.5)
+    np.testing.assert_allclose(pq.display(white), 203.0, rtol=1e-5)  # neutral: the same in BT.709 and BT.2020
+    assert pq.signal(white)[0, 0, 0] == pytest.approx(0.5807, abs=1e-4)  # BT.2408: 58% PQ
+    hlg = HdrMapping.anchored("hlg", 2.5)
+    assert hlg.signal(white)[0, 0, 0] == pytest.approx(0.75, abs=2e-3)  # BT.2408: 75% HLG
+    np.testing.assert_allclose(hlg.display(white), 203.0, rtol=1e-4)
+    assert HdrMapping.anchored("pq", 2.5, nits_white=100).display(white)[0, 0, 0] == pytest.approx(100.0, rel=1e-5)
+    # a ramp up to 64 x white, pure red included: rolled off below 1000 cd/m2, monotone, hue kept
+    ramp = np.geomspace(0.01, 64 * 2.5, 512, dtype=np.float32)
+    img = np.stack([np.stack([ramp, ramp, ramp], -1), np.stack([ramp, 0 * ramp, 0 * ramp], -1)])
+    for mp in (pq, hlg):
+        mp.source_peak = max(mp.peak_of(f) for f in img)
+        d = mp.display(img)
+        assert d.max() <= 1000.0 * (1 + 1e-6) and np.all(np.diff(d[..., 0], axis=1) >= -1e-3), mp.fmt  # float32 rounding at the peak
+        red = d[1] @ np.linalg.inv(bt2100.primaries_matrix("bt709", "bt2020")).T
+        assert np.abs(red[:, 1:]).max() < 1e-3 * red[:, 0].max()  # still pure red, not pushed towards white
+    assert np.all(pq.signal(img) <= 1.0) and np.all(hlg.signal(img) <= 1.0)
+    with pytest.raises(Exception, match="nits_white"):
+        HdrMapping.anchored("pq", 1.0, nits_white=float("nan"))

@@ -56,6 +56,12 @@ _B = 1 - 4 * _A
 _C = 0.5 - _A * np.log(4 * _A)
 
 
+def _float(x) -> np.ndarray:
+    """``x`` as a float array: float32 stays float32 (frames), anything else becomes float64."""
+    x = np.asarray(x)
+    return x if x.dtype in (np.float32, np.float64) else x.astype(np.float64)
+
+
 def _rgb_to_xyz(prim) -> np.ndarray:
     """The 3x3 matrix from linear RGB of primaries ``prim`` (D65 white) to CIE XYZ (white Y = 1)."""
     xy = np.asarray(prim, np.float64)
@@ -75,10 +81,10 @@ def primaries_matrix(src: str, dst: str = "bt2020") -> np.ndarray:
 
 
 def pq_encode(nits: np.ndarray) -> np.ndarray:
-    """SMPTE ST 2084 inverse EOTF: display light in cd/m2 (``>= 0``, any shape) -> PQ signal in
-    [0, 1] (10000 cd/m2 -> 1). Negative light is taken as 0. The formula goes on past 10000
+    """SMPTE ST 2084 inverse EOTF: display light in cd/m2 (``>= 0``, any shape; float32 stays
+    float32, else float64) -> PQ signal in [0, 1] (10000 cd/m2 -> 1). Negative light is taken as 0. The formula goes on past 10000
     (towards 1.99 at infinity), monotone: :func:`eetf` places a source peak above PQ's with it."""
-    y = np.maximum(np.asarray(nits, np.float64), 0.0) / PQ_PEAK
+    y = np.maximum(_float(nits), 0.0) / PQ_PEAK
     p = y**_M1
     return ((_C1 + _C2 * p) / (1 + _C3 * p)) ** _M2
 
@@ -93,8 +99,8 @@ def hlg_oetf(e: np.ndarray) -> np.ndarray:
     """ARIB STD-B67 / BT.2100 HLG OETF: relative scene light ``E`` in [0, 1] (clipped there) ->
     signal ``E'`` in [0, 1]: ``sqrt(3 E)`` up to ``E = 1/12`` (signal 0.5), ``a ln(12 E - b) + c``
     above (``E = 1`` -> 1)."""
-    e = np.clip(np.asarray(e, np.float64), 0.0, 1.0)
-    return np.where(e <= 1 / 12, np.sqrt(3 * e), _A * np.log(np.maximum(12 * e - _B, 1e-12)) + _C)
+    e = np.clip(_float(e), 0.0, 1.0)
+    return np.where(e <= 1 / 12, np.sqrt(3 * e), _A * np.log(np.maximum(12 * e - _B, 1e-12)) + _C).astype(e.dtype)
 
 
 def hlg_inverse_oetf(signal: np.ndarray) -> np.ndarray:
@@ -114,6 +120,15 @@ def hlg_ootf(e: np.ndarray, peak: float = DISPLAY_PEAK) -> np.ndarray:
     e = np.asarray(e, np.float64)
     ys = np.maximum(e @ np.asarray(LUMA_2020), 0.0)[..., None]
     return peak * np.power(np.maximum(ys, 1e-12), hlg_gamma(peak) - 1) * e
+
+
+def eetf_knee(source_peak: float, target_peak: float = DISPLAY_PEAK) -> float:
+    """The light in cd/m2 below which :func:`eetf` is the identity (``inf`` when the source fits)."""
+    source_peak = min(float(source_peak), PQ_PEAK)
+    if not source_peak > target_peak:
+        return float("inf")
+    src = float(pq_encode(source_peak))
+    return float(pq_decode((1.5 * float(pq_encode(target_peak)) / src - 0.5) * src))
 
 
 def eetf(nits: np.ndarray, source_peak: float, target_peak: float = DISPLAY_PEAK) -> np.ndarray:
@@ -144,9 +159,9 @@ def ycbcr_encode(rgb: np.ndarray, rounded: bool = True) -> np.ndarray:
     """Non-linear BT.2020 R'G'B' in [0, 1] ``(..., 3)`` -> 10-bit narrow-range Y'CbCr codes
     ``(..., 3)`` uint16 (Y' 64..940, Cb/Cr 64..960, non-constant luminance); float64 codes, not
     rounded, with ``rounded=False`` (to subsample the chroma before rounding)."""
-    rgb = np.clip(np.asarray(rgb, np.float64), 0.0, 1.0)
+    rgb = np.clip(_float(rgb), 0.0, 1.0)
     kr, kg, kb = LUMA_2020
-    y = rgb @ np.array([kr, kg, kb])
+    y = rgb @ np.array([kr, kg, kb], rgb.dtype)
     cb = (rgb[..., 2] - y) / (2 * (1 - kb))
     cr = (rgb[..., 0] - y) / (2 * (1 - kr))
     out = np.stack([64 + 876 * y, 512 + 896 * cb, 512 + 896 * cr], -1)

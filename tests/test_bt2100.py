@@ -79,3 +79,15 @@ def test_ycbcr_10bit_narrow_range_round_trip():
     assert b.ycbcr_encode(np.ones(3)).tolist() == [940, 512, 512]  # white: Y' 940, no chroma
     assert b.ycbcr_encode(np.zeros(3)).tolist() == [64, 512, 512]
     np.testing.assert_allclose(b.ycbcr_decode(codes), rgb, atol=2e-3)
+
+
+def test_eetf_knee_is_where_the_roll_off_starts():
+    for src in (1500.0, 4000.0, 10000.0, 1e6):
+        k = b.eetf_knee(src, 1000.0)
+        assert 300 < k < 1000
+        below, above = np.array([k * 0.999]), np.array([k * 1.01])
+        assert b.eetf(below, src)[0] == pytest.approx(below[0], rel=1e-9) and b.eetf(above, src)[0] < above[0]
+    assert b.eetf_knee(800.0, 1000.0) == float("inf")
+    x = np.geomspace(1, 1e4, 100).astype(np.float32)  # frames stay float32
+    assert b.pq_encode(x).dtype == np.float32 and b.hlg_oetf(x / 1e4).dtype == np.float32
+    np.testing.assert_allclose(b.pq_encode(x), b.pq_encode(x.astype(np.float64)), atol=2e-6)

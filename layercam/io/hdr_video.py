@@ -119,24 +119,39 @@ class HdrMapping:
     def peak_of(self, img: np.ndarray) -> float:
         return float(self.light(img).max(initial=0.0))
 
-    def rolled(self, img: np.ndarray) -> np.ndarray:
-        """:meth:`light` with the BT.2390 roll-off on each pixel's largest component (ratios kept)."""
+    def _rolled(self, img: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`light` before the roll-off, its largest component and the roll-off's factor (1
+        below the knee; the EETF is evaluated only above it)."""
         lin = self.light(img)
         m = lin.max(-1)
-        if not self.source_peak > self.peak:
-            return lin
-        ratio = np.where(m > 0, bt2100.eetf(m, self.source_peak, self.peak) / np.maximum(m, 1e-30), 1.0)
-        return (lin * ratio[..., None]).astype(np.float32)
+        ratio = np.ones_like(m)
+        above = m > bt2100.eetf_knee(self.source_peak, self.peak)
+        if above.any():
+            ratio[above] = bt2100.eetf(m[above], self.source_peak, self.peak) / m[above]
+        return lin, m, ratio
+
+    def rolled(self, img: np.ndarray) -> np.ndarray:
+        """:meth:`light` with the BT.2390 roll-off on each pixel's largest component (ratios kept)."""
+        lin, _, ratio = self._rolled(img)
+        return lin * ratio[..., None]
 
     def display(self, img: np.ndarray) -> np.ndarray:
         """The light in cd/m2 (BT.2020 RGB) that the reference display shows for ``img``."""
         r = self.rolled(img)
         return r if self.fmt == "pq" else bt2100.hlg_ootf(r / bt2100.DISPLAY_PEAK).astype(np.float32)
 
+    def display_max(self, img: np.ndarray) -> np.ndarray:
+        """``display(img).max(-1)`` ``(H, W)``, without the whole display image (CTA-861.3's light level)."""
+        lin, m, ratio = self._rolled(img)
+        if self.fmt == "pq":
+            return m * ratio
+        ys = (lin @ np.asarray(bt2100.LUMA_2020, np.float32)) * ratio / bt2100.DISPLAY_PEAK
+        return (bt2100.DISPLAY_PEAK * np.power(np.maximum(ys, 1e-12), bt2100.hlg_gamma() - 1) * m * ratio / bt2100.DISPLAY_PEAK).astype(np.float32)
+
     def signal(self, img: np.ndarray) -> np.ndarray:
-        """Non-linear R'G'B' in [0, 1] ``(H, W, 3)`` float64."""
+        """Non-linear R'G'B' in [0, 1] ``(H, W, 3)`` float32."""
         r = self.rolled(img)
-        return bt2100.pq_encode(r) if self.fmt == "pq" else bt2100.hlg_oetf(r / bt2100.DISPLAY_PEAK)
+        return bt2100.pq_encode(r) if self.fmt == "pq" else bt2100.hlg_oetf(r / np.float32(bt2100.DISPLAY_PEAK))
 
 
 def _yuv420(rgb_signal: np.ndarray) -> bytes:
@@ -205,8 +220,8 @@ def write_hdr_video(path: str | os.PathLike, frames: Callable[[], Iterable[np.nd
         raise LayercamError(f"cannot write {path.name}: libx265 encodes frames of at least {MIN_SIDE} px a side, these are {size[1]}x{size[0]}")
     cll, fall = 0.0, 0.0
     for img in frames():  # pass 2: the light levels of what the reference display shows
-        m = mp.display(img).max(-1)
-        cll, fall = max(cll, float(m.max())), max(fall, float(m.mean()))
+        m = mp.display_max(img)
+        cll, fall = max(cll, float(m.max())), max(fall, float(m.mean(dtype=np.float64)))
     max_cll, max_fall = max(1, math.ceil(cll)), max(1, math.ceil(fall))
     master = _master_display(primaries, max_cll)
     trc = TRANSFER[fmt]

@@ -90,4 +90,4 @@ def test_eetf_knee_is_where_the_roll_off_starts():
     assert b.eetf_knee(800.0, 1000.0) == float("inf")
     x = np.geomspace(1, 1e4, 100).astype(np.float32)  # frames stay float32
     assert b.pq_encode(x).dtype == np.float32 and b.hlg_oetf(x / 1e4).dtype == np.float32
-    np.testing.assert_allclose(b.pq_encode(x), b.pq_encode(x.astype(np.float64)), atol=2e-6)
+    np.testing.assert_allclose(b.pq_encode(x), b.pq_encode(x.astype(np.float64)), atol=1e-5)  # a hundredth of a 10-bit code

@@ -109,7 +109,8 @@ def write_report(ctx: Context, wall: float, name: str | None = "report.json", ex
     train = dict(ctx.results.get("train", {}))
     rep = {
         "task": ctx.task,
-        "input": {"source": str(ctx.clip.source), "frames": ctx.clip.T, "width": ctx.clip.W, "height": ctx.clip.H, "fps": ctx.clip.fps, "bit_depth": ctx.clip.bit_depth},
+        "input": {"source": str(ctx.clip.source), "frames": ctx.clip.T, "width": ctx.clip.W, "height": ctx.clip.H, "fps": ctx.clip.fps, "bit_depth": ctx.clip.bit_depth,
+                  **{k: ctx.clip.meta[k] for k in ("primaries", "audio", "video") if k in ctx.clip.meta}},  # video: what the input's header says (frame rate, variable, sound)
         "exposures": {"spec": ctx.exposures.spec, "reason": ctx.exposures.reason, "log2_dt_given": ctx.exposures.log2_dt.tolist(), "learn": ctx.exposures.learn},
         "analysis": {**(analyse.model_summary(ctx.resolved.settings) if ctx.resolved is not None else {}), "reasons": dict(ctx.resolved.reasons) if ctx.resolved is not None else {}, "measures": ctx.measures},
         "settings": ctx.resolved.to_dict() if ctx.resolved is not None else ctx.cfg.to_dict(),

@@ -16,7 +16,8 @@ def register(sub) -> argparse.ArgumentParser:
             "Fits the scene with the blur generator explaining each frame's blur, then renders every frame "
             "through the learned tone mapper at the frame's own exposure with the blur generator dropped: "
             "frames/frame_00000.png, deblurred.mp4, hdr/frame_00000.exr (only when exposures vary), "
-            "crf.json/png, psf.json (learned blur per frame), report.json, checkpoint.pt."
+            "crf.json/png, psf.json (learned blur per frame), report.json, checkpoint.pt. The video keeps the input's "
+            "frame rate and sound."
         ),
         epilog=EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,

@@ -206,9 +206,11 @@ def _edit(args, run_dir: Path) -> int:
         hdrs.append(r["hdr"])
         ldrs.append(r["ldr"])
         cover.append(float((r["edit_alpha"] > 0.5).mean()))
+    from layercam.commands.render import run_audio
+
     fps = args.fps or float(meta.get("fps") or 24.0)
-    write_video(stage / "edited.mp4", np.stack(ldrs), fps=fps)
-    write_video(stage / "preview.mp4", tonemap_display(np.stack(hdrs))[0], fps=fps)
+    write_video(stage / "edited.mp4", np.stack(ldrs), fps=fps, audio=run_audio(meta, fps))
+    write_video(stage / "preview.mp4", tonemap_display(np.stack(hdrs))[0], fps=fps, audio=run_audio(meta, fps))
     write_json(stage / "edit.json", {
         "run": str(run_dir), "layer": args.layer, "atlas": str(Path(args.atlas).resolve()),
         "log2_dt_png": edit["log2_dt"], "unchanged_px_left_to_learned_atlas": edit["unchanged_px"],

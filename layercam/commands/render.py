@@ -7,8 +7,11 @@
   per-image embedding interpolated between the training images ``floor(F)`` and ``ceil(F)``), at
   the exposure interpolated the same way (or at ``--exposure EV``).
 * ``--sweep exposure|focus``: a video (and its frames) of one view sweeping over ``--range``.
+* ``--hdr-format pq|hlg``: the run's linear HDR frames (``RUN/hdr/``) as an HDR video
+  (:mod:`layercam.io.hdr_video`), ``--exposure EV`` stops brighter when given.
 
-Outputs go to ``RUN/render/`` (or ``--out``), each with a ``.json`` sidecar saying what it is.
+Outputs go to ``RUN/render/`` (or ``--out``), each with a ``.json`` sidecar saying what it is. The
+videos have the input's frame rate (unless ``--fps``), and those of the clip's frames carry its sound.
 """
 
 from __future__ import annotations
@@ -25,7 +28,9 @@ EXAMPLES = """examples:
   layercam render runs/clip --exposure +2            # every frame two stops brighter, sharp
   layercam render runs/stack --focus 0.5             # focus half-way between images 0 and 1
   layercam render runs/stack --sweep focus --steps 30
-  layercam render runs/clip --sweep exposure --range -4,4 --frame 10"""
+  layercam render runs/clip --sweep exposure --range -4,4 --frame 10
+  layercam render runs/clip --hdr-format hlg           # the run's HDR frames as an HLG video
+  layercam render runs/clip --hdr-format pq --nits-white 300 --exposure -1"""
 
 
 def register(sub) -> argparse.ArgumentParser:
@@ -44,11 +49,14 @@ def register(sub) -> argparse.ArgumentParser:
     r.add_argument("--steps", type=number(int, 2, high=1000), default=25, help="sweep steps (default 25)")
     r.add_argument("--frame", type=number(int, 0), help="the view for --focus and sweeps (default: the run's reference image, else the middle frame)")
     r.add_argument("--keep-blur", action="store_true", help="exposure renders: keep each frame's learned blur")
-    r.add_argument("--fps", type=FPS, help="video frame rate (default: the input's for --exposure, 12 for sweeps)")
+    r.add_argument("--fps", type=FPS, help="video frame rate (default: the input's; the input's sound is kept only at its rate)")
     r.add_argument("--out", help="output folder (default: RUN/render)")
     r.add_argument("--overwrite", action="store_true", help="replace earlier renders of the same name")
     r.add_argument("--device", choices=["cpu", "cuda", "auto"], default="auto", help="auto (default: CUDA when present, else the CPU), cpu or cuda")
     r.add_argument("--quiet", action="store_true")
+    from layercam.commands.hdr_video import hdr_video_args
+
+    hdr_video_args(r, render=True)
     return r
 
 
@@ -116,6 +124,17 @@ def _check_ev(ev: float | None) -> None:
         raise LayercamError(f"--exposure must be within +-24 stops, got {ev}")
 
 
+def run_audio(meta: dict, fps: float) -> dict | None:
+    """The sound a video of the run's frames at ``fps`` carries over: the run's (its checkpoint's
+    ``audio``, :func:`layercam.io.clip.audio_plan`) when ``fps`` is the input's, else None."""
+    a = meta.get("audio")
+    return a if a and abs(float(fps) - float(meta.get("fps") or 24.0)) < 1e-6 else None
+
+
+def _hdr_name(args) -> str:
+    return f"hdr_{args.hdr_format}" + ("" if args.exposure is None else f"_ev{args.exposure:+.2f}")
+
+
 def _products(args, out: Path) -> dict:
     """What this command writes into ``out``: per product, its names there, the last one (a sidecar
     ``.json``) marking it finished. A finished product is kept unless ``--overwrite``; an unfinished
@@ -126,7 +145,9 @@ def _products(args, out: Path) -> dict:
     if args.focus is not None:
         name = f"focus_{args.focus:.2f}" + ("" if args.exposure is None else f"_ev{args.exposure:+.2f}")
         p["focus"] = [f"{name}.png", f"{name}.json"]
-    elif args.exposure is not None and args.sweep is None:
+    if args.hdr_format:
+        p["hdr"] = [f"{_hdr_name(args)}.mp4", f"{_hdr_name(args)}.json"]
+    elif args.exposure is not None and args.sweep is None and args.focus is None:
         p["exposure"] = [f"exposure_{args.exposure:+.2f}"]  # one folder, renamed into place when complete
     for names in p.values():
         marker = out / names[-1] / "render.json" if len(names) == 1 else out / names[-1]
@@ -138,8 +159,10 @@ def _products(args, out: Path) -> dict:
 def run(args) -> int:
     from layercam.io.lock import run_lock
 
-    if args.exposure is None and args.focus is None and args.sweep is None:
-        raise LayercamError("nothing to render: give --exposure EV, --focus F or --sweep exposure|focus")
+    if args.nits_white is not None and args.hdr_format is None:
+        raise LayercamError("--nits-white sets the HDR video's diffuse white: give --hdr-format pq|hlg with it")
+    if args.exposure is None and args.focus is None and args.sweep is None and args.hdr_format is None:
+        raise LayercamError("nothing to render: give --exposure EV, --focus F, --sweep exposure|focus or --hdr-format pq|hlg")
     from layercam.io.atomic import partials_removed_on_error
 
     with run_lock(args.run) if Path(args.run, "checkpoint.pt").is_file() else contextlib.nullcontext():  # one writer per run folder
@@ -184,6 +207,18 @@ def _render(args) -> int:
     z0 = model.exposure.reference()
     say = (lambda m: None) if args.quiet else print
     base = {"run": str(args.run), "reference_log2_exposure": z0, "frame_log2_exposures": model.exposure.values().detach().cpu().tolist()}
+    fps = float(meta.get("fps") or 24.0)  # the input's
+    hdr_frames = None
+    if "hdr" in products:  # checked before any work
+        hdr_frames = sorted((Path(args.run) / "hdr").glob("frame_*.exr"))
+        if len(hdr_frames) != T:
+            raise LayercamError(f"{args.run}: --hdr-format needs the run's linear HDR frames, hdr/frame_*.exr ({T}); found {len(hdr_frames)} (hdr-video runs have them)")
+        from layercam.io.hdr_video import missing_for_hdr
+        from layercam.io.video import ffmpeg_exe
+
+        missing = missing_for_hdr()
+        if missing:
+            raise LayercamError(f"cannot write an HDR video: ffmpeg ({ffmpeg_exe()}) has no {missing}; imageio-ffmpeg >= 0.8 ships an ffmpeg with it")
 
     if args.sweep:
         a, b = sweep_range
@@ -191,10 +226,10 @@ def _render(args) -> int:
         stage = staging_dir(out, products["sweep"][-1])
         if args.sweep == "exposure":
             evs = np.linspace(a, b, args.steps)
-            _write_sweep(stage, "exposure", exposure_sweep(model, meta, evs, view, args.keep_blur), args.fps, {**base, "what": "exposure sweep", "view": view, "ev": evs.tolist(), "blur": args.keep_blur})
+            _write_sweep(stage, "exposure", exposure_sweep(model, meta, evs, view, args.keep_blur), args.fps or fps, {**base, "what": "exposure sweep", "view": view, "ev": evs.tolist(), "blur": args.keep_blur})
         else:
             fs = np.linspace(a, b, args.steps)
-            _write_sweep(stage, "focus", focus_sweep(model, meta, fs, view, args.exposure), args.fps, {**base, "what": "focus sweep", "view": view, "focus": fs.tolist(), "exposure_ev": args.exposure})
+            _write_sweep(stage, "focus", focus_sweep(model, meta, fs, view, args.exposure), args.fps or fps, {**base, "what": "focus sweep", "view": view, "focus": fs.tolist(), "exposure_ev": args.exposure})
         commit_staged(stage, out, products["sweep"])
         say(f"{args.sweep} sweep {a:+g}..{b:+g} of view {view}: {out / products['sweep'][1]}")
     if "focus" in products:
@@ -211,20 +246,36 @@ def _render(args) -> int:
         frames = exposure_frames(model, meta, args.exposure, args.keep_blur)
         _write_steps(stage / name, frames, write_png, prefix="frame_", width=5)
         if T > 1:
-            write_video(stage / name / "video.mp4", frames, fps=args.fps or float(meta.get("fps", 24.0)))
+            write_video(stage / name / "video.mp4", frames, fps=args.fps or fps, audio=run_audio(meta, args.fps or fps))
         write_json(stage / name / "render.json", {**base, "what": "exposure", "ev": args.exposure, "log2_exposure": z0 + args.exposure, "blur": args.keep_blur})
         commit_staged(stage, out, products["exposure"])
         say(f"{T} frames at {args.exposure:+g} EV: {out / name}")
+    if "hdr" in products:
+        from layercam.io import read_exr
+        from layercam.io.hdr_video import ANCHOR, write_hdr_video
+        from layercam.render import white_radiance
+
+        video, side = products["hdr"]
+        stage = staging_dir(out, side)
+        gain = 2.0 ** (args.exposure or 0.0)
+        nits = args.nits_white or 203.0
+        info = write_hdr_video(stage / video, lambda: (read_exr(p) * gain for p in hdr_frames), args.fps or fps, args.hdr_format, white_radiance(model), nits,
+                               meta.get("primaries", "bt709"), audio=run_audio(meta, args.fps or fps), progress=not args.quiet)  # fmt: skip
+        write_json(stage / side, {**base, "what": "HDR video of the run's hdr/ frames", "exposure_ev": args.exposure, **info, "anchor": ANCHOR})
+        commit_staged(stage, out, products["hdr"])
+        if info["audio"] and not info["audio"]["kept"]:
+            print(f"warning: {video} is written without the input's sound: {info['audio']['why']}", flush=True)
+        say(f"{T} frames as {args.hdr_format.upper()} HDR video (diffuse white at {nits:g} cd/m2): {out / video}")
     return 0
 
 
-def _write_sweep(out: Path, kind: str, imgs, fps: float | None, info: dict) -> None:
+def _write_sweep(out: Path, kind: str, imgs, fps: float, info: dict) -> None:
     """``sweep_{kind}.mp4``, its steps as PNGs in ``sweep_{kind}/`` and ``sweep_{kind}.json``."""
     from layercam.io import write_png, write_video
     from layercam.pipelines.runner import write_json
 
     _write_steps(out / f"sweep_{kind}", imgs, write_png)
-    write_video(out / f"sweep_{kind}.mp4", imgs, fps=fps or 12.0)
+    write_video(out / f"sweep_{kind}.mp4", imgs, fps=fps)  # one view, not the clip's time: no sound
     write_json(out / f"sweep_{kind}.json", info)
 
 

@@ -283,15 +283,19 @@ def model_summary(cfg: Config) -> dict:
     return {"layers": m.layers, "tone_mapper": m.tone_mapper, "exposures": m.exposures, "blur": "off" if m.blur == "off" else f"{b.n}x{b.n}", "max_offset": b.max_offset, "flow_loss": m.flow_loss}
 
 
-def format_table(cfg: Config, reasons: dict) -> str:
+def format_table(cfg: Config, reasons: dict, windows: int = 1) -> str:
     s = model_summary(cfg)
     rows = [(k, str(s[k]), reasons.get(k, "")) for k in MODEL_KEYS]
+    if "window" in reasons:  # a long clip's windows (pipelines/windows.py)
+        rows.append(("window", str(windows), reasons["window"]))
     w0 = max(len(a) for a, _, _ in rows)
     w1 = max(len(b) for _, b, _ in rows)
     return "\n".join(f"  {a:<{w0}}  {b:<{w1}}  {c}" for a, b, c in rows)
 
 
 ALPHA_GRID_MAX = 512  # cells across the alpha grid's finest level at most (T x 512^2 x 2 floats)
+GRID_MAX_RES = 2048  # cells across the atlas grid's finest level at most (scene.grid_max_res derived); a clip whose
+                     # frames together span more is cut into windows (pipelines/windows.py)
 
 
 def resolve_auto(cfg: Config, static: bool, h0, frame_hw: tuple[int, int]) -> Config:
@@ -348,7 +352,7 @@ def resolve_auto(cfg: Config, static: bool, h0, frame_hw: tuple[int, int]) -> Co
     if s.encoding == "grid" and s.grid_max_res == 0:
         px = atlas_pixels(h0, frame_hw)
         res = int(round(px)) if cfg.model.blur == "on" or static else 2 ** math.ceil(math.log2(max(px, 2.0)))
-        s.grid_max_res = int(min(max(res, 32), 2048))
+        s.grid_max_res = int(min(max(res, 32), GRID_MAX_RES))
         s.grid_min_res = min(s.grid_min_res, s.grid_max_res)
     if s.alpha_grid_res == 0:  # one cell per frame pixel along the longer side
         s.alpha_grid_res = int(min(max(frame_hw), ALPHA_GRID_MAX))

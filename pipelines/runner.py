@@ -43,6 +43,7 @@ class Context:
     reasons: dict = field(default_factory=dict)  # why the analysis decided each model setting
     flow: dict | None = None        # the flow stage's arrays (fw, bw, fw_ok, bw_ok, homs), read once
     model: Any = None               # the trained model (layercam.model.ImplicitCameraModel), built once
+    camera: dict | None = None      # a long clip's window after the first: the camera it holds fixed (pipelines/windows.py)
     results: dict = field(default_factory=dict)
     dirs: dict = field(default_factory=dict)
     keys: dict = field(default_factory=dict)

@@ -21,7 +21,7 @@ from collections.abc import Callable, Iterator
 
 from layercam.errors import LayercamError
 
-__all__ = ["connect", "Runner"]
+__all__ = ["available", "connect", "Runner"]
 
 INSTALL = "pip install 'layercam[ray]'"
 
@@ -32,6 +32,11 @@ def _ray():
     except ImportError:
         raise LayercamError(f"--ray needs Ray, which is not installed here: {INSTALL} (or run without --ray, in sequence)") from None
     return ray
+
+
+def available() -> None:
+    """Refuses (one line) ``--ray`` where Ray is not installed: said before any work."""
+    _ray()
 
 
 def connect(address: str):
@@ -66,7 +71,8 @@ class Runner:
         gpus, cpus = int(res.get("GPU", 0)), int(res.get("CPU", 0))
         self.options = {"num_gpus": 1} if gpus >= 1 else {"num_cpus": 1}
         self.threads = 0 if gpus >= 1 else 1
-        say(f"[ray] cluster of {cpus} CPUs and {gpus} GPUs: one task per {'GPU' if gpus else 'CPU'}")
+        self.describe = f"cluster of {cpus} CPUs and {gpus} GPUs: one task per {'GPU' if gpus else 'CPU'}"
+        say(f"[ray] {self.describe}")
 
     def as_completed(self, fn, items: list) -> Iterator[tuple[int, object]]:
         """``(i, fn(items[i]))`` in the order the tasks finish. A task's ``LayercamError`` is

@@ -45,6 +45,10 @@ def run_task(task: str, clip, exposures, cfg, run_dir: Path, masks=None, progres
     for w in list(getattr(exposures, "warnings", [])) + list(clip.meta.get("notes", [])):
         ctx.warn(w)
     stages = stages_for(task) + list(extra_stages or [])
+    if ray:
+        from layercam import cluster
+
+        cluster.available()  # before any work
     evaluated = bool(extra_stages or train_callbacks)  # the demo and the benchmark score one model of the whole clip
     if evaluated and window not in (None, 0):
         raise LayercamError("--window: this command scores one model of the whole clip; leave --window out")
@@ -79,7 +83,8 @@ def _run(ctx: Context, stages: list, t0: float, window=None, ray: str | None = N
             stages = [stages[0], windows.WindowsStage(plan, results)]
             run_stages(ctx, stages[1:])
             ctx.results["train"] = windows.train_summary(results)
-            extra = {"windows": {**plan.to_dict(), "runs": [{k: r[k] for k in ("index", "frames", "folder", "keys", "times")} for r in results]}}
+            runs = [{**{k: r[k] for k in ("index", "frames", "keys", "times")}, "folder": str(Path(r["folder"]).relative_to(ctx.run_dir))} for r in results]
+            extra = {"windows": {**plan.to_dict(), "runs": runs, "ray": ctx.results.get("ray")}}
         else:
             run_stages(ctx, stages[1:2])  # the bootstrap: motion masks for two layers
             if refine_wanted(ctx):  # segment.refine: a first fit, and masks from its background residual

@@ -342,6 +342,7 @@ def run_all(ctx: Context, p: Plan, ray: str | None = None) -> list[dict]:
         from layercam import cluster
 
         runner = cluster.Runner(ray, ctx.say)
+        ctx.results["ray"] = runner.describe
         for s in todo:
             s.progress, s.threads = False, runner.threads
     first = runner.map(run_window, todo[:1])[0] if runner else run_window(todo[0])

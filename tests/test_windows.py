@@ -268,3 +268,14 @@ def test_bad_window_values_are_one_line_errors(long_frames, tmp_path, capsys):
         assert says in capsys.readouterr().err
     assert not (tmp_path / "r").exists()
     assert main(["demo", "--out", str(tmp_path / "d"), "--window", "4"]) == 2  # demo has no --window
+
+
+def test_ray_without_ray_installed_is_one_line_before_any_work(long_frames, tmp_path, monkeypatch, capsys):
+    monkeypatch.setitem(sys.modules, "ray", None)  # import ray fails, as where it is not installed
+    assert main(_argv(long_frames, tmp_path / "r", "--ray", "auto")) == 2
+    err = capsys.readouterr().err
+    assert "pip install 'layercam[ray]'" in err and err.count("\n") == 1
+    assert not (tmp_path / "r").exists()
+    (tmp_path / "jobs.csv").write_text("hdr-video,clip,run,\n")
+    assert main(["batch", str(tmp_path / "jobs.csv"), "--ray", "auto"]) == 2
+    assert "pip install 'layercam[ray]'" in capsys.readouterr().err

@@ -125,40 +125,44 @@ def split(T: int, length: int, cycle: int = 1) -> list[tuple[int, int]]:
     return out
 
 
-def _extent(homs: np.ndarray, a: int, b: int, hw: tuple[int, int]) -> float:
-    """The longer side (px) of the bounding box of frames ``a .. b - 1`` mapped into frame ``a``'s
-    view by the chained pair homographies ``homs`` (``t -> t + 1``, pixels); inf where the chain
-    degenerates (a point mapped to infinity)."""
+def atlas_px(homs: np.ndarray, a: int, b: int, hw: tuple[int, int]) -> float:
+    """How many frame pixels a model of frames ``a .. b - 1`` needs across its atlas for one cell
+    per pixel (what ``analyse.resolve_auto`` sizes the atlas grid by): the frames mapped as the
+    bootstrap maps them (the pair homographies ``homs`` in frame pixels, ``t -> t + 1``, chained to
+    the middle frame; the identity where they move no corner by ``STATIC_CORNER_PX``), fitted into
+    the atlas (:func:`layercam.geometry.atlas_mappings`), measured by
+    :func:`layercam.geometry.atlas_pixels`; inf where the chain degenerates."""
+    from layercam.geometry import STATIC_CORNER_PX, atlas_mappings, atlas_pixels, chain_homographies, max_corner_shift, middle_frame
+
     h, w = hw
-    c = np.array([[0, 0, 1], [w, 0, 1], [0, h, 1], [w, h, 1]], np.float64).T
-    m = np.eye(3)
-    lo, hi = np.array([0.0, 0.0]), np.array([float(w), float(h)])
-    for t in range(a + 1, b):
+    with np.errstate(all="ignore"):
         try:
-            m = m @ np.linalg.inv(homs[t - 1])
+            maps = chain_homographies(np.asarray(homs[a:b - 1], np.float64), middle_frame(b - a))
         except np.linalg.LinAlgError:
             return float("inf")
-        p = m @ c
-        if not np.isfinite(p).all() or (p[2] <= 1e-9).any():
+        if not np.isfinite(maps).all():
             return float("inf")
-        q = p[:2] / p[2]
-        lo, hi = np.minimum(lo, q.min(1)), np.maximum(hi, q.max(1))
-    return float((hi - lo).max())
+        c = np.array([[0, 0, 1], [w, 0, 1], [0, h, 1], [w, h, 1]], np.float64).T
+        if ((maps @ c)[:, 2] <= 1e-9).any():  # a corner behind the reference view: no plane holds the frames
+            return float("inf")
+        if max_corner_shift(maps, h, w) < STATIC_CORNER_PX:
+            maps = np.stack([np.eye(3)] * (b - a))
+        px = atlas_pixels(atlas_mappings(h, w, maps)[None], hw)
+    return px if np.isfinite(px) else float("inf")
 
 
 def plan(clip, exposures, flow: dict | None, task: str, window=None) -> Plan:
     """The windows of a clip: ``window`` None (auto), 0 (off) or a length in frames.
 
     Auto: a model holds the clip as long as its atlas does. The atlas grid's finest level has at
-    most ``analyse.GRID_MAX_RES`` cells across (``resolve_auto``), and a clip needs one cell per
-    frame pixel over the part of the scene its frames cover together (the camera's motion: the
-    flow's chained homographies, as the bootstrap maps the frames into the atlas, with its margin).
-    Past that the atlas would hold the scene coarser than the frames show it, so the clip is cut
-    into the longest windows whose frames fit, overlapping by :func:`overlap_for` (frames larger
-    than the grid alone: as much as one frame needs). A static camera's clip fits at any length.
+    most ``analyse.GRID_MAX_RES`` cells across (``resolve_auto`` sizes it at one cell per frame
+    pixel over the frames' extent in the atlas, :func:`atlas_px`: the camera's motion). A clip
+    that needs more (a long pan) is cut into the longest windows that need no more, overlapping by
+    :func:`overlap_for` (a frame larger than the grid alone: as much as one frame needs; a window
+    never shorter than three overlaps). A static camera's clip fits at any length.
     """
     from layercam.analyse import GRID_MAX_RES
-    from layercam.geometry import STATIC_CORNER_PX
+    from layercam.flow import rescale_homographies
 
     T = clip.T
     cycle = exposure_cycle(exposures)
@@ -174,37 +178,36 @@ def plan(clip, exposures, flow: dict | None, task: str, window=None) -> Plan:
             return Plan([(0, T)], f"one model (--window {n} covers the clip's {T} frames)", forced=True)
         w = split(T, n, cycle)
         return Plan(w, f"forced (--window {n}): {len(w)} windows of {w[0][1] - w[0][0]} frames or fewer, overlapping by {overlap_for(n, cycle)}", forced=True)
-    margin = 0.9  # geometry.atlas_mappings: the frames fill [-0.9, 0.9] of the atlas
-    cap = max(GRID_MAX_RES * margin, float(max(clip.H, clip.W)))
     if flow is None or "homs" not in flow or len(flow["homs"]) != T - 1:
         return Plan([(0, T)], "one model (no flow measured)")
-    work = tuple(flow["fw"].shape[1:3]) if "fw" in flow else (clip.H, clip.W)
-    scale = clip.W / work[1]
-    homs = np.asarray(flow["homs"], np.float64)
-
-    def px(a: int, b: int) -> float:
-        return _extent(homs, a, b, work) * scale
-
-    whole = px(0, T)
-    if whole <= cap or whole - max(clip.H, clip.W) < STATIC_CORNER_PX:
-        return Plan([(0, T)], f"one model: the camera's motion over the {T} frames spans {whole:.0f} px, within the {cap:.0f} px the atlas holds at one cell per pixel ({GRID_MAX_RES} cells, --window N cuts it)", atlas_px=[whole])
+    hw = (clip.H, clip.W)
+    work = tuple(flow["fw"].shape[1:3]) if "fw" in flow else hw
+    homs = rescale_homographies(flow["homs"], work, hw) if work != hw else np.asarray(flow["homs"], np.float64)
+    cap = max(float(GRID_MAX_RES), max(hw) / 0.9)  # geometry.atlas_mappings: a frame fills 0.9 of the atlas
+    whole = atlas_px(homs, 0, T, hw)
+    floor = 3 * OVERLAP
+    if whole <= cap or T < 2 * floor:
+        why = f"needs {whole:.0f} px across the atlas at one cell per pixel, within the {cap:.0f} it holds" if whole <= cap else \
+              f"needs {whole:.0f} px across the atlas, more than the {cap:.0f} it holds, but is shorter than two windows of {floor} frames"
+        return Plan([(0, T)], f"one model: the camera's motion over the {T} frames {why} (--window N cuts it)", atlas_px=[whole])
     out, sizes, a = [], [], 0
-    floor = 3 * OVERLAP  # a window is never shorter than this (a camera too fast for the atlas: windows of this length)
     while True:
         b = a + 2
-        while b < T and px(a, b + 1) <= cap:
+        while b < T and atlas_px(homs, a, b + 1, hw) <= cap:
             b += 1
-        b = min(max(b, a + floor), T)
+        b = min(max(b, a + floor), T)  # a camera too fast for the atlas: windows of the shortest length
         if T - b < floor // 2 and b < T:  # what is left would be a sliver: this window takes it
             b = T
         out.append((a, b))
-        sizes.append(px(a, b))
+        sizes.append(atlas_px(homs, a, b, hw))
         if b >= T:
             break
         a = b - overlap_for(b - a, cycle)
+    if len(out) == 1:
+        return Plan(out, f"one model: the camera's motion over the {T} frames needs {whole:.0f} px across the atlas, more than the {cap:.0f} it holds, but less than two windows' worth (--window N cuts it)", atlas_px=sizes)
     longest = max(b - a for a, b in out)
-    return Plan(out, f"{len(out)} windows of up to {longest} frames: the camera's motion over the {T} frames spans {whole:.0f} px, past the {cap:.0f} px the atlas holds "
-                f"at one cell per pixel ({GRID_MAX_RES} cells); each window's frames fit it (--window N or 0 overrides)", atlas_px=sizes)
+    return Plan(out, f"{len(out)} windows of up to {longest} frames: the camera's motion over the {T} frames needs {whole:.0f} px across the atlas at one cell per pixel, "
+                f"more than the {cap:.0f} it holds ({GRID_MAX_RES} cells); each window's frames fit it (--window N or off overrides)", atlas_px=sizes)
 
 
 # -- one window --------------------------------------------------------------------------------------

@@ -44,7 +44,15 @@ from layercam.errors import LayercamError
 EXAMPLES = """examples:
   cp runs/clip/atlases/layer1.png edited.png        # paint on it in any image editor, keep RGBA
   layercam edit runs/clip --layer 1 --atlas edited.png
-  layercam edit runs/clip --layer 0 --atlas logo.png --out runs/clip/edit_logo"""
+  layercam edit runs/clip --layer 0 --atlas logo.png --out runs/clip/edit_logo
+  layercam edit runs/long --layer 0 --window 2 --atlas wall.png   # a long clip: paint on windows/w02/atlases/layer0.png
+
+a long clip's run (windows/, windows.json): each window is its own model with its own atlases.
+Paint on one window's atlas and name it with --window K: the edit shows in that window's frames and
+is carried to every other window through the frames neighbouring windows share (each overlap
+frame's pixels look it up where they map into one window's atlas and leave it where they map into
+the next's), so it follows the scene through the whole clip wherever the overlaps saw it; what
+only frames far from every overlap see stays in the painted window (cross-faded out at its ends)."""
 
 UNCHANGED_TOL = 1.5 / 255
 

@@ -9,6 +9,12 @@
 * ``--sweep exposure|focus``: a video (and its frames) of one view sweeping over ``--range``.
 
 Outputs go to ``RUN/render/`` (or ``--out``), each with a ``.json`` sidecar saying what it is.
+
+A long clip's run (``windows.json``: windows of frames, each its own model sharing one camera):
+frame indices, ``--focus`` and ``--frame`` are the clip's; exposures count from the clip's reference
+(the median of every frame's exposure); ``--exposure`` renders each window's frames and joins them
+across the overlaps as the export did; a view (``--focus``, a sweep) comes from the window that
+holds its frame most, whose blur generator knows that window's images only.
 """
 
 from __future__ import annotations
@@ -42,7 +48,7 @@ def register(sub) -> argparse.ArgumentParser:
     r.add_argument("--sweep", choices=["exposure", "focus"], help="a video sweeping over exposure or focus")
     r.add_argument("--range", dest="sweep_range", metavar="A,B", help="sweep range (default: -4,4 EV; focus: first,last image)")
     r.add_argument("--steps", type=number(int, 2, high=1000), default=25, help="sweep steps (default 25)")
-    r.add_argument("--frame", type=number(int, 0), help="the view for --focus and sweeps (default: the run's reference image, else the middle frame)")
+    r.add_argument("--frame", type=number(int, 0), help="the view for --focus and sweeps (default: the run's reference image, else the middle frame; a long clip's windows: rendered by the window that holds it)")
     r.add_argument("--keep-blur", action="store_true", help="exposure renders: keep each frame's learned blur")
     r.add_argument("--fps", type=FPS, help="video frame rate (default: the input's for --exposure, 12 for sweeps)")
     r.add_argument("--out", help="output folder (default: RUN/render)")

@@ -158,7 +158,7 @@ class TrainStage(Stage):
         if "refine" in ctx.keys:  # only after the first fit: trained on the refine stage's masks
             d["refined_masks"] = ctx.keys["refine"]
             d["refined_balance"] = "all"  # class-balanced all through, as motion masks (runs before it balanced them during the bootstrap steps only)
-        if ctx.camera is not None:  # a long clip's later window: the camera of window 0's training, held
+        if getattr(ctx, "camera", None) is not None:  # a long clip's later window: the camera of window 0's training, held
             d["camera"] = ctx.camera["key"]
         return d
 
@@ -197,7 +197,7 @@ class TrainStage(Stage):
                     f"the clip's {ctx.clip.T * ctx.clip.H * ctx.clip.W:,} pixels (more fit a short stack's noise; train.passes_per_frame=0: no cap)")
         if model.blur is not None and ctx.cfg.blur.centre == "auto":
             ctx.say(f"[train] blur PSFs {'centred on their pixel (static scene)' if cfg.blur.centre == 'on' else 'free to shift (moving scene)'}; blur.centre=on|off overrides")
-        if ctx.camera is not None:  # pipelines/windows.py: window 0's camera, held fixed
+        if getattr(ctx, "camera", None) is not None:  # pipelines/windows.py: window 0's camera, held fixed
             from layercam.pipelines.windows import hold_camera
 
             hold_camera(model, ctx.camera)

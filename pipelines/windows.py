@@ -214,9 +214,7 @@ def plan(clip, exposures, flow: dict | None, task: str, window=None) -> Plan:
 def sub_clip(clip, a: int, b: int):
     from layercam.io.clip import Clip
 
-    meta = dict(clip.meta)
-    if "frame_indices" in meta and meta["frame_indices"] is not None:
-        meta["frame_indices"] = list(meta["frame_indices"])[a:b]
+    meta = {k: (list(v)[a:b] if isinstance(v, (list, tuple)) and len(v) == clip.T else v) for k, v in clip.meta.items()}  # per frame: its slice
     meta["notes"] = []  # said once, by the whole clip's run
     meta["window"] = [a, b]
     exif = None if clip.exif_exposures is None else list(clip.exif_exposures)[a:b]

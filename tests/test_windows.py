@@ -279,3 +279,17 @@ def test_ray_without_ray_installed_is_one_line_before_any_work(long_frames, tmp_
     (tmp_path / "jobs.csv").write_text("hdr-video,clip,run,\n")
     assert main(["batch", str(tmp_path / "jobs.csv"), "--ray", "auto"]) == 2
     assert "pip install 'layercam[ray]'" in capsys.readouterr().err
+
+
+def test_deblur_video_windows_join_the_sharp_frames_and_alpha(long_frames, tmp_path):
+    from layercam.io import read_image
+
+    run = tmp_path / "run"
+    assert main(tiny_argv("deblur-video", long_frames, run, "--blur", "off", "--layers", "2", *WINDOW)) == 0
+    assert len(list((run / "frames").glob("*.png"))) == FRAMES and (run / "deblurred.mp4").is_file()
+    assert len(list((run / "alpha").glob("*.png"))) == FRAMES
+    rep = json.loads((run / "report.json").read_text())
+    export = run / rep["windows"]["runs"][1]["folder"] / "cache" / f"export-{rep['windows']['runs'][1]['keys']['export']}"
+    assert np.array_equal(read_image(run / "frames" / "frame_00006.png"), read_image(export / "frames" / "frame_00002.png"))  # window 1's alone
+    assert np.array_equal(read_image(run / "alpha" / "frame_00006.png"), read_image(export / "alpha" / "frame_00002.png"))
+    assert (run / "windows" / "w02" / "atlases" / "layer1.png").is_file()

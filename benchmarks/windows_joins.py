@@ -16,7 +16,8 @@ thread): ``--window off`` (one model) and ``--window 52`` (two windows of 52 fra
 Both: flicker of each pair of neighbouring frames (``layercam.realsuite.measures.flicker``: the
 preview's tonemap over the whole clip, 8-bit codes on the input's registered static pixels), so
 that the pairs at the windows' join (the overlap and the pair on each side of it) can be compared
-with the clip's median pair. Writes OUT/<case>/{frames/,truth.npy,single/,windows/}, OUT/joins.json,
+with the clip's median pair, and with the median over the pairs of their own phase (short -> long
+and long -> short pairs flicker differently). Writes OUT/<case>/{frames/,truth.npy,single/,windows/}, OUT/joins.json,
 OUT/joins.md and OUT/joins.png.
 """
 
@@ -151,6 +152,12 @@ def score(case: str, folder: Path, meta: dict) -> dict:
         res[f"flicker_{name}_clip"] = float(np.nanmean(fl))
         res[f"flicker_{name}_join_max"] = float(np.nanmax(fl[join]))
         res[f"flicker_{name}_join_mean"] = float(np.nanmean(fl[join]))
+        # a pair short -> long flickers differently from long -> short: each join pair against the
+        # clip's median over the pairs of its own phase
+        phase = np.array([np.nanmedian(fl[p::2]) for p in range(2)])
+        rel = np.array([fl[t] / phase[t % 2] for t in join])
+        res[f"flicker_{name}_join_rel_mean"] = float(np.nanmean(rel))
+        res[f"flicker_{name}_join_rel_max"] = float(np.nanmax(rel))
     return res
 
 
@@ -187,7 +194,7 @@ def figure(results: list[dict], path: Path) -> None:
 
 
 def table(results: list[dict], runs: dict) -> str:
-    rows = ["| clip | run | wall | PSNR-mu mean | worst frame vs one model | flicker: clip median pair / join max / join mean (codes) |", "|---|---|---|---|---|---|"]
+    rows = ["| clip | run | wall | PSNR-mu mean (dB) | worst frame against one model | flicker, codes: clip's median pair / join pairs' mean / max | join pairs / their phase's median: mean, max |", "|---|---|---|---|---|---|---|"]
     for r in results:
         c = r["case"]
         for name in ("single", "windows"):
@@ -198,8 +205,9 @@ def table(results: list[dict], runs: dict) -> str:
             else:
                 ps = "(reference)" if name == "single" else f"{r['agreement_psnr_mean']:.2f} vs one model"
                 worst = "" if name == "single" else f"min {r['agreement_psnr_min']:.2f} dB (frame {r['agreement_worst_frame']})"
-            fl = f"{r[f'flicker_{name}_median']:.3f} / {r[f'flicker_{name}_join_max']:.3f} / {r[f'flicker_{name}_join_mean']:.3f}"
-            rows.append(f"| {c} | {'one model' if name == 'single' else 'two windows'} | {wall:.0f} s | {ps} | {worst} | {fl} |")
+            fl = f"{r[f'flicker_{name}_median']:.3f} / {r[f'flicker_{name}_join_mean']:.3f} / {r[f'flicker_{name}_join_max']:.3f}"
+            rel = f"{r[f'flicker_{name}_join_rel_mean']:.3f}, {r[f'flicker_{name}_join_rel_max']:.3f}"
+            rows.append(f"| {c} | {'one model' if name == 'single' else 'two windows'} | {wall:.0f} s | {ps} | {worst} | {fl} | {rel} |")
     return "\n".join(rows)
 
 

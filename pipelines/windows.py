@@ -541,8 +541,15 @@ def window_folders(run: Path, index: dict) -> list[Path]:
     return [Path(run) / w["folder"] for w in index["windows"]]
 
 
-def clip_reference(models) -> float:
-    """The clip's reference exposure over windows (each frame once): the median of every frame's
-    log2 exposure, as ``ExposureField.reference`` is for a single model."""
-    vals = [m.exposure.values().detach().float().cpu().numpy() for m in models]
+def index_gains(index: dict) -> list[float]:
+    """Each window's HDR scale relative to window 0's (``hdr_gain``: 1 where the camera is shared)."""
+    return [float(w.get("hdr_gain", 1.0)) for w in index["windows"]]
+
+
+def clip_reference(models, gains: list[float] | None = None) -> float:
+    """The clip's reference exposure over windows (each frame once), in window 0's scale: the
+    median of every frame's log2 exposure, as ``ExposureField.reference`` is for a single model.
+    A window whose irradiance is ``gain`` times window 0's sees its frames at ``log2 gain`` more."""
+    gains = gains or [1.0] * len(models)
+    vals = [m.exposure.values().detach().float().cpu().numpy() + np.log2(g) for m, g in zip(models, gains)]
     return float(np.median(np.concatenate(vals)))

@@ -319,6 +319,7 @@ def _edit_windows(args, run_dir: Path, index: dict) -> int:
     if (out / "edit.json").exists() and not args.overwrite:
         raise LayercamError(f"{out} already holds an edit; pass --overwrite or choose another --out")
     hw = tuple(metas[0]["frame_hw"])
+    gains = windows.index_gains(index)  # each window's irradiance against window 0's (1 where the camera is shared)
     edits: list = [None] * n
     edits[K] = load_edit(models[K], folders[K], args.layer, Path(args.atlas))
     if not (edits[K]["alpha"] > 0).any():
@@ -331,6 +332,7 @@ def _edit_windows(args, run_dir: Path, index: dict) -> int:
         png = folders[j] / "atlases" / f"layer{args.layer}.png"
         res = read_rgba(png)[1].shape if png.exists() else edits[i]["alpha"].shape
         edits[j] = carry_edit(edits[i], models[i], models[j], [(t - plan.windows[i][0], t - plan.windows[j][0]) for t in range(a, b)], hw, args.layer, res)
+        edits[j]["irr"] = edits[j]["irr"] * np.float32(gains[j] / gains[i])  # in window j's irradiance
         how[j] = f"carried from window {i} through frames {a}..{b - 1}"
     stage = staging_dir(out, "edit")
     (stage / "hdr").mkdir()
@@ -339,7 +341,8 @@ def _edit_windows(args, run_dir: Path, index: dict) -> int:
     for t in progress_bar(range(T), desc="edit", unit="frame", enabled=not args.quiet):
         reached("edit", t)
         parts = [(w, render_edited_frame(models[k], t - plan.windows[k][0], hw, args.layer, edits[k])) for k, w in plan.weights(t)]
-        r = {key: sum(w * p[key] for w, p in parts).astype(np.float32) for key in ("hdr", "ldr", "edit_alpha")}
+        r = {key: sum(w * p[key] for w, p in parts).astype(np.float32) for key in ("ldr", "edit_alpha")}
+        r["hdr"] = sum(w * gains[k] * p["hdr"] for (k, _), (w, p) in zip(plan.weights(t), parts)).astype(np.float32)  # as the export joined it
         if not np.isfinite(r["hdr"]).all():
             raise LayercamError(f"frame {t}: non-finite irradiance after the edit; nothing written for it")
         write_exr(stage / "hdr" / f"frame_{t:05d}.exr", r["hdr"])

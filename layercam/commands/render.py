@@ -170,6 +170,8 @@ class _Views:
     frame's exposure)."""
 
     def __init__(self, run: Path, device: str):
+        import numpy as np
+
         from layercam.checkpoint import load_run_model
         from layercam.pipelines import windows
 
@@ -179,12 +181,15 @@ class _Views:
             self.models, self.metas, self.plan = [model], [meta], None
             self.T = int(meta["n_frames"])
             self.z0 = model.exposure.reference()
+            self.shift = [0.0]
         else:
             loaded = [load_run_model(f, device) for f in windows.window_folders(run, index)]
             self.models, self.metas = [m for m, _ in loaded], [m for _, m in loaded]
             self.plan = windows.index_plan(index)
             self.T = int(index["frames"])
-            self.z0 = windows.clip_reference(self.models)
+            gains = windows.index_gains(index)
+            self.z0 = windows.clip_reference(self.models, gains)
+            self.shift = [-float(np.log2(g)) for g in gains]  # window k at z renders as window 0 at z + shift: its irradiance is gain x window 0's
         self.has_blur = self.models[0].blur is not None
         self.reference = self.metas[0].get("reference") if self.plan is None else None
 
@@ -199,7 +204,7 @@ class _Views:
 
         if self.plan is None:
             return self.models[0].exposure.values().detach().cpu().tolist()
-        return [float(sum(w * float(self.models[k].exposure.values().detach().cpu().numpy()[t - self.start(k)]) for k, w in self.plan.weights(t))) for t in np.arange(self.T)]
+        return [float(sum(w * (float(self.models[k].exposure.values().detach().cpu().numpy()[t - self.start(k)]) - self.shift[k]) for k, w in self.plan.weights(t))) for t in np.arange(self.T)]
 
     def exposure_frames(self, ev: float, keep_blur: bool):
         """Every frame at ``ev`` stops from the clip's reference, ``(T, H, W, 3)``; a window's frames
@@ -208,7 +213,7 @@ class _Views:
 
         if self.plan is None:
             return exposure_frames(self.models[0], self.metas[0], ev, keep_blur, z0=self.z0)
-        per = [exposure_frames(m, meta, ev, keep_blur, z0=self.z0) for m, meta in zip(self.models, self.metas)]
+        per = [exposure_frames(m, meta, ev, keep_blur, z0=self.z0 + d) for m, meta, d in zip(self.models, self.metas, self.shift)]
         return np.stack([sum(w * per[k][t - self.start(k)] for k, w in self.plan.weights(t)) for t in range(self.T)]).astype(np.float32)
 
 
@@ -249,31 +254,32 @@ def _render(args) -> int:
     base = {"run": str(args.run), "reference_log2_exposure": z0, "frame_log2_exposures": v.frame_exposures()}
 
     def one(view: int):
-        """The model of the window holding ``view``, its meta and the window's first frame."""
+        """The model of the window holding ``view``, its meta, the window's first frame and the
+        reference exposure in its scale."""
         k = v.window(view)
-        return v.models[k], v.metas[k], v.start(k)
+        return v.models[k], v.metas[k], v.start(k), z0 + v.shift[k]
 
     if args.sweep:
         a, b = sweep_range
         view = default_view if args.frame is None else args.frame
-        model, meta, a0 = one(view)
+        model, meta, a0, zk = one(view)
         stage = staging_dir(out, products["sweep"][-1])
         if args.sweep == "exposure":
             evs = np.linspace(a, b, args.steps)
-            _write_sweep(stage, "exposure", exposure_sweep(model, meta, evs, view - a0, args.keep_blur, z0=z0), args.fps, {**base, "what": "exposure sweep", "view": view, "ev": evs.tolist(), "blur": args.keep_blur})
+            _write_sweep(stage, "exposure", exposure_sweep(model, meta, evs, view - a0, args.keep_blur, z0=zk), args.fps, {**base, "what": "exposure sweep", "view": view, "ev": evs.tolist(), "blur": args.keep_blur})
         else:
             fs = np.linspace(a, b, args.steps)
-            _write_sweep(stage, "focus", focus_sweep(model, meta, fs - a0, view - a0, args.exposure, z0=z0), args.fps, {**base, "what": "focus sweep", "view": view, "focus": fs.tolist(), "exposure_ev": args.exposure})
+            _write_sweep(stage, "focus", focus_sweep(model, meta, fs - a0, view - a0, args.exposure, z0=zk), args.fps, {**base, "what": "focus sweep", "view": view, "focus": fs.tolist(), "exposure_ev": args.exposure})
         commit_staged(stage, out, products["sweep"])
         say(f"{args.sweep} sweep {a:+g}..{b:+g} of view {view}: {out / products['sweep'][1]}")
     if "focus" in products:
         png, side = products["focus"]
         view = args.frame if args.frame is not None else (int(v.reference) if v.reference is not None else int(round(args.focus)))
-        model, meta, a0 = one(view)
+        model, meta, a0, zk = one(view)
         if v.plan is not None and not 0 <= args.focus - a0 <= len(meta["names"]) - 1:
             raise LayercamError(f"--focus {args.focus:g} and view {view} lie in different windows: each window's blur generator knows its own images ({a0}..{a0 + len(meta['names']) - 1} for view {view})")
         stage = staging_dir(out, side)
-        write_png(stage / png, focus_sweep(model, meta, [args.focus - a0], view - a0, args.exposure, z0=z0)[0])
+        write_png(stage / png, focus_sweep(model, meta, [args.focus - a0], view - a0, args.exposure, z0=zk)[0])
         write_json(stage / side, {**base, "what": "focus", "focus": args.focus, "view": view, "exposure_ev": args.exposure})
         commit_staged(stage, out, products["focus"])
         say(f"focus {args.focus:g} of view {view}: {out / png}")

@@ -120,8 +120,12 @@ class TrainStage(Stage):
     final = True      # the run's model (ctx.model), probed by the benchmark's callbacks; not the refine option's first fit
 
     def options(self, ctx):
-        """Trained on the refine stage's masks, after its first fit: their key."""
-        return {"refined_masks": ctx.keys["refine"]} if "refine" in ctx.keys else {}
+        """Trained on the refine stage's masks, after its first fit: their key; a long clip's later
+        window: the key of window 0's camera, held fixed."""
+        d = {"refined_masks": ctx.keys["refine"]} if "refine" in ctx.keys else {}
+        if getattr(ctx, "camera", None) is not None:
+            d["camera"] = ctx.camera["key"]
+        return d
 
     @staticmethod
     def masks(ctx):
@@ -144,7 +148,11 @@ class TrainStage(Stage):
         cfg = r.settings
         torch.manual_seed(cfg.train.seed)
         model = self.build(ctx)
-        if cfg.model.tone_mapper == "learned":
+        if getattr(ctx, "camera", None) is not None:  # pipelines/windows.py: window 0's camera, held fixed
+            from layercam.pipelines.windows import hold_camera
+
+            hold_camera(model, ctx.camera)
+        elif cfg.model.tone_mapper == "learned":
             fit_init_curve(model.tone, seed=cfg.train.seed)
         masks, source = self.masks(ctx)
         fl = ctx.flow if cfg.model.flow_loss else None

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from layercam.cli import EPILOG, common_model_args, default_out, finish, input_args, load_cfg
+from layercam.cli import EPILOG, common_model_args, default_out, finish, input_args, load_cfg, window_args
 
 
 def register(sub) -> argparse.ArgumentParser:
@@ -24,6 +24,7 @@ def register(sub) -> argparse.ArgumentParser:
     )
     input_args(d, "none")
     common_model_args(d)
+    window_args(d)
     return d
 
 
@@ -40,6 +41,6 @@ def run(args) -> int:
     exposures = parse_exposures(args.exposures, clip, args.ev_step, args.force_ev_step)
     masks = load_masks(args.masks, clip) if args.masks else None
     out = Path(args.out) if args.out else default_out(args.inputs)
-    ctx = run_task("deblur-video", clip, exposures, cfg, out, masks=masks, progress=not args.quiet)
+    ctx = run_task("deblur-video", clip, exposures, cfg, out, masks=masks, progress=not args.quiet, window=args.window, ray=args.ray)
     finish(ctx)
     return 0

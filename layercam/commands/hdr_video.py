@@ -6,7 +6,7 @@ import argparse
 from pathlib import Path
 
 from layercam import distributed
-from layercam.cli import EPILOG, common_model_args, default_out, finish, input_args, load_cfg, number
+from layercam.cli import EPILOG, common_model_args, default_out, finish, input_args, load_cfg, number, window_args
 
 
 def register(sub) -> argparse.ArgumentParser:
@@ -14,6 +14,7 @@ def register(sub) -> argparse.ArgumentParser:
     input_args(h, "alt")
     hdr_video_args(h)
     common_model_args(h)
+    window_args(h)
     distributed.add_args(h)
     return h
 
@@ -45,6 +46,10 @@ def run(args) -> int:
     args.overrides = hdr_overrides(args) + list(args.overrides)
     cfg = load_cfg(args)
     device = device_of(cfg.train.device)  # a missing GPU is said before any work
+    if args.ray and (args.nproc > 1 or distributed.env_world_size() > 1):
+        from layercam.errors import LayercamError
+
+        raise LayercamError("--ray trains a long clip's windows as tasks; leave --nproc (and torchrun) out")
     if distributed.launch_requested(args):
         return distributed.launch(args, device)
     with distributed.session(device):  # joins the process group under torchrun, else nothing
@@ -52,6 +57,6 @@ def run(args) -> int:
         exposures = parse_exposures(args.exposures, clip, args.ev_step, args.force_ev_step)
         masks = load_masks(args.masks, clip) if args.masks else None
         out = Path(args.out) if args.out else default_out(args.inputs)
-        ctx = run_task("hdr-video", clip, exposures, cfg, out, masks=masks, progress=not args.quiet and distributed.is_main())
+        ctx = run_task("hdr-video", clip, exposures, cfg, out, masks=masks, progress=not args.quiet and distributed.is_main(), window=args.window, ray=args.ray)
         finish(ctx)
     return 0

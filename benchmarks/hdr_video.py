@@ -41,7 +41,7 @@ def _export(args, fmt: str) -> dict:
 
 def round_trip(run: Path, video: Path) -> dict:
     """hdr.mp4 (or an HLG one) back to radiance against the run's EXRs: median relative errors."""
-    from layercam.bt2100 import eetf, primaries_matrix
+    from layercam.core.bt2100 import eetf, primaries_matrix
     from layercam.io import read_exr
     from layercam.io.hdr_video import HdrMapping, read_hdr_video
 
@@ -51,7 +51,7 @@ def round_trip(run: Path, video: Path) -> dict:
     m = primaries_matrix(info["primaries_in"], "bt2020")
     mp = HdrMapping(info["format"], info["scale"], info["primaries_in"], info["source_peak"])
     if info["format"] == "hlg":  # back to scene light: the inverse OETF, not the display's OOTF
-        from layercam.bt2100 import hlg_inverse_oetf
+        from layercam.core.bt2100 import hlg_inverse_oetf
 
         light = hlg_inverse_oetf(probe["signal"]) * 1000.0
     back = light @ np.linalg.inv(m).T.astype(np.float32) / mp.scale

@@ -6,14 +6,14 @@ Two 96-frame clips, each run twice with ``layercam hdr-video`` (one process each
 thread): ``--window off`` (one model) and ``--window 52`` (two windows of 52 frames overlapping by
 8, the second holding window 0's camera fixed).
 
-* ``composite``: the real-suite composite (``layercam.realsuite.composite``: DAVIS parkour's person
+* ``composite``: the real-suite composite (``layercam.bench.realsuite.composite``: DAVIS parkour's person
   over bracket_taipei's radiance map, a pan, a filmic camera, noise, 8 bits, alternating 2 EV)
   made 96 frames long, the person's 30 frames played forth and back; ground truth per frame.
   Scores: PSNR-mu of each frame against the truth (one scale per channel for the whole clip).
 * ``basler``: ``altexp_video_basler/clip_2exp_3stop.mp4`` (74 frames, alternating 3 EV), played
   forth and back to 96 frames. No truth: each frame's PSNR-mu against the one-model run's frame.
 
-Both: flicker of each pair of neighbouring frames (``layercam.realsuite.measures.flicker``: the
+Both: flicker of each pair of neighbouring frames (``layercam.bench.realsuite.measures.flicker``: the
 preview's tonemap over the whole clip, 8-bit codes on the input's registered static pixels), so
 that the pairs at the windows' join (the overlap and the pair on each side of it) can be compared
 with the clip's median pair, and with the median over the pairs of their own phase (short -> long
@@ -52,7 +52,7 @@ def build(case: str, folder: Path) -> dict:
         return json.loads(info.read_text())
     frames_dir.mkdir(parents=True, exist_ok=True)
     if case == "composite":
-        from layercam.realsuite.composite import CompositeSpec, compose, load_background, load_foreground
+        from layercam.bench.realsuite.composite import CompositeSpec, compose, load_background, load_foreground
 
         spec = CompositeSpec(frames=T, ev_step=2.0)
         rgb, alpha = load_foreground(DATA, spec.fg_clip, 30)
@@ -98,8 +98,8 @@ def read_hdr(run: Path) -> np.ndarray:
 
 def per_frame_psnr_mu(pred: np.ndarray, gt: np.ndarray) -> np.ndarray:
     """PSNR-mu of each frame, the prediction aligned to ``gt`` by one scale per channel over the
-    whole clip and both normalised by gt's maximum (``layercam.metrics``' convention)."""
-    from layercam.metrics import align_scale, mu_law
+    whole clip and both normalised by gt's maximum (``layercam.core.metrics``' convention)."""
+    from layercam.core.metrics import align_scale, mu_law
 
     p = np.clip(align_scale(pred, gt) / float(gt.max()), 0, 1)
     g = np.clip(gt / float(gt.max()), 0, 1)
@@ -109,8 +109,8 @@ def per_frame_psnr_mu(pred: np.ndarray, gt: np.ndarray) -> np.ndarray:
 
 def pair_flicker(hdr: np.ndarray, hom: np.ndarray, static: np.ndarray) -> np.ndarray:
     """Flicker (8-bit codes) of each pair (t, t+1) with a static mask; NaN where none is static."""
-    from layercam.realsuite.measures import flicker
-    from layercam.render import tonemap_display
+    from layercam.bench.realsuite.measures import flicker
+    from layercam.scene.render import tonemap_display
 
     _, stats = tonemap_display(hdr)
     disp = np.stack([tonemap_display(x, stats)[0] for x in hdr])
@@ -124,7 +124,7 @@ def pair_flicker(hdr: np.ndarray, hom: np.ndarray, static: np.ndarray) -> np.nda
 
 def score(case: str, folder: Path, meta: dict) -> dict:
     from layercam.io import load_clip
-    from layercam.realsuite.jobs import static_pixels
+    from layercam.bench.realsuite.jobs import static_pixels
 
     frames = load_clip(folder / "frames").frames
     hom, static = static_pixels(frames, folder)

@@ -9,7 +9,7 @@ import math
 import sys
 from pathlib import Path
 
-from layercam.errors import LayercamError
+from layercam.core.errors import LayercamError
 
 EPILOG = """examples:
   layercam demo                                   # built-in synthetic clip, with metrics
@@ -127,7 +127,7 @@ def build_parser() -> argparse.ArgumentParser:
 def load_cfg(args):
     """The preset, then the model flags (``--layers`` ... as ``model.*``/``blur.*`` settings), the
     shortcuts and each ``--set``: checked, one line and exit 2 on a bad value."""
-    from layercam.config import load_config, model_overrides
+    from layercam.core.config import load_config, model_overrides
 
     overrides = model_overrides(args.layers, args.tone_mapper, args.blur, args.max_offset, args.flow_loss)
     if args.steps is not None:

@@ -17,7 +17,7 @@ import os
 
 import numpy as np
 
-from layercam.errors import LayercamError
+from layercam.core.errors import LayercamError
 
 __all__ = ["load_detector", "detect_instances", "pick_instances"]
 

@@ -1,13 +1,13 @@
 """Motion segmentation without a detector: foreground masks from the cached optical flow.
 
 A pixel is foreground when its flow disagrees with the per-frame global (camera) homography
-fitted by RANSAC (:func:`layercam.flow.global_homographies`). Per frame the evidence is the
+fitted by RANSAC (:func:`layercam.vision.flow.global_homographies`). Per frame the evidence is the
 *smaller* of the forward residual (flow to the next frame) and the backward residual (flow to the
 previous frame): a moving object disagrees in both directions, while the background it is about
 to cover (leading edge, forward flow ill-defined) or has just uncovered (trailing edge, backward
 flow ill-defined) disagrees in one only. The evidence is thresholded against the frame's own
 residual noise, averaged with its neighbours along the flow (temporal consistency), rid of
-parts that lie mostly where the frame has no texture the flow can follow (:func:`layercam.visibility.textured`:
+parts that lie mostly where the frame has no texture the flow can follow (:func:`layercam.core.visibility.textured`:
 flow over a smooth sky is interpolated, not measured), cleaned with
 morphology (open, close, fill holes, drop small components), and frames where the object stands
 still (no evidence) inherit their neighbours' masks along the flow. :func:`foreground_bootstrap`
@@ -15,21 +15,21 @@ then tightens each mask to the object's colour edges with GrabCut (flow masks ov
 DIS patch), checks it against the background its neighbours show (:func:`background_refine`) and
 grows it to the object's colours learned over the whole clip, where the frame differs from that
 background (:func:`colour_cut`: the flow often finds only part of the object). The masks' measured IoU with the true ones: ``docs/measurements.md``. Every threshold
-is a setting (``segment`` section of :mod:`layercam.config`).
+is a setting (``segment`` section of :mod:`layercam.core.config`).
 
 :func:`foreground_mappings` turns the masks into the foreground layer's bootstrap mapping: the
 object's own motion (a similarity per frame pair fitted to the flow inside the mask, chained to
 a reference frame), scaled so that the object fills the foreground atlas.
 
-Shapes: flows ``(T-1, H, W, 2)`` in pixels (``layercam.flow`` conventions), masks ``(T, H, W)``.
+Shapes: flows ``(T-1, H, W, 2)`` in pixels (``layercam.vision.flow`` conventions), masks ``(T, H, W)``.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from layercam.config import SegmentConfig
-from layercam.errors import LayercamError
+from layercam.core.config import SegmentConfig
+from layercam.core.errors import LayercamError
 
 __all__ = ["SegmentConfig", "motion_masks", "clean_mask", "object_motion", "foreground_mappings", "background_refine", "colour_cut"]
 
@@ -46,7 +46,7 @@ def _check_flows(fw, bw) -> tuple[np.ndarray, np.ndarray]:
 
 def _flow_checks(f: np.ndarray, b: np.ndarray, fw_ok=None, bw_ok=None) -> tuple[np.ndarray, np.ndarray]:
     """The flows' forward-backward checks ``(T-1, H, W)`` bool: the given ones, else computed."""
-    from layercam.flow import flow_consistency
+    from layercam.vision.flow import flow_consistency
 
     fo = flow_consistency(f, b) if fw_ok is None else np.asarray(fw_ok, bool)
     bo = flow_consistency(b, f) if bw_ok is None else np.asarray(bw_ok, bool)
@@ -54,7 +54,7 @@ def _flow_checks(f: np.ndarray, b: np.ndarray, fw_ok=None, bw_ok=None) -> tuple[
 
 
 def _warp_to(mask_next: np.ndarray, flow_t: np.ndarray) -> np.ndarray:
-    from layercam.flow import warp
+    from layercam.vision.flow import warp
 
     return warp(mask_next.astype(np.float32), flow_t, border="constant")
 
@@ -177,7 +177,7 @@ def _fill_still_frames(masks: np.ndarray, fw: np.ndarray, bw: np.ndarray, frac: 
 def _voted_masks(soft: np.ndarray, f: np.ndarray, b: np.ndarray, cfg: SegmentConfig, tex: np.ndarray | None = None) -> np.ndarray:
     """Soft evidence ``(T, H, W)`` -> cleaned masks ``(T, H, W)`` bool: thresholded at
     ``cfg.evidence``, averaged with its neighbours along the flow, thresholded at ``cfg.vote``;
-    with ``tex`` (:func:`layercam.visibility.textured`), each connected part less than ``cfg.texture_share`` of which
+    with ``tex`` (:func:`layercam.core.visibility.textured`), each connected part less than ``cfg.texture_share`` of which
     has texture is dropped before one object is kept."""
     import cv2
 
@@ -203,9 +203,9 @@ def motion_masks(fw, bw, fw_ok=None, bw_ok=None, cfg: SegmentConfig | None = Non
     dict (coverage per frame, frames filled from neighbours, the static scene's model). ``fw_ok``,
     ``bw_ok`` ``(T-1, H, W)``: the flows' forward-backward checks (computed when None). With the
     ``frames`` ``(T, H, W[, C])``, a part of a frame's evidence that lies mostly where the frame has
-    no texture (:func:`layercam.visibility.textured`) is not an object."""
-    from layercam.motion import long_range_evidence
-    from layercam.visibility import textured
+    no texture (:func:`layercam.core.visibility.textured`) is not an object."""
+    from layercam.vision.motion import long_range_evidence
+    from layercam.core.visibility import textured
 
     cfg = cfg or SegmentConfig()
     f, b = _check_flows(fw, bw)
@@ -290,7 +290,7 @@ def foreground_mappings(h: int, w: int, masks: np.ndarray, fw=None, fw_ok=None, 
     ``[-margin, margin]^2`` (the rest of the atlas is slack for what the masks missed).
     how "identity": every frame maps the same way (the paper's start), whole frame in the atlas.
     """
-    from layercam.geometry import atlas_mappings, chain_homographies, fit_into_atlas
+    from layercam.core.geometry import atlas_mappings, chain_homographies, fit_into_atlas
 
     T = masks.shape[0]
     if how == "identity" or fw is None or T < 2 or masks.sum() == 0:
@@ -428,7 +428,7 @@ def background_refine(frames: np.ndarray, masks: np.ndarray, homs: np.ndarray, c
     show (``segment.background``): frames ``t +- 2, 4, .., 2 * background_reach`` warped into frame
     ``t`` by the chained global homographies (``homs (T-1, 3, 3)``, frame t -> t+1 pixels), their
     object (its mask, dilated) left out, each mapped onto frame ``t``'s levels by quantiles (another
-    exposure reads the same), samples not well exposed (:func:`layercam.visibility.well_exposed`)
+    exposure reads the same), samples not well exposed (:func:`layercam.core.visibility.well_exposed`)
     left out; the per-pixel median is the
     background behind the object. A limb the flow was too coarse to see differs from it: within a
     ring of ``background_ring`` of the short side around the mask, pixels whose residual (largest
@@ -446,8 +446,8 @@ def background_refine(frames: np.ndarray, masks: np.ndarray, homs: np.ndarray, c
     gates on)."""
     import cv2
 
-    from layercam.geometry import chain_homographies
-    from layercam.visibility import well_exposed
+    from layercam.core.geometry import chain_homographies
+    from layercam.core.visibility import well_exposed
 
     cfg = cfg or SegmentConfig()
     m = np.asarray(masks) > 0.5
@@ -540,7 +540,7 @@ def _equalised_lab(frame: np.ndarray, samples: int = 1 << 17) -> np.ndarray:
     another exposure through any camera curve gives the same colours up to clipping), in CIELAB."""
     import cv2
 
-    from layercam.flow import _midrank
+    from layercam.vision.flow import _midrank
 
     f = np.asarray(frame, np.float32)
     out = np.stack([np.clip(_midrank(f[..., c], samples), 0, 1) for c in range(3)], -1).astype(np.float32)
@@ -574,7 +574,7 @@ def colour_cut(frames: np.ndarray, masks: np.ndarray, residual: np.ndarray, cfg:
     already is: background of the object's colours does not join; each pixel pays
     ``colour_distance`` per object size it lies away from the mask (a near post that crosses the
     object does not run into the cut over the whole frame). With ``failure`` ``(T, H, W)``
-    (:func:`layercam.motion.flow_failure`: where the flow loses a pixel within a few frames), each
+    (:func:`layercam.vision.motion.flow_failure`: where the flow loses a pixel within a few frames), each
     pixel counts ``colour_failure * (failure - 0.5)`` towards the object: a running dog's legs and
     head that the flow smooths into the background's motion are lost by it, a rigid post or
     trunk with parallax is followed. Then :func:`clean_mask`, which keeps
@@ -657,7 +657,7 @@ def foreground_bootstrap(frames: np.ndarray, flows: dict | None, masks: np.ndarr
             if cfg.colour > 0:  # frames the checks emptied start again from their neighbours'
                 failure = None
                 if cfg.colour_failure > 0:
-                    from layercam.motion import flow_failure
+                    from layercam.vision.motion import flow_failure
 
                     failure = flow_failure(fw, bw, *_flow_checks(fw, bw, flows.get("fw_ok"), flows.get("bw_ok")))
                 masks = colour_cut(frames, _fill_still_frames(masks, fw, bw, cfg.still_fraction)[0], rel, cfg, failure)

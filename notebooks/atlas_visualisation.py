@@ -54,9 +54,15 @@ import numpy as np
 import torch
 from IPython.display import Image, display
 
-from layercam import checkpoint, render, synth, viz
-from layercam.data import normalise_xy
-from layercam.geometry import middle_frame
+from layercam.engine import checkpoint
+
+from layercam.scene import render
+
+from layercam import synth
+
+from layercam.bench import viz
+from layercam.engine.sampler import normalise_xy
+from layercam.core.geometry import middle_frame
 from layercam.pipelines.atlas_export import atlas_resolution
 
 FIGURES = {}  # name -> figure, in the order drawn
@@ -87,7 +93,7 @@ def show(name, fig):
 # %%
 scene = None
 if RUN is None:
-    from layercam.config import load_config, model_overrides
+    from layercam.core.config import load_config, model_overrides
     from layercam.io import parse_exposures
     from layercam.pipelines.tasks import run_task
 
@@ -111,7 +117,7 @@ model, meta = checkpoint.load_run_model(RUN)
 report = json.loads((RUN / "report.json").read_text()) if (RUN / "report.json").exists() else {}
 T, (H, W) = int(meta["n_frames"]), tuple(meta["frame_hw"])
 print(f"{RUN}: task {meta.get('task')}, {T} frames of {W}x{H} from {meta.get('source')}")
-from layercam.resolve import format_table
+from layercam.engine.resolve import format_table
 
 print(format_table(model.resolved))  # what the analysis chose for the run, and why
 if report.get("metrics"):

@@ -24,8 +24,8 @@ from pathlib import Path
 
 import numpy as np
 
-from layercam.errors import LayercamError
-from layercam.interrupts import reached
+from layercam.core.errors import LayercamError
+from layercam.core.interrupts import reached
 from layercam.pipelines.runner import write_json
 
 ATLAS_RES = (32, 2048)  # an exported atlas's side, texels, at least / at most
@@ -68,10 +68,10 @@ def write_rgba_png(path: Path, rgb: np.ndarray, alpha: np.ndarray) -> None:
 def export_atlases(model, run_dir: Path, frames: np.ndarray, fps: float = 24.0, chunk: int = 65536, progress: bool = False) -> dict:
     """Writes the files listed in this module's docstring into ``run_dir``, each atlas at
     :func:`atlas_resolution`; returns a summary."""
-    from layercam.geometry import middle_frame
+    from layercam.core.geometry import middle_frame
     from layercam.io import VideoWriter, write_exr, write_png
-    from layercam.progress import bar as progress_bar
-    from layercam.render import checker_overlay, coverage_from_splat, layer_weights, render_frame, sample_atlas, splat_add, tone_map_log2
+    from layercam.core.progress import bar as progress_bar
+    from layercam.scene.render import checker_overlay, coverage_from_splat, layer_weights, render_frame, sample_atlas, splat_add, tone_map_log2
 
     run_dir = Path(run_dir)
     T, H, W = frames.shape[:3]

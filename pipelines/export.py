@@ -5,7 +5,7 @@
 writer                writes
 ====================  ======================================================================
 ``hdr``               ``hdr/frame_00000.exr`` (linear, camera dropped; with ``export.faithful``
-                      corrected towards the frame where it saw well, :mod:`layercam.faithful`),
+                      corrected towards the frame where it saw well, :mod:`layercam.camera.faithful`),
                       ``preview.mp4`` (global Reinhard over the whole clip) and ``hdr.mp4``
                       (HDR10 or HLG from the EXRs, ``export.hdr_format``,
                       :mod:`layercam.io.hdr_video`)
@@ -35,8 +35,8 @@ from pathlib import Path
 
 import numpy as np
 
-from layercam.errors import LayercamError
-from layercam.interrupts import reached
+from layercam.core.errors import LayercamError
+from layercam.core.interrupts import reached
 from layercam.pipelines.runner import Context, Stage, write_json
 
 CHECKPOINT_NAME = "checkpoint.pt"
@@ -48,9 +48,9 @@ def exposures_vary(ctx: Context) -> bool:
 
 def resolve_reference(ref, n: int) -> int:
     """The image a stack is fused into (``export.reference``): "middle" (default,
-    :func:`layercam.geometry.middle_frame`), "first", "last" or an index (negative counts from the
+    :func:`layercam.core.geometry.middle_frame`), "first", "last" or an index (negative counts from the
     end) among ``n`` images."""
-    from layercam.geometry import middle_frame
+    from layercam.core.geometry import middle_frame
 
     named = {"middle": middle_frame(n), "first": 0, "last": n - 1}
     if isinstance(ref, str) and ref.strip().lower() in named:
@@ -65,7 +65,7 @@ def resolve_reference(ref, n: int) -> int:
 
 
 def _frames(ctx: Context, desc: str = "export"):
-    from layercam.progress import bar
+    from layercam.core.progress import bar
 
     return bar(range(ctx.clip.T), desc=desc, unit="frame", enabled=ctx.progress)
 
@@ -142,10 +142,10 @@ def write_hdr_set(paths: list[Path], images, half: bool, say=None) -> bool:
 
 def first_pass(ctx: Context, model) -> tuple[dict, float]:
     """Every frame rendered at most :data:`FIRST_PASS_PIXELS` pixels -> the preview's display
-    statistics (:func:`layercam.render.display_stats`) and the clip's peak irradiance. Refuses (one
+    statistics (:func:`layercam.scene.render.display_stats`) and the clip's peak irradiance. Refuses (one
     line) non-finite irradiance before anything is written."""
-    from layercam import render
-    from layercam.colour import REC709, luma
+    from layercam.scene import render
+    from layercam.core.colour import REC709, luma
 
     H, W = ctx.clip.H, ctx.clip.W
     s = min(1.0, (FIRST_PASS_PIXELS / (H * W)) ** 0.5)
@@ -164,16 +164,16 @@ def faithful_hdr(ctx: Context, model, ts) -> Iterator[tuple[int, np.ndarray, dic
     """For each frame ``t`` of ``ts`` in turn: ``(t, linear HDR (H, W, 3), what the correction did)``.
     With ``export.faithful`` the model corrected towards the frame where it saw well, and where it
     did not towards its neighbours' corrections moved along the clip's flow
-    (:mod:`layercam.faithful`); else the model alone (and ``{}``). Each frame's correction is
+    (:mod:`layercam.camera.faithful`); else the model alone (and ``{}``). Each frame's correction is
     computed once and kept while a neighbour needs it."""
-    from layercam import render
+    from layercam.scene import render
 
     if not ctx.resolved.settings.export.faithful:
         for t in ts:
             reached("export", t)
             yield t, render.render_frame(model, t, (ctx.clip.H, ctx.clip.W), ("hdr",))["hdr"], {}
         return
-    from layercam.faithful import correction, faithful_log2, merge_weight, neighbour_fill
+    from layercam.camera.faithful import correction, faithful_log2, merge_weight, neighbour_fill
     from layercam.pipelines.stages import ctx_clip_levels
 
     lv, frames, T = ctx_clip_levels(ctx), ctx.clip.frames, ctx.clip.T
@@ -182,11 +182,11 @@ def faithful_hdr(ctx: Context, model, ts) -> Iterator[tuple[int, np.ndarray, dic
     # auto: a video from a static camera. Moved along the flow, neighbours cost the panning composites
     # 0.5-1.3 dB; on a bracket's fused view, crops 000000 / 000003 gained 1.4-1.6 dB and 000002 lost
     # 1.6 (its short shot reads the pixels the reference clipped 0.3-0.5 stop under the truth)
-    merging = ctx.resolved.settings.export.merge_neighbours == "on"  # auto: a video from a static camera (layercam.resolve)
+    merging = ctx.resolved.settings.export.merge_neighbours == "on"  # auto: a video from a static camera (layercam.engine.resolve)
 
     # auto: a stack's fused view (NTIRE crops 000000 / 000003 +1.6-2.9 dB, taipei +0.2-0.4); not videos
     # (Basler `fast` flicker 0.86 -> 1.04: short and long frames filtered by their own, different noise)
-    denoise = ctx.resolved.settings.export.denoise == "on"  # auto: a stack's fused view (layercam.resolve)
+    denoise = ctx.resolved.settings.export.denoise == "on"  # auto: a stack's fused view (layercam.engine.resolve)
 
     def corr(t: int) -> dict:
         if t not in kept:
@@ -226,7 +226,7 @@ def _flow_to(ctx: Context, t: int, n: int) -> np.ndarray | None:
     if not np.isfinite(hom).all() or abs(np.linalg.det(hom)) < 1e-12:  # no homography: the flow alone
         return np.where(np.asarray(ok, bool)[..., None], f, np.nan).astype(np.float32)
     hom = hom if n == t + 1 else np.linalg.inv(hom)
-    from layercam.geometry import pixel_grid
+    from layercam.core.geometry import pixel_grid
 
     xx, yy = (g.astype(np.float64) for g in pixel_grid(h, w))
     q = np.stack([xx, yy, np.ones_like(xx)], -1) @ hom.T
@@ -242,7 +242,7 @@ def _faithful_summary(infos: list[dict]) -> dict:
 
 
 def hdr_writer(ctx: Context, model, dest: Path, cache: Path) -> dict:
-    from layercam import render
+    from layercam.scene import render
     from layercam.io import VideoWriter
 
     stats, peak = first_pass(ctx, model)
@@ -260,13 +260,13 @@ def hdr_writer(ctx: Context, model, dest: Path, cache: Path) -> dict:
 
 def hdr_video(ctx: Context, model, paths: list[Path], dest: Path) -> dict:
     """``hdr.mp4`` from the EXRs at ``paths`` in ``export.hdr_format`` (:mod:`layercam.io.hdr_video`),
-    diffuse white (:func:`layercam.render.white_radiance`) at ``export.nits_white``; with an ffmpeg
+    diffuse white (:func:`layercam.scene.render.white_radiance`) at ``export.nits_white``; with an ffmpeg
     that cannot write one, a warning naming what it lacks, and none (as ``hdr_format=none``)."""
     from layercam.io import read_exr
     from layercam.io.clip import primaries_of
     from layercam.io.hdr_video import ANCHOR, MIN_SIDE, missing_for_hdr, write_hdr_video
     from layercam.io.video import ffmpeg_exe
-    from layercam.render import white_radiance
+    from layercam.scene.render import white_radiance
 
     fmt = ctx.resolved.settings.export.hdr_format
     if fmt == "none":
@@ -287,7 +287,7 @@ def hdr_video(ctx: Context, model, paths: list[Path], dest: Path) -> dict:
 
 
 def sharp_writer(ctx: Context, model, dest: Path, cache: Path) -> dict:
-    from layercam import render
+    from layercam.scene import render
     from layercam.io import VideoWriter, write_png
 
     T, hw = ctx.clip.T, (ctx.clip.H, ctx.clip.W)
@@ -315,7 +315,7 @@ def sharp_writer(ctx: Context, model, dest: Path, cache: Path) -> dict:
 
 
 def fused_writer(ctx: Context, model, dest: Path, cache: Path) -> dict:
-    from layercam import render
+    from layercam.scene import render
     from layercam.io import write_png
 
     hw = (ctx.clip.H, ctx.clip.W)
@@ -343,7 +343,7 @@ def crf_writer(ctx: Context, model, dest: Path, cache: Path) -> dict:
     """``crf.json`` (z = log2 r + log2 dt in stops -> value per channel) and ``crf.png``."""
     import torch
 
-    from layercam import viz
+    from layercam.bench import viz
     from layercam.io.atomic import atomic_write
 
     z = torch.linspace(-12, 12, 241)
@@ -365,7 +365,7 @@ def psf_writer(ctx: Context, model, dest: Path, cache: Path) -> dict:
 
 
 def checkpoint_writer(ctx: Context, model, dest: Path, cache: Path) -> dict:
-    from layercam.checkpoint import save_run_model
+    from layercam.engine.checkpoint import save_run_model
     from layercam.pipelines.stages import model_meta
 
     meta = model_meta(ctx)

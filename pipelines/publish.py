@@ -25,9 +25,9 @@ import shutil
 import time
 from pathlib import Path
 
-from layercam.config import config_hash
-from layercam.errors import LayercamError
-from layercam.interrupts import deferred, reached
+from layercam.core.config import config_hash
+from layercam.core.errors import LayercamError
+from layercam.core.interrupts import deferred, reached
 from layercam.io.atomic import atomic_write, replace_entry
 from layercam.pipelines.runner import write_json
 

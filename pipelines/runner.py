@@ -21,9 +21,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from layercam import distributed
-from layercam.config import Config, config_hash
-from layercam.errors import LayercamError
+from layercam.engine import distributed
+from layercam.core.config import Config, config_hash
+from layercam.core.errors import LayercamError
 from layercam.io.atomic import atomic_write, ensure_writable_dir
 from layercam.io.clip import fingerprint
 
@@ -42,10 +42,10 @@ class Context:
     masks: Any = None               # (T, H, W) foreground masks or None
     progress: bool = True
     train_callbacks: list = field(default_factory=list)  # model -> trainer callback, besides the model's own (the bench's probe)
-    measures: dict | None = None    # what the analysis measured (layercam.analyse.measure)
-    resolved: Any = None            # the run's settings, resolved once after the flow (layercam.resolve.Resolved)
+    measures: dict | None = None    # what the analysis measured (layercam.vision.analyse.measure)
+    resolved: Any = None            # the run's settings, resolved once after the flow (layercam.engine.resolve.Resolved)
     flow: dict | None = None        # the flow stage's arrays (fw, bw, fw_ok, bw_ok, homs), read once
-    model: Any = None               # the trained model (layercam.model.ImplicitCameraModel), built once
+    model: Any = None               # the trained model (layercam.scene.model.ImplicitCameraModel), built once
     camera: dict | None = None      # a long clip's window after the first: the camera it holds fixed (pipelines/windows.py)
     results: dict = field(default_factory=dict)
     dirs: dict = field(default_factory=dict)
@@ -96,8 +96,8 @@ class Stage:
 
 def settings_read(ctx: Context, reads: tuple) -> dict:
     """The part of the run's settings ``reads`` names: a section (``"train"``: its keyed settings,
-    :meth:`layercam.config.Config.key_dict`), one setting (``"scene.bootstrap"``), ``"static"``
-    (:attr:`layercam.resolve.Resolved.static`) or ``"task"``. Read from the resolved settings once
+    :meth:`layercam.core.config.Config.key_dict`), one setting (``"scene.bootstrap"``), ``"static"``
+    (:attr:`layercam.engine.resolve.Resolved.static`) or ``"task"``. Read from the resolved settings once
     the analysis has run, else (the flow) from those the user gave."""
     src = ctx.resolved.settings if ctx.resolved is not None else ctx.cfg
     out = {}

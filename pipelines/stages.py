@@ -1,5 +1,5 @@
 """The stages every task is built from: flow -> bootstrap -> train (-> export, in export.py). Between
-flow and bootstrap the task runs the analysis (``layercam.analyse``), which decides the model."""
+flow and bootstrap the task runs the analysis (``layercam.vision.analyse``), which decides the model."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import dataclasses
 
 import numpy as np
 
-from layercam.errors import LayercamError
+from layercam.core.errors import LayercamError
 from layercam.pipelines.runner import Context, Stage
 
 
@@ -19,7 +19,7 @@ class FlowStage(Stage):
     reads = ("flow",)
 
     def run(self, ctx, out):
-        from layercam import flow
+        from layercam.vision import flow
 
         if ctx.clip.T < 2:
             np.savez(out / "flow.npz", fw=np.zeros((0, ctx.clip.H, ctx.clip.W, 2), np.float16))
@@ -58,16 +58,16 @@ class BootstrapStage(Stage):
 
     def run(self, ctx, out):
         from layercam.camera.tone import initial_log2
-        from layercam.geometry import atlas_mappings, chain_homographies, middle_frame
+        from layercam.core.geometry import atlas_mappings, chain_homographies, middle_frame
 
-        from layercam.flow import at_frame_size
+        from layercam.vision.flow import at_frame_size
 
         clip = ctx.clip
         T, H, W = clip.T, clip.H, clip.W
         r = ctx.resolved
         fl = at_frame_size(ctx.flow, (H, W), None if r.settings.model.layers > 1 else ("homs",))  # the motion segmentation reads the flows too
         ref = middle_frame(T)
-        static = r.static  # the flow's chained homographies move no corner by STATIC_CORNER_PX (layercam.resolve)
+        static = r.static  # the flow's chained homographies move no corner by STATIC_CORNER_PX (layercam.engine.resolve)
         if static:
             bg = np.stack([np.eye(3)] * T)
             how = f"identity: {r.reasons.get('static', 'a static camera')}"
@@ -116,7 +116,7 @@ class TrainStage(Stage):
     name = "train"
     deps = ("flow", "bootstrap")
     reads = ("model", "scene", "tone", "blur", "loss", "train", "static")
-    all_ranks = True  # data-parallel under torch.distributed (layercam/distributed.py)
+    all_ranks = True  # data-parallel under torch.distributed (layercam/engine/distributed.py)
     final = True      # the run's model (ctx.model), probed by the benchmark's callbacks; not the refine option's first fit
 
     def options(self, ctx):
@@ -139,10 +139,10 @@ class TrainStage(Stage):
     def run(self, ctx, out):
         import torch
 
-        from layercam import distributed
+        from layercam.engine import distributed
         from layercam.camera.tone import fit_init_curve
-        from layercam.data import PixelSampler
-        from layercam.train import Trainer
+        from layercam.engine.sampler import PixelSampler
+        from layercam.engine.train import Trainer
 
         r = ctx.resolved
         cfg = r.settings
@@ -194,7 +194,7 @@ class TrainStage(Stage):
 
     @staticmethod
     def build(ctx):
-        from layercam.checkpoint import build_model
+        from layercam.engine.checkpoint import build_model
 
         return build_model(ctx.resolved, model_meta(ctx))
 
@@ -238,8 +238,8 @@ class RefineStage(Stage):
         import torch
 
         from layercam import segment
-        from layercam.metrics import iou
-        from layercam.render import inverse_tone, render_frame, tone_map_log2
+        from layercam.core.metrics import iou
+        from layercam.scene.render import inverse_tone, render_frame, tone_map_log2
 
         model = TrainStage.trained(ctx, ctx.dirs["prefit"])
         clip = ctx.clip
@@ -300,9 +300,9 @@ def device_line(asked: str, dev: str) -> str:
 
 
 def ctx_clip_levels(ctx: Context) -> np.ndarray:
-    """The clip's clipping levels (:func:`layercam.visibility.clip_levels`), measured once per run
+    """The clip's clipping levels (:func:`layercam.core.visibility.clip_levels`), measured once per run
     (a pass over every pixel: seconds on a 1080p clip) and kept in ``ctx.results``."""
-    from layercam.visibility import clip_levels
+    from layercam.core.visibility import clip_levels
 
     if "clip_levels" not in ctx.results:
         ctx.results["clip_levels"] = clip_levels(ctx.clip.frames)
@@ -310,7 +310,7 @@ def ctx_clip_levels(ctx: Context) -> np.ndarray:
 
 
 def model_meta(ctx: Context) -> dict:
-    """What :func:`layercam.checkpoint.build_model` needs besides the config, saved with the model."""
+    """What :func:`layercam.engine.checkpoint.build_model` needs besides the config, saved with the model."""
     b = ctx.results["bootstrap"]
     e = ctx.exposures
     return {

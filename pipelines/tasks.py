@@ -9,10 +9,12 @@ from pathlib import Path
 
 import numpy as np
 
-from layercam import analyse, distributed
-from layercam.config import validate
-from layercam.resolve import format_table, resolve
-from layercam.errors import LayercamError
+from layercam.vision import analyse
+
+from layercam.engine import distributed
+from layercam.core.config import validate
+from layercam.engine.resolve import format_table, resolve
+from layercam.core.errors import LayercamError
 from layercam.io.lock import run_lock
 from layercam.pipelines import publish
 from layercam.pipelines.export import ExportStage
@@ -36,12 +38,12 @@ def run_task(task: str, clip, exposures, cfg, run_dir: Path, masks=None, progres
              window: int | None = None, ray: str | None = None) -> Context:
     """Analyse ``clip``, run the task's stages (and ``extra_stages``, e.g. an evaluate stage) into
     ``run_dir`` and write ``report.json``. After the flow, the settings are resolved once
-    (:func:`layercam.resolve.resolve`: each ``auto`` decided from what the analysis measured, values
+    (:func:`layercam.engine.resolve.resolve`: each ``auto`` decided from what the analysis measured, values
     set are kept: ``--layers`` etc.) into ``ctx.resolved``, which every later stage reads.
     ``train_callbacks``: functions of the model that return more trainer callbacks (the benchmark's
     quality probe). ``window``: a video's windows (``pipelines/windows.py``): None as the analysis
     decides, 0 none, N frames each; ``ray``: a Ray cluster (``auto`` or an address) that trains the
-    windows (``layercam.cluster``)."""
+    windows (``layercam.engine.cluster``)."""
     t0 = time.perf_counter()
     validate(cfg)
     ctx = Context(run_dir=Path(run_dir), clip=clip, exposures=exposures, cfg=cfg, task=task, masks=masks, progress=progress, train_callbacks=list(train_callbacks or []))
@@ -50,7 +52,7 @@ def run_task(task: str, clip, exposures, cfg, run_dir: Path, masks=None, progres
         ctx.warn(w)
     stages = stages_for(task) + list(extra_stages or [])
     if ray:
-        from layercam import cluster
+        from layercam.engine import cluster
 
         cluster.available()  # before any work
     evaluated = bool(extra_stages or train_callbacks)  # the demo and the benchmark score one model of the whole clip

@@ -9,7 +9,7 @@ once: window 0 trains as a single model would, and the others start from its ton
 its learned exposure ratios, ``--exposures alt`` without ``--ev-step``) and hold them fixed, so
 that every window renders through the same response curve and exposures (the train stage's key
 names window 0's training, :func:`hold_camera`). Window 0 runs first; the others do not depend on
-one another (``--ray``: tasks on a Ray cluster, ``layercam.cluster``).
+one another (``--ray``: tasks on a Ray cluster, ``layercam.engine.cluster``).
 
 The windows' outputs are then joined by the ``windows`` stage (:class:`WindowsStage`): in the
 overlap of windows ``k`` and ``k + 1`` (frames ``a_(k+1) .. b_k - 1``) each frame is the linear
@@ -32,9 +32,9 @@ from pathlib import Path
 
 import numpy as np
 
-from layercam.config import config_hash
-from layercam.errors import LayercamError
-from layercam.interrupts import reached
+from layercam.core.config import config_hash
+from layercam.core.errors import LayercamError
+from layercam.core.interrupts import reached
 from layercam.pipelines.runner import Context, Stage, run_stages, write_json
 
 # Frames that two neighbouring windows share and cross-fade over (fewer for windows under three
@@ -130,9 +130,9 @@ def atlas_px(homs: np.ndarray, a: int, b: int, hw: tuple[int, int]) -> float:
     per pixel (what :func:`layercam.scene.layered.derived_sizes` sizes the atlas grid by): the frames mapped as the
     bootstrap maps them (the pair homographies ``homs`` in frame pixels, ``t -> t + 1``, chained to
     the middle frame; the identity where they move no corner by ``STATIC_CORNER_PX``), fitted into
-    the atlas (:func:`layercam.geometry.atlas_mappings`), measured by
-    :func:`layercam.geometry.atlas_pixels`; inf where the chain degenerates."""
-    from layercam.geometry import STATIC_CORNER_PX, atlas_mappings, atlas_pixels, chain_homographies, max_corner_shift, middle_frame
+    the atlas (:func:`layercam.core.geometry.atlas_mappings`), measured by
+    :func:`layercam.core.geometry.atlas_pixels`; inf where the chain degenerates."""
+    from layercam.core.geometry import STATIC_CORNER_PX, atlas_mappings, atlas_pixels, chain_homographies, max_corner_shift, middle_frame
 
     h, w = hw
     with np.errstate(all="ignore"):
@@ -161,7 +161,7 @@ def plan(clip, exposures, flow: dict | None, task: str, window=None) -> Plan:
     :func:`overlap_for` (a frame larger than the grid alone: as much as one frame needs; a window
     never shorter than three overlaps). A static camera's clip fits at any length.
     """
-    from layercam.flow import rescale_homographies
+    from layercam.vision.flow import rescale_homographies
     from layercam.scene.layered import GRID_RES_RANGE
 
     GRID_MAX_RES = GRID_RES_RANGE[1]
@@ -342,7 +342,7 @@ def run_all(ctx: Context, p: Plan, ray: str | None = None) -> list[dict]:
     todo = specs(ctx, p)
     runner = None
     if ray:
-        from layercam import cluster
+        from layercam.engine import cluster
 
         runner = cluster.Runner(ray, ctx.say)
         ctx.results["ray"] = runner.describe
@@ -449,8 +449,8 @@ class WindowsStage(Stage):
             yield t, acc
 
     def _hdr(self, ctx, out, dirs, gains) -> dict:
-        from layercam import render
-        from layercam.colour import REC709, luma
+        from layercam.scene import render
+        from layercam.core.colour import REC709, luma
         from layercam.io import VideoWriter, read_exr
         from layercam.pipelines.export import FIRST_PASS_PIXELS, HALF_MAX, HdrSet, _fps
 

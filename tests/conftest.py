@@ -72,7 +72,7 @@ def two_layer_run(tmp_path_factory):
     """A tiny two-layer hdr-video run on ``synth.moving_object`` (48x48, 6 frames) with the foreground
     found by motion segmentation (no masks given); shared by tests/test_layers.py and test_edit.py."""
     from layercam import synth
-    from layercam.config import load_config
+    from layercam.core.config import load_config
     from layercam.io import Exposures
     from layercam.pipelines.tasks import run_task
 
@@ -87,13 +87,13 @@ def two_layer_run(tmp_path_factory):
 
 def decided(cfg=None, h0=None, frame_hw=(16, 16), static: bool = False, *, layers=1, tone_mapper="learned", exposures="given", blur="off", max_offset=5.0, flow_loss=True):
     """``cfg`` (default: the fast preset) with the model chosen by hand, as the analysis would write
-    it, resolved (:func:`layercam.resolve.resolve`) for a clip of the bootstrap mappings' ``h0 (L, T,
+    it, resolved (:func:`layercam.engine.resolve.resolve`) for a clip of the bootstrap mappings' ``h0 (L, T,
     3, 3)`` frames (default: identity, one per layer, 2 frames) of size ``frame_hw``, the camera
     ``static`` or not: ready for ``ImplicitCameraModel``."""
     import dataclasses
 
-    from layercam.config import load_config, model_overrides
-    from layercam.resolve import resolve
+    from layercam.core.config import load_config, model_overrides
+    from layercam.engine.resolve import resolve
 
     cfg = (load_config("fast") if cfg is None else cfg).copy()
     for item in model_overrides(layers, tone_mapper, blur, max_offset, flow_loss) + [f"model.exposures={exposures}"]:

@@ -15,7 +15,7 @@ import torch
 from hypothesis import HealthCheck, settings, strategies as st
 from hypothesis.extra import numpy as hnp
 
-from layercam.config import SceneConfig
+from layercam.core.config import SceneConfig
 
 
 _EXPLORE = bool(os.environ.get("LAYERCAM_EXPLORE"))

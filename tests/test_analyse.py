@@ -8,13 +8,13 @@ import numpy as np
 import pytest
 import torch
 
-from layercam import analyse, flow
-from layercam.checkpoint import load_run_model
-from layercam.config import AUTO, load_config, model_overrides
-from layercam.errors import LayercamError
-from layercam.geometry import atlas_pixels
+from layercam.vision import analyse, flow
+from layercam.engine.checkpoint import load_run_model
+from layercam.core.config import AUTO, load_config, model_overrides
+from layercam.core.errors import LayercamError
+from layercam.core.geometry import atlas_pixels
 from layercam.io import Clip, Exposures
-from layercam.model import ImplicitCameraModel
+from layercam.scene.model import ImplicitCameraModel
 
 from conftest import decided, scaled_h0
 
@@ -214,7 +214,7 @@ def test_robust_colour_loss_only_for_an_exposure_bracket():
     """``loss.robust = auto``: the Cauchy scale for a stack without a blur generator (its shots come
     from different moments), MSE for a focus stack (its PSFs are fitted by the errors at edges) and
     for videos; a value given is kept."""
-    from layercam import analyse
+    from layercam.vision import analyse
 
     frames = _bracket(_texture(64, 64, 3), (-2.0, 0.0, 2.0))
     ex = Exposures(np.array([-2.0, 0.0, 2.0]), "none", None, "times", "given")
@@ -233,7 +233,7 @@ def test_robust_colour_loss_only_for_an_exposure_bracket():
 def test_a_pair_with_few_comparable_tiles_says_nothing_about_blur(monkeypatch):
     """One pair with 6 comparable tiles, 5 of them blurrier, among pairs of 37 tiles that agree: no
     blur measured (it chose a blur generator for a sharp composite); alone, the same pair counts."""
-    from layercam import sharpness
+    from layercam.vision import sharpness
 
     tiles = {0: np.zeros(37), 1: np.array([0.0, 1.5, 1.6, 1.7, 1.8, 1.9]), 2: np.zeros(37)}
     monkeypatch.setattr(sharpness, "pair_relative_blur", lambda a, b, h, m: tiles[int(a[0, 0, 0])])
@@ -248,7 +248,7 @@ def test_blur_in_one_pair_of_many_is_not_a_blur_generator(monkeypatch):
     """One pair of four at 6 of 13 tiles blurrier (a sharp composite under balanced's flow chose a
     3x3 blur generator from it), the others sharp: no blur generator; the same in two pairs: one;
     a clip of two frames (one pair) still gets one from its only pair."""
-    from layercam import sharpness
+    from layercam.vision import sharpness
 
     lone = np.array([0.0] * 7 + [1.5] * 6)
     tiles = {0: np.zeros(13), 1: lone, 2: np.zeros(13), 3: np.zeros(13)}
@@ -295,8 +295,8 @@ def test_real_static_brackets_are_one_sharp_layer(shared_data, tmp_path):
     """A registered, static 3-shot bracket (bracket_taipei 16 s / 2 s / 1/4 s; the frobisher JPEGs
     with EXIF) is one layer without a blur generator, and its homographies move no corner by the
     static threshold (the bootstrap then registers it by the identity, no residual warp)."""
-    from layercam.geometry import chain_homographies, max_corner_shift
-    from layercam.geometry import STATIC_CORNER_PX
+    from layercam.core.geometry import chain_homographies, max_corner_shift
+    from layercam.core.geometry import STATIC_CORNER_PX
 
     d = shared_data / "bracket_taipei"
     times = dict(line.split()[:2] for line in (d / "image_list.txt").read_text().splitlines() if line.strip() and not line.startswith("#"))
@@ -333,7 +333,7 @@ def test_real_moving_person_keeps_two_layers(shared_data):
 def test_static_camera_holds_the_background_still():
     """A static camera (``Resolved.static``) holds the background layer still when there are two
     layers; a moving camera leaves it free; one layer keeps no residual warp instead."""
-    from layercam.resolve import resolve
+    from layercam.engine.resolve import resolve
 
     two = load_config("fast", ["model.layers=2"])
     assert resolve(two, frames=24, hw=(64, 64), measures={"corner_shift_px": 0.2}).still_background
@@ -345,7 +345,7 @@ def test_static_camera_holds_the_background_still():
 
 
 def _cap(preset, sets, frames, hw):
-    from layercam.resolve import resolve
+    from layercam.engine.resolve import resolve
 
     return resolve(load_config(preset, ["model.layers=1", "model.blur=off"] + list(sets)), frames=frames, hw=hw).settings
 
@@ -355,7 +355,7 @@ def test_short_stack_trains_fewer_steps():
     the floor's model (analyse.FLOOR) whatever the preset; a 48-frame clip keeps its steps;
     train.passes_per_frame=0 turns the cap off (paper's default); a larger stack is capped above
     the floor and keeps the preset's batch."""
-    from layercam.resolve import resolve
+    from layercam.engine.resolve import resolve
 
     cfg = _cap("balanced", [], 3, (256, 256))
     assert (cfg.train.steps, cfg.train.bootstrap_steps, cfg.train.batch) == (300, 150, 4096)

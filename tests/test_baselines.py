@@ -1,10 +1,16 @@
-"""Tests for layercam.baselines (classical HDR / focus-fusion comparisons)."""
+"""Tests for layercam.bench.baselines (classical HDR / focus-fusion comparisons)."""
 
 import numpy as np
 import pytest
 
-from layercam import baselines, flow, metrics, synth
-from layercam.errors import LayercamError
+from layercam.bench import baselines
+
+from layercam.vision import flow
+
+from layercam.core import metrics
+
+from layercam import synth
+from layercam.core.errors import LayercamError
 
 
 @pytest.fixture(scope="module")

@@ -10,7 +10,7 @@ import json
 import numpy as np
 import pytest
 
-from layercam.bench import run_analysis_table, speedups, time_to_reach
+from layercam.bench.synthetic import run_analysis_table, speedups, time_to_reach
 from layercam.cli import main
 
 

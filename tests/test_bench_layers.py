@@ -1,4 +1,4 @@
-"""``layercam bench --table layers`` (layercam.bench_layers): alpha against true masks on real clips."""
+"""``layercam bench --table layers`` (layercam.bench.layers): alpha against true masks on real clips."""
 
 from __future__ import annotations
 
@@ -7,9 +7,9 @@ import json
 import numpy as np
 import pytest
 
-from layercam import bench_layers
-from layercam.errors import LayercamError
-from layercam.viz import error_overlay
+from layercam.bench import layers as bench_layers
+from layercam.core.errors import LayercamError
+from layercam.bench.viz import error_overlay
 
 
 def test_mask_ious_and_error_overlay():

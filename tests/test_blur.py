@@ -300,8 +300,8 @@ def test_t_blur_interpolates_between_frames():
 
 
 def test_in_model():
-    from layercam.config import Config
-    from layercam.model import ImplicitCameraModel
+    from layercam.core.config import Config
+    from layercam.scene.model import ImplicitCameraModel
 
     from conftest import decided
 

@@ -1,4 +1,4 @@
-"""layercam.bt2100 against the standards' reference values (SMPTE ST 2084, ARIB STD-B67 / ITU-R
+"""layercam.core.bt2100 against the standards' reference values (SMPTE ST 2084, ARIB STD-B67 / ITU-R
 BT.2100, BT.2087, BT.2390, BT.2408)."""
 
 from __future__ import annotations
@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from layercam import bt2100 as b
+from layercam.core import bt2100 as b
 
 
 @pytest.mark.parametrize("nits, signal", [(0.0, 0.0), (0.1, 0.0623), (1.0, 0.1499), (100.0, 0.5081), (203.0, 0.5807), (1000.0, 0.7518), (4000.0, 0.9026), (10000.0, 1.0)])

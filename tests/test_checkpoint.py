@@ -11,11 +11,11 @@ import numpy as np
 import pytest
 import torch
 
-from layercam.checkpoint import FORMAT, load_run_model, save_run_model
+from layercam.engine.checkpoint import FORMAT, load_run_model, save_run_model
 from layercam.cli import main
-from layercam.config import load_config
-from layercam.errors import LayercamError
-from layercam.model import ImplicitCameraModel
+from layercam.core.config import load_config
+from layercam.core.errors import LayercamError
+from layercam.scene.model import ImplicitCameraModel
 
 from conftest import decided, scaled_h0
 

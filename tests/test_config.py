@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from layercam.cli import main
-from layercam.config import AUTO, Config, SECTIONS, config_from_dict, load_config, model_overrides, preset_names, validate
-from layercam.errors import LayercamError
+from layercam.core.config import AUTO, Config, SECTIONS, config_from_dict, load_config, model_overrides, preset_names, validate
+from layercam.core.errors import LayercamError
 
 
 @pytest.mark.parametrize("name", preset_names())
@@ -103,11 +103,11 @@ SEGMENT_BUDGET = 10  # issue 39: the segment section's share
 
 def test_the_settings_stay_within_their_budget_and_each_says_what_it_trades():
     """Every setting a user can change (the preset, ``--set section.key``) counts; each carries a
-    comment in layercam/config.py saying what it trades."""
+    comment in layercam/core/config.py saying what it trades."""
     import dataclasses
     import inspect
 
-    from layercam import config
+    from layercam.core import config
 
     fields = [(sec, f.name) for sec in SECTIONS if sec != "segment" for f in dataclasses.fields(getattr(Config(), sec))]
     assert len(fields) + 1 + SEGMENT_BUDGET <= SETTINGS_BUDGET, len(fields) + 1  # + the preset; the segment section's own budget: issue 39

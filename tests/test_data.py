@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from layercam.data import PixelSampler, compact_frames
+from layercam.engine.sampler import PixelSampler, compact_frames
 
 
 def test_8bit_frames_are_held_as_uint8_and_read_back_exactly():

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from layercam import detect, segment
-from layercam.config import load_config
-from layercam.errors import LayercamError
+from layercam.core.config import load_config
+from layercam.core.errors import LayercamError
 
 
 def test_pick_instances_takes_the_whole_object_where_the_motion_masks_hold_part_of_it():
@@ -69,7 +69,7 @@ def test_the_bootstrap_runs_a_detector_file_and_says_what_it_took(random_maskrcn
     """Through ``foreground_bootstrap``: the file loads, each frame's instances come back at the
     frame's size above the score, and the masks are the motion masks except in the frames the
     detector's instances replaced, which the info counts."""
-    from layercam import flow
+    from layercam.vision import flow
     from tests.test_segment import _square_clip
 
     frames, _, _ = _square_clip(T=4, size=48, side=14)

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 import torch
 
-from layercam.config import load_config
-from layercam.errors import LayercamError
+from layercam.core.config import load_config
+from layercam.core.errors import LayercamError
 from layercam.pipelines.stages import device_line, device_of
 from layercam.pipelines.tasks import run_task
 
@@ -44,10 +44,10 @@ def test_a_run_says_where_it_trains(tiny_scene, tiny_exposures, tmp_path):
 
 
 def _tiny_trainer(device: str, autocast: str = "none", steps: int = 30):
-    from layercam.data import PixelSampler
-    from layercam.model import ImplicitCameraModel
+    from layercam.engine.sampler import PixelSampler
+    from layercam.scene.model import ImplicitCameraModel
     from layercam.synth import pan_hdr
-    from layercam.train import Trainer
+    from layercam.engine.train import Trainer
 
     scene = pan_hdr(frames=3, size=(24, 24), seed=2)
     h0 = np.tile(np.diag([0.4, 0.4, 1.0])[None, None], (1, 3, 1, 1))  # the frames span 60 px of the atlas: a 64^2 level, trained sparsely
@@ -83,7 +83,7 @@ def test_bf16_autocast_trains_on_the_cpu():
 def test_interrupted_and_resumed_training_ends_where_one_run_ends(tmp_path, monkeypatch):
     """Ctrl-C and the same command again give the model one uninterrupted run gives: the sparse grid
     levels' row-wise Adam state (moments, each row's last step) is saved and restored with the checkpoint."""
-    from layercam import interrupts
+    from layercam.core import interrupts
 
     whole = _tiny_trainer("cpu", steps=30)
     whole.fit()
@@ -105,8 +105,8 @@ def test_a_finished_trainings_checkpoint_keeps_the_model_not_the_optimiser(tmp_p
     the tiny model: they are two more copies of the parameters); one taken mid-training keeps
     them. A training started again on it resumes at its end with the same model, and training on
     to more steps from it is one clear error."""
-    from layercam import interrupts
-    from layercam.errors import LayercamError
+    from layercam.core import interrupts
+    from layercam.core.errors import LayercamError
 
     mid = _tiny_trainer("cpu", steps=30)
     mid.ckpt_path = tmp_path / "mid.pt"

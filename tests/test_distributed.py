@@ -51,7 +51,7 @@ def _argv(frames: Path, out: Path) -> list[str]:
 
 def _psnr_mu(run: Path, scene) -> float:
     from layercam.io import read_exr
-    from layercam.metrics import hdr_metrics
+    from layercam.core.metrics import hdr_metrics
 
     pred = np.stack([read_exr(p) for p in sorted((run / "hdr").glob("frame_*.exr"))])
     assert pred.shape == scene.hdr.shape
@@ -98,8 +98,8 @@ def test_two_gloo_processes_match_one_and_resume(tmp_path, tiny_scene):
 
 
 def test_ranks_draw_different_pixels_and_resume_their_own_stream(tiny_scene):
-    from layercam import distributed
-    from layercam.data import PixelSampler
+    from layercam.engine import distributed
+    from layercam.engine.sampler import PixelSampler
 
     frames = tiny_scene.clip.frames
     a = PixelSampler(frames, seed=0)

@@ -15,8 +15,8 @@ def _paint_on_object(run, scene, out_png, colour=(0.1, 0.2, 1.0)):
     """Paints a disc of ``colour`` on the exported layer-1 atlas where the object's centre maps in frame 0."""
     import cv2
 
-    from layercam.checkpoint import load_run_model
-    from layercam.render import render_frame
+    from layercam.engine.checkpoint import load_run_model
+    from layercam.scene.render import render_frame
 
     model, meta = load_run_model(run)
     hw = tuple(meta["frame_hw"])
@@ -51,8 +51,8 @@ def test_edit_moves_with_the_object(two_layer_run, tmp_path):
 
     c0, c1 = scene.meta["object_centre"][0], scene.meta["object_centre"][T - 1]
     assert np.hypot(*(c1 - c0)) > 10  # two distant frames: the object has moved well over its radius
-    from layercam.checkpoint import load_run_model
-    from layercam.render import render_frame
+    from layercam.engine.checkpoint import load_run_model
+    from layercam.scene.render import render_frame
 
     model, _ = load_run_model(run)
     for t in (0, T - 1):
@@ -91,8 +91,8 @@ def test_edit_refuses_overwrite_bad_layer_and_empty_edits(two_layer_run, tmp_pat
 
 
 def test_inverse_tone_round_trip(two_layer_run):
-    from layercam.checkpoint import load_run_model
-    from layercam.render import inverse_tone, tone_map_log2
+    from layercam.engine.checkpoint import load_run_model
+    from layercam.scene.render import inverse_tone, tone_map_log2
 
     model, _ = load_run_model(two_layer_run["run"])
     rgb = np.random.default_rng(0).uniform(0.05, 0.95, (50, 3)).astype(np.float32)

@@ -7,8 +7,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from layercam.config import load_config
-from layercam.errors import LayercamError
+from layercam.core.config import load_config
+from layercam.core.errors import LayercamError
 from layercam.io import Clip, Exposures, read_exr
 from layercam.pipelines.export import TASK_WRITERS, outputs_for, writers_for
 from layercam.pipelines.tasks import run_task
@@ -39,7 +39,7 @@ def test_export_writes_float32_when_irradiance_exceeds_half(tmp_path):
 
 
 def test_export_refuses_non_finite_render(tiny_scene, tiny_exposures, tmp_path, monkeypatch):
-    import layercam.render as render
+    import layercam.scene.render as render
 
     real = render.render_frame
 

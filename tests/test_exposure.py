@@ -9,7 +9,7 @@ from hypothesis import given, strategies as st
 from hypothesis.extra import numpy as hnp
 
 from layercam.camera.exposure import EV_BOUND, ExposureField
-from layercam.errors import LayercamError
+from layercam.core.errors import LayercamError
 from layercam.io import Clip, Exposures, load_clip, parse_exposures
 
 from props import EV, _finite, props

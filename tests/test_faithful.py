@@ -6,7 +6,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from layercam import faithful, visibility
+from layercam.camera import faithful
+
+from layercam.core import visibility
 
 
 def _textured(h=48, w=48, seed=0):
@@ -47,9 +49,9 @@ def test_export_agrees_with_the_frame_where_the_model_is_wrong(tiny_scene, tiny_
     """A tiny trained run; a patch of one frame replaced by content no frame has: the faithful HDR of
     that frame follows the patch (through the inverse camera), the model's does not; the frame's
     clipped and floor channels bound it."""
-    from layercam.config import load_config
+    from layercam.core.config import load_config
     from layercam.pipelines.tasks import run_task
-    from layercam.render import inverse_tone
+    from layercam.scene.render import inverse_tone
 
     from conftest import TINY
 
@@ -115,7 +117,7 @@ def test_merge_takes_neighbours_that_agree_and_leaves_a_ghost_to_the_frame():
     z_t = z + rng.normal(0, 0.05, z.shape).astype(np.float32)  # the short frame's noisier measurement
     z_n = z + rng.normal(0, 0.01, z.shape).astype(np.float32)
     z_n[16:32, 16:32] += 2.0  # the neighbour saw something else here
-    from layercam.render import tone_map_log2
+    from layercam.scene.render import tone_map_log2
 
     frame = tone_map_log2(cam, z_t, 0.0)
     a_t = faithful.merge_weight(faithful.exposure_weight(frame), 0.0, [0.0, 3.0])

@@ -1,10 +1,12 @@
-"""Tests for layercam.flow (DIS flow across exposures, warping, consistency, global motion)."""
+"""Tests for layercam.vision.flow (DIS flow across exposures, warping, consistency, global motion)."""
 
 import numpy as np
 import pytest
 
-from layercam import flow, synth
-from layercam.errors import LayercamError
+from layercam.vision import flow
+
+from layercam import synth
+from layercam.core.errors import LayercamError
 
 
 def _epe_in_view(fw, gt):
@@ -118,7 +120,7 @@ def test_small_frames_keep_a_moving_object(method):
 
 @pytest.mark.parametrize("hw", [(1, 1), (2, 3), (5, 7), (11, 40)])
 def test_flow_on_frames_smaller_than_dis_patches(hw):
-    from layercam.flow import compute_flow
+    from layercam.vision.flow import compute_flow
 
     frames = np.random.default_rng(0).random((3, *hw, 3)).astype(np.float32)
     fw, bw = compute_flow(frames, method="dis_fast", progress=False)
@@ -126,7 +128,7 @@ def test_flow_on_frames_smaller_than_dis_patches(hw):
 
 
 def test_working_size_scales_the_short_side_only_when_longer():
-    from layercam.flow import working_size
+    from layercam.vision.flow import working_size
 
     assert working_size((1080, 1920), 540) == (540, 960)
     assert working_size((480, 854), 540) == (480, 854) and working_size((1080, 1920), 0) == (1080, 1920)
@@ -135,7 +137,7 @@ def test_working_size_scales_the_short_side_only_when_longer():
 def test_flow_at_a_working_size_reads_back_at_the_frames_size():
     """A zoom-and-shift homography, measured on half-size frames, is the full-size one once rescaled;
     a half-size flow upsamples to the full-size flow of the same motion."""
-    from layercam.flow import at_frame_size, pixel_scaling, rescale_homographies
+    from layercam.vision.flow import at_frame_size, pixel_scaling, rescale_homographies
 
     full = np.array([[1.02, 0.0, 3.0], [0.0, 1.02, -2.0], [0.0, 0.0, 1.0]])
     a = pixel_scaling((20, 30), (40, 60))  # full-size pixels -> half-size pixels

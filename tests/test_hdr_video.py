@@ -93,7 +93,7 @@ def test_hdr_mp4_decodes_back_to_the_exrs_radiance(hdr_run):
     """Decoded (10-bit) and through the inverse PQ, hdr.mp4 is the EXRs' radiance times the one
     scale of the anchoring, in BT.2020: within 2% median error of the luminance on the well-exposed
     pixels (from 4 stops under diffuse white up to where the highlights' roll-off starts)."""
-    from layercam.bt2100 import eetf, primaries_matrix
+    from layercam.core.bt2100 import eetf, primaries_matrix
 
     rep = json.loads((hdr_run / "report.json").read_text())["export"]["hdr_video"]
     light, _ = read_hdr_video(hdr_run / "hdr.mp4")
@@ -164,7 +164,7 @@ exec "{real}" "$@"
 
 
 def test_the_mapping_puts_diffuse_white_at_203_nits_and_rolls_highlights_off():
-    from layercam import bt2100
+    from layercam.core import bt2100
     from layercam.io.hdr_video import HdrMapping
 
     white = np.full((1, 1, 3), 2.5, np.float32)  # the radiance named diffuse white

@@ -3,7 +3,7 @@ the atlases or publishing, then the same command again: it finishes, and its out
 a run that was never interrupted (identical EXR arrays). Over a finished run, the top of the run
 folder stays one consistent set throughout; switching settings A -> B -> A puts A's outputs back.
 
-The interruption comes from the ``LAYERCAM_SIGNAL_AT="where:i:SIG"`` hook (layercam/interrupts.py):
+The interruption comes from the ``LAYERCAM_SIGNAL_AT="where:i:SIG"`` hook (layercam/core/interrupts.py):
 the process signals itself when it reaches item ``i`` of ``where``, so the point is exact and does
 not depend on timing. SIGKILL runs are subprocesses; Ctrl-C runs go through ``main`` in this process.
 """

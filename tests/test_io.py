@@ -11,7 +11,7 @@ import pytest
 from hypothesis import given, strategies as st
 from hypothesis.extra import numpy as hnp
 
-from layercam.errors import LayercamError
+from layercam.core.errors import LayercamError
 from layercam.io import Clip, atomic_write, ensure_writable_dir, load_clip, read_exr, read_image, read_video, write_exr, write_png, write_video
 from layercam.io.images import read_exif_exposure
 

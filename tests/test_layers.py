@@ -9,7 +9,7 @@ import shutil
 import numpy as np
 import torch
 
-from layercam import metrics
+from layercam.core import metrics
 from layercam.io import read_exr, read_image, read_video
 
 
@@ -100,9 +100,9 @@ def test_changed_export_setting_sets_earlier_atlases_aside(two_layer_run, tmp_pa
 
 
 def test_one_layer_atlas_export_has_no_alpha(tmp_path):
-    from layercam.config import load_config
+    from layercam.core.config import load_config
     from layercam.pipelines.atlas_export import export_atlases
-    from layercam.checkpoint import build_model
+    from layercam.engine.checkpoint import build_model
 
     from conftest import decided
 
@@ -120,7 +120,7 @@ def test_one_layer_atlas_export_has_no_alpha(tmp_path):
 
 
 def test_flow_loss_counts_each_layer_where_it_is_seen():
-    from layercam.model import ImplicitCameraModel
+    from layercam.scene.model import ImplicitCameraModel
 
     ok = torch.tensor([True, True, False])
     alpha = torch.tensor([[0.0], [0.75], [1.0]])

@@ -16,7 +16,7 @@ from pathlib import Path
 import pytest
 
 from layercam.cli import main
-from layercam.errors import LayercamError
+from layercam.core.errors import LayercamError
 from layercam.io.lock import LOCK_NAME, lock_owner, run_lock
 
 from conftest import tiny_argv

@@ -1,4 +1,4 @@
-"""Tests of layercam.losses: pure loss terms, finite on degenerate inputs; the one-sided colour loss
+"""Tests of layercam.engine.losses: pure loss terms, finite on degenerate inputs; the one-sided colour loss
 on clipped pixels."""
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ import torch
 from hypothesis import given, strategies as st
 from hypothesis.extra import numpy as hnp
 
-from layercam import losses
+from layercam.engine import losses
 from layercam.camera.tone import ToneMapper
 
 from props import DTYPES, _finite, props

@@ -8,7 +8,7 @@ import cv2
 import numpy as np
 import pytest
 
-from layercam.errors import LayercamError
+from layercam.core.errors import LayercamError
 from layercam.io import Clip, load_clip
 from layercam.io.masks import list_masks, load_masks
 

@@ -1,10 +1,10 @@
-"""Tests for layercam.metrics."""
+"""Tests for layercam.core.metrics."""
 
 import numpy as np
 import pytest
 
-from layercam import metrics
-from layercam.errors import LayercamError
+from layercam.core import metrics
+from layercam.core.errors import LayercamError
 
 
 def _hdr(seed=0, shape=(2, 24, 24, 3)):
@@ -108,7 +108,7 @@ def test_iou():
 
 
 def test_highlight_psnr_mu_restricts_psnr_mu_to_the_mask():
-    from layercam import metrics
+    from layercam.core import metrics
 
     rng = np.random.default_rng(0)
     gt = rng.random((2, 8, 8, 3)).astype(np.float32) * 4

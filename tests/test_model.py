@@ -9,9 +9,9 @@ import pytest
 import torch
 from hypothesis import given, strategies as st
 
-from layercam.config import load_config
-from layercam.errors import LayercamError
-from layercam.model import ALPHA_FLOW, ImplicitCameraModel, LossWeights
+from layercam.core.config import load_config
+from layercam.core.errors import LayercamError
+from layercam.scene.model import ALPHA_FLOW, ImplicitCameraModel, LossWeights
 
 from conftest import TINY, decided, scaled_h0
 from props import EV, _autocast, _finite, _grads_finite, props
@@ -140,8 +140,8 @@ def test_blur_group_carries_the_warmup():
     blur=st.sampled_from(["off", "3x3"]), target=st.sampled_from(["black", "white", "random"]), autocast=st.sampled_from(["none", "bf16"]),
 )
 def test_model_loss_terms_and_gradients_finite(ev, layers, robust, blur, target, autocast):
-    from layercam.config import load_config
-    from layercam.model import ImplicitCameraModel
+    from layercam.core.config import load_config
+    from layercam.scene.model import ImplicitCameraModel
 
     from conftest import decided
 
@@ -194,7 +194,7 @@ def test_loss_terms_do_not_read_the_global_rng():
     checkpoint): the tone mapper's monotonicity term probes at the batch's own draws, so the terms
     are the same whatever the global RNG holds. It used ``torch.rand``: a resumed ``fuse-stack``
     run drifted from an uninterrupted one (up to 2 stops in the fused EXR) once that term woke."""
-    from layercam.data import PixelSampler
+    from layercam.engine.sampler import PixelSampler
 
     model = _model(layers=1, flow_loss=False)
     with torch.no_grad():  # a tone curve that falls somewhere, so that the term is not 0

@@ -1,4 +1,4 @@
-"""Long-range motion evidence (layercam.motion): slow objects add up over frames; parallax of near
+"""Long-range motion evidence (layercam.vision.motion): slow objects add up over frames; parallax of near
 background that runs off the frame is explained by the epipolar model, the moving object is not."""
 
 from __future__ import annotations
@@ -6,7 +6,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from layercam import flow, metrics, motion, segment
+from layercam.vision import flow, motion
+
+from layercam.core import metrics
+
+from layercam import segment
 
 
 def _texture(rng, h, w, sigma=1.5):

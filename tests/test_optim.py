@@ -1,4 +1,4 @@
-"""layercam.optim.Adam: torch's Adam for dense gradients, lazy rows for sparse ones."""
+"""layercam.engine.optim.Adam: torch's Adam for dense gradients, lazy rows for sparse ones."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import copy
 import pytest
 import torch
 
-from layercam.optim import Adam, coalesce_rows
+from layercam.engine.optim import Adam, coalesce_rows
 
 
 def _pair(sparse_rows: int = 6, seed: int = 0):

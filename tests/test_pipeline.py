@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from hypothesis import example, given, strategies as st
 
-from layercam.config import load_config
+from layercam.core.config import load_config
 from layercam.io import read_exr
 from layercam.pipelines.tasks import run_task
 
@@ -79,7 +79,7 @@ def test_interrupted_training_resumes(tiny_scene, tiny_exposures, tmp_path, monk
 
 
 def test_foreign_files_in_run_folder_are_not_overwritten(tiny_scene, tiny_exposures, tmp_path):
-    from layercam.errors import LayercamError
+    from layercam.core.errors import LayercamError
 
     run = tmp_path / "run"
     run.mkdir()
@@ -137,7 +137,7 @@ def _load_png16(frames: np.ndarray, d: Path, grey: bool):
 )
 def test_end_to_end_tiny_clips_export_finite_hdr_and_monotone_curves(hw, t, content, value, ev, learn, robust, autocast):
     from layercam.io import Clip, Exposures, read_exr
-    from layercam.config import load_config
+    from layercam.core.config import load_config
     from layercam.pipelines.tasks import run_task
 
     frames = _frames("random" if content.endswith("16") else content, t, hw, value)
@@ -160,7 +160,7 @@ def test_end_to_end_tiny_clips_export_finite_hdr_and_monotone_curves(hw, t, cont
             assert img.shape == (*hw, 3) and np.isfinite(img).all() and (img >= 0).all()
         rep = json.loads((d / "run" / "report.json").read_text())
         assert rep["train"]["steps"] == 6 and np.isfinite(rep["train"]["log2_dt"]).all()
-        from layercam.checkpoint import load_run_model
+        from layercam.engine.checkpoint import load_run_model
 
         model, _ = load_run_model(d / "run")
         curve = model.tone.curve(Z).numpy()
@@ -223,7 +223,7 @@ def test_settings_a_b_a_puts_a_back(tiny_scene, tiny_exposures, tmp_path):
 
 def test_flow_at_a_working_size_runs_end_to_end(tiny_scene, tiny_exposures, tmp_path, monkeypatch):
     """Large frames get their flow on smaller copies (flow.WORKING_SHORT_SIDE); the run trains on it."""
-    from layercam import flow
+    from layercam.vision import flow
 
     monkeypatch.setattr(flow, "WORKING_SHORT_SIDE", 16)
     ctx = _run(tiny_scene, tiny_exposures, tmp_path / "run")
@@ -252,7 +252,7 @@ def test_a_stage_key_hashes_the_resolved_settings_it_reads_and_nothing_else():
 
     from layercam.pipelines.runner import settings_read
     from layercam.pipelines.stages import TrainStage
-    from layercam.resolve import resolve
+    from layercam.engine.resolve import resolve
 
     def key(*sets):
         r = resolve(load_config("fast", ["model.layers=1", *sets]), frames=4, hw=(32, 32))
@@ -271,7 +271,7 @@ def test_a_stage_that_fills_the_disk_is_one_error_and_the_run_goes_on_after(tiny
     to there."""
     import errno
 
-    from layercam.errors import LayercamError
+    from layercam.core.errors import LayercamError
     from layercam.pipelines.runner import Stage
 
     class FullDisk(Stage):

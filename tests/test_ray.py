@@ -1,4 +1,4 @@
-"""Ray (``--ray``, layercam/cluster.py): a batch of three tiny jobs and a three-window tiny clip run
+"""Ray (``--ray``, layercam/engine/cluster.py): a batch of three tiny jobs and a three-window tiny clip run
 as tasks on a local Ray instance of 2 CPUs, with outputs identical to the sequential run's.
 Skipped when ``ray`` is not installed (``pip install -e '.[ray]'``)."""
 

@@ -1,4 +1,4 @@
-"""The composite generator (layercam.realsuite.composite) on tiny synthetic material: shapes,
+"""The composite generator (layercam.bench.realsuite.composite) on tiny synthetic material: shapes,
 masks, alternating exposures, and frames that are the ground truth through the camera."""
 
 from __future__ import annotations
@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from layercam.errors import LayercamError
-from layercam.realsuite.composite import CompositeSpec, compose, expose, filmic
+from layercam.core.errors import LayercamError
+from layercam.bench.realsuite.composite import CompositeSpec, compose, expose, filmic
 
 
 def _material(frames=4, seed=0):

@@ -1,11 +1,11 @@
-"""layercam.realsuite.measures: clipped-everywhere pixels, static pixels, flicker, scores."""
+"""layercam.bench.realsuite.measures: clipped-everywhere pixels, static pixels, flicker, scores."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from layercam.realsuite import measures
+from layercam.bench.realsuite import measures
 
 
 def test_unseen_needs_every_exposure_clipped_or_dark():

@@ -1,12 +1,12 @@
-"""layercam.realsuite.table: rows from the jobs' result.json files -> csv and markdown."""
+"""layercam.bench.realsuite.table: rows from the jobs' result.json files -> csv and markdown."""
 
 from __future__ import annotations
 
 import csv
 import json
 
-from layercam.realsuite.cases import CASES
-from layercam.realsuite.table import CSV_FIELDS, collect_rows, write_table
+from layercam.bench.realsuite.cases import CASES
+from layercam.bench.realsuite.table import CSV_FIELDS, collect_rows, write_table
 
 
 def _result(out, case, tag, rows, code="abc1234"):

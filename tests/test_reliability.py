@@ -198,7 +198,7 @@ def test_corpus_size():
 def test_ev_step_against_the_frames(tiny_frames):
     """Issue 18 item 8: the frames measure about 3 EV between neighbours. A step within 2 EV is
     silent; further but within a factor of 2 is said; beyond that refused unless forced."""
-    from layercam.errors import LayercamError
+    from layercam.core.errors import LayercamError
     from layercam.io import load_clip, parse_exposures
 
     clip = load_clip(tiny_frames)

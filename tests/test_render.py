@@ -1,4 +1,4 @@
-"""Tests of layercam.render: the one chunked renderer and the display tonemap."""
+"""Tests of layercam.scene.render: the one chunked renderer and the display tonemap."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ from props import props
 @props(30)
 @given(hdr=hnp.arrays(np.float32, (2, 3, 3, 3), elements=st.one_of(st.sampled_from([0.0, 1e-30, 2.0**-40, 2.0**40, 1e30]), st.floats(0, float(np.float32(1e30)), width=32))))
 def test_display_tonemap_finite_in_unit_interval_brightest_not_darkest(hdr):
-    from layercam.render import tonemap_display
+    from layercam.scene.render import tonemap_display
 
     with np.errstate(over="ignore", invalid="ignore"):
         out, stats = tonemap_display(hdr)
@@ -26,8 +26,8 @@ def test_display_tonemap_finite_in_unit_interval_brightest_not_darkest(hdr):
 def _two_layer_blur_model():
     import torch
 
-    from layercam.config import load_config
-    from layercam.model import ImplicitCameraModel
+    from layercam.core.config import load_config
+    from layercam.scene.model import ImplicitCameraModel
 
     from conftest import TINY, decided
 
@@ -41,8 +41,8 @@ def test_render_frame_outputs_agree_with_each_other_and_the_model():
     import pytest
     import torch
 
-    from layercam.data import pixel_grid
-    from layercam.render import composite_layers, render_frame
+    from layercam.engine.sampler import pixel_grid
+    from layercam.scene.render import composite_layers, render_frame
 
     model = _two_layer_blur_model()
     everything = ("hdr", "log2_r", "layers", "ldr", "uv", "alpha")

@@ -18,7 +18,7 @@ def stack_run(tmp_path_factory):
     """A tiny fuse-stack run on 3 images of a multi-focus multi-exposure stack (one per focus,
     each at another exposure): learned tone mapper and a blur generator."""
     from layercam import synth
-    from layercam.config import load_config
+    from layercam.core.config import load_config
     from layercam.io import Exposures
     from layercam.io.clip import Clip
     from layercam.pipelines.tasks import run_task
@@ -34,7 +34,7 @@ def stack_run(tmp_path_factory):
 
 
 def _load(run):
-    from layercam.checkpoint import load_run_model
+    from layercam.engine.checkpoint import load_run_model
 
     return load_run_model(run)
 
@@ -74,7 +74,7 @@ def test_focus_interpolation_between_training_images(stack_run):
     import torch
 
     from layercam.commands.render import exposure_at, focus_sweep
-    from layercam.data import pixel_grid
+    from layercam.engine.sampler import pixel_grid
 
     run, clip = stack_run
     model, meta = _load(run)

@@ -6,8 +6,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from layercam import flow, metrics, segment, visibility
-from layercam.errors import LayercamError
+from layercam.vision import flow
+
+from layercam.core import metrics, visibility
+
+from layercam import segment
+from layercam.core.errors import LayercamError
 
 
 def _square_clip(T=6, size=64, side=16, seed=0):
@@ -61,7 +65,7 @@ def test_foreground_bootstrap_masks_and_object_mapping(square):
     ious = [metrics.iou(fb["masks"][t] > 0.5, square["masks"][t]) for t in range(len(fb["masks"]))]
     assert np.mean(ious) > 0.5, ious
     # the foreground's own motion: the square's centre lands on (nearly) the same atlas point in every frame
-    from layercam.geometry import normalised_frame_matrix
+    from layercam.core.geometry import normalised_frame_matrix
 
     n = normalised_frame_matrix(64, 64)
     uv = []
@@ -356,7 +360,7 @@ def test_colour_cut_grows_a_half_mask_to_the_object_not_to_its_colours_elsewhere
     after = np.mean([metrics.iou(out[t], truth[t]) for t in range(T)])
     assert before < 0.6 and after > 0.65 and after > before + 0.15, (before, after)
     assert out[patch].mean() < 0.05
-    from layercam.config import SegmentConfig
+    from layercam.core.config import SegmentConfig
 
     ungated = segment.colour_cut(frames, kept, rel, SegmentConfig(colour=1e-6))
     assert ungated[patch].mean() > 0.5
@@ -388,7 +392,7 @@ def test_colour_cut_pays_for_distance_from_the_mask():
     """A post of colours between the object's and the background's, moving (the residual marks
     it), runs from the object to the frame's edges: without the distance cost the cut follows it
     across the frame; with it, the post's far ends stay out and the object stays in."""
-    from layercam.config import SegmentConfig
+    from layercam.core.config import SegmentConfig
 
     frames, masks = _red_object_clip(2, slice(30, 34))  # the object with a stripe of the post's colour
     post = np.zeros_like(masks)
@@ -411,7 +415,7 @@ def test_colour_cut_takes_in_what_the_flow_loses():
     """A head of a colour the background holds a little more of than the object (log-likelihood
     ratio just below 0) beside the mask: by colour alone the cut leaves it out; where the flow
     fails to follow it (a running animal's head) and follows the background, it joins."""
-    from layercam.config import SegmentConfig
+    from layercam.core.config import SegmentConfig
 
     frames, masks = _red_object_clip(3, slice(31, 33))  # the body, in its mask, with a thin grey stripe
     head = np.zeros_like(masks)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from layercam import sharpness
+from layercam.vision import sharpness
 
 
 def _scene(h=128, w=128, seed=0):

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from layercam import synth
-from layercam.errors import LayercamError
+from layercam.core.errors import LayercamError
 
 SMALL = {
     "pan_hdr": dict(frames=4, size=(40, 48)),
@@ -71,7 +71,7 @@ def test_pan_hdr_clipping_and_dynamic_range():
 
 
 def test_true_flow_matches_warp():
-    from layercam.flow import warp
+    from layercam.vision.flow import warp
 
     s = synth.pan_hdr(frames=3, size=(48, 48), seed=2)
     gt = synth.true_flow(s)

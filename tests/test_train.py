@@ -1,4 +1,4 @@
-"""Tests of layercam.train: one loop for every model; the non-finite step guard and its checkpoints
+"""Tests of layercam.engine.train: one loop for every model; the non-finite step guard and its checkpoints
 (on a toy model, exact), the guard in the pipeline (report.json, report_failed.json, resume), and
 parameter groups held until their start."""
 
@@ -11,11 +11,11 @@ import pytest
 import torch
 from torch import nn
 
-from layercam.config import TrainConfig, load_config
-from layercam.errors import LayercamError
+from layercam.core.config import TrainConfig, load_config
+from layercam.core.errors import LayercamError
 from layercam.io import read_exr
 from layercam.pipelines.tasks import run_task
-from layercam.train import Trainer
+from layercam.engine.train import Trainer
 
 from conftest import TINY
 
@@ -163,7 +163,7 @@ def test_divergence_before_any_checkpoint_says_so(tmp_path):
 def test_a_checkpoint_that_cannot_be_written_is_one_clear_error_and_keeps_the_last(tmp_path, monkeypatch):
     """A full disk mid-save (torch's zip writer raises a RuntimeError): a LayercamError naming the
     checkpoint, no temp file left, the previous checkpoint untouched."""
-    from layercam.errors import LayercamError
+    from layercam.core.errors import LayercamError
 
     tr = _trainer(ToyModel(), tmp_path, steps=4)
     tr.fit()
@@ -207,7 +207,7 @@ def test_checkpoint_refuses_non_finite_state_and_final_state_is_checked(tmp_path
 
 
 def _nan_loss_from(monkeypatch, bad_calls):
-    from layercam.model import ImplicitCameraModel
+    from layercam.scene.model import ImplicitCameraModel
 
     real = ImplicitCameraModel.loss_dict
     calls = {"n": 0}
@@ -237,7 +237,7 @@ def test_pipeline_logs_skipped_steps_in_report(tiny_scene, tiny_exposures, tmp_p
 
 def test_pipeline_divergence_writes_failed_report_keeps_checkpoint_and_resumes(tiny_scene, tiny_exposures, tmp_path, monkeypatch):
     cfg = load_config("fast", TINY + ["train.steps=20", "train.checkpoint_every=5"])
-    monkeypatch.setattr("layercam.train.MAX_BAD_STEPS", 4)
+    monkeypatch.setattr("layercam.engine.train.MAX_BAD_STEPS", 4)
     _nan_loss_from(monkeypatch, lambda i: i >= 10)
     with pytest.raises(LayercamError, match="training diverged: 4 non-finite steps in a row at step 13"):
         run_task("hdr-video", tiny_scene.clip, tiny_exposures, cfg, tmp_path / "run", progress=False)
@@ -257,8 +257,8 @@ def test_pipeline_divergence_writes_failed_report_keeps_checkpoint_and_resumes(t
 def test_mask_taper_decays_to_its_floor():
     from types import SimpleNamespace
 
-    from layercam.model import LossWeights
-    from layercam.train import MaskTaper
+    from layercam.scene.model import LossWeights
+    from layercam.engine.train import MaskTaper
 
     for floor, last in ((0.0, 0.0), (1.0, 2.0), (0.25, 0.5)):
         trainer = SimpleNamespace(model=SimpleNamespace(loss_weights=LossWeights(alpha_mask=2.0)), cfg=SimpleNamespace(steps=100))

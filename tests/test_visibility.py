@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from layercam import visibility
+from layercam.core import visibility
 
 
 def _texture(h, w, seed=0):

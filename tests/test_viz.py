@@ -1,11 +1,13 @@
-"""Figures of layercam.viz: built from arrays without pyplot, shapes checked, CRF alignment exact."""
+"""Figures of layercam.bench.viz: built from arrays without pyplot, shapes checked, CRF alignment exact."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from layercam import synth, viz
+from layercam import synth
+
+from layercam.bench import viz
 
 
 def test_align_crf_recovers_a_known_shift_per_channel():

@@ -12,7 +12,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from layercam.colour import srgb_decode, srgb_encode_torch
+from layercam.core.colour import srgb_decode, srgb_encode_torch
 from layercam.scene.encodings import gather_rows
 
 Z_SCALE = 0.125  # MLP input is z / 8: log exposures span about +-20 stops
@@ -26,7 +26,7 @@ def srgb_tone(z: torch.Tensor) -> torch.Tensor:
 
 class ToneMapper(nn.Module):
     """``z (N, 3) -> c (N, 3)`` in ``(0, 1)``; channel ``k`` of ``z`` goes through MLP ``k`` (its
-    slope is kept positive by the paper's gradient loss, :func:`layercam.losses.gradient_loss`).
+    slope is kept positive by the paper's gradient loss, :func:`layercam.engine.losses.gradient_loss`).
     ``lut`` > 0: evaluated on that many knots and interpolated (:meth:`_lut_logits`)."""
 
     def __init__(self, width: int = 64, depth: int = 2, lut: int = 0):

@@ -22,7 +22,7 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from layercam.errors import LayercamError
+from layercam.core.errors import LayercamError
 
 MANIFEST_HELP = """manifest: a CSV file, one job per line (a header line is optional; lines starting with # are comments):
 
@@ -135,8 +135,8 @@ def _head(i: int, n: int, job: Job) -> str:
 
 
 def _run_on_ray(jobs: list[Job], base: Path, args) -> int:
-    """The jobs to run as Ray tasks (``layercam.cluster``), reported as they finish."""
-    from layercam import cluster
+    """The jobs to run as Ray tasks (``layercam.engine.cluster``), reported as they finish."""
+    from layercam.engine import cluster
 
     runner = cluster.Runner(args.ray)
     todo = []

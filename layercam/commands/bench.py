@@ -55,11 +55,11 @@ def _list(s: str | None) -> list[str] | None:
 def run(args) -> int:
     if args.suite == "real":
         return _run_real(args)
-    from layercam.bench import run_analysis_table, run_bench
+    from layercam.bench.synthetic import run_analysis_table, run_bench
 
     out = Path(args.out or "runs/bench")
     if args.table == "scaling":
-        from layercam.bench_scaling import run_scaling
+        from layercam.bench.scaling import run_scaling
 
         rows = run_scaling(out, _list(args.sizes), _list(args.presets), args.frames, args.threads or 2, args.overrides, not args.no_baseline, progress=not args.quiet)
         if not args.quiet:
@@ -68,7 +68,7 @@ def run(args) -> int:
     if args.table == "layers":
         import os
 
-        from layercam.bench_layers import run_layers_table
+        from layercam.bench.layers import run_layers_table
 
         data = Path(args.data or os.environ.get("LAYERCAM_DATA") or "../shared/data")
         rows = run_layers_table(out, data, _list(args.clips), tuple(_list(args.variants) or ()), args.preset, args.resize, args.overrides, args.layers, args.max_frames, args.threads or 1, args.force, progress=not args.quiet)
@@ -90,7 +90,7 @@ def run(args) -> int:
 def _run_real(args) -> int:
     import shlex
 
-    from layercam.realsuite import run_real_suite
+    from layercam.bench.realsuite import run_real_suite
 
     out = Path(args.out or "runs/real")
     cmd = "layercam bench --suite real --out " + shlex.quote(str(out))

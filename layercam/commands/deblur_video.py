@@ -29,7 +29,7 @@ def register(sub) -> argparse.ArgumentParser:
 
 
 def run(args) -> int:
-    from layercam.errors import LayercamError
+    from layercam.core.errors import LayercamError
     from layercam.io import load_clip, parse_exposures
     from layercam.io.masks import load_masks
     from layercam.pipelines.tasks import run_task

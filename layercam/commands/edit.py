@@ -39,7 +39,7 @@ from pathlib import Path
 import numpy as np
 
 from layercam.cli import FPS, number
-from layercam.errors import LayercamError
+from layercam.core.errors import LayercamError
 
 EXAMPLES = """examples:
   cp runs/clip/atlases/layer1.png edited.png        # paint on it in any image editor, keep RGBA
@@ -104,7 +104,7 @@ def read_rgba(path: Path) -> tuple[np.ndarray, np.ndarray]:
 def load_edit(model, run_dir: Path, layer: int, atlas_png: Path) -> dict:
     """The edit as a texture over the atlas square: ``{"irr": (h, w, 3) linear irradiance,
     "alpha": (h, w), "log2_dt": float, "unchanged_px": int}``."""
-    from layercam.render import inverse_tone
+    from layercam.scene.render import inverse_tone
 
     rgb, alpha = read_rgba(atlas_png)
     info_path = Path(run_dir) / "atlases" / "atlas.json"
@@ -139,7 +139,7 @@ def sample_edit(edit: dict, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def render_edited_frame(model, t: int, hw: tuple[int, int], layer: int, edit: dict, chunk: int = 65536) -> dict:
     """Frame ``t`` with the edit on ``layer``: ``{"hdr": (H, W, 3) linear, "ldr": (H, W, 3) in [0, 1]
     through the camera at the frame's exposure, "edit_alpha": (H, W) how much of the edit shows}``."""
-    from layercam.render import composite_layers, layer_weights, render_frame, tone_map_log2
+    from layercam.scene.render import composite_layers, layer_weights, render_frame, tone_map_log2
 
     out = render_frame(model, t, hw, ("layers", "uv", "alpha"), chunk=chunk)
     layers = [np.exp2(lg) for lg in out["layers"]]
@@ -162,7 +162,7 @@ def carry_edit(edit: dict, src, dst, pairs: list[tuple[int, int]], hw: tuple[int
     :func:`load_edit` does."""
     import cv2
 
-    from layercam.render import layer_weights, render_frame
+    from layercam.scene.render import layer_weights, render_frame
 
     h, w = res
     acc = np.zeros((h * w, 5), np.float64)  # irr * a * seen (3), a * seen, seen
@@ -229,14 +229,14 @@ def _say_faded(run_dir: Path) -> None:
 
 
 def _edit(args, run_dir: Path) -> int:
-    from layercam.checkpoint import load_run_model
-    from layercam.interrupts import reached
+    from layercam.engine.checkpoint import load_run_model
+    from layercam.core.interrupts import reached
     from layercam.io import write_exr, write_video
     from layercam.io.atomic import commit_staged, ensure_writable_dir, staging_dir
     from layercam.pipelines.runner import write_json
     from layercam.pipelines.stages import device_of
-    from layercam.progress import bar as progress_bar
-    from layercam.render import tonemap_display
+    from layercam.core.progress import bar as progress_bar
+    from layercam.scene.render import tonemap_display
 
     from layercam.pipelines import windows
 
@@ -291,15 +291,15 @@ def _edit(args, run_dir: Path) -> int:
 
 def _edit_windows(args, run_dir: Path, index: dict) -> int:
     """``layercam edit`` on a long clip's windows (this module's docstring)."""
-    from layercam.checkpoint import load_run_model
-    from layercam.interrupts import reached
+    from layercam.engine.checkpoint import load_run_model
+    from layercam.core.interrupts import reached
     from layercam.io import write_exr, write_video
     from layercam.io.atomic import commit_staged, ensure_writable_dir, staging_dir
     from layercam.pipelines import windows
     from layercam.pipelines.runner import write_json
     from layercam.pipelines.stages import device_of
-    from layercam.progress import bar as progress_bar
-    from layercam.render import tonemap_display
+    from layercam.core.progress import bar as progress_bar
+    from layercam.scene.render import tonemap_display
 
     plan, folders = windows.index_plan(index), windows.window_folders(run_dir, index)
     n = plan.count

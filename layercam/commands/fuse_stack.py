@@ -56,7 +56,7 @@ def pick_exposures(spec: str, clip):
 
 
 def run(args) -> int:
-    from layercam.errors import LayercamError
+    from layercam.core.errors import LayercamError
     from layercam.io import load_clip
     from layercam.pipelines.export import resolve_reference
     from layercam.pipelines.tasks import run_task

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from layercam import distributed
+from layercam.engine import distributed
 from layercam.cli import EPILOG, common_model_args, default_out, finish, input_args, load_cfg, number, window_args
 
 
@@ -47,7 +47,7 @@ def run(args) -> int:
     cfg = load_cfg(args)
     device = device_of(cfg.train.device)  # a missing GPU is said before any work
     if args.ray and (args.nproc > 1 or distributed.env_world_size() > 1):
-        from layercam.errors import LayercamError
+        from layercam.core.errors import LayercamError
 
         raise LayercamError("--ray trains a long clip's windows as tasks; leave --nproc (and torchrun) out")
     if distributed.launch_requested(args):

@@ -28,7 +28,7 @@ import math
 from pathlib import Path
 
 from layercam.cli import FPS, number
-from layercam.errors import LayercamError
+from layercam.core.errors import LayercamError
 
 EXAMPLES = """examples:
   layercam render runs/clip --exposure +2            # every frame two stops brighter, sharp
@@ -80,7 +80,7 @@ def exposure_frames(model, meta: dict, ev: float, keep_blur: bool = False, chunk
     ``(T, H, W, 3)``."""
     import numpy as np
 
-    from layercam.render import render_frame
+    from layercam.scene.render import render_frame
 
     hw = tuple(meta["frame_hw"])
     z = (model.exposure.reference() if z0 is None else z0) + ev
@@ -92,7 +92,7 @@ def exposure_sweep(model, meta: dict, evs, frame: int, keep_blur: bool = False, 
     ``(N, H, W, 3)``."""
     import numpy as np
 
-    from layercam.render import render_frame
+    from layercam.scene.render import render_frame
 
     hw = tuple(meta["frame_hw"])
     z0 = model.exposure.reference() if z0 is None else z0
@@ -105,7 +105,7 @@ def focus_sweep(model, meta: dict, fs, frame: int, ev: float | None = None, z0: 
     model's) when given."""
     import numpy as np
 
-    from layercam.render import render_frame
+    from layercam.scene.render import render_frame
 
     hw = tuple(meta["frame_hw"])
     out = []
@@ -195,7 +195,7 @@ class _Views:
     def __init__(self, run: Path, device: str):
         import numpy as np
 
-        from layercam.checkpoint import load_run_model
+        from layercam.engine.checkpoint import load_run_model
         from layercam.pipelines import windows
 
         index = windows.read_index(run)
@@ -243,7 +243,7 @@ class _Views:
 def _render(args) -> int:
     import numpy as np
 
-    from layercam.geometry import middle_frame
+    from layercam.core.geometry import middle_frame
     from layercam.io import write_png, write_video
     from layercam.io.atomic import commit_staged, ensure_writable_dir, staging_dir
     from layercam.pipelines.runner import write_json
@@ -333,7 +333,7 @@ def _render(args) -> int:
     if "hdr" in products:
         from layercam.io import read_exr
         from layercam.io.hdr_video import ANCHOR, write_hdr_video
-        from layercam.render import white_radiance
+        from layercam.scene.render import white_radiance
 
         video, side = products["hdr"]
         stage = staging_dir(out, side)
@@ -360,7 +360,7 @@ def _write_sweep(out: Path, kind: str, imgs, fps: float, info: dict) -> None:
 
 
 def _write_steps(folder: Path, imgs, write_png, prefix: str = "step_", width: int = 3) -> None:
-    from layercam.interrupts import reached
+    from layercam.core.interrupts import reached
 
     folder.mkdir(parents=True, exist_ok=True)
     for i, img in enumerate(imgs):

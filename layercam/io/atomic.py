@@ -15,7 +15,7 @@ import uuid
 from pathlib import Path
 from typing import Callable
 
-from layercam.errors import LayercamError
+from layercam.core.errors import LayercamError
 
 __all__ = ["atomic_write", "ensure_writable_dir", "staging_dir", "commit_staged", "replace_entry", "temp_name", "write_failure", "partials_removed_on_error"]
 

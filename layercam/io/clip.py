@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from layercam.errors import LayercamError
+from layercam.core.errors import LayercamError
 from layercam.io.images import IMAGE_SUFFIXES, read_exif_exposure, read_image
 from layercam.io.video import VIDEO_SUFFIXES, read_video
 
@@ -346,9 +346,9 @@ def load_clip(
 
 def primaries_of(tag: str | None) -> dict:
     """The colour primaries of a clip's RGB: the input's tag where it names primaries
-    :mod:`layercam.bt2100` knows, else BT.709 / sRGB (what 8-bit video and images without tags
+    :mod:`layercam.core.bt2100` knows, else BT.709 / sRGB (what 8-bit video and images without tags
     are), said as assumed."""
-    from layercam.bt2100 import PRIMARIES
+    from layercam.core.bt2100 import PRIMARIES
 
     if tag in PRIMARIES:
         return {"name": tag, "how": "tagged in the input"}

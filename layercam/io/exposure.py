@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from layercam.errors import LayercamError
+from layercam.core.errors import LayercamError
 from layercam.io.clip import Clip
 
 __all__ = ["Exposures", "parse_exposures", "measure_pair_ev", "parse_time"]

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from layercam.errors import LayercamError
+from layercam.core.errors import LayercamError
 from layercam.io.atomic import atomic_write
 
 __all__ = ["write_exr", "read_exr"]

@@ -5,13 +5,13 @@ content-light-level metadata computed from the frames; and back (for checks and 
 How the frames' relative radiance becomes light (:class:`HdrMapping`):
 
 1. **Anchor**: the radiance ``white`` the caller names diffuse white (for a layercam run,
-   :func:`layercam.render.white_radiance`) becomes ``nits_white`` cd/m2 (BT.2408's HDR reference
+   :func:`layercam.scene.render.white_radiance`) becomes ``nits_white`` cd/m2 (BT.2408's HDR reference
    white, 203, unless told otherwise): one global scale, no curve. For HLG, white goes to the scene
    light that the BT.2100 reference display (1000 cd/m2, system gamma 1.2) shows at ``nits_white``
    (75% signal for 203).
 2. **Colour**: the frames' primaries (BT.709 / sRGB for 8-bit input) -> BT.2020 by the 3x3 matrix
-   in linear light (:func:`layercam.bt2100.primaries_matrix`).
-3. **Highlights**: light above the display's peak (:data:`~layercam.bt2100.DISPLAY_PEAK`, 1000
+   in linear light (:func:`layercam.core.bt2100.primaries_matrix`).
+3. **Highlights**: light above the display's peak (:data:`~layercam.core.bt2100.DISPLAY_PEAK`, 1000
    cd/m2; for HLG, scene light above 1) is rolled off by the BT.2390 EETF applied to each pixel's
    largest component, the pixel's RGB scaled by the same factor (hue kept); from the frames' own
    peak, so a clip within the peak is untouched.
@@ -39,8 +39,8 @@ from pathlib import Path
 
 import numpy as np
 
-from layercam import bt2100
-from layercam.errors import LayercamError
+from layercam.core import bt2100
+from layercam.core.errors import LayercamError
 
 __all__ = ["FORMATS", "TRANSFER", "HdrMapping", "missing_for_hdr", "write_hdr_video", "read_hdr_video", "probe_video", "sdr_view", "ANCHOR"]
 
@@ -196,7 +196,7 @@ def write_hdr_video(path: str | os.PathLike, frames: Callable[[], Iterable[np.nd
     Raises ``LayercamError`` (one line) when ffmpeg lacks libx265 or fails."""
     from layercam.io.atomic import ensure_writable_dir, temp_name
     from layercam.io.video import _last_line, ffmpeg_exe, finish_with_audio, mp4_complete, rate_text
-    from layercam.progress import bar
+    from layercam.core.progress import bar
 
     t0 = time.perf_counter()
     exe = ffmpeg_exe()
@@ -318,7 +318,7 @@ def sdr_view(light: np.ndarray, source_peak: float, white: float = bt2100.REFERE
     is rolled off by the BT.2390 EETF from ``source_peak`` (the file's MaxCLL) to ``white`` on each
     pixel's largest component, then BT.2020 -> BT.709 (clipped to its gamut) and the sRGB curve.
     Returns ``(..., 3)`` float32 in [0, 1]."""
-    from layercam.colour import srgb_encode
+    from layercam.core.colour import srgb_encode
 
     light = np.maximum(np.asarray(light, np.float64), 0.0)
     m = light.max(-1)

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from layercam.errors import LayercamError
+from layercam.core.errors import LayercamError
 from layercam.io.atomic import atomic_write
 
 __all__ = ["IMAGE_SUFFIXES", "read_image", "write_png", "read_exif_exposure", "image_bit_depth"]

@@ -21,7 +21,7 @@ import sys
 import time
 from pathlib import Path
 
-from layercam.errors import LayercamError
+from layercam.core.errors import LayercamError
 
 __all__ = ["LOCK_NAME", "run_lock", "lock_owner"]
 

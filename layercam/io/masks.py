@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from layercam.errors import LayercamError
+from layercam.core.errors import LayercamError
 from layercam.io.clip import Clip, natural_key
 
 __all__ = ["MASK_SUFFIXES", "list_masks", "load_masks"]

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from layercam.errors import LayercamError
+from layercam.core.errors import LayercamError
 
 __all__ = ["VideoWriter", "VIDEO_SUFFIXES", "read_video", "write_video", "mux_audio", "parse_header", "rate_text", "ffmpeg_exe"]
 

@@ -51,7 +51,7 @@ class PositionalEncoding(nn.Module):
 
 
 # A level with at least this many cells has sparse gradients: a step reads and updates only the
-# cells its batch touches (optimiser: layercam.optim.Adam). Coarser levels are touched almost
+# cells its batch touches (optimiser: layercam.engine.optim.Adam). Coarser levels are touched almost
 # everywhere by every batch and keep a dense gradient, which is cheaper there.
 SPARSE_CELLS = 128 * 128
 

@@ -9,14 +9,14 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from layercam.config import SceneConfig
+from layercam.core.config import SceneConfig
 from layercam.scene.encodings import SPARSE_CELLS, DenseGrid2D, DenseGrid3D, PositionalEncoding, gather_rows
 from layercam.scene.mlp import MLP
 
 LOG2_R_BOUND = 40.0  # guard: |log2 irradiance| never exceeds this (2^40 covers any sensor)
 
 # fixed sizes: no preset changes them (the paper's where it gives one); what a preset may change is
-# in layercam.config.SceneConfig, and the sizes that follow from the clip in layercam.scene.layered
+# in layercam.core.config.SceneConfig, and the sizes that follow from the clip in layercam.scene.layered
 ATLAS_PE_FREQS = 7        # the atlas's positional encoding of (u, v) (paper: 7)
 GRID_MIN_RES = 16         # the coarsest atlas grid level, cells across
 GRID_FEATURES = 4         # features per grid cell

@@ -21,14 +21,14 @@ ALPHA_GRID_MAX = 512         # cells across the alpha grid's finest level at mos
 
 def derived_sizes(h0, frame_hw: tuple[int, int], fine: bool) -> dict:
     """The sizes that follow from the clip: ``grid_max_res``, the finest atlas grid level, from the
-    atlas's extent in frame pixels (:func:`layercam.geometry.atlas_pixels` of the bootstrap mappings
+    atlas's extent in frame pixels (:func:`layercam.core.geometry.atlas_pixels` of the bootstrap mappings
     ``h0 (L, T, 3, 3)``) within :data:`GRID_RES_RANGE`: the power of two at or above it (at least
     one cell per pixel), or with ``fine`` (a blur generator, or a static one-layer scene) the extent
     itself (at most one cell per pixel: the blur generator samples between pixels, so a finer grid
     let each image's PSF read its own sub-pixel content; on a static scene every frame samples the
     same pixel centres, so a finer grid let each frame keep its own noise); ``alpha_grid_res``, one
     cell per pixel along the frame's longer side, at most :data:`ALPHA_GRID_MAX`."""
-    from layercam.geometry import atlas_pixels
+    from layercam.core.geometry import atlas_pixels
 
     px = atlas_pixels(np.asarray(h0), frame_hw)
     res = int(round(px)) if fine else 2 ** math.ceil(math.log2(max(px, 2.0)))
@@ -42,7 +42,7 @@ class LayeredScene(nn.Module):
     ``cfg``: the scene settings; ``h0`` is ``(L, T, 3, 3)``: each layer's bootstrap mapping from
     normalised frame coordinates to its atlas; ``sizes``: :func:`derived_sizes`. ``residual``: the
     deformations' residual warp; ``still_background``: two layers from a static camera, the
-    background mapped by its bootstrap homography alone (:class:`layercam.resolve.Resolved`).
+    background mapped by its bootstrap homography alone (:class:`layercam.engine.resolve.Resolved`).
     ``init_log2`` sets the atlases' initial log2 irradiance; ``batch``: the samples of a training
     step (which grid levels train sparsely, :class:`layercam.scene.fields.AtlasField`).
     """

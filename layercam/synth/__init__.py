@@ -27,7 +27,7 @@ forward optical flow.
 
 from __future__ import annotations
 
-from layercam.errors import LayercamError
+from layercam.core.errors import LayercamError
 from layercam.synth.camera import CRFS, SynthScene, crf_apply, crf_inverse
 from layercam.synth.canvas import hdr_canvas
 from layercam.synth.shake import shake_blur

@@ -8,8 +8,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from layercam.colour import srgb_decode, srgb_encode
-from layercam.errors import LayercamError
+from layercam.core.colour import srgb_decode, srgb_encode
+from layercam.core.errors import LayercamError
 from layercam.io.clip import Clip
 
 

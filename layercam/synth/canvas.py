@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from layercam.colour import REC709, luma
+from layercam.core.colour import REC709, luma
 from layercam.synth.camera import _sigmoid
 
 

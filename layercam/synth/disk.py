@@ -22,7 +22,7 @@ def write_pan_hdr(out: Path, frames: int = 48, size: tuple[int, int] = (1080, 19
     from layercam import synth
     from layercam.io import write_exr, write_png
     from layercam.io.atomic import atomic_write, ensure_writable_dir
-    from layercam.progress import bar
+    from layercam.core.progress import bar
 
     out = ensure_writable_dir(Path(out))
     want = {"family": "pan_hdr", "frames": int(frames), "size": [int(size[0]), int(size[1])], "ev_step": float(ev_step), "seed": int(seed)}

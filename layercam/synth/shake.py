@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from layercam.errors import LayercamError
+from layercam.core.errors import LayercamError
 from layercam.synth.camera import SynthScene, _alternating, _check_common, _expose, _make_clip
 from layercam.synth.canvas import _affine, _canvas_for_path, _emitters_along, _pan_path, _warp, hdr_canvas
 

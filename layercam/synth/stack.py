@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from layercam.errors import LayercamError
+from layercam.core.errors import LayercamError
 from layercam.synth.camera import SynthScene, _check_common, _expose, _make_clip
 from layercam.synth.canvas import _blob_alpha, _disc_alpha, hdr_canvas
 

@@ -13,9 +13,9 @@ import cv2
 import numpy as np
 
 from layercam.io import load_clip, read_exr
-from layercam.realsuite.cases import read_image_list
-from layercam.realsuite.classical import bracket_merges, robertson_reference
-from layercam.realsuite.measures import score_hdr, unseen_mask
+from layercam.bench.realsuite.cases import read_image_list
+from layercam.bench.realsuite.classical import bracket_merges, robertson_reference
+from layercam.bench.realsuite.measures import score_hdr, unseen_mask
 
 data = Path("../shared/data/bracket_taipei")
 out = Path(sys.argv[1])

@@ -24,7 +24,7 @@ import numpy as np
 import torch
 
 from layercam import synth
-from layercam.core.config import load_config, model_overrides
+from layercam.core.presets import load_config, model_overrides
 from layercam.io import Exposures
 from layercam.io.clip import Clip
 from layercam.pipelines.evaluate import EvaluateStage

@@ -127,7 +127,7 @@ def build_parser() -> argparse.ArgumentParser:
 def load_cfg(args):
     """The preset, then the model flags (``--layers`` ... as ``model.*``/``blur.*`` settings), the
     shortcuts and each ``--set``: checked, one line and exit 2 on a bad value."""
-    from layercam.core.config import load_config, model_overrides
+    from layercam.core.presets import load_config, model_overrides
 
     overrides = model_overrides(args.layers, args.tone_mapper, args.blur, args.max_offset, args.flow_loss)
     if args.steps is not None:

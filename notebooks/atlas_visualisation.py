@@ -93,7 +93,7 @@ def show(name, fig):
 # %%
 scene = None
 if RUN is None:
-    from layercam.core.config import load_config, model_overrides
+    from layercam.core.presets import load_config, model_overrides
     from layercam.io import parse_exposures
     from layercam.pipelines.tasks import run_task
 

@@ -72,7 +72,7 @@ def two_layer_run(tmp_path_factory):
     """A tiny two-layer hdr-video run on ``synth.moving_object`` (48x48, 6 frames) with the foreground
     found by motion segmentation (no masks given); shared by tests/test_layers.py and test_edit.py."""
     from layercam import synth
-    from layercam.core.config import load_config
+    from layercam.core.presets import load_config
     from layercam.io import Exposures
     from layercam.pipelines.tasks import run_task
 
@@ -92,7 +92,7 @@ def decided(cfg=None, h0=None, frame_hw=(16, 16), static: bool = False, *, layer
     ``static`` or not: ready for ``ImplicitCameraModel``."""
     import dataclasses
 
-    from layercam.core.config import load_config, model_overrides
+    from layercam.core.presets import load_config, model_overrides
     from layercam.engine.resolve import resolve
 
     cfg = (load_config("fast") if cfg is None else cfg).copy()

@@ -10,7 +10,8 @@ import torch
 
 from layercam.vision import analyse, flow
 from layercam.engine.checkpoint import load_run_model
-from layercam.core.config import AUTO, load_config, model_overrides
+from layercam.core.config import AUTO
+from layercam.core.presets import load_config, model_overrides
 from layercam.core.errors import LayercamError
 from layercam.core.geometry import atlas_pixels
 from layercam.io import Clip, Exposures

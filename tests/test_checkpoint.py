@@ -13,7 +13,7 @@ import torch
 
 from layercam.engine.checkpoint import FORMAT, load_run_model, save_run_model
 from layercam.cli import main
-from layercam.core.config import load_config
+from layercam.core.presets import load_config
 from layercam.core.errors import LayercamError
 from layercam.scene.model import ImplicitCameraModel
 

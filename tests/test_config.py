@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from layercam.cli import main
-from layercam.core.config import AUTO, Config, SECTIONS, config_from_dict, load_config, model_overrides, preset_names, validate
+from layercam.core.config import AUTO, Config, SECTIONS, config_from_dict, validate
+from layercam.core.presets import load_config, model_overrides, preset_names
 from layercam.core.errors import LayercamError
 
 

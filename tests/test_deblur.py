@@ -82,7 +82,7 @@ def test_blur_generator_deblurs_shake_clip(tmp_path):
     """On a camera-shake clip the deblurred frames are closer to the sharp ground truth than the
     blurry input (shift-aligned PSNR), and the learned PSF is wider where the blur is longer."""
     from layercam import synth
-    from layercam.core.config import load_config
+    from layercam.core.presets import load_config
     from layercam.io import Exposures
     from layercam.pipelines.evaluate import EvaluateStage
     from layercam.pipelines.tasks import run_task

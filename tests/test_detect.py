@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from layercam import detect, segment
-from layercam.core.config import load_config
+from layercam.core.presets import load_config
 from layercam.core.errors import LayercamError
 
 

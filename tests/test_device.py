@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import torch
 
-from layercam.core.config import load_config
+from layercam.core.presets import load_config
 from layercam.core.errors import LayercamError
 from layercam.pipelines.stages import device_line, device_of
 from layercam.pipelines.tasks import run_task

@@ -25,7 +25,7 @@ WITH_EXAMPLES = _with_examples()
 
 
 def test_the_examples_are_found():
-    assert {"layercam.core.config", "layercam.core.geometry", "layercam.core.colour", "layercam.camera.blur", "layercam.bench.viz"} <= set(WITH_EXAMPLES)
+    assert {"layercam.core.presets", "layercam.core.geometry", "layercam.core.colour", "layercam.camera.blur", "layercam.bench.viz"} <= set(WITH_EXAMPLES)
 
 
 @pytest.mark.parametrize("name", WITH_EXAMPLES)

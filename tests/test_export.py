@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from layercam.core.config import load_config
+from layercam.core.presets import load_config
 from layercam.core.errors import LayercamError
 from layercam.io import Clip, Exposures, read_exr
 from layercam.pipelines.export import TASK_WRITERS, outputs_for, writers_for

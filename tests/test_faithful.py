@@ -49,7 +49,7 @@ def test_export_agrees_with_the_frame_where_the_model_is_wrong(tiny_scene, tiny_
     """A tiny trained run; a patch of one frame replaced by content no frame has: the faithful HDR of
     that frame follows the patch (through the inverse camera), the model's does not; the frame's
     clipped and floor channels bound it."""
-    from layercam.core.config import load_config
+    from layercam.core.presets import load_config
     from layercam.pipelines.tasks import run_task
     from layercam.scene.render import inverse_tone
 

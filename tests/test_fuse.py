@@ -60,7 +60,7 @@ def test_mfme_with_times_file_learns_tone_and_scores(tmp_path):
     (fused HDR against the all-in-focus ground truth, next to the two-stage baseline) runs on the
     same run folder, reusing every cached stage."""
     from layercam import synth
-    from layercam.core.config import load_config
+    from layercam.core.presets import load_config
     from layercam.io import Exposures
     from layercam.io.clip import Clip
     from layercam.pipelines.evaluate import EvaluateStage

@@ -100,7 +100,7 @@ def test_changed_export_setting_sets_earlier_atlases_aside(two_layer_run, tmp_pa
 
 
 def test_one_layer_atlas_export_has_no_alpha(tmp_path):
-    from layercam.core.config import load_config
+    from layercam.core.presets import load_config
     from layercam.pipelines.atlas_export import export_atlases
     from layercam.engine.checkpoint import build_model
 

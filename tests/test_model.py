@@ -9,7 +9,7 @@ import pytest
 import torch
 from hypothesis import given, strategies as st
 
-from layercam.core.config import load_config
+from layercam.core.presets import load_config
 from layercam.core.errors import LayercamError
 from layercam.scene.model import ALPHA_FLOW, ImplicitCameraModel, LossWeights
 
@@ -140,7 +140,7 @@ def test_blur_group_carries_the_warmup():
     blur=st.sampled_from(["off", "3x3"]), target=st.sampled_from(["black", "white", "random"]), autocast=st.sampled_from(["none", "bf16"]),
 )
 def test_model_loss_terms_and_gradients_finite(ev, layers, robust, blur, target, autocast):
-    from layercam.core.config import load_config
+    from layercam.core.presets import load_config
     from layercam.scene.model import ImplicitCameraModel
 
     from conftest import decided

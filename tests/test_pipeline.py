@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from hypothesis import example, given, strategies as st
 
-from layercam.core.config import load_config
+from layercam.core.presets import load_config
 from layercam.io import read_exr
 from layercam.pipelines.tasks import run_task
 
@@ -137,7 +137,7 @@ def _load_png16(frames: np.ndarray, d: Path, grey: bool):
 )
 def test_end_to_end_tiny_clips_export_finite_hdr_and_monotone_curves(hw, t, content, value, ev, learn, robust, autocast):
     from layercam.io import Clip, Exposures, read_exr
-    from layercam.core.config import load_config
+    from layercam.core.presets import load_config
     from layercam.pipelines.tasks import run_task
 
     frames = _frames("random" if content.endswith("16") else content, t, hw, value)

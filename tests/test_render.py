@@ -26,7 +26,7 @@ def test_display_tonemap_finite_in_unit_interval_brightest_not_darkest(hdr):
 def _two_layer_blur_model():
     import torch
 
-    from layercam.core.config import load_config
+    from layercam.core.presets import load_config
     from layercam.scene.model import ImplicitCameraModel
 
     from conftest import TINY, decided

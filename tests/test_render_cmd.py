@@ -18,7 +18,7 @@ def stack_run(tmp_path_factory):
     """A tiny fuse-stack run on 3 images of a multi-focus multi-exposure stack (one per focus,
     each at another exposure): learned tone mapper and a blur generator."""
     from layercam import synth
-    from layercam.core.config import load_config
+    from layercam.core.presets import load_config
     from layercam.io import Exposures
     from layercam.io.clip import Clip
     from layercam.pipelines.tasks import run_task

@@ -11,7 +11,9 @@ import pytest
 import torch
 from torch import nn
 
-from layercam.core.config import TrainConfig, load_config
+from layercam.core.config import TrainConfig
+
+from layercam.core.presets import load_config
 from layercam.core.errors import LayercamError
 from layercam.io import read_exr
 from layercam.pipelines.tasks import run_task

@@ -75,7 +75,7 @@ def run_layer_job(job: dict) -> dict:
     """One clip and variant, in this process: train, score, draw. Returns the result row."""
     import torch
 
-    from layercam.core.config import load_config
+    from layercam.core.presets import load_config
     from layercam.io import load_clip, parse_exposures
     from layercam.io.masks import load_masks
     from layercam.engine.checkpoint import load_run_model

@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from layercam.core.errors import LayercamError
-from layercam.core.config import preset_tag
+from layercam.core.presets import preset_tag
 
 # scene name -> synth family, its arguments, the task it exercises; "quick" sizes for smoke tests
 SCENES = {
@@ -93,7 +93,7 @@ def run_job(job: dict) -> dict:
 
     import torch
 
-    from layercam.core.config import load_config
+    from layercam.core.presets import load_config
     from layercam.pipelines.evaluate import EvaluateStage
     from layercam.pipelines.tasks import run_task
 
@@ -313,14 +313,14 @@ ANALYSIS_FAMILIES = {
     "shake": ("shake_blur", {"frames": 10, "size": (96, 96)}, {"frames": 3, "size": (48, 48)}, "deblur-video"),  # 48 px: smaller frames have too few tiles to compare sharpness
     "mfme": ("mfme_stack", {"size": (96, 96)}, {"size": (24, 24)}, "fuse-stack"),
 }
-FULL_MODEL = {"layers": 2, "tone_mapper": "learned", "blur": "5x5", "max_offset": 5.0, "flow_loss": True}  # config.model_overrides
+FULL_MODEL = {"layers": 2, "tone_mapper": "learned", "blur": "5x5", "max_offset": 5.0, "flow_loss": True}  # presets.model_overrides
 
 
 def analysis_job(name: str, variant: str, out: Path, preset: str, quick: bool, overrides_cfg: list[str]) -> dict:
     """Train ``name`` with the analysed model (variant "chosen") or the full model ("full")."""
     from layercam import synth
     from layercam.vision.analyse import model_summary
-    from layercam.core.config import load_config, model_overrides
+    from layercam.core.presets import load_config, model_overrides
     from layercam.pipelines.evaluate import EvaluateStage
     from layercam.pipelines.tasks import run_task
 

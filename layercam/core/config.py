@@ -6,22 +6,14 @@ set, and the whole config once more when it is loaded (:func:`load_config`) or a
 bad preset value or ``--set`` fails with one line before any work. NaN and infinities are refused
 everywhere.
 
-A preset (``configs/<name>.toml``, shipped inside the package as ``layercam.configs``) holds only
-the values that differ from the defaults below. ``load_config("fast", ["train.steps=500"])``
-returns a :class:`Config`; ``Config.section_dict("train")`` is what a stage hashes for its cache key.
+Presets and ``--set`` items are read by :mod:`layercam.core.presets` (``load_config``); a value is
+converted and checked by :func:`layercam.core.values.check_value`. ``Config.key_dict("train")`` is
+what a stage hashes for its cache key.
 
 ``"auto"`` values are decided per clip, once, by :func:`layercam.engine.resolve.resolve` (from what the
 analysis measures), which returns the run's frozen settings; sizes that follow from the clip (the atlas
 grid's finest level, the alpha grid) are derived in code, and fixed sizes and weights are named
 constants in the modules that use them. Each setting's comment says what it trades.
-
->>> cfg = load_config("fast", ["train.steps=50", "model.layers=2"])
->>> cfg.train.steps, cfg.model.layers, cfg.flow.method
-(50, 2, 'dis_fast')
->>> load_config("fast", ["train.autocast=bogus"])
-Traceback (most recent call last):
-...
-layercam.core.errors.LayercamError: train.autocast: expected one of auto, none, bf16, got 'bogus'
 """
 
 from __future__ import annotations
@@ -29,18 +21,14 @@ from __future__ import annotations
 import copy
 import dataclasses
 import json
-import math
 import os
 import re
-import tomllib
-import types
 import typing
 from dataclasses import dataclass, field
-from importlib import resources
-from pathlib import Path
 from typing import Any, Literal
 
 from layercam.core.errors import LayercamError
+from layercam.core.values import check_value
 
 AUTO = "auto"
 
@@ -345,101 +333,6 @@ def _meta(cls, name: str) -> dict:
     return next(f.metadata for f in dataclasses.fields(cls) if f.name == name)
 
 
-def _alternatives(hint) -> list:
-    """``int | Literal["auto"]`` -> ``[int, Literal["auto"]]``; a plain type -> ``[type]``."""
-    if typing.get_origin(hint) in (typing.Union, types.UnionType):
-        return list(typing.get_args(hint))
-    return [hint]
-
-
-def _describe(hint) -> str:
-    """``Literal["a", "b"]`` -> "one of a, b"; ``int | Literal["auto"]`` -> "an integer or auto"."""
-    kinds, choices = [], []
-    for alt in _alternatives(hint):
-        if typing.get_origin(alt) is Literal:
-            choices += [str(c) for c in typing.get_args(alt)]
-        else:
-            kinds.append({bool: "true/false (on/off)", int: "an integer", float: "a number", str: "text"}.get(alt, str(alt)))
-    if not kinds:
-        return "one of " + ", ".join(choices)
-    return " or ".join(kinds + choices)
-
-
-def _as(value: Any, typ) -> Any:
-    """``value`` (a string from ``--set`` or a TOML/JSON value) as ``typ``; ValueError when it is not."""
-    if typing.get_origin(typ) is Literal:
-        for c in typing.get_args(typ):
-            if value == c and type(value) is type(c):
-                return c
-            if isinstance(value, str) and str(c) == value.strip():
-                return c
-        raise ValueError
-    if typ is bool:
-        if isinstance(value, bool):
-            return value
-        if isinstance(value, str):
-            v = value.strip().lower()
-            if v in ("1", "true", "yes", "on"):
-                return True
-            if v in ("0", "false", "no", "off"):
-                return False
-        raise ValueError
-    if isinstance(value, bool):  # bool is an int to Python, never to a setting
-        raise ValueError
-    if typ is int:
-        if isinstance(value, int):
-            return value
-        if isinstance(value, float) and value.is_integer():
-            return int(value)
-        if isinstance(value, str):
-            f = float(value)
-            if f.is_integer():
-                return int(f)
-        raise ValueError
-    if typ is float:
-        if isinstance(value, (int, float)):
-            return float(value)
-        if isinstance(value, str):
-            return float(value)
-        raise ValueError
-    if typ is str:
-        if isinstance(value, str):
-            return value
-        raise ValueError
-    raise ValueError
-
-
-def check_value(key: str, value: Any, hint, meta: dict | None = None) -> Any:
-    """``value`` converted to ``hint`` and checked against the field's range: one line on failure."""
-    meta = meta or {}
-    alts = sorted(_alternatives(hint), key=lambda a: typing.get_origin(a) is not Literal)  # choices first
-    for alt in alts:
-        try:
-            v = _as(value, alt)
-            break
-        except (ValueError, TypeError, OverflowError):
-            continue
-    else:
-        raise LayercamError(f"{key}: expected {_describe(hint)}, got {value!r}")
-    if isinstance(v, float) and not math.isfinite(v):
-        raise LayercamError(f"{key}: must be a finite number, got {value!r}")
-    if isinstance(v, (int, float)) and not isinstance(v, bool):
-        lo, hi, above, below = meta.get("lo"), meta.get("hi"), meta.get("above"), meta.get("below")
-        if lo is not None and v < lo:
-            raise LayercamError(f"{key}: must be >= {lo:g}, got {v:g}")
-        if hi is not None and v > hi:
-            raise LayercamError(f"{key}: must be <= {hi:g}, got {v:g}")
-        if above is not None and not v > above:
-            raise LayercamError(f"{key}: must be > {above:g}, got {v:g}")
-        if below is not None and not v < below:
-            raise LayercamError(f"{key}: must be < {below:g}, got {v:g}")
-    if meta.get("check") is not None:
-        msg = meta["check"](v)
-        if msg:
-            raise LayercamError(f"{key}: {msg}, got {value!r}")
-    return v
-
-
 def validate(cfg: Config) -> Config:
     """Check every value of ``cfg`` (also those set in code) and the rules between them; returns it."""
     for sec in SECTIONS:
@@ -451,74 +344,6 @@ def validate(cfg: Config) -> Config:
     if cfg.segment.detector and not os.path.isfile(cfg.segment.detector):
         raise LayercamError(f"segment.detector: no such file: {cfg.segment.detector!r}")
     return cfg
-
-
-def model_overrides(layers=None, tone_mapper=None, blur=None, max_offset=None, flow_loss=None) -> list[str]:
-    """The model choices of the command-line flags (``--layers 2 --blur 3x3 --max-offset 2
-    --flow-loss off``; ``None``: left to the analysis) as ``--set`` items."""
-    out = []
-    if layers is not None:
-        out.append(f"model.layers={layers}")
-    if tone_mapper is not None:
-        out.append(f"model.tone_mapper={tone_mapper}")
-    if blur is not None:
-        if blur == "off":
-            out.append("model.blur=off")
-        else:
-            m = re.fullmatch(r"(\d+)x\1", str(blur))
-            if not m:
-                raise LayercamError(f"blur must be off or NxN (3x3, 5x5), got {blur!r}")
-            out += ["model.blur=on", f"blur.n={m.group(1)}"]
-    if max_offset is not None:
-        out.append(f"blur.max_offset={max_offset}")
-    if flow_loss is not None:
-        out.append(f"model.flow_loss={'on' if flow_loss in (True, 'on') else 'off'}")
-    return out
-
-
-# -- presets -------------------------------------------------------------------------------------
-def preset_names() -> list[str]:
-    return sorted(p.name[:-5] for p in resources.files("layercam.configs").iterdir() if p.name.endswith(".toml"))
-
-
-def _read_preset(name: str) -> dict:
-    path = Path(name)
-    if path.suffix == ".toml" and path.exists():
-        text = path.read_text()
-    else:
-        res = resources.files("layercam.configs").joinpath(f"{name}.toml")
-        if not res.is_file():
-            raise LayercamError(f"unknown preset {name!r} (built in: {', '.join(preset_names())}; or a .toml path)")
-        text = res.read_text()
-    try:
-        return tomllib.loads(text)
-    except tomllib.TOMLDecodeError as e:
-        raise LayercamError(f"preset {name}: {e}") from None
-
-
-def preset_tag(preset: str) -> str:
-    """A preset's name for folders and tables: the file's stem for a ``.toml`` preset file."""
-    return Path(preset).stem if preset.endswith(".toml") else preset
-
-
-def load_config(preset: str = "balanced", overrides: list[str] | None = None) -> Config:
-    """Defaults, then the preset file's values, then each ``section.field=value`` override; checked."""
-    cfg = Config(preset=preset_tag(preset))
-    data = _read_preset(preset)
-    for sec, values in data.items():
-        if not isinstance(values, dict):
-            raise LayercamError(f"preset {preset}: top-level key {sec!r} must be a [section]")
-        for k, v in values.items():
-            try:
-                cfg.set(f"{sec}.{k}", v)
-            except LayercamError as e:
-                raise LayercamError(f"preset {preset}: {e}") from None
-    for item in overrides or []:
-        if "=" not in item:
-            raise LayercamError(f"--set expects key=value, got {item!r}")
-        k, v = item.split("=", 1)
-        cfg.set(k.strip(), v.strip())
-    return validate(cfg)
 
 
 def config_hash(obj: Any) -> str:

@@ -20,7 +20,7 @@ What it decides, each with a reason in ``Resolved.reasons`` (keyed ``section.fie
 * the export's ``merge_neighbours`` and ``denoise`` from the task and ``static``;
 * ``train.device`` and ``train.autocast`` from what torch sees.
 
->>> from layercam.core.config import load_config
+>>> from layercam.core.presets import load_config
 >>> r = resolve(load_config("fast", ["model.layers=1", "model.blur=off"]), frames=3, hw=(256, 256), task="fuse-stack")
 >>> r.settings.train.steps, r.reasons["train.steps"].split(":")[0]
 (300, '300 steps of 4096 pixels instead of 600')

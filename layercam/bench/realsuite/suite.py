@@ -17,7 +17,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from layercam.core.config import preset_tag
+from layercam.core.presets import preset_tag
 from layercam.core.errors import LayercamError
 from layercam.bench.realsuite.cases import CASES
 
@@ -105,7 +105,7 @@ def run_real_suite(out, cases: list[str] | None = None, presets: list[str] | Non
     (default: every case; fast and balanced); ``overrides`` are ``--set`` settings for every
     layercam job; ``quick`` renders tiny composites and trains a few steps (a smoke test);
     ``redraw`` runs nothing and writes the table and figures from the finished jobs."""
-    from layercam.core.config import load_config
+    from layercam.core.presets import load_config
     from layercam.io.atomic import ensure_writable_dir
 
     names = list(cases or CASES)

@@ -7,7 +7,7 @@
   ``baselines`` leaves it out.
 * ``deblur``: PSNR / SSIM of the sharp frames against ``scene.sharp_ldr``, next to the blurry
   input's; a border of ``crop`` px is left out; "raw" as rendered, and "aligned": each frame
-  (deblurred and input alike) at its best shift within 3 px (:func:`layercam.core.metrics.best_shift`).
+  (deblurred and input alike) at its best shift within 3 px (:func:`layercam.core.frame_metrics.best_shift`).
 * ``fused``: PSNR-mu / PSNR-L / SSIM-mu of ``fused.exr`` against ``scene.allfocus_hdr``, next to
   ``baselines.two_stage_mfme`` (Laplacian focus fusion per exposure, then Debevec) on the same
   images (when ``focus_index`` is given, with ``times`` or the run's exposures) and, when
@@ -45,7 +45,7 @@ def score_hdr(ctx: Context, ev: "EvaluateStage") -> dict:
     res = {"metrics": {**metrics.hdr_metrics(read_hdr_frames(ctx.dirs["export"], ctx.clip.T), gt), "wall_s": model_wall_s(ctx)}, "baselines": {}}
     if "debevec" in ev.baselines and ctx.clip.T > 1 and ctx.exposures.count_distinct > 1:
         from layercam.bench.baselines import debevec_video
-        from layercam.vision.flow import at_frame_size
+        from layercam.vision.scale import at_frame_size
 
         fl = at_frame_size(ctx.flow, (ctx.clip.H, ctx.clip.W), ("fw", "bw"))
         t0 = time.perf_counter()
@@ -60,7 +60,7 @@ def deblur_key(ctx: Context, ev: "EvaluateStage") -> dict:
 
 
 def score_deblur(ctx: Context, ev: "EvaluateStage") -> dict:
-    from layercam.core.metrics import score_frames
+    from layercam.core.frame_metrics import score_frames
 
     scene, crop = ev.scene, int(ev.crop)
     pred = np.load(ctx.results["export"]["frames_path"])

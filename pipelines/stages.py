@@ -19,19 +19,19 @@ class FlowStage(Stage):
     reads = ("flow",)
 
     def run(self, ctx, out):
-        from layercam.vision import flow
+        from layercam.vision import flow, scale
 
         if ctx.clip.T < 2:
             np.savez(out / "flow.npz", fw=np.zeros((0, ctx.clip.H, ctx.clip.W, 2), np.float16))
             ctx.flow = None
             return {"pairs": 0}
         hw = (ctx.clip.H, ctx.clip.W)
-        work = flow.working_size(hw)
-        frames = ctx.clip.frames if work == hw else flow.resize_frames(ctx.clip.frames, work)
+        work = scale.working_size(hw)
+        frames = ctx.clip.frames if work == hw else scale.resize_frames(ctx.clip.frames, work)
         fw, bw = flow.compute_flow(frames, method=ctx.cfg.flow.method, progress=ctx.progress, weights_path=ctx.cfg.flow.raft_weights)
         arrays = flow.pair_arrays(frames, fw, bw)  # homographies fitted only where both frames see well
         fw_ok = arrays["fw_ok"]
-        # as cached: every array on the working grid (flows in its pixels); flow.at_frame_size scales them up
+        # as cached: every array on the working grid (flows in its pixels); scale.at_frame_size scales them up
         ctx.flow = {"fw": fw.astype(np.float16), "bw": bw.astype(np.float16), **arrays}
         np.savez(out / "flow.npz", **ctx.flow)
         mag = np.sqrt((fw.astype(np.float32) ** 2).sum(-1)) * (hw[1] / work[1])
@@ -60,7 +60,7 @@ class BootstrapStage(Stage):
         from layercam.camera.tone import initial_log2
         from layercam.core.geometry import atlas_mappings, chain_homographies, middle_frame
 
-        from layercam.vision.flow import at_frame_size
+        from layercam.vision.scale import at_frame_size
 
         clip = ctx.clip
         T, H, W = clip.T, clip.H, clip.W

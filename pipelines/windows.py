@@ -161,7 +161,7 @@ def plan(clip, exposures, flow: dict | None, task: str, window=None) -> Plan:
     :func:`overlap_for` (a frame larger than the grid alone: as much as one frame needs; a window
     never shorter than three overlaps). A static camera's clip fits at any length.
     """
-    from layercam.vision.flow import rescale_homographies
+    from layercam.vision.scale import rescale_homographies
     from layercam.scene.layered import GRID_RES_RANGE
 
     GRID_MAX_RES = GRID_RES_RANGE[1]

@@ -128,7 +128,7 @@ def test_flow_on_frames_smaller_than_dis_patches(hw):
 
 
 def test_working_size_scales_the_short_side_only_when_longer():
-    from layercam.vision.flow import working_size
+    from layercam.vision.scale import working_size
 
     assert working_size((1080, 1920), 540) == (540, 960)
     assert working_size((480, 854), 540) == (480, 854) and working_size((1080, 1920), 0) == (1080, 1920)
@@ -137,7 +137,7 @@ def test_working_size_scales_the_short_side_only_when_longer():
 def test_flow_at_a_working_size_reads_back_at_the_frames_size():
     """A zoom-and-shift homography, measured on half-size frames, is the full-size one once rescaled;
     a half-size flow upsamples to the full-size flow of the same motion."""
-    from layercam.vision.flow import at_frame_size, pixel_scaling, rescale_homographies
+    from layercam.vision.scale import at_frame_size, pixel_scaling, rescale_homographies
 
     full = np.array([[1.02, 0.0, 3.0], [0.0, 1.02, -2.0], [0.0, 0.0, 1.0]])
     a = pixel_scaling((20, 30), (40, 60))  # full-size pixels -> half-size pixels

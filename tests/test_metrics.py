@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from layercam.core import metrics
+from layercam.core import frame_metrics, metrics
 from layercam.core.errors import LayercamError
 
 
@@ -128,12 +128,12 @@ def test_deephdr_known_values():
     gt = np.full((16, 16, 3), 0.25)
     pred = gt.copy()
     pred[:8, :8] = 0.5
-    d = metrics.deephdr_metrics(pred, gt)
+    d = frame_metrics.deephdr_metrics(pred, gt)
     assert d["psnr_l"] == pytest.approx(-10 * np.log10(0.25 * 0.25**2), abs=1e-6)
     mu_err = (np.log1p(5000 * 0.5) - np.log1p(5000 * 0.25)) / np.log1p(5000)
     assert d["psnr_t"] == pytest.approx(-10 * np.log10(0.25 * mu_err**2), abs=1e-6)
     assert 0 < d["ssim_t"] < 1
-    same = metrics.deephdr_metrics(gt, gt)
+    same = frame_metrics.deephdr_metrics(gt, gt)
     assert same["psnr_t"] == metrics.PSNR_CAP and same["ssim_t"] == pytest.approx(1.0, abs=1e-6)
 
 
@@ -141,25 +141,25 @@ def test_deephdr_one_scale_for_all_channels_and_gt_normalised_when_above_one():
     gt = _hdr(4, (20, 20, 3))
     gt = gt / (2 * gt.max())
     noisy = gt * np.exp(np.random.default_rng(5).normal(0, 0.1, gt.shape)).astype(np.float32)
-    d = metrics.deephdr_metrics(noisy, gt)
+    d = frame_metrics.deephdr_metrics(noisy, gt)
     # the prediction's overall scale is free, a colour cast is not (unlike psnr_mu's per-channel scale)
-    assert metrics.deephdr_metrics(noisy * 7.0, gt)["psnr_t"] == pytest.approx(d["psnr_t"], abs=1e-4)
+    assert frame_metrics.deephdr_metrics(noisy * 7.0, gt)["psnr_t"] == pytest.approx(d["psnr_t"], abs=1e-4)
     cast = noisy * np.array([1.0, 2.0, 1.0], np.float32)
-    assert metrics.deephdr_metrics(cast, gt)["psnr_t"] < d["psnr_t"] - 3
+    assert frame_metrics.deephdr_metrics(cast, gt)["psnr_t"] < d["psnr_t"] - 3
     assert metrics.psnr_mu(cast, gt) == pytest.approx(metrics.psnr_mu(noisy, gt), abs=1e-3)
     # a ground truth above 1 is divided by its max; one already in [0, 1] is kept as it is
     k = 0.5 / gt.max()
-    big = metrics.deephdr_metrics(noisy * 10 * k, gt * 10 * k)  # gt max 5 -> divided by 5
-    assert big["psnr_t"] == pytest.approx(metrics.deephdr_metrics(noisy * 2 * k, gt * 2 * k)["psnr_t"], abs=1e-4)
-    assert big["psnr_t"] != pytest.approx(metrics.deephdr_metrics(noisy * k, gt * k)["psnr_t"], abs=0.1)
+    big = frame_metrics.deephdr_metrics(noisy * 10 * k, gt * 10 * k)  # gt max 5 -> divided by 5
+    assert big["psnr_t"] == pytest.approx(frame_metrics.deephdr_metrics(noisy * 2 * k, gt * 2 * k)["psnr_t"], abs=1e-4)
+    assert big["psnr_t"] != pytest.approx(frame_metrics.deephdr_metrics(noisy * k, gt * k)["psnr_t"], abs=0.1)
 
 
 def test_deephdr_averages_per_frame():
     gt = _hdr(6, (2, 12, 12, 3))
     pred = gt.copy()
     pred[1] *= np.exp(np.random.default_rng(7).normal(0, 0.2, pred[1].shape)).astype(np.float32)
-    both = metrics.deephdr_metrics(pred, gt)
-    f0, f1 = metrics.deephdr_metrics(pred[0], gt[0]), metrics.deephdr_metrics(pred[1], gt[1])
+    both = frame_metrics.deephdr_metrics(pred, gt)
+    f0, f1 = frame_metrics.deephdr_metrics(pred[0], gt[0]), frame_metrics.deephdr_metrics(pred[1], gt[1])
     assert both["psnr_t"] == pytest.approx((f0["psnr_t"] + f1["psnr_t"]) / 2, abs=1e-6)
     assert f0["psnr_t"] == metrics.PSNR_CAP
 
@@ -169,9 +169,9 @@ def test_hdr_metrics_streamed_matches_the_stacked_clip():
     gt = _hdr(11, (3, 16, 20, 3))
     pred = gt * np.array([0.5, 0.7, 0.9]) * np.exp(np.random.default_rng(1).normal(0, 0.2, gt.shape))
     want = metrics.hdr_metrics(pred, gt)
-    got = metrics.hdr_metrics_streamed(lambda t: pred[t], lambda t: gt[t], 3)
+    got = frame_metrics.hdr_metrics_streamed(lambda t: pred[t], lambda t: gt[t], 3)
     assert set(got) == set(want)
     for k in want:
         assert got[k] == pytest.approx(want[k], abs=1e-3), k
     with pytest.raises(LayercamError):
-        metrics.hdr_metrics_streamed(lambda t: pred[t], lambda t: gt[t], 0)
+        frame_metrics.hdr_metrics_streamed(lambda t: pred[t], lambda t: gt[t], 0)

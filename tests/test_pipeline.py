@@ -222,10 +222,10 @@ def test_settings_a_b_a_puts_a_back(tiny_scene, tiny_exposures, tmp_path):
 
 
 def test_flow_at_a_working_size_runs_end_to_end(tiny_scene, tiny_exposures, tmp_path, monkeypatch):
-    """Large frames get their flow on smaller copies (flow.WORKING_SHORT_SIDE); the run trains on it."""
-    from layercam.vision import flow
+    """Large frames get their flow on smaller copies (scale.WORKING_SHORT_SIDE); the run trains on it."""
+    from layercam.vision import scale
 
-    monkeypatch.setattr(flow, "WORKING_SHORT_SIDE", 16)
+    monkeypatch.setattr(scale, "WORKING_SHORT_SIDE", 16)
     ctx = _run(tiny_scene, tiny_exposures, tmp_path / "run")
     assert ctx.results["flow"]["working_size"] == [16, 16] and ctx.flow["fw"].shape[1:3] == (16, 16)
     rep = json.loads((tmp_path / "run" / "report.json").read_text())

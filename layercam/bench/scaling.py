@@ -88,7 +88,7 @@ def run_job(job: dict) -> None:
 def score_job(job: dict) -> None:
     """PSNR-mu etc. of a run's ``hdr/`` (or the baseline's) against the clip's ground truth."""
     from layercam.io import read_exr
-    from layercam.core.metrics import hdr_metrics_streamed
+    from layercam.core.frame_metrics import hdr_metrics_streamed
     from layercam.synth.disk import truth_frame
 
     hdr = Path(job["hdr"])

@@ -146,7 +146,7 @@ def _blur(frames: np.ndarray, homs: np.ndarray | None, moving: np.ndarray | None
 def measure(clip, exposures, flow: dict | None) -> dict:
     """The numbers the decisions are made from. ``flow`` is the flow stage's arrays or None; the
     motion and blur are measured on the flow's grid (a working size for large frames,
-    :data:`layercam.vision.flow.WORKING_SHORT_SIDE`: there distances are in its pixels; the corner shift is in frame pixels)."""
+    :data:`layercam.vision.scale.WORKING_SHORT_SIDE`: there distances are in its pixels; the corner shift is in frame pixels)."""
     frames = clip.frames
     n = frames[..., 0].size
     m: dict = {
@@ -157,7 +157,7 @@ def measure(clip, exposures, flow: dict | None) -> dict:
         "clipped_low": sum(int(at_floor(f).all(-1).sum()) for f in frames) / n,
     }
     if flow is not None and len(flow.get("fw", ())) and tuple(flow["fw"].shape[1:3]) != frames.shape[1:3]:
-        from layercam.vision.flow import resize_frames
+        from layercam.vision.scale import resize_frames
 
         frames = resize_frames(frames, flow["fw"].shape[1:3])
     if flow is None or "fw" not in flow or len(flow["fw"]) == 0:

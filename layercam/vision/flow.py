@@ -189,8 +189,6 @@ def compute_flow(
 # --------------------------------------------------------------------------------------------
 
 
-
-
 def _check_pair(fw, bw=None) -> tuple[np.ndarray, np.ndarray | None]:
     f = np.asarray(fw, dtype=np.float32)
     if f.ndim != 4 or f.shape[3] != 2:
@@ -398,90 +396,6 @@ def raft_flow(
 # --------------------------------------------------------------------------------------------
 
 
-WORKING_SHORT_SIDE = 540  # flow of frames whose short side is longer is computed on copies scaled to it and read
                           # back scaled up: DIS's cost and memory grow with the pixels, its accuracy barely
 
 
-def working_size(hw: tuple[int, int], short_side: int | None = None) -> tuple[int, int]:
-    """The ``(h, w)`` flow is computed at for frames of ``hw = (H, W)``: the frames' own size when
-    their short side is at most ``short_side`` (default :data:`WORKING_SHORT_SIDE`; 0: always),
-    else scaled down to it."""
-    short_side = WORKING_SHORT_SIDE if short_side is None else short_side
-    h, w = int(hw[0]), int(hw[1])
-    if not short_side or min(h, w) <= short_side:
-        return h, w
-    s = short_side / min(h, w)
-    return max(int(round(h * s)), 1), max(int(round(w * s)), 1)
-
-
-def resize_frames(frames: np.ndarray, size: tuple[int, int]) -> np.ndarray:
-    """``(T, H, W, 3)`` -> ``(T, h, w, 3)`` float32 (area averaging), one frame at a time."""
-    import cv2
-
-    h, w = size
-    out = np.empty((len(frames), h, w, 3), np.float32)
-    for t, f in enumerate(frames):
-        out[t] = cv2.resize(np.asarray(f, np.float32), (w, h), interpolation=cv2.INTER_AREA)
-    return out
-
-
-def pixel_scaling(from_hw: tuple[int, int], to_hw: tuple[int, int]) -> np.ndarray:
-    """``(3, 3)`` map of pixel coordinates of an image of size ``to_hw`` to those of the same image
-    resized to ``from_hw`` (pixel centres at integers: ``x_from = (x_to + 0.5) * s - 0.5``)."""
-    sy, sx = from_hw[0] / to_hw[0], from_hw[1] / to_hw[1]
-    return np.array([[sx, 0.0, 0.5 * sx - 0.5], [0.0, sy, 0.5 * sy - 0.5], [0.0, 0.0, 1.0]])
-
-
-def rescale_homographies(homs: np.ndarray, from_hw: tuple[int, int], to_hw: tuple[int, int]) -> np.ndarray:
-    """Homographies between pixel coordinates of frames of size ``from_hw`` -> the same motion in
-    pixel coordinates of size ``to_hw``: ``A^-1 H A`` with ``A`` = :func:`pixel_scaling`."""
-    a = pixel_scaling(from_hw, to_hw)
-    out = np.linalg.inv(a)[None] @ np.asarray(homs, np.float64) @ a[None]
-    return out / out[:, 2:3, 2:3]
-
-
-def upsample_flow(fw: np.ndarray, hw: tuple[int, int]) -> np.ndarray:
-    """Flows ``(N, h, w, 2)`` in pixels of their own grid -> ``(N, H, W, 2)`` float32 in pixels of
-    ``hw = (H, W)`` (bilinear); unchanged when the sizes already agree."""
-    import cv2
-
-    n, h, w = fw.shape[:3]
-    H, W = hw
-    if (h, w) == (H, W):
-        return np.asarray(fw, np.float32)
-    out = np.empty((n, H, W, 2), np.float32)
-    scale = np.array([W / w, H / h], np.float32)
-    for i in range(n):
-        out[i] = cv2.resize(np.asarray(fw[i], np.float32), (W, H), interpolation=cv2.INTER_LINEAR) * scale
-    return out
-
-
-def upsample_mask(ok: np.ndarray, hw: tuple[int, int]) -> np.ndarray:
-    """Masks ``(N, h, w)`` -> ``(N, H, W)`` bool (nearest)."""
-    import cv2
-
-    n, h, w = ok.shape[:3]
-    if (h, w) == tuple(hw):
-        return np.asarray(ok, bool)
-    return np.stack([cv2.resize(m.astype(np.uint8), (hw[1], hw[0]), interpolation=cv2.INTER_NEAREST).astype(bool) for m in ok])
-
-
-def at_frame_size(fl: dict | None, hw: tuple[int, int], keys: tuple | None = None) -> dict | None:
-    """The flow stage's arrays (flows ``fw``/``bw``, masks ``fw_ok``/``bw_ok``/``vis``, homographies
-    ``homs``), computed at a working size, at the frames' size ``hw``: flows upsampled (in frame
-    pixels), masks by nearest pixel, homographies rescaled. ``keys``: only these (the others are
-    left out); ``fl`` itself when the sizes agree."""
-    if fl is None:
-        return None
-    work = tuple(fl["fw"].shape[1:3])
-    if work == tuple(hw):
-        return fl
-    out = {}
-    for k in keys or tuple(fl):
-        if k in ("fw", "bw"):
-            out[k] = upsample_flow(fl[k], hw)
-        elif k in ("fw_ok", "bw_ok", "vis"):
-            out[k] = upsample_mask(fl[k], hw)
-        elif k == "homs":
-            out[k] = rescale_homographies(fl[k], work, hw)
-    return out

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from layercam.core import metrics
+from layercam.core import frame_metrics, metrics
 
 __all__ = ["UNDER", "OVER", "unseen_mask", "registration", "warp_into", "static_masks", "flicker", "scored_channels", "score_hdr", "display_hdr", "error_map"]
 
@@ -108,7 +108,7 @@ def score_hdr(pred: np.ndarray, gt: np.ndarray, unseen: np.ndarray, fg: np.ndarr
     (``layercam.core.metrics``: one scale per channel), ``psnr_mu_recov`` (the same on the pixels some
     exposure saw, i.e. not ``unseen``), ``psnr_mu_fg`` (on the foreground mask ``fg`` when given),
     the DeepHDRVideo protocol's ``psnr_t``, ``psnr_l_t``, ``ssim_t``
-    (:func:`layercam.core.metrics.deephdr_metrics`) and ``channels`` (e.g. "RGB", "RB")."""
+    (:func:`layercam.core.frame_metrics.deephdr_metrics`) and ``channels`` (e.g. "RGB", "RB")."""
     keep = scored_channels(gt)
     pred, gt = np.asarray(pred)[..., keep], np.asarray(gt)[..., keep]
     m = metrics.hdr_metrics(pred, gt)
@@ -117,7 +117,7 @@ def score_hdr(pred: np.ndarray, gt: np.ndarray, unseen: np.ndarray, fg: np.ndarr
     out["psnr_mu_recov"] = metrics.highlight_psnr_mu(pred, gt, seen) if seen.any() else float("nan")
     if fg is not None:
         out["psnr_mu_fg"] = metrics.highlight_psnr_mu(pred, gt, fg) if fg.any() else float("nan")
-    d = metrics.deephdr_metrics(pred, gt)
+    d = frame_metrics.deephdr_metrics(pred, gt)
     out.update(psnr_t=d["psnr_t"], psnr_l_t=d["psnr_l"], ssim_t=d["ssim_t"], channels="".join("RGB"[c] for c in keep))
     return out
 

@@ -24,7 +24,7 @@ _COLS = {  # group -> (title, [(header, field)])
 }
 HOW = [
     "* PSNR-mu: `layercam.core.metrics` (one scale per channel, the median ratio; both divided by the truth's maximum; mu-law, mu = 5000). "
-    "PSNR-T / PSNR-L / SSIM-T: the DeepHDRVideo protocol (`layercam.core.metrics.deephdr_metrics`: one scale for all channels, truth divided by its maximum when above 1, per-frame means).",
+    "PSNR-T / PSNR-L / SSIM-T: the DeepHDRVideo protocol (`layercam.core.frame_metrics.deephdr_metrics`: one scale for all channels, truth divided by its maximum when above 1, per-frame means).",
     "* Scored channels: a channel of the truth that is 0 in over half its pixels is left out of every score (the NTIRE crops' green: a magenta-lit stage under the 16-bit source's floor).",
     "* Clipped everywhere: pixels that no exposure saw (some channel at or above 245/255, or every channel at or below 2/255, in every exposure): for the NTIRE crops and the composites, "
     "the truth rendered through the known camera at each exposure; for the other brackets the input shots themselves; for the Basler clip each pair of neighbouring frames. "

@@ -64,7 +64,7 @@ def run_task(task: str, clip, exposures, cfg, run_dir: Path, masks=None, progres
 
 
 def _run(ctx: Context, stages: list, t0: float, window=None, ray: str | None = None) -> None:
-    from layercam.pipelines import windows
+    from layercam.pipelines import window_plan, windows
 
     clip, exposures, task, cfg = ctx.clip, ctx.exposures, ctx.task, ctx.cfg
     publish.check_folder(ctx.run_dir, [n for st in stages + [windows.WindowsStage()] for n in st.output_names(ctx)])  # before any work
@@ -75,7 +75,7 @@ def _run(ctx: Context, stages: list, t0: float, window=None, ray: str | None = N
         ctx.measures = analyse.measure(clip, exposures, ctx.flow)
         ctx.measures["masks_given"] = ctx.masks is not None and bool(np.asarray(ctx.masks).any())
         ctx.resolved = resolve(cfg, clip, exposures, task, ctx.measures)
-        plan = windows.plan(clip, exposures, ctx.flow, task, window)
+        plan = window_plan.plan(clip, exposures, ctx.flow, task, window)
         if task != "fuse-stack" and len(stages) == 4 and not ctx.train_callbacks:  # not for a stack, nor a scored run (demo, bench)
             ctx.resolved = dataclasses.replace(ctx.resolved, reasons={**ctx.resolved.reasons, "window": plan.reason})
         if ray and plan.count == 1:

@@ -16,7 +16,7 @@ from hypothesis import strategies as st
 
 from layercam.cli import main
 from layercam.io import read_exr
-from layercam.pipelines import windows
+from layercam.pipelines import window_plan, windows
 
 from conftest import tiny_argv
 
@@ -51,9 +51,9 @@ def windowed(tmp_path_factory, long_frames):
 
 # -- the plan ----------------------------------------------------------------------------------------
 def test_split_covers_the_clip_with_equal_overlaps():
-    w = windows.split(96, 52, 2)
+    w = window_plan.split(96, 52, 2)
     assert w == [(0, 52), (44, 96)]
-    p = windows.Plan(w, "")
+    p = window_plan.Plan(w, "")
     assert p.overlaps() == [8]
     assert p.weights(43) == [(0, 1.0)] and p.weights(96 - 1) == [(1, 1.0)]
     fades = [dict(p.weights(t))[1] for t in range(44, 52)]
@@ -63,8 +63,8 @@ def test_split_covers_the_clip_with_equal_overlaps():
 @settings(max_examples=200, deadline=None)
 @given(T=st.integers(4, 400), length=st.integers(3, 120), cycle=st.sampled_from([1, 2, 3]))
 def test_any_split_joins_with_weights_that_sum_to_one(T, length, cycle):
-    w = windows.split(T, length, cycle)
-    p = windows.Plan(w, "")
+    w = window_plan.split(T, length, cycle)
+    p = window_plan.Plan(w, "")
     assert w[0][0] == 0 and w[-1][1] == T and all(b - a <= length for a, b in w)
     assert all(b1 > a2 for (_, b1), (a2, _) in zip(w, w[1:]))  # neighbours overlap
     for t in range(T):
@@ -90,17 +90,17 @@ def test_auto_plan_cuts_where_the_camera_leaves_the_atlas():
 
     cap = GRID_MAX_RES
     clip, exp, flow = _clip_with_pan(120, 40.0)
-    p = windows.plan(clip, exp, flow, "hdr-video")
+    p = window_plan.plan(clip, exp, flow, "hdr-video")
     assert p.count > 1 and "it holds" in p.reason
     assert p.windows[0][0] == 0 and p.windows[-1][1] == 120
     for (a, b), px in zip(p.windows[:-1], p.atlas_px[:-1]):
-        assert px <= cap and windows.atlas_px(flow["homs"], a, b + 1, (32, 32)) > cap  # the longest that fits
+        assert px <= cap and window_plan.atlas_px(flow["homs"], a, b + 1, (32, 32)) > cap  # the longest that fits
     clip, exp, flow = _clip_with_pan(120, 0.0)  # a static camera: any length fits
-    p = windows.plan(clip, exp, flow, "hdr-video")
+    p = window_plan.plan(clip, exp, flow, "hdr-video")
     assert p.count == 1 and p.reason.startswith("one model")
-    assert windows.plan(clip, exp, flow, "hdr-video", 0).count == 1
-    assert windows.plan(clip, exp, flow, "hdr-video", 200).count == 1
-    assert windows.plan(clip, exp, flow, "fuse-stack", 10).count == 1
+    assert window_plan.plan(clip, exp, flow, "hdr-video", 0).count == 1
+    assert window_plan.plan(clip, exp, flow, "hdr-video", 200).count == 1
+    assert window_plan.plan(clip, exp, flow, "fuse-stack", 10).count == 1
 
 
 # -- a windowed run -----------------------------------------------------------------------------------

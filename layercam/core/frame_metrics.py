@@ -5,6 +5,7 @@
 from __future__ import annotations
 
 import numpy as np
+
 from layercam.core.metrics import MetricInputError, PSNR_CAP, _REL_FLOOR, _finite_gt, _pair, _psnr_masked, _ssim_arrays, ldr_metrics, mu_law
 
 

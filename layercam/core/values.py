@@ -7,6 +7,7 @@ import math
 import types
 import typing
 from typing import Any, Literal
+
 from layercam.core.errors import LayercamError
 
 

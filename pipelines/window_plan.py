@@ -1,0 +1,207 @@
+"""Where a long clip is cut: the plan (how many windows, how long, how much overlap, and why), the
+window bounds, and a window's slice of the clip, its exposures and its flow."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from layercam.core.errors import LayercamError
+
+
+# Frames that two neighbouring windows share and cross-fade over (fewer for windows under three
+# times this long: a third of the window). A join that moves each frame 1/(OVERLAP + 1) of the
+# way from one window's estimate to the other's changes a static pixel by an eighth of their
+# difference per frame, under the frame-to-frame flicker the clips measure (docs/notes/windows.md).
+# Rounded down to whole exposure cycles, so that both windows see each exposure of the overlap.
+OVERLAP = 8
+
+
+@dataclass
+class Plan:
+    """Frame ranges ``[a, b)`` of the windows (one range: a single model) and why."""
+
+    windows: list[tuple[int, int]]
+    reason: str
+    forced: bool = False
+    atlas_px: list[float] = field(default_factory=list)  # each window's atlas extent (px), when measured
+
+    @property
+    def count(self) -> int:
+        return len(self.windows)
+
+    def overlaps(self) -> list[int]:
+        return [self.windows[k][1] - self.windows[k + 1][0] for k in range(self.count - 1)]
+
+    def weights(self, t: int) -> list[tuple[int, float]]:
+        """``[(window, weight), ...]`` of frame ``t`` (one or two windows; weights sum to 1)."""
+        out = []
+        for k, (a, b) in enumerate(self.windows):
+            if not a <= t < b:
+                continue
+            w = 1.0
+            if k + 1 < self.count and t >= self.windows[k + 1][0]:  # fading out into the next
+                a2 = self.windows[k + 1][0]
+                w = 1.0 - (t - a2 + 1) / (b - a2 + 1)
+            if k > 0 and t < self.windows[k - 1][1]:  # fading in from the previous
+                b0 = self.windows[k - 1][1]
+                w = (t - a + 1) / (b0 - a + 1)
+            out.append((k, w))
+        return out
+
+    def holding(self, t: int) -> int:
+        """The window that holds frame ``t`` most (the later one at an even split)."""
+        return max(self.weights(t), key=lambda kw: (kw[1], kw[0]))[0]
+
+    def to_dict(self) -> dict:
+        return {"windows": [list(w) for w in self.windows], "overlaps": self.overlaps(), "reason": self.reason, "forced": self.forced}
+
+
+def overlap_for(length: int, cycle: int) -> int:
+    """The overlap of windows ``length`` frames long on a clip whose exposures repeat every
+    ``cycle`` frames: :data:`OVERLAP`, at most a third of the window, whole cycles where it can."""
+    v = min(OVERLAP, length // 3)
+    if v >= cycle:
+        v -= v % cycle
+    return max(v, 1)
+
+
+def exposure_cycle(exposures) -> int:
+    return int(len(np.unique(exposures.phase))) if exposures.phase is not None else 1
+
+
+def split(T: int, length: int, cycle: int = 1) -> list[tuple[int, int]]:
+    """``T`` frames as the fewest windows of at most ``length`` frames overlapping by
+    :func:`overlap_for`, their lengths within one frame of each other.
+
+    >>> split(96, 48)
+    [(0, 52), (44, 96)]
+    >>> split(14, 6, 2)
+    [(0, 6), (4, 10), (8, 14)]
+    >>> split(40, 48)
+    [(0, 40)]
+    """
+    if length >= T:
+        return [(0, T)]
+    v = overlap_for(length, cycle)
+    n = math.ceil((T - v) / (length - v))
+    total = T + (n - 1) * v
+    lengths = [total // n + (1 if k < total % n else 0) for k in range(n)]
+    out, a = [], 0
+    for k, n_k in enumerate(lengths):
+        out.append((a, a + n_k))
+        a += n_k - v
+    return out
+
+
+def atlas_px(homs: np.ndarray, a: int, b: int, hw: tuple[int, int]) -> float:
+    """How many frame pixels a model of frames ``a .. b - 1`` needs across its atlas for one cell
+    per pixel (what :func:`layercam.scene.layered.derived_sizes` sizes the atlas grid by): the frames mapped as the
+    bootstrap maps them (the pair homographies ``homs`` in frame pixels, ``t -> t + 1``, chained to
+    the middle frame; the identity where they move no corner by ``STATIC_CORNER_PX``), fitted into
+    the atlas (:func:`layercam.core.geometry.atlas_mappings`), measured by
+    :func:`layercam.core.geometry.atlas_pixels`; inf where the chain degenerates."""
+    from layercam.core.geometry import STATIC_CORNER_PX, atlas_mappings, atlas_pixels, chain_homographies, max_corner_shift, middle_frame
+
+    h, w = hw
+    with np.errstate(all="ignore"):
+        try:
+            maps = chain_homographies(np.asarray(homs[a:b - 1], np.float64), middle_frame(b - a))
+        except np.linalg.LinAlgError:
+            return float("inf")
+        if not np.isfinite(maps).all():
+            return float("inf")
+        c = np.array([[0, 0, 1], [w, 0, 1], [0, h, 1], [w, h, 1]], np.float64).T
+        if ((maps @ c)[:, 2] <= 1e-9).any():  # a corner behind the reference view: no plane holds the frames
+            return float("inf")
+        if max_corner_shift(maps, h, w) < STATIC_CORNER_PX:
+            maps = np.stack([np.eye(3)] * (b - a))
+        px = atlas_pixels(atlas_mappings(h, w, maps)[None], hw)
+    return px if np.isfinite(px) else float("inf")
+
+
+def plan(clip, exposures, flow: dict | None, task: str, window=None) -> Plan:
+    """The windows of a clip: ``window`` None (auto), 0 (off) or a length in frames.
+
+    Auto: a model holds the clip as long as its atlas does. The atlas grid's finest level has at
+    most ``GRID_RES_RANGE[1]`` cells across (:func:`layercam.scene.layered.derived_sizes` sizes it at one cell per frame
+    pixel over the frames' extent in the atlas, :func:`atlas_px`: the camera's motion). A clip
+    that needs more (a long pan) is cut into the longest windows that need no more, overlapping by
+    :func:`overlap_for` (a frame larger than the grid alone: as much as one frame needs; a window
+    never shorter than three overlaps). A static camera's clip fits at any length.
+    """
+    from layercam.vision.scale import rescale_homographies
+    from layercam.scene.layered import GRID_RES_RANGE
+
+    GRID_MAX_RES = GRID_RES_RANGE[1]
+
+    T = clip.T
+    cycle = exposure_cycle(exposures)
+    if window is not None and int(window) == 0:
+        return Plan([(0, T)], "off (--window 0)", forced=True)
+    if task == "fuse-stack" or T < 2:
+        return Plan([(0, T)], "one model (a photo stack is one view)" if task == "fuse-stack" else "one model (one frame)")
+    if window is not None:
+        n = int(window)
+        if n < 3:
+            raise LayercamError(f"--window {n}: a window needs at least 3 frames (two windows share some of theirs)")
+        if n >= T:
+            return Plan([(0, T)], f"one model (--window {n} covers the clip's {T} frames)", forced=True)
+        w = split(T, n, cycle)
+        return Plan(w, f"forced (--window {n}): {len(w)} windows of {w[0][1] - w[0][0]} frames or fewer, overlapping by {overlap_for(n, cycle)}", forced=True)
+    if flow is None or "homs" not in flow or len(flow["homs"]) != T - 1:
+        return Plan([(0, T)], "one model (no flow measured)")
+    hw = (clip.H, clip.W)
+    work = tuple(flow["fw"].shape[1:3]) if "fw" in flow else hw
+    homs = rescale_homographies(flow["homs"], work, hw) if work != hw else np.asarray(flow["homs"], np.float64)
+    cap = max(float(GRID_MAX_RES), max(hw) / 0.9)  # geometry.atlas_mappings: a frame fills 0.9 of the atlas
+    whole = atlas_px(homs, 0, T, hw)
+    floor = 3 * OVERLAP
+    if whole <= cap or T < 2 * floor:
+        why = f"needs {whole:.0f} px across the atlas at one cell per pixel, within the {cap:.0f} it holds" if whole <= cap else \
+              f"needs {whole:.0f} px across the atlas, more than the {cap:.0f} it holds, but is shorter than two windows of {floor} frames"
+        return Plan([(0, T)], f"one model: the camera's motion over the {T} frames {why} (--window N cuts it)", atlas_px=[whole])
+    out, sizes, a = [], [], 0
+    while True:
+        b = a + 2
+        while b < T and atlas_px(homs, a, b + 1, hw) <= cap:
+            b += 1
+        b = min(max(b, a + floor), T)  # a camera too fast for the atlas: windows of the shortest length
+        if T - b < floor // 2 and b < T:  # what is left would be a sliver: this window takes it
+            b = T
+        out.append((a, b))
+        sizes.append(atlas_px(homs, a, b, hw))
+        if b >= T:
+            break
+        a = b - overlap_for(b - a, cycle)
+    if len(out) == 1:
+        return Plan(out, f"one model: the camera's motion over the {T} frames needs {whole:.0f} px across the atlas, more than the {cap:.0f} it holds, but less than two windows' worth (--window N cuts it)", atlas_px=sizes)
+    longest = max(b - a for a, b in out)
+    return Plan(out, f"{len(out)} windows of up to {longest} frames: the camera's motion over the {T} frames needs {whole:.0f} px across the atlas at one cell per pixel, "
+                f"more than the {cap:.0f} it holds ({GRID_MAX_RES} cells); each window's frames fit it (--window N or off overrides)", atlas_px=sizes)
+
+
+# -- one window --------------------------------------------------------------------------------------
+def sub_clip(clip, a: int, b: int):
+    from layercam.io.clip import Clip
+
+    meta = {k: (list(v)[a:b] if isinstance(v, (list, tuple)) and len(v) == clip.T else v) for k, v in clip.meta.items()}  # per frame: its slice
+    meta["notes"] = []  # said once, by the whole clip's run
+    meta["window"] = [a, b]
+    exif = None if clip.exif_exposures is None else list(clip.exif_exposures)[a:b]
+    return Clip(clip.frames[a:b], clip.source, list(clip.names)[a:b], clip.fps, clip.bit_depth, exif, meta)
+
+
+def sub_exposures(e, a: int, b: int):
+    from layercam.io import Exposures
+
+    return Exposures(e.log2_dt[a:b], e.learn, None if e.phase is None else e.phase[a:b], e.spec, e.reason, None if e.dt_seconds is None else e.dt_seconds[a:b])
+
+
+def sub_flow(flow: dict | None, T: int, a: int, b: int) -> dict | None:
+    """The whole clip's flow arrays for the pairs inside frames ``a .. b - 1``."""
+    if flow is None:
+        return None
+    return {k: (v[a:b - 1] if hasattr(v, "__len__") and len(v) == T - 1 else v) for k, v in flow.items()}

@@ -259,7 +259,8 @@ class WindowsStage(Stage):
         from layercam.scene import render
         from layercam.core.colour import REC709, luma
         from layercam.io import VideoWriter, read_exr
-        from layercam.pipelines.export import FIRST_PASS_PIXELS, HALF_MAX, HdrSet, _fps
+        from layercam.pipelines.export import FIRST_PASS_PIXELS, _fps
+        from layercam.io.hdr_set import HALF_MAX, HdrSet
 
         def read(d, i):
             return read_exr(d / "hdr" / f"frame_{i:05d}.exr")
@@ -281,7 +282,8 @@ class WindowsStage(Stage):
 
     def _sharp(self, ctx, out, dirs, gains, with_hdr: bool) -> dict:
         from layercam.io import VideoWriter, read_exr, write_png
-        from layercam.pipelines.export import HdrSet, _bits, _fps
+        from layercam.pipelines.export import _bits, _fps
+        from layercam.io.hdr_set import HdrSet
 
         sharp = [np.load(d / "deblurred.npy", mmap_mode="r") for d in dirs]
         T, hw = ctx.clip.T, (ctx.clip.H, ctx.clip.W)

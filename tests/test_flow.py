@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from layercam.vision import flow
+from layercam.vision import flow, raft
 
 from layercam import synth
 from layercam.core.errors import LayercamError
@@ -100,7 +100,7 @@ def test_homographies_and_residual_motion():
 
 def test_raft_missing_weights(tmp_path):
     with pytest.raises(LayercamError):
-        flow.raft_flow(np.zeros((2, 16, 16, 3), np.float32), str(tmp_path / "missing.pth"))
+        raft.raft_flow(np.zeros((2, 16, 16, 3), np.float32), str(tmp_path / "missing.pth"))
     with pytest.raises(LayercamError):
         flow.compute_flow(np.zeros((2, 16, 16, 3), np.float32), method="raft_small")
 

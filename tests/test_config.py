@@ -147,3 +147,16 @@ def test_every_preset_trains_two_steps(name, tmp_path):
     ctx = run_task("hdr-video", scene.clip, ex, cfg, tmp_path / "run", masks=scene.fg_mask.astype(np.float32), progress=False)
     assert ctx.results["train"]["steps"] == 2 and ctx.model.blur is not None and ctx.model.scene.n_layers == 2
     assert len(list((tmp_path / "run" / "hdr").glob("*.exr"))) == 4 and (tmp_path / "run" / "psf.json").is_file()
+
+
+def test_help_lists_every_setting_with_what_it_trades(capsys):
+    from layercam.cli import main
+    from layercam.core.presets import describe_settings
+
+    with pytest.raises(SystemExit):
+        main(["hdr-video", "--help"])
+    out = capsys.readouterr().out
+    rows = describe_settings()
+    assert f"{len(rows)} in all" in out
+    for key, _, comment in rows:
+        assert f"  {key} = " in out and comment, key

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from layercam.core.presets import settings_help
 from layercam.cli import EPILOG, common_model_args, default_out, finish, input_args, load_cfg, window_args
 
 
@@ -19,7 +20,7 @@ def register(sub) -> argparse.ArgumentParser:
             "crf.json/png, psf.json (learned blur per frame), report.json, checkpoint.pt. The video keeps the input's "
             "frame rate and sound."
         ),
-        epilog=EPILOG,
+        epilog=EPILOG + "\n\n" + settings_help(),
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     input_args(d, "none")

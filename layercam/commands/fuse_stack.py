@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from layercam.core.presets import settings_help
 from layercam.cli import common_model_args, default_out, finish, load_cfg
 
 EXAMPLES = """examples:
@@ -27,7 +28,7 @@ def register(sub) -> argparse.ArgumentParser:
             "a single-exposure stack the sharp image in the input's tonality), crf.json/png, psf.json, "
             "report.json, checkpoint.pt (for layercam render)."
         ),
-        epilog=EXAMPLES,
+        epilog=EXAMPLES + "\n\n" + settings_help(),
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     f.add_argument("inputs", nargs="+", metavar="IMAGES", help="two or more image files, or one folder of images")

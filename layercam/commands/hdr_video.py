@@ -6,11 +6,12 @@ import argparse
 from pathlib import Path
 
 from layercam.engine import distributed
+from layercam.core.presets import settings_help
 from layercam.cli import EPILOG, common_model_args, default_out, finish, input_args, load_cfg, number, window_args
 
 
 def register(sub) -> argparse.ArgumentParser:
-    h = sub.add_parser("hdr-video", help="alternating-exposure video -> linear HDR EXR frames, an HDR video + preview", description="Alternating-exposure (or any varying-exposure) video to linear HDR: hdr/frame_00000.exr, hdr.mp4 (HDR10 or HLG, to watch on an HDR screen), preview.mp4 (SDR), crf.json/png, report.json, checkpoint.pt. The videos keep the input's frame rate and sound.", epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+    h = sub.add_parser("hdr-video", help="alternating-exposure video -> linear HDR EXR frames, an HDR video + preview", description="Alternating-exposure (or any varying-exposure) video to linear HDR: hdr/frame_00000.exr, hdr.mp4 (HDR10 or HLG, to watch on an HDR screen), preview.mp4 (SDR), crf.json/png, report.json, checkpoint.pt. The videos keep the input's frame rate and sound.", epilog=EPILOG + "\n\n" + settings_help(), formatter_class=argparse.RawDescriptionHelpFormatter)
     input_args(h, "alt")
     hdr_video_args(h)
     common_model_args(h)

@@ -361,3 +361,4 @@ def config_from_dict(d: dict) -> Config:
             if k in known:
                 cfg.set(f"{sec}.{k}", v)
     return cfg
+

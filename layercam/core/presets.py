@@ -16,9 +16,10 @@ import re
 import tomllib
 from importlib import resources
 from pathlib import Path
+from typing import Any
 
 from layercam.core.errors import LayercamError
-from layercam.core.config import Config, validate
+from layercam.core.config import SECTIONS, Config, validate
 
 
 def model_overrides(layers=None, tone_mapper=None, blur=None, max_offset=None, flow_loss=None) -> list[str]:
@@ -87,3 +88,37 @@ def load_config(preset: str = "balanced", overrides: list[str] | None = None) ->
         k, v = item.split("=", 1)
         cfg.set(k.strip(), v.strip())
     return validate(cfg)
+
+
+def describe_settings() -> list[tuple[str, Any, str]]:
+    """Every setting as ``(section.field, default, comment)``: the comment beside its field in this
+    module (what it trades), continued on the comment-only lines under it."""
+    import ast
+    import dataclasses
+    import inspect
+
+    out = []
+    for sec in SECTIONS:
+        cls = type(getattr(Config(), sec))
+        src = inspect.getsource(cls).splitlines()
+        fields = {n.target.id: n.lineno - 1 for n in ast.parse("\n".join(src)).body[0].body if isinstance(n, ast.AnnAssign)}
+        defaults = {f.name: getattr(Config(), sec).__dict__[f.name] for f in dataclasses.fields(cls)}
+        for name, i in fields.items():
+            words = [src[i].split("#", 1)[1].strip()] if "#" in src[i] else []
+            while i + 1 < len(src) and src[i + 1].strip().startswith("#"):
+                i += 1
+                words.append(src[i].strip()[1:].strip())
+            out.append((f"{sec}.{name}", defaults[name], " ".join(words)))
+    return out
+
+
+def settings_help(width: int = 100) -> str:
+    """The settings, for a command's ``--help``: ``section.field (default)`` and what it trades."""
+    import textwrap
+
+    rows = describe_settings()
+    lines = [f"settings (--set section.field=VALUE; {len(rows)} in all; the defaults before a preset; a run's resolved values: report.json):"]
+    for key, default, comment in rows:
+        lines.append(f"  {key} = {default!r}")
+        lines += textwrap.wrap(comment, width, initial_indent="      ", subsequent_indent="      ")
+    return "\n".join(lines)

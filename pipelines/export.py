@@ -142,13 +142,12 @@ def faithful_hdr(ctx: Context, model, ts) -> Iterator[tuple[int, np.ndarray, dic
     lv, frames, T = ctx_clip_levels(ctx), ctx.clip.frames, ctx.clip.T
     static = ctx.resolved.static  # registered by the identity: every frame sees this view
     kept: dict[int, dict] = {}
-    # auto: a video from a static camera. Moved along the flow, neighbours cost the panning composites
-    # 0.5-1.3 dB; on a bracket's fused view, crops 000000 / 000003 gained 1.4-1.6 dB and 000002 lost
-    # 1.6 (its short shot reads the pixels the reference clipped 0.3-0.5 stop under the truth)
+    # auto: a video from a static camera; not moved along the flow, nor for a bracket's fused view
+    # (docs/measurements.md)
     merging = ctx.resolved.settings.export.merge_neighbours == "on"  # auto: a video from a static camera (layercam.engine.resolve)
 
-    # auto: a stack's fused view (NTIRE crops 000000 / 000003 +1.6-2.9 dB, taipei +0.2-0.4); not videos
-    # (Basler `fast` flicker 0.86 -> 1.04: short and long frames filtered by their own, different noise)
+    # auto: a stack's fused view; not videos, whose short and long frames, filtered by their own
+    # different noise, flicker (docs/measurements.md)
     denoise = ctx.resolved.settings.export.denoise == "on"  # auto: a stack's fused view (layercam.engine.resolve)
 
     def corr(t: int) -> dict:

@@ -14,7 +14,7 @@ from layercam.core.errors import LayercamError
 # Frames that two neighbouring windows share and cross-fade over (fewer for windows under three
 # times this long: a third of the window). A join that moves each frame 1/(OVERLAP + 1) of the
 # way from one window's estimate to the other's changes a static pixel by an eighth of their
-# difference per frame, under the frame-to-frame flicker the clips measure (docs/notes/windows.md).
+# difference per frame, under the frame-to-frame flicker the clips measure (docs/measurements.md).
 # Rounded down to whole exposure cycles, so that both windows see each exposure of the overlap.
 OVERLAP = 8
 

@@ -269,8 +269,7 @@ def denoise_log2(z: np.ndarray, var: np.ndarray, sigma: float = DENOISE_SIGMA) -
     and variance (Gaussian window ``sigma`` px). Where the local variance is the noise's the local
     mean is kept; at an edge or texture well above the noise the pixel is; where ``var`` is 0, ``z``
     unchanged. The model fits each frame's noise where every atlas cell is seen by one pixel per
-    frame (a 3-shot bracket): on the NTIRE crops the exported fused view was 1.6-2.9 dB under the
-    same image filtered so (docs/measurements.md)."""
+    frame (a 3-shot bracket), so its fused view is filtered so (docs/measurements.md)."""
     import cv2
 
     z = np.asarray(z, np.float32)
@@ -343,7 +342,7 @@ def faithful_log2(model, frame: np.ndarray, t: int, levels: np.ndarray | None = 
     z = np.where(below | (above & (clipped == "clip")), np.minimum(z, bound), z)
     sigma = info.pop("sigma")
     measured = info.pop("sigma_measured", sigma)  # a corr made by hand may carry only "sigma"
-    if denoise:  # the noise as measured: with the Wiener weight's floor a clean synthetic stack lost 0.2 dB
+    if denoise:  # the noise as measured, without the Wiener weight's floor (which blurs a clean stack)
         z = denoise_log2(z, noise_log2(model, frame, log2_dt, measured, c["exposed"]))
     lower, upper = clip_bounds(model, frame, log2_dt, levels, sigma)
     if fill is not None:  # a neighbour that saw it says more than the learned curve's shoulder

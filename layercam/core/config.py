@@ -244,7 +244,7 @@ class SegmentConfig(Section):
     colour_smooth: float = setting(2.0, 0.0)
     colour_distance: float = setting(1.0, 0.0)
     colour_failure: float = setting(1.0, 0.0)
-    colour_clean: float = setting(0.5, 0.0, 1.0)  # 1 until 2026-11-25: DAVIS at balanced, libby 0.610 -> 0.635; the real suite within its spread (docs/layers/ceiling/)
+    colour_clean: float = setting(0.5, 0.0, 1.0)
     foreground: Literal["object", "identity"] = "object"
     margin: float = setting(0.6, above=0.0, hi=1.0)
     refine: bool = False

@@ -8,8 +8,8 @@ date (``state["last"]``). Dense Adam keeps moving a row after its last gradient:
 gradients its moments decay (``m b1^j``, ``v b2^j``) and it coasts ``lr m / sqrt(v) * q^j``,
 ``q = b1 / sqrt(b2)``, for some tens of steps (``sum q^j`` ~ 10 with betas 0.9, 0.99: ten times
 the step a lone gradient gives). Left out (plain lazy Adam, TensorFlow's ``LazyAdam``, ``coast =
-False``), that lost 0.9 dB PSNR-mu on the bench clip (fast preset, 256x144x48), whose fine cells are
-touched only a few times in training. So when a row is touched again, the steps it missed are
+False``), fine cells touched only a few times in training learn too little
+(docs/measurements.md). So when a row is touched again, the steps it missed are
 applied first in closed form (the geometric sum, at the current learning rate and bias
 correction) and its moments decayed by them; :meth:`Adam.flush` brings every row up to date (the
 trainer calls it when training ends). With every row touched every step this is dense Adam

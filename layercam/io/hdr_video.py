@@ -46,7 +46,7 @@ __all__ = ["FORMATS", "TRANSFER", "HdrMapping", "missing_for_hdr", "write_hdr_vi
 
 FORMATS = ("pq", "hlg", "none")
 TRANSFER = {"pq": "smpte2084", "hlg": "arib-std-b67"}
-CRF = 10  # x265's quality: the codec's error within 2% of the light on most well-exposed pixels (docs/notes/hdr.md); 18 left 3%
+CRF = 10  # x265's quality: the codec's error within 2% of the light on most well-exposed pixels (docs/measurements.md); 18 left 3%
 PRESET = "fast"  # as medium's error and size, in three quarters of its time
 MIN_SIDE = 16  # libx265 refuses smaller frames
 NARROW = 64  # narrower frames are encoded padded to this width and cropped back (libx265 4.3's 10-bit encoder crashes at widths 34..48)

@@ -102,14 +102,11 @@ class ImplicitCameraModel(nn.Module):
         segmentation) and an alpha field, alpha is fitted to them at first, the weight tapering off
         with the flow's to the share ``MASK_GIVEN`` or ``MASK_MOTION`` of it. The term is
         class-balanced (a small object takes its shape fast); given masks only during the bootstrap
-        steps, since balanced all through it keeps a halo around a thin object (DAVIS at 0.33, fast:
-        libby alpha IoU 0.766 -> 0.853, parkour 0.905 -> 0.945). Motion masks stay balanced: they
-        miss parts of the object, which the halo partly covers (plain after the bootstrap steps:
-        libby 0.388 -> 0.352, cows 0.762 -> 0.756, car-roundabout 0.785 -> 0.789, parkour 0.702 -> 0.707).
-        ``refined`` masks (``segment.refine``) come from the motion masks and miss parts as they do:
+        steps, since balanced all through it keeps a halo around a thin object. Motion masks stay
+        balanced: they miss parts of the object, which the halo partly covers. ``refined`` masks (``segment.refine``) come from the motion masks and miss parts as they do:
         balanced all through like them, and tapered to ``MASK_MOTION`` (balanced during the
-        bootstrap steps only, at ``balanced`` the plain term's pull to the background faded libby's
-        alpha to nothing: IoU 0.051, against 0.526 balanced; docs/layers/ceiling/)."""
+        bootstrap steps only, the plain term's pull to the background can fade a thin object's
+        alpha to nothing; docs/measurements.md)."""
         from layercam.engine.train import BootstrapPhase, FlowDecay, MaskTaper
 
         c = self.cfg

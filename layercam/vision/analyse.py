@@ -51,9 +51,8 @@ FLOOR = {"scene.grid_levels": FLOOR_GRID_LEVELS, "scene.atlas_width": 64, "train
                              # up to ~300x300 px) trains this model whatever the preset (the batch at most
                              # this): on the NTIRE crops and twelve taipei crops no preset's difference
                              # there was larger than the spread of three seeds, larger batches learned a
-                             # softer tone shoulder (000001, 300 steps: 4096 27.31 dB, 8192 25.95) and
-                             # more steps fitted the shots' noise (taipei crops, 4096: 300 34.83, 600
-                             # 34.32). Not with a blur generator (MIN_SAMPLES). docs/measurements.md
+                             # softer tone shoulder and more steps fitted the shots' noise. Not with a
+                             # blur generator (MIN_SAMPLES). docs/measurements.md
 BLUR_SIGMA = 0.8             # relative blur (Gaussian sigma, px) of a tile that needs a blur generator
 BLUR_TILE_SHARE = 0.4        # ... on at least this share of the tiles of some pair (both signs: focus
                              # that differs by region; the real captures' shares: docs/measurements.md)

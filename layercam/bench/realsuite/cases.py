@@ -173,9 +173,8 @@ def ntire_truth(folder: Path) -> np.ndarray:
     """An NTIRE crop's linear radiance ``(H,W,3)`` RGB, on the medium shot's scale: decoded from the
     16-bit source as SOURCE.txt says, ``(gt.png / alignratio) ** 2.24``. ``gt_linear.hdr`` holds
     the same radiance re-encoded as Radiance RGBE, whose shared 8-bit mantissa rounds a channel far
-    below its pixel's brightest to 0: on crop 000000 (a dark purple stage) 31% of its values are 0
-    against 27% in the source, and it scores only 31.3 dB PSNR-mu against the source, a ceiling
-    that would hide differences between methods. It is used only where ``gt.png`` is missing."""
+    below its pixel's brightest to 0, a ceiling that would hide differences between methods
+    (docs/measurements.md). It is used only where ``gt.png`` is missing."""
     import cv2
 
     if (folder / "gt.png").exists() and (folder / "alignratio.npy").exists():

@@ -19,7 +19,7 @@ from layercam.scene.model import ImplicitCameraModel
 
 from conftest import decided, scaled_h0
 
-OLD_RUN = Path(__file__).parent / "data" / "run_format1"  # hdr-video, 2 layers + 3x3 blur (s = 2), 4 frames 16x16, made at 11fa359
+OLD_RUN = Path(__file__).parents[1] / "data" / "run_format1"  # hdr-video, 2 layers + 3x3 blur (s = 2), 4 frames 16x16, made at 11fa359
 
 
 def test_a_checkpoint_of_an_earlier_format_is_refused_with_one_line(tmp_path, capsys):

@@ -212,6 +212,19 @@ def _out_dir(args, run_dir: Path) -> Path:
     return Path(args.out) if args.out else run_dir / "edit"
 
 
+def _edit_target(args, run_dir: Path, L: int) -> Path:
+    """The edit's output folder, after checking ``--layer`` against the run's ``L`` layers and that
+    the folder holds no edit (unless ``--overwrite``)."""
+    if not 0 <= args.layer < L:
+        raise LayercamError(f"--layer {args.layer}: this run has {L} layer{'s' if L > 1 else ''} (0{'' if L == 1 else f'..{L - 1}'})")
+    if args.layer > 0:
+        _say_faded(run_dir)
+    out = _out_dir(args, run_dir)
+    if (out / "edit.json").exists() and not args.overwrite:
+        raise LayercamError(f"{out} already holds an edit; pass --overwrite or choose another --out")
+    return out
+
+
 def _say_faded(run_dir: Path) -> None:
     """Repeats the run's warning that its foreground faded in training (``report.json``): an edit
     of that layer shows only where alpha is left."""
@@ -247,13 +260,7 @@ def _edit(args, run_dir: Path) -> int:
         raise LayercamError(f"--window {args.window}: {run_dir} is one model, not a long clip's windows; leave --window out")
     model, meta = load_run_model(run_dir, device_of(args.device))
     L = model.scene.n_layers
-    if not 0 <= args.layer < L:
-        raise LayercamError(f"--layer {args.layer}: this run has {L} layer{'s' if L > 1 else ''} (0{'' if L == 1 else f'..{L - 1}'})")
-    if args.layer > 0:
-        _say_faded(run_dir)
-    out = _out_dir(args, run_dir)
-    if (out / "edit.json").exists() and not args.overwrite:
-        raise LayercamError(f"{out} already holds an edit; pass --overwrite or choose another --out")
+    out = _edit_target(args, run_dir, L)
     edit = load_edit(model, run_dir, args.layer, Path(args.atlas))
     if not (edit["alpha"] > 0).any():
         raise LayercamError(f"{args.atlas}: nothing to composite (fully transparent, or identical to the exported atlas)")
@@ -313,13 +320,7 @@ def _edit_windows(args, run_dir: Path, index: dict) -> int:
     loaded = [load_run_model(f, dev) for f in folders]
     models, metas = [m for m, _ in loaded], [m for _, m in loaded]
     L = models[0].scene.n_layers
-    if not 0 <= args.layer < L:
-        raise LayercamError(f"--layer {args.layer}: this run has {L} layer{'s' if L > 1 else ''} (0{'' if L == 1 else f'..{L - 1}'})")
-    if args.layer > 0:
-        _say_faded(run_dir)
-    out = _out_dir(args, run_dir)
-    if (out / "edit.json").exists() and not args.overwrite:
-        raise LayercamError(f"{out} already holds an edit; pass --overwrite or choose another --out")
+    out = _edit_target(args, run_dir, L)
     hw = tuple(metas[0]["frame_hw"])
     gains = windows.index_gains(index)  # each window's irradiance against window 0's (1 where the camera is shared)
     edits: list = [None] * n

@@ -46,7 +46,10 @@ def lock_owner(folder: str | os.PathLike) -> dict | None:
         return None
 
 
-def _pid_alive(pid: int) -> bool:
+def pid_alive(pid: int) -> bool:
+    """Whether a process ``pid`` runs on this machine (one we may not signal counts as running)."""
+    if pid <= 0:
+        return False
     try:
         os.kill(pid, 0)
     except ProcessLookupError:
@@ -90,7 +93,7 @@ def _acquire(path: Path, say) -> int:
             except ValueError:
                 prev = None
             here = prev and prev.get("host") == socket.gethostname()
-            state = "no longer running" if here and not _pid_alive(int(prev.get("pid", -1))) else "ended without removing it"
+            state = "no longer running" if here and not pid_alive(int(prev.get("pid", -1))) else "ended without removing it"
             say(f"taking over a stale lock of {_describe(prev)}: {state}")
         os.ftruncate(fd, 0)
         os.lseek(fd, 0, os.SEEK_SET)

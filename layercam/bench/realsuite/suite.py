@@ -19,6 +19,7 @@ from pathlib import Path
 
 from layercam.core.presets import preset_tag
 from layercam.core.errors import LayercamError
+from layercam.io.lock import pid_alive
 from layercam.bench.realsuite.cases import CASES
 
 __all__ = ["run_real_suite", "resolve_data", "QUICK_OVERRIDES"]
@@ -73,7 +74,7 @@ class _Lock:
                 fd = os.open(self.path, os.O_CREAT | os.O_EXCL | os.O_WRONLY)
             except FileExistsError:
                 pid = int(self.path.read_text().strip() or 0)
-                if _alive(pid):
+                if pid_alive(pid):
                     raise LayercamError(f"another real-suite run (pid {pid}) is writing into {self.path.parent}") from None
                 self.path.unlink(missing_ok=True)
                 continue
@@ -84,18 +85,6 @@ class _Lock:
 
     def __exit__(self, *exc):
         self.path.unlink(missing_ok=True)
-
-
-def _alive(pid: int) -> bool:
-    if pid <= 0:
-        return False
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    return True
 
 
 def run_real_suite(out, cases: list[str] | None = None, presets: list[str] | None = None, data=None, force: bool = False, quick: bool = False,

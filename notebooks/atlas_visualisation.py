@@ -54,16 +54,13 @@ import numpy as np
 import torch
 from IPython.display import Image, display
 
-from layercam.engine import checkpoint
-
-from layercam.scene import render
-
 from layercam import synth
-
 from layercam.bench import viz
-from layercam.engine.sampler import normalise_xy
 from layercam.core.geometry import middle_frame
+from layercam.engine import checkpoint
+from layercam.engine.sampler import normalise_xy
 from layercam.pipelines.atlas_export import atlas_resolution
+from layercam.scene import render
 
 FIGURES = {}  # name -> figure, in the order drawn
 

@@ -70,7 +70,7 @@ def test_the_bootstrap_runs_a_detector_file_and_says_what_it_took(random_maskrcn
     frame's size above the score, and the masks are the motion masks except in the frames the
     detector's instances replaced, which the info counts."""
     from layercam.vision import flow
-    from tests.test_segment import _square_clip
+    from test_segment import _square_clip
 
     frames, _, _ = _square_clip(T=4, size=48, side=14)
     fw, bw = flow.compute_flow(frames, "dis_fast", progress=False)

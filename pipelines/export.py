@@ -10,7 +10,9 @@ writer                writes
                       (HDR10 or HLG from the EXRs, ``export.hdr_format``,
                       :mod:`layercam.io.hdr_video`)
 ``sharp``             ``frames/frame_00000.png`` and ``deblurred.mp4``: the tone mapper at each
-                      frame's own exposure, blur generator dropped; ``hdr/`` when exposures vary
+                      frame's own exposure, blur generator dropped; ``hdr/`` when exposures vary.
+                      Each frame is checked against its input (:func:`view_check`): one that
+                      misses its input's view is written as the input, and the summary says so
 ``fused``             ``fused.exr`` (the scene for the reference view, camera dropped, faithful
                       to the reference image like ``hdr``) and
                       ``fused.png`` (tonemapped; with the fixed sRGB curve, the input's tonality)
@@ -286,6 +288,31 @@ def hdr_video(ctx: Context, model, paths: list[Path], dest: Path) -> dict:
     return {**info, "input_primaries": prim, "anchor": ANCHOR}
 
 
+VIEW_MIN_DB = 30.0  # low-pass PSNR (dB) a sharp frame must keep to its own input: else it shows another view
+VIEW_SIGMA_MIN_PX = 2.0  # the low-pass's Gaussian sigma, px: at least this, else half the blur generator's reach
+
+
+def view_sigma(ctx: Context) -> float:
+    """The low-pass of :func:`view_check`, px: half the blur generator's reach (``blur.max_offset``,
+    how far the camera may have spread a point), at least ``VIEW_SIGMA_MIN_PX``; coarser than any blur
+    the model can explain, so a right frame's low-pass matches its blurry input's."""
+    s = ctx.resolved.settings
+    reach = float(s.blur.max_offset) if s.model.blur == "on" else 0.0
+    return max(VIEW_SIGMA_MIN_PX, reach / 2.0)
+
+
+def view_check(rendered: np.ndarray, frame: np.ndarray, sigma: float) -> float:
+    """Low-pass PSNR (dB) of a rendered frame ``(H,W,3)`` against its input ``(H,W,3)``, both in [0,1]
+    and in the input's tonality, after a Gaussian of ``sigma`` px: deblurring changes detail finer than
+    the blur, not where things are, so a frame in its input's view scores high and one shifted or
+    showing other content (another frame's pose, a doubled layer) scores low."""
+    import cv2
+
+    a = cv2.GaussianBlur(np.clip(rendered, 0.0, 1.0).astype(np.float32), (0, 0), sigma)
+    b = cv2.GaussianBlur(np.asarray(frame, np.float32), (0, 0), sigma)
+    return float(10.0 * np.log10(1.0 / max(float(np.mean((a - b) ** 2)), 1e-12)))
+
+
 def sharp_writer(ctx: Context, model, dest: Path, cache: Path) -> dict:
     from layercam import render
     from layercam.io import VideoWriter, write_png
@@ -297,6 +324,7 @@ def sharp_writer(ctx: Context, model, dest: Path, cache: Path) -> dict:
     if with_hdr:
         (dest / "hdr").mkdir(exist_ok=True)
     kept = np.lib.format.open_memmap(cache / "deblurred.npy", mode="w+", dtype=np.float32, shape=(T, *hw, 3))  # for the evaluation, on disk
+    sigma, held, fell = view_sigma(ctx), [], []
     with VideoWriter(dest / "deblurred.mp4", fps=_fps(ctx), audio=audio(ctx)) as video:
         for t in _frames(ctx):
             reached("export", t)
@@ -304,6 +332,10 @@ def sharp_writer(ctx: Context, model, dest: Path, cache: Path) -> dict:
             ldr = out["ldr"]
             if not np.isfinite(ldr).all():
                 raise LayercamError(f"frame {t}: the model rendered non-finite values; not writing it")
+            held.append(round(view_check(ldr, ctx.clip.frames[t], sigma), 2))
+            if held[-1] < VIEW_MIN_DB:  # in another view: the input, not a wrong frame
+                fell.append(t)
+                ldr = np.asarray(ctx.clip.frames[t], np.float32)
             write_png(dest / "frames" / f"frame_{t:05d}.png", ldr, bit_depth=_bits(ctx))
             kept[t] = ldr
             video.add(ldr)
@@ -311,7 +343,12 @@ def sharp_writer(ctx: Context, model, dest: Path, cache: Path) -> dict:
                 exrs.add(dest / "hdr" / f"frame_{t:05d}.exr", out["hdr"])
     kept.flush()
     del kept
-    return {"frames": int(T), "hdr": with_hdr, "hdr_max": exrs.hi if with_hdr else 0.0, "png_bits": _bits(ctx), "fps": _fps(ctx), "sound": _sound(ctx, video)}
+    if fell:
+        ctx.warn(f"frame(s) {', '.join(map(str, fell))} of {T}: the sharp render missed the input's view (low-pass PSNR "
+                 f"{', '.join(f'{held[t]:.1f}' for t in fell)} dB, under {VIEW_MIN_DB:g}); the input is written for them"
+                 + (" (frames/ and deblurred.mp4; hdr/ keeps the render)" if with_hdr else ""))
+    view = {"lowpass_sigma_px": sigma, "min_db": VIEW_MIN_DB, "lowpass_psnr_db": held}
+    return {"frames": int(T), "fallback_frames": fell, "view_check": view, "hdr": with_hdr, "hdr_max": exrs.hi if with_hdr else 0.0, "png_bits": _bits(ctx), "fps": _fps(ctx), "sound": _sound(ctx, video)}
 
 
 def fused_writer(ctx: Context, model, dest: Path, cache: Path) -> dict:
@@ -405,7 +442,7 @@ class ExportStage(Stage):
 
     name = "export"
     deps = ("train",)
-    reads = ("export", "task", "static")
+    reads = ("export", "task", "static", "model.blur", "blur.max_offset")  # the last two: the sharp frames' view check
 
     def output_names(self, ctx):
         return [n for n in outputs_for(ctx.task) if n != REPORT_NAME]

@@ -81,10 +81,7 @@ class ImplicitCameraModel(nn.Module):
         if m.blur == "on":
             from layercam.camera.blur import INIT_CENTRE_WEIGHT, BlurGenerator
 
-            # every PSF's weighted centre on its pixel: the sharp frame is where the blur's centroid is (the
-            # pixel under defocus, the mid-exposure position under motion blur); a free centre is a second
-            # warp beside the deformation, and the sharp frame then leaves its input's view
-            self.blur = BlurGenerator(cfg.blur.n, cfg.blur.max_offset, h0.shape[1], frame_hw, init_centre_weight=INIT_CENTRE_WEIGHT, zero_mean_offsets=True, centre_exact=True)
+            self.blur = BlurGenerator(cfg.blur.n, cfg.blur.max_offset, h0.shape[1], frame_hw, init_centre_weight=INIT_CENTRE_WEIGHT, zero_mean_offsets=True, centre_exact=r.blur_centre)
         self.loss_weights = LossWeights(
             color=COLOR,
             flow=FLOW if m.flow_loss else 0.0,

@@ -12,8 +12,8 @@ What it decides, each with a reason in ``Resolved.reasons`` (keyed ``section.fie
   ``blur.max_offset``), the colour loss (``loss.robust``): :func:`layercam.analyse.decide`;
 * ``static``: the camera did not move (the flow's chained homographies move no frame corner by
   :data:`layercam.geometry.STATIC_CORNER_PX`; with ``scene.bootstrap=flow``). A static one-layer
-  scene then has no residual warp, a static two-layer scene a background held still
-  (:attr:`Resolved.residual`, :attr:`still_background`);
+  scene then has no residual warp and blur PSFs centred on their pixel, a static two-layer scene
+  a background held still (:attr:`Resolved.residual`, :attr:`still_background`, :attr:`blur_centre`);
 * the step cap (``train.steps``, and where it shortens training ``scene.grid_levels``, and at its
   floor the floor's model, :data:`layercam.analyse.FLOOR`): only where the preset allows a cap
   (``train.passes_per_frame`` > 0; `paper` trains the paper's steps);
@@ -59,6 +59,12 @@ class Resolved:
         """Two layers from a static camera: the background maps every frame through its bootstrap
         homography alone (a per-frame correction let it wander a pixel and flicker)."""
         return self.static and self.settings.model.layers > 1
+
+    @property
+    def blur_centre(self) -> bool:
+        """The blur PSFs' weighted centre held on its pixel: a static one-layer scene (a shift has
+        nothing to follow there); free on moving footage."""
+        return self.static and self.settings.model.layers == 1
 
     def section(self, *names: str) -> dict:
         """``{name: {field: value}}`` of the settings' sections ``names`` (a stage's cache key)."""

@@ -10,7 +10,8 @@ writer                writes
                       (HDR10 or HLG from the EXRs, ``export.hdr_format``,
                       :mod:`layercam.io.hdr_video`)
 ``sharp``             ``frames/frame_00000.png`` and ``deblurred.mp4``: the tone mapper at each
-                      frame's own exposure, blur generator dropped; ``hdr/`` when exposures vary
+                      frame's own exposure, blur generator dropped; ``hdr/`` when exposures vary;
+                      a frame that misses its input's view (:mod:`.view`) is written as the input
 ``fused``             ``fused.exr`` (the scene for the reference view, camera dropped, faithful
                       to the reference image like ``hdr``) and
                       ``fused.png`` (tonemapped; with the fixed sRGB curve, the input's tonality)
@@ -39,6 +40,7 @@ from layercam.core.errors import LayercamError
 from layercam.core.interrupts import reached
 from layercam.pipelines.runner import Context, Stage, write_json
 from layercam.io.hdr_set import HALF_MAX, HdrSet, write_hdr_set
+from layercam.pipelines.view import VIEW_MIN_DB, view_check, view_sigma
 
 CHECKPOINT_NAME = "checkpoint.pt"
 
@@ -259,6 +261,7 @@ def sharp_writer(ctx: Context, model, dest: Path, cache: Path) -> dict:
     if with_hdr:
         (dest / "hdr").mkdir(exist_ok=True)
     kept = np.lib.format.open_memmap(cache / "deblurred.npy", mode="w+", dtype=np.float32, shape=(T, *hw, 3))  # for the evaluation, on disk
+    sigma, held, fell = view_sigma(ctx), [], []
     with VideoWriter(dest / "deblurred.mp4", fps=_fps(ctx), audio=audio(ctx)) as video:
         for t in _frames(ctx):
             reached("export", t)
@@ -266,6 +269,10 @@ def sharp_writer(ctx: Context, model, dest: Path, cache: Path) -> dict:
             ldr = out["ldr"]
             if not np.isfinite(ldr).all():
                 raise LayercamError(f"frame {t}: the model rendered non-finite values; not writing it")
+            held.append(round(view_check(ldr, ctx.clip.frames[t], sigma), 2))
+            if held[-1] < VIEW_MIN_DB:  # in another view: the input, not a wrong frame
+                fell.append(t)
+                ldr = np.asarray(ctx.clip.frames[t], np.float32)
             write_png(dest / "frames" / f"frame_{t:05d}.png", ldr, bit_depth=_bits(ctx))
             kept[t] = ldr
             video.add(ldr)
@@ -273,7 +280,12 @@ def sharp_writer(ctx: Context, model, dest: Path, cache: Path) -> dict:
                 exrs.add(dest / "hdr" / f"frame_{t:05d}.exr", out["hdr"])
     kept.flush()
     del kept
-    return {"frames": int(T), "hdr": with_hdr, "hdr_max": exrs.hi if with_hdr else 0.0, "png_bits": _bits(ctx), "fps": _fps(ctx), "sound": _sound(ctx, video)}
+    if fell:
+        ctx.warn(f"frame(s) {', '.join(map(str, fell))} of {T}: the sharp render missed the input's view (low-pass PSNR "
+                 f"{', '.join(f'{held[t]:.1f}' for t in fell)} dB, under {VIEW_MIN_DB:g}); the input is written for them"
+                 + (" (frames/ and deblurred.mp4; hdr/ keeps the render)" if with_hdr else ""))
+    view = {"lowpass_sigma_px": sigma, "min_db": VIEW_MIN_DB, "lowpass_psnr_db": held}
+    return {"frames": int(T), "fallback_frames": fell, "view_check": view, "hdr": with_hdr, "hdr_max": exrs.hi if with_hdr else 0.0, "png_bits": _bits(ctx), "fps": _fps(ctx), "sound": _sound(ctx, video)}
 
 
 def fused_writer(ctx: Context, model, dest: Path, cache: Path) -> dict:
@@ -367,7 +379,7 @@ class ExportStage(Stage):
 
     name = "export"
     deps = ("train",)
-    reads = ("export", "task", "static")
+    reads = ("export", "task", "static", "model.blur", "blur.max_offset")  # the last two: the sharp frames' view check
 
     def output_names(self, ctx):
         return [n for n in outputs_for(ctx.task) if n != REPORT_NAME]

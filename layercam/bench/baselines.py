@@ -1,6 +1,6 @@
 """Classical baselines to compare against (OpenCV): flow-aligned Debevec HDR video, Laplacian
-multi-focus fusion, and the two-stage (fusion, then Debevec) all-in-focus HDR of the paper's
-comparisons.
+multi-focus fusion, the two-stage (fusion, then Debevec) all-in-focus HDR of the paper's
+comparisons, and for video deblurring unsharp masking and flow-aligned lucky regions.
 
 All take float images in [0,1] (``(N,H,W,3)``) and hand OpenCV 8-bit copies. HDR outputs are
 linear float32 with OpenCV's arbitrary scale: compare with ``layercam.core.metrics`` (which aligns
@@ -17,7 +17,9 @@ from layercam.core.errors import LayercamError
 __all__ = [
     "debevec_video",
     "laplacian_focus_fusion",
+    "lucky_regions",
     "two_stage_mfme",
+    "unsharp_mask",
 ]
 
 
@@ -214,3 +216,73 @@ def two_stage_mfme(images, exposure_times, focus_index, samples: int = 200) -> n
     stack = [_u8(x) for x in fused]
     response = _calibrate(stack, ftimes, samples)
     return _merge(stack, ftimes, response)
+
+
+# --------------------------------------------------------------------------------------------
+# Video deblurring: unsharp masking, flow-aligned lucky regions
+# --------------------------------------------------------------------------------------------
+
+
+def unsharp_mask(frames, sigma: float = 1.5, amount: float = 1.0) -> np.ndarray:
+    """Unsharp masking of each frame: ``f + amount * (f - G_sigma * f)``, clipped to [0,1].
+
+    frames: ``(T,H,W,3)`` float in [0,1] (gamma-encoded, as loaded). Returns ``(T,H,W,3)`` float32.
+    What an editor's "sharpen" does: it steepens edges, it does not undo a blur's path.
+    """
+    import cv2
+
+    f = _check_stack(frames, "frames")
+    out = [np.clip(x + amount * (x - cv2.GaussianBlur(x, (0, 0), sigma)), 0.0, 1.0) for x in f]
+    return np.stack(out).astype(np.float32)
+
+
+def lucky_regions(frames, radius: int = 2, window: float = 4.0, agree: float = 0.03, flow_method: str = "dis_medium") -> np.ndarray:
+    """Flow-aligned lucky-region selection (after Cho, Wang and Lee, "Video deblurring for
+    hand-held cameras using patch-based synthesis", 2012, without its patch synthesis): a hand-held
+    clip's blur changes from frame to frame, so each region of frame ``t`` is taken from the
+    sharpest of its neighbours ``t - radius .. t + radius`` that shows the same content there.
+
+    For each neighbour ``s``: DIS flow ``t -> s`` (``flow_method``) and back, ``s`` warped into
+    ``t``'s view; it may replace ``t`` where the forward-backward check holds and its low-pass
+    (Gaussian, 2 px) luma is within ``agree`` of ``t``'s (a misaligned or occluded neighbour
+    shows other content). Sharpness: the luma's gradient energy, Gaussian-smoothed over
+    ``window`` px. Per pixel the sharpest candidate wins (frame ``t`` itself always a candidate);
+    the one-hot choice is smoothed over ``window`` px into blending weights to hide seams.
+
+    frames: ``(T,H,W,3)`` float in [0,1]. Returns ``(T,H,W,3)`` float32 in ``t``'s view.
+    """
+    import cv2
+
+    from layercam.vision import flow as _flow
+
+    f = _check_stack(frames, "frames")
+    n = f.shape[0]
+    grey = luma(f, REC601).astype(np.float32)
+
+    def energy(g: np.ndarray) -> np.ndarray:
+        gx, gy = cv2.Sobel(g, cv2.CV_32F, 1, 0, ksize=3), cv2.Sobel(g, cv2.CV_32F, 0, 1, ksize=3)
+        return cv2.GaussianBlur(gx * gx + gy * gy, (0, 0), window)
+
+    def low(g: np.ndarray) -> np.ndarray:
+        return cv2.GaussianBlur(g, (0, 0), 2.0)
+
+    out = np.empty_like(f)
+    for t in range(n):
+        cands, scores = [f[t]], [energy(grey[t])]
+        for s in range(max(0, t - radius), min(n, t + radius + 1)):
+            if s == t:
+                continue
+            fw, bw = _flow.compute_flow(np.stack([f[t], f[s]]), method=flow_method, progress=False)
+            ok = _flow.flow_consistency(fw, bw)[0]
+            warped = _flow.warp(f[s], fw[0])
+            wg = _flow.warp(grey[s], fw[0])
+            ok &= np.abs(low(wg) - low(grey[t])) < agree
+            e = energy(wg)
+            e[~ok] = -1.0
+            cands.append(warped)
+            scores.append(e)
+        best = np.argmax(np.stack(scores), axis=0)
+        wts = np.stack([cv2.GaussianBlur((best == i).astype(np.float32), (0, 0), window) for i in range(len(cands))])
+        wts /= np.maximum(wts.sum(0, keepdims=True), 1e-8)
+        out[t] = np.einsum("nhw,nhwc->hwc", wts, np.stack(cands))
+    return np.clip(out, 0.0, 1.0).astype(np.float32)

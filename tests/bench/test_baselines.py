@@ -65,3 +65,31 @@ def test_two_stage_mfme(mfme):
     assert metrics.psnr_mu(out, mfme.allfocus_hdr) > metrics.psnr_mu(single, mfme.allfocus_hdr) + 2
     with pytest.raises(LayercamError):
         baselines.two_stage_mfme(mfme.frames, mfme.exposure_times, np.zeros(9, int))
+
+
+def _shaky_clip(n=5, size=48, seed=3):
+    """A textured scene panning 1 px a frame; frame 2 sharp, the others box-blurred along x."""
+    import cv2
+
+    rng = np.random.default_rng(seed)
+    scene = cv2.GaussianBlur(rng.random((size, size + n + 8, 3)).astype(np.float32), (0, 0), 1.0)
+    sharp = np.stack([scene[:, t : t + size] for t in range(n)])
+    blurry = np.stack([s if t == 2 else cv2.blur(s, (7, 1)) for t, s in enumerate(sharp)])
+    return sharp, blurry
+
+
+def test_lucky_regions_takes_the_sharp_neighbour_in_each_frames_view():
+    sharp, blurry = _shaky_clip()
+    out = baselines.lucky_regions(blurry, radius=2)
+    assert out.shape == blurry.shape and out.dtype == np.float32
+    c = slice(6, -6)  # away from the borders the flow cannot see past
+    gain = [metrics.ldr_metrics(out[t][c, c], sharp[t][c, c])["psnr"] - metrics.ldr_metrics(blurry[t][c, c], sharp[t][c, c])["psnr"] for t in (1, 3)]
+    assert min(gain) > 1.0, gain  # the sharp frame 2, warped into frames 1 and 3
+    assert np.allclose(out[2][c, c], blurry[2][c, c], atol=0.02)  # the sharpest frame keeps itself
+
+
+def test_unsharp_mask_steepens_edges_and_stays_in_range():
+    _, blurry = _shaky_clip()
+    out = baselines.unsharp_mask(blurry, sigma=1.5, amount=1.0)
+    assert out.shape == blurry.shape and out.min() >= 0 and out.max() <= 1
+    assert np.abs(np.diff(out, axis=2)).mean() > np.abs(np.diff(blurry, axis=2)).mean()

@@ -65,3 +65,18 @@ def test_scores_leave_out_a_channel_without_signal():
     assert s["channels"] == "RB" and s["psnr_mu_recov"] == 100.0 and s["psnr_mu"] < 60
     assert measures.display_hdr(pred, gt)[..., 1].max() == 0.0
     assert measures.error_map(pred, gt).shape == (16, 16)
+
+
+def test_score_deblur_against_the_input_floor():
+    rng = np.random.default_rng(0)
+    sharp = rng.random((3, 24, 24, 3)).astype(np.float32)
+    blurry = np.clip(sharp + rng.normal(0, 0.05, sharp.shape), 0, 1).astype(np.float32)
+    floor = measures.score_deblur(blurry, sharp)["psnr_frames"]
+    better = blurry.copy()
+    better[:2] = sharp[:2] + 0.01  # frames 0, 1 better, frame 2 as the input
+    worse = better.copy()
+    worse[2] = np.roll(sharp[2], 5, axis=1)  # frame 2 in the wrong view
+    s = measures.score_deblur(better, sharp, floor)
+    assert s["gain_db"] > 5 and s["frames_below"] == 0 and abs(s["worst_gain_db"]) < 1e-6
+    w = measures.score_deblur(worse, sharp, floor)
+    assert w["frames_below"] == 1 and w["worst_gain_db"] < -1 and len(w["psnr_frames"]) == 3

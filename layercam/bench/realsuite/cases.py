@@ -13,6 +13,10 @@ Groups:
 * ``composite``: :mod:`layercam.bench.realsuite.composite` clips (2 and 3 EV steps), ground truth per
   frame, scored on the whole frame and on the foreground's own pixels.
 * ``video``: the Basler clip, no ground truth: figure and flicker on static background.
+* ``deblur``: ``deblur_gopro0477_dev``, 12 blurry frames made from real 240 fps GoPro footage,
+  run through ``deblur-video`` at half size (640x360) and scored (PSNR, SSIM, sRGB) against the
+  sharp frames (the middle 240 fps frame of each blurry frame's window), next to the blurry input
+  itself (the floor) and the classical deblurring a user could run.
 """
 
 from __future__ import annotations
@@ -56,6 +60,8 @@ def _cases() -> list[Case]:
         Case("composite-2ev", "composite", "truth", "hdr-video", "parkour person over a taipei radiance map, pan, filmic curve, noise, 8 bit; 24 frames 384x256 alternating 2 EV", {"ev_step": 2.0}),
         Case("composite-3ev", "composite", "truth", "hdr-video", "as composite-2ev, alternating 3 EV", {"ev_step": 3.0}),
         Case("basler", "video", "none", "hdr-video", "altexp_video_basler/clip_2exp_3stop.mp4: real alternating 3 EV video, 256x136, person walking", {"video": "altexp_video_basler/clip_2exp_3stop.mp4"}),
+        Case("gopro-0477", "deblur", "truth", "deblur-video", "deblur_gopro0477_dev: 12 blurry frames (15 frames of real 240 fps GoPro footage averaged), hand-held, a dribbling player; --resize 0.5 (640x360)",
+             {"folder": "deblur_gopro0477_dev", "resize": "0.5"}),
     ]
     return out
 
@@ -103,6 +109,12 @@ def case_inputs(case: Case, case_dir: Path, data: Path, quick: bool = False, max
         n = 6 if quick else max_frames
         extra = ["--max-frames", str(n)] if n else []
         return {"paths": video, "argv": [str(video), "--exposures", "alt", "--ev-step", "3", *extra], "load": {"max_frames": n}}
+    if case.group == "deblur":
+        blur = _need(data / case.params["folder"] / "blur")
+        n = 3 if quick else max_frames
+        resize = "0.125" if quick else case.params["resize"]
+        extra = ["--max-frames", str(n)] if n else []
+        return {"paths": blur, "argv": [str(blur), "--resize", resize, *extra], "load": {"max_frames": n, "resize": resize}}
     raise LayercamError(f"unknown case group {case.group!r}")
 
 
@@ -120,6 +132,8 @@ def load_inputs(case: Case, ci: dict) -> tuple[np.ndarray, np.ndarray | None, li
         times = np.array([table[Path(p).name] for p in ci["paths"]])
     elif case.name == "frobisher":
         times = np.array(clip.exif_exposures, dtype=np.float64)
+    elif case.group == "deblur":  # one exposure
+        times = np.ones(clip.T)
     else:  # alternating: what the user tells layercam (alt, --ev-step), phases measured from the frames
         ex = parse_exposures("alt", clip, float(ci["argv"][ci["argv"].index("--ev-step") + 1]))
         times = np.exp2(ex.log2_dt.astype(np.float64))
@@ -128,7 +142,8 @@ def load_inputs(case: Case, ci: dict) -> tuple[np.ndarray, np.ndarray | None, li
 
 def load_truth(case: Case, case_dir: Path, data: Path, frames: np.ndarray, times: np.ndarray) -> dict | None:
     """``{"hdr": (H,W,3) or (T,H,W,3), "unseen": bool mask without channels, "fg": (T,H,W) bool
-    (composites)}``, or None for a case without ground truth. Cached in ``case_dir/truth.npz``."""
+    (composites)}``, ``{"sharp": (T,H,W,3)}`` in [0,1] for a deblurring case (the sharp frames loaded
+    as its inputs are), or None for a case without ground truth. Cached in ``case_dir/truth.npz``."""
     from layercam.bench.realsuite.measures import unseen_mask
 
     cache = Path(case_dir) / "truth.npz"
@@ -137,6 +152,16 @@ def load_truth(case: Case, case_dir: Path, data: Path, frames: np.ndarray, times
         return {k: z[k] for k in z.files}
     if case.group == "video":
         return None
+    if case.group == "deblur":
+        from layercam.io import load_clip
+
+        t, h, w = frames.shape[:3]  # the sharp frames at the size and count the blurry ones were loaded
+        sharp = load_clip(_need(data / case.params["folder"] / "sharp"), max_frames=t, resize=f"{w}x{h}").frames
+        if sharp.shape != frames.shape:
+            raise LayercamError(f"{case.name}: the sharp frames {sharp.shape} do not match the blurry ones {frames.shape}")
+        out = {"sharp": sharp}
+        np.savez(cache, **out)
+        return out
     if case.group == "bracket-gt":
         gt = ntire_truth(data / case.params["folder"])
         rel = times / times[1]  # the medium shot is the reference view
@@ -223,9 +248,14 @@ def prepare_composite(case: Case, case_dir: Path, data: Path, shared_dir: Path, 
 
 def read_prediction(case: Case, run_dir: Path, n: int) -> np.ndarray:
     """layercam's linear HDR: ``fused.exr`` ``(H,W,3)`` for a stack, ``hdr/frame_*.exr``
-    ``(T,H,W,3)`` for a video."""
+    ``(T,H,W,3)`` for a video; for deblurring its sharp frames ``frames/frame_*.png`` ``(T,H,W,3)``
+    in [0,1]."""
     from layercam.io import read_exr
 
+    if case.task == "deblur-video":
+        from layercam.io import load_clip
+
+        return load_clip([Path(run_dir) / "frames" / f"frame_{t:05d}.png" for t in range(n)]).frames
     if case.task == "fuse-stack":
         return read_exr(Path(run_dir) / "fused.exr")
     return np.stack([read_exr(Path(run_dir) / "hdr" / f"frame_{t:05d}.exr") for t in range(n)])

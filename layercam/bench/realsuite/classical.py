@@ -6,6 +6,8 @@
 * :func:`robertson_reference`: the Robertson merge of ALL shots of a bracket, the reference the
   3-shot subsets are scored against when no ground truth exists (and the composites' background).
 * video: ``layercam.bench.baselines.debevec_video`` (each frame merged with its DIS-aligned neighbour).
+* deblurring (:func:`deblur_baselines`): unsharp masking and flow-aligned lucky regions
+  (``layercam.bench.baselines``), and the blurry input itself, the floor every method must clear.
 
 Images are float RGB in [0,1] ``(N,H,W,3)`` as ``layercam.io.load_clip`` gives them (what layercam
 sees); OpenCV gets their 8-bit codes. Outputs are linear float32 on OpenCV's own scale.
@@ -17,7 +19,7 @@ import time
 
 import numpy as np
 
-__all__ = ["bracket_merges", "robertson_reference", "video_merge"]
+__all__ = ["bracket_merges", "deblur_baselines", "robertson_reference", "video_merge"]
 
 
 def _u8(frames: np.ndarray) -> list[np.ndarray]:
@@ -73,3 +75,17 @@ def video_merge(frames: np.ndarray, times: np.ndarray) -> dict:
     fw, bw = flow.compute_flow(frames, method="dis_medium", progress=False)
     hdr = baselines.debevec_video(frames, times, fw, bw)
     return {"hdr": _finite(hdr), "seconds": time.perf_counter() - t0}
+
+
+def deblur_baselines(frames: np.ndarray) -> dict:
+    """What a user could run on a blurry clip ``(T,H,W,3)`` in [0,1]: ``{"input": ..., "unsharp":
+    ..., "lucky": ...}``, each ``{"ldr": (T,H,W,3) in [0,1], "seconds"}``: the input as it is,
+    ``layercam.bench.baselines.unsharp_mask`` (sigma 1.5 px, amount 1) and
+    ``layercam.bench.baselines.lucky_regions`` (neighbours 2 frames either side, DIS flow included)."""
+    from layercam.bench import baselines
+
+    out = {"input": {"ldr": np.asarray(frames, np.float32), "seconds": 0.0}}
+    for name, fn in (("unsharp", baselines.unsharp_mask), ("lucky", baselines.lucky_regions)):
+        t0 = time.perf_counter()
+        out[name] = {"ldr": fn(frames), "seconds": time.perf_counter() - t0}
+    return out

@@ -62,6 +62,8 @@ def _label(r: dict) -> str:
     name = r["method"] + (f" {r['preset']}" if r.get("preset") else "")
     if r.get("failed"):
         return name + " (failed)"
+    if r.get("psnr") is not None:
+        return f"{name}\n{r['psnr']:.2f} dB PSNR ({r.get('gain_db', 0.0):+.2f})"
     if "psnr_mu_fg" in r and r.get("psnr_mu") is not None:
         return f"{name}\n{r['psnr_mu']:.1f} dB (fg {r['psnr_mu_fg']:.1f})"
     if r.get("psnr_mu") is not None:
@@ -76,7 +78,9 @@ def case_figure(case, case_dir: Path, rows: list[dict], frames: np.ndarray, trut
     label ("layercam fast", "debevec", ...) -> linear HDR; ``frames``: the inputs as loaded."""
     by_label = {r["method"] + (f" {r['preset']}" if r.get("preset") else ""): r for r in rows}
     labelled = [(_label(by_label[k]) if k in by_label else k, v) for k, v in preds.items()]
-    if case.task == "fuse-stack":
+    if case.task == "deblur-video":
+        fig, plt = _deblur(case, frames, truth, labelled)
+    elif case.task == "fuse-stack":
         fig, plt = _bracket(case, case_dir, frames, truth, labelled)
     elif truth is not None:
         fig, plt = _composite(case, frames, truth, labelled)
@@ -129,3 +133,22 @@ def _video(case, case_dir: Path, frames, labelled):
     t = min(shown[0], len(static) - 1)
     rows.append([(f"static pixels of pair {t}-{t + 1} (white)\n{100 * static.mean():.0f}% over all pairs", np.repeat(static[t][..., None], 3, -1).astype(np.float32))])
     return _grid(rows, f"{case.name}: {case.about}", cell=2.6)
+
+
+DIFF_GAIN = 3.0  # deblurring figures: |frame - truth| times this
+
+
+def _deblur(case, frames, truth, labelled):
+    """Two frames (the one the input scores worst on, and the middle one): the input, each method,
+    the truth; under each its |difference| from the truth times ``DIFF_GAIN``."""
+    sharp = truth["sharp"]
+    floor = [float(np.mean((f - g) ** 2)) for f, g in zip(frames, sharp)]
+    shown = sorted({int(np.argmax(floor)), len(frames) // 2})
+    diff = lambda im, t: np.clip(DIFF_GAIN * np.abs(np.clip(im, 0, 1) - sharp[t]), 0, 1)  # noqa: E731
+    rows = []
+    for t in shown:
+        panels = [("input", frames[t])] + [(lab, p[t]) for lab, p in labelled]
+        rows.append([(f"{lab.splitlines()[0]} frame {t}", np.clip(im, 0, 1)) for lab, im in panels] + [(f"sharp (truth) frame {t}", sharp[t])])
+        rows.append([(f"|{lab.splitlines()[0]} - truth| x{DIFF_GAIN:g}", diff(im, t)) for lab, im in panels])
+    rows.insert(0, [(lab, None) for lab, _ in labelled])  # the scores, once, as titles of an empty row
+    return _grid([r for r in rows if any(im is not None for _, im in r)], f"{case.name}: {case.about}\n" + "; ".join(lab.replace(chr(10), ": ") for lab, _ in labelled), cell=3.2)

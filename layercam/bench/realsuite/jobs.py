@@ -107,7 +107,7 @@ def job_prepare(job: dict) -> dict:
         prepare_composite(case, case_dir, Path(job["data"]), Path(job["shared_dir"]), job.get("quick", False))
     frames, times, _ = load_inputs(case, ci)
     truth = load_truth(case, case_dir, Path(job["data"]), frames, times)
-    unseen = float(truth["unseen"].mean()) if truth is not None else float(np.mean([_unseen_pair(frames, t) for t in range(len(frames) - 1)]))
+    unseen = float(truth["unseen"].mean()) if truth is not None and "unseen" in truth else float(np.mean([_unseen_pair(frames, t) for t in range(len(frames) - 1)]))
     return {"rows": [], "clipped_share": unseen, "frames": int(len(frames)), "size": [int(frames.shape[2]), int(frames.shape[1])]}
 
 
@@ -117,6 +117,27 @@ def _unseen_pair(frames: np.ndarray, t: int) -> float:
     return float(unseen_mask(frames[t : t + 2]).mean())
 
 
+DEBLUR_METHODS = {
+    "input": "the blurry input itself: the floor",
+    "unsharp": "unsharp masking, sigma 1.5 px, amount 1 (layercam.bench.baselines.unsharp_mask)",
+    "lucky": "flow-aligned lucky regions from 2 neighbours either side (layercam.bench.baselines.lucky_regions)",
+}
+
+
+def _classical_deblur(case, case_dir: Path, frames: np.ndarray, truth: dict, out_dir: Path) -> dict:
+    from layercam.bench.realsuite.classical import deblur_baselines
+    from layercam.bench.realsuite.measures import score_deblur
+
+    res = deblur_baselines(frames)
+    floor = score_deblur(frames, truth["sharp"])["psnr_frames"]
+    rows = []
+    for name, r in res.items():
+        if name != "input":
+            np.save(out_dir / f"{name}.npy", r["ldr"].astype(np.float32))
+        rows.append(_round({"method": name, "preset": "", "wall_s": round(r["seconds"], 2), "note": DEBLUR_METHODS[name], **score_deblur(r["ldr"], truth["sharp"], floor)}))
+    return {"rows": rows}
+
+
 def job_classical(job: dict) -> dict:
     from layercam.bench.realsuite.classical import bracket_merges, video_merge
 
@@ -124,6 +145,8 @@ def job_classical(job: dict) -> dict:
     frames, times, _ = load_inputs(case, ci)
     truth = load_truth(case, case_dir, Path(job["data"]), frames, times)
     out_dir = Path(job["dir"])
+    if case.group == "deblur":
+        return _classical_deblur(case, case_dir, frames, truth, out_dir)
     rows = []
     if case.task == "fuse-stack":
         res = bracket_merges(frames, times)
@@ -168,7 +191,15 @@ def job_layercam(job: dict) -> dict:
     frames, times, _ = load_inputs(case, ci)
     pred = read_prediction(case, run_dir, len(frames))
     truth = load_truth(case, case_dir, Path(job["data"]), frames, times)
-    row.update(_scores(case, pred, truth, frames))
+    if case.group == "deblur":
+        from layercam.bench.realsuite.measures import score_deblur
+
+        row.update(score_deblur(pred, truth["sharp"], score_deblur(frames, truth["sharp"])["psnr_frames"]))
+        fell = (report.get("export") or {}).get("fallback_frames")
+        if fell:
+            row["note"] = f"input written for frame(s) {', '.join(map(str, fell))}: the render missed them"
+    else:
+        row.update(_scores(case, pred, truth, frames))
     if case.group == "video":
         row.update(_video_flicker(pred, frames, case_dir))
     tr = report.get("train", {})

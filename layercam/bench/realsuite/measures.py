@@ -1,6 +1,6 @@
 """Scores of the real suite beyond ``layercam.core.metrics``: which pixels no exposure saw, which pixels
-of a real video hold still (after registering the camera's motion), and how much a tonemapped
-video flickers there.
+of a real video hold still (after registering the camera's motion), how much a tonemapped
+video flickers there, and deblurred frames against sharp ones.
 
 Encoded images are float in [0,1] ``(..., H, W, 3)``.
 """
@@ -11,7 +11,7 @@ import numpy as np
 
 from layercam.core import frame_metrics, metrics
 
-__all__ = ["UNDER", "OVER", "unseen_mask", "registration", "warp_into", "static_masks", "flicker", "scored_channels", "score_hdr", "display_hdr", "error_map"]
+__all__ = ["UNDER", "OVER", "unseen_mask", "registration", "warp_into", "static_masks", "flicker", "scored_channels", "score_hdr", "score_deblur", "display_hdr", "error_map"]
 
 OVER = 245.0 / 255.0  # at or above: clipped (NTIRE's LDRs saturate at code 248, not 255)
 UNDER = 2.0 / 255.0  # at or below in every channel: lost in the noise floor
@@ -148,3 +148,18 @@ def error_map(pred: np.ndarray, gt: np.ndarray) -> np.ndarray:
     per channel, both divided by gt's maximum, mu-law). ``(..., H, W)``."""
     keep = scored_channels(gt)
     return np.abs(_mu_normalised(pred, gt) - _mu_normalised(gt, gt))[..., keep].mean(axis=-1).astype(np.float32)
+
+
+def score_deblur(pred: np.ndarray, sharp: np.ndarray, floor: np.ndarray | None = None) -> dict:
+    """Sharp frames ``pred (T,H,W,3)`` in [0,1] against the truth ``sharp`` (same shape), as a user
+    sees them (sRGB, whole frame, no shift): ``psnr``/``ssim`` (means over the frames), ``psnr_frames``
+    (per frame) and, against ``floor`` (the blurry input's per-frame PSNR, ``(T,)``), ``gain_db``
+    (mean PSNR over the floor's mean), ``worst_gain_db`` (the frame that gains least) and
+    ``frames_below`` (frames scoring under their input)."""
+    rows = [metrics.ldr_metrics(np.clip(p, 0, 1), g) for p, g in zip(np.asarray(pred, np.float32), np.asarray(sharp, np.float32))]
+    ps = np.round([r["psnr"] for r in rows], 3)  # as listed (the floor: another method's psnr_frames)
+    out = {"psnr": float(ps.mean()), "ssim": float(np.mean([r["ssim"] for r in rows])), "psnr_frames": [float(v) for v in ps]}
+    if floor is not None:
+        gain = ps - np.asarray(floor, np.float64)
+        out.update(gain_db=float(ps.mean() - np.mean(floor)), worst_gain_db=float(gain.min()), frames_below=int((gain < 0).sum()))
+    return out

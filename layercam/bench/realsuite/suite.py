@@ -143,7 +143,7 @@ class _Suite:
         self.say(f"{what}: running ...", flush=True)
         _spawn(j, self.threads)
         for r in json.loads((d / "result.json").read_text())["rows"]:
-            msg = f"failed: {r['failed']}" if r.get("failed") else ", ".join(f"{k} {r[k]}" for k in ("psnr_mu", "psnr_mu_fg", "flicker", "wall_s") if r.get(k) is not None)
+            msg = f"failed: {r['failed']}" if r.get("failed") else ", ".join(f"{k} {r[k]}" for k in ("psnr_mu", "psnr_mu_fg", "flicker", "psnr", "gain_db", "wall_s") if r.get(k) is not None)
             self.say(f"  {r['method']} {r.get('preset', '')}: {msg}", flush=True)
         self.outputs([j["case"]])
 
@@ -176,7 +176,7 @@ def _figure(out: Path, name: str, rows: list[dict], data: Path, quick: bool, max
     truth = load_truth(case, case_dir, data, frames, times)
     preds = {}
     for r in rows:
-        if r.get("failed"):
+        if r.get("failed") or r["method"] == "input":  # the input: a panel of its own
             continue
         if r["method"] == "layercam":
             run_dir = case_dir / f"layercam-{preset_tag(r['preset'])}" / "run"

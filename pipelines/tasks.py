@@ -58,6 +58,12 @@ def _run(ctx: Context, stages: list, t0: float) -> None:
         ctx.cfg, ctx.reasons = analyse.decide(cfg, clip, exposures, task, ctx.measures)
         ctx.say("model chosen:\n" + analyse.format_table(ctx.cfg, ctx.reasons))
         run_stages(ctx, stages[1:2])  # the bootstrap: motion masks for two layers
+        unfound = analyse.unfound_foreground(cfg, ctx.results.get("bootstrap"))
+        if unfound:  # the analysis chose two layers and the finder found no object: one layer, saying why
+            ctx.measures.update(foreground_found=False, foreground_reason=unfound)
+            ctx.cfg, ctx.reasons = analyse.decide(cfg, clip, exposures, task, ctx.measures)
+            ctx.say("model chosen again (no foreground found):\n" + analyse.format_table(ctx.cfg, ctx.reasons))
+            run_stages(ctx, stages[1:2])
         if refine_wanted(ctx):  # segment.refine: a first fit, and masks from its background residual
             run_stages(ctx, [PrefitStage(), RefineStage()])
         run_stages(ctx, stages[2:])

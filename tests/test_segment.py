@@ -486,3 +486,16 @@ def test_the_verdict_rejects_masks_that_jump_or_sit_on_the_background():
     assert not v["found"] and "like what surrounds" in v["reason"] and v["contrast"] < 2
     v = verdict(still, still.astype(np.float32), fw)
     assert v["found"] and v["consistency"] == 1.0
+
+
+def test_a_large_clip_is_segmented_at_the_working_size(monkeypatch):
+    """Frames larger than ``WORK_SHORT`` on the short side are segmented at that size: the masks
+    come back at the frame's size and find the same object."""
+    import layercam.segment as seg
+
+    frames, truth = _pan_clip(follow=True)
+    fw, bw = flow.compute_flow(frames, "dis_fast", progress=False)
+    monkeypatch.setattr(seg, "WORK_SHORT", 32)
+    masks, info = seg.find_foreground(frames, {"fw": fw, "bw": bw})
+    assert masks.shape == truth.shape and info["working_size"] == [32, 32]
+    assert np.mean([metrics.iou(m > 0.5, g) for m, g in zip(masks, truth)]) > 0.7

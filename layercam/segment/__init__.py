@@ -45,20 +45,48 @@ __all__ = ["SegmentConfig", "SEGMENT_VERSION", "STEPS", "foreground_bootstrap", 
 
 SEGMENT_VERSION = 11  # bump when foreground_bootstrap changes the masks it returns (11: the segment package, the camera read from the border, the verdict)
 STEPS = ("grabcut", "background", "colour", "failure")  # the optional steps after the motion masks (each measured: the ablation)
+WORK_SHORT = 240  # the finder sees frames at most this many pixels on the short side (masks are upsampled to the
+                  # frame; training refines alpha's edges at the frame's size): its cost stays under a second a frame
+
+
+def _working(frames: np.ndarray, flows: dict) -> tuple[np.ndarray, dict]:
+    """Frames and flows at the finder's working size (``WORK_SHORT``; unchanged when smaller)."""
+    import cv2
+
+    from layercam.flow import resize_frames, working_size
+
+    h, w = frames.shape[1:3]
+    work = working_size((h, w), WORK_SHORT)
+    if work == (h, w):
+        return frames, flows
+    sy, sx = work[0] / h, work[1] / w
+    out = {}
+    for k in ("fw", "bw"):
+        f = np.asarray(flows[k], np.float32)
+        out[k] = np.stack([cv2.resize(x, (work[1], work[0]), interpolation=cv2.INTER_AREA) for x in f]) * np.float32([sx, sy])
+    for k in ("fw_ok", "bw_ok"):
+        if flows.get(k) is not None:
+            out[k] = np.stack([cv2.resize(np.asarray(x, np.uint8), (work[1], work[0]), interpolation=cv2.INTER_NEAREST) > 0 for x in flows[k]])
+    return resize_frames(frames, work), out
 
 
 def find_foreground(frames: np.ndarray, flows: dict, cfg: SegmentConfig | None = None, steps: tuple = STEPS) -> tuple[np.ndarray, dict]:
     """The finder itself (module docstring): masks ``(T, H, W)`` float32 in {0, 1} and an info
     dict whose ``"verdict"`` says whether one consistent moving object was found. ``flows`` holds
     ``fw``, ``bw`` (and optionally ``fw_ok``, ``bw_ok``) at the frames' size; ``steps``: the
-    optional steps to run (all of :data:`STEPS` unless ablating)."""
+    optional steps to run (all of :data:`STEPS` unless ablating). Frames larger than ``WORK_SHORT``
+    on the short side are segmented at that size and the masks upsampled."""
     from layercam.segment.camera import border_homographies
     from layercam.segment.evidence import motion_evidence
     from layercam.segment.moving import check_flows, flow_checks
     from layercam.segment.verdict import verdict
 
+    import cv2
+
     cfg = cfg or SegmentConfig()
-    T = len(frames)
+    T, h, w = frames.shape[:3]
+    check_flows(flows["fw"], flows["bw"])
+    frames, flows = _working(frames, flows)
     fw, bw = check_flows(flows["fw"], flows["bw"])
     fo, bo = flow_checks(fw, bw, flows.get("fw_ok"), flows.get("bw_ok"))
     masks, info = motion_masks(fw, bw, fo, bo, cfg, frames=frames)
@@ -83,6 +111,9 @@ def find_foreground(frames: np.ndarray, flows: dict, cfg: SegmentConfig | None =
             masks = colour_cut(frames, fill_still_frames(masks, fw, bw)[0], rel, failure)  # frames the check emptied start again from their neighbours'
     masks = np.asarray(masks, np.float32)
     info["verdict"] = verdict(masks, evidence, fw)
+    if masks.shape[1:] != (h, w):
+        info["working_size"] = list(masks.shape[1:])
+        masks = np.stack([cv2.resize(m, (w, h), interpolation=cv2.INTER_LINEAR) > 0.5 for m in masks]).astype(np.float32)
     info["coverage_final"] = float(masks.mean())
     return masks, info
 

@@ -15,7 +15,7 @@ EPILOG = """examples:
   layercam demo                                   # built-in synthetic clip, with metrics
   layercam hdr-video in.mp4 --exposures alt --ev-step 3 --out runs/clip
   layercam hdr-video frames/ --exposures times.txt --preset fast
-  layercam hdr-video in.mp4 --set train.steps=500 --set scene.grid_max_res=128
+  layercam hdr-video in.mp4 --set train.steps=500 --set scene.grid_levels=8
 
 Re-running a command with the same input and settings skips finished stages; after Ctrl-C (or a
 crash) the same command again goes on: training resumes from its last checkpoint, an unfinished
@@ -84,6 +84,30 @@ def input_args(p: argparse.ArgumentParser, exposures_default: str | None) -> Non
                    "(--set segment.detector=PATH; nothing is downloaded)")
 
 
+def _window(text: str) -> int:
+    if text.strip().lower() in ("off", "0"):
+        return 0
+    return number(int, 3)(text)
+
+
+_window.__name__ = "window"
+
+
+def window_args(p: argparse.ArgumentParser) -> None:
+    """``--window`` and ``--ray``: a long clip as windows of frames (``pipelines/windows.py``)."""
+    g = p.add_argument_group("long clips")
+    g.add_argument("--window", type=_window, metavar="N|off", help=(
+        "train the clip as overlapping windows of N frames, each its own model sharing one camera (the response "
+        "curve and exposures learned on the first window), joined by a cross-fade over their overlap; off: one "
+        "model. Default: windows where the camera's motion spans more than the atlas holds at one cell per pixel "
+        "(the analysis says so); each window resumes on its own"))
+    g.add_argument("--ray", metavar="auto|ADDRESS", help=(
+        "train the windows as tasks on a Ray cluster (one GPU each when it has GPUs, else one CPU; the first window "
+        "first, then the others in parallel): auto = the cluster this machine belongs to, else one started here; "
+        "or HOST:PORT / ray://HOST:PORT. The run folder must be reachable at the same path from every node. "
+        "Needs pip install 'layercam[ray]'"))
+
+
 COMMAND_MODULES = ["hdr_video", "demo", "bench", "deblur_video", "fuse_stack", "render", "batch", "edit"]  # each layercam/commands/<name>.py has register(sub) and run(args)
 
 
@@ -118,16 +142,14 @@ def default_out(inputs: list[str]) -> Path:
     return Path("runs") / (first.stem if first.suffix else first.name or "run")
 
 
-def load_masks(folder: str, clip):
-    from layercam.io.masks import load_masks as _load
-
-    return _load(folder, clip)
-
-
 def finish(ctx) -> None:
     """One closing line: where the outputs are and how training ended."""
     if ctx.progress:
         tr = ctx.results.get("train", {})
+        if "windows" in tr:  # a long clip's windows (pipelines/windows.py)
+            losses = ", ".join(f"{(w.get('final_loss') or {}).get('total', float('nan')):.4g}" for w in tr["windows"])
+            print(f"done: {ctx.run_dir}  ({len(tr['windows'])} windows, train {tr.get('steps')} steps in all, final losses {losses})")
+            return
         fl = tr.get("final_loss") or {}
         print(f"done: {ctx.run_dir}  (train {tr.get('steps')} steps, final loss {fl.get('total', float('nan')):.4g})")
 

@@ -44,13 +44,12 @@ class PixelSampler:
     ``bw_ok`` ``(T-1, h, w)`` consistency masks, or None: ``h x w`` may be a working resolution
     below the frames' (the flow is then read at the nearest flow pixel and scaled to frame pixels),
     kept in float16. ``masks (T, H, W)`` optional foreground masks for alpha bootstrapping;
-    ``sure (T, H, W)`` optional, where those masks are trusted (a batch's ``mask_sure``).
     Every random number a training step uses comes from this sampler's two generators (pixels, and
     a batch's ``probe`` draws for the model's regularisers), so their state is all a resume needs.
     A batch is converted to float32; memory is that of the compact arrays, whatever the batch.
     """
 
-    def __init__(self, frames: np.ndarray, fw=None, bw=None, fw_ok=None, bw_ok=None, masks=None, device="cpu", seed: int = 0, sure=None):
+    def __init__(self, frames: np.ndarray, fw=None, bw=None, fw_ok=None, bw_ok=None, masks=None, device="cpu", seed: int = 0):
         if frames.ndim != 4 or frames.shape[-1] != 3:
             raise ValueError(f"frames must be (T, H, W, 3), got {frames.shape}")
         self.device = torch.device(device)
@@ -65,7 +64,6 @@ class PixelSampler:
             self.fw_ok = to(fw_ok, torch.bool) if fw_ok is not None else torch.ones(self.fw.shape[:3], dtype=torch.bool, device=self.device)
             self.bw_ok = to(bw_ok, torch.bool) if bw_ok is not None else torch.ones(self.bw.shape[:3], dtype=torch.bool, device=self.device)
         self.masks = to(masks, torch.float16) if masks is not None else None
-        self.sure = to(sure, torch.bool) if sure is not None and masks is not None else None
         # the generator lives where the data does, so that a batch is drawn without host transfers
         self.seed, self.draws = int(seed), 0
         self.gen = torch.Generator(device=self.device).manual_seed(self.seed)
@@ -120,8 +118,6 @@ class PixelSampler:
         }
         if self.masks is not None:
             batch["mask"] = self.masks[t, y, x].float()
-            if self.sure is not None:
-                batch["mask_sure"] = self.sure[t, y, x]
         # uniform draws for the model's own regularisers (the tone mapper's monotonicity probe),
         # from a second stream saved with the first (a resumed run draws what an uninterrupted one
         # would); a stream of their own leaves the pixels drawn as they were before they existed

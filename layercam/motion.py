@@ -21,8 +21,9 @@ __all__ = ["chained_displacements", "pair_residuals", "flow_failure", "long_rang
 
 
 def _grid(h: int, w: int) -> np.ndarray:
-    yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
-    return np.stack([xx, yy], -1)
+    from layercam.geometry import pixel_grid
+
+    return np.stack(pixel_grid(h, w), -1)
 
 
 def chained_displacements(fw: np.ndarray, bw: np.ndarray | None, fw_ok: np.ndarray, bw_ok: np.ndarray | None, t: int, kmax: int) -> dict:

@@ -5,8 +5,10 @@
 writer                writes
 ====================  ======================================================================
 ``hdr``               ``hdr/frame_00000.exr`` (linear, camera dropped; with ``export.faithful``
-                      corrected towards the frame where it saw well, :mod:`layercam.faithful`)
-                      and ``preview.mp4`` (global Reinhard over the whole clip)
+                      corrected towards the frame where it saw well, :mod:`layercam.faithful`),
+                      ``preview.mp4`` (global Reinhard over the whole clip) and ``hdr.mp4``
+                      (HDR10 or HLG from the EXRs, ``export.hdr_format``,
+                      :mod:`layercam.io.hdr_video`)
 ``sharp``             ``frames/frame_00000.png`` and ``deblurred.mp4``: the tone mapper at each
                       frame's own exposure, blur generator dropped; ``hdr/`` when exposures vary
 ``fused``             ``fused.exr`` (the scene for the reference view, camera dropped, faithful
@@ -18,7 +20,8 @@ writer                writes
 ``checkpoint``        ``checkpoint.pt``: what ``layercam render`` and ``edit`` read
 ====================  ======================================================================
 
-Every writer is ``writer(ctx, model, dest, cache) -> dict`` (its part of the export summary): it
+Every video keeps the input's frame rate and carries its sound over
+(:func:`audio`). Every writer is ``writer(ctx, model, dest, cache) -> dict`` (its part of the export summary): it
 writes its outputs into ``dest`` and what the evaluate stage reads into ``cache``. Both are the
 stage's cache folder: an interrupted export is redone there, and the finished outputs are published
 to the top of the run folder with the report, as one set, when the run ends
@@ -68,7 +71,24 @@ def _frames(ctx: Context, desc: str = "export"):
 
 
 def _fps(ctx: Context) -> float:
-    return ctx.cfg.export.preview_fps or float(ctx.clip.fps or 24.0)
+    return float(ctx.clip.fps or 24.0)
+
+
+def audio(ctx: Context) -> dict | None:
+    """The sound the run's videos carry over from the input (``clip.meta["audio"]``,
+    :func:`layercam.io.clip.audio_plan`); None without."""
+    return ctx.clip.meta.get("audio")
+
+
+def _sound(ctx: Context, video) -> dict:
+    """What became of the sound in ``video`` (a finished :class:`VideoWriter`), for the summary;
+    a sound that could not be kept is said."""
+    info = video.audio_info
+    if info and not info["kept"]:
+        ctx.warn(f"{video.path.name} is written without the input's sound: {info['why']}")
+    elif info and info["why"]:
+        ctx.say(f"[export] {video.path.name}: {info['why']}")
+    return {video.path.name: info}
 
 
 def _bits(ctx: Context) -> int:
@@ -132,7 +152,7 @@ def first_pass(ctx: Context, model) -> tuple[dict, float]:
     hw = (max(1, round(H * s)), max(1, round(W * s)))
     lum, peak = [], 0.0
     for t in _frames(ctx, "export (first pass)"):
-        hdr = render.render_frame(model, t, hw, ("hdr",), chunk=ctx.cfg.export.chunk)["hdr"]
+        hdr = render.render_frame(model, t, hw, ("hdr",))["hdr"]
         if not np.isfinite(hdr).all():
             raise LayercamError(f"frame_{t:05d}.exr: the model rendered non-finite irradiance; not writing it")
         lum.append(luma(hdr, REC709).ravel())
@@ -148,35 +168,29 @@ def faithful_hdr(ctx: Context, model, ts) -> Iterator[tuple[int, np.ndarray, dic
     computed once and kept while a neighbour needs it."""
     from layercam import render
 
-    if not ctx.cfg.export.faithful:
+    if not ctx.resolved.settings.export.faithful:
         for t in ts:
             reached("export", t)
-            yield t, render.render_frame(model, t, (ctx.clip.H, ctx.clip.W), ("hdr",), chunk=ctx.cfg.export.chunk)["hdr"], {}
+            yield t, render.render_frame(model, t, (ctx.clip.H, ctx.clip.W), ("hdr",))["hdr"], {}
         return
     from layercam.faithful import correction, faithful_log2, merge_weight, neighbour_fill
     from layercam.pipelines.stages import ctx_clip_levels
 
     lv, frames, T = ctx_clip_levels(ctx), ctx.clip.frames, ctx.clip.T
-    static = bool(ctx.results.get("bootstrap", {}).get("static"))  # registered by the identity: every frame sees this view
+    static = ctx.resolved.static  # registered by the identity: every frame sees this view
     kept: dict[int, dict] = {}
     # auto: a video from a static camera. Moved along the flow, neighbours cost the panning composites
     # 0.5-1.3 dB; on a bracket's fused view, crops 000000 / 000003 gained 1.4-1.6 dB and 000002 lost
     # 1.6 (its short shot reads the pixels the reference clipped 0.3-0.5 stop under the truth)
-    mode = ctx.cfg.export.merge_neighbours
-    merging = mode == "on" or (mode == "auto" and static and ctx.task != "fuse-stack")
-    if merging and mode == "auto":
-        ctx.say("[export] static camera: each frame merged with its neighbours where they agree with it (export.merge_neighbours=off keeps each frame's own)")
+    merging = ctx.resolved.settings.export.merge_neighbours == "on"  # auto: a video from a static camera (layercam.resolve)
 
     # auto: a stack's fused view (NTIRE crops 000000 / 000003 +1.6-2.9 dB, taipei +0.2-0.4); not videos
     # (Basler `fast` flicker 0.86 -> 1.04: short and long frames filtered by their own, different noise)
-    dmode = ctx.cfg.export.denoise
-    denoise = dmode == "on" or (dmode == "auto" and ctx.task == "fuse-stack")
-    if denoise and dmode == "auto":
-        ctx.say("[export] the fused view filtered against the reference frame's own noise (export.denoise=off keeps it as fitted)")
+    denoise = ctx.resolved.settings.export.denoise == "on"  # auto: a stack's fused view (layercam.resolve)
 
     def corr(t: int) -> dict:
         if t not in kept:
-            kept[t] = correction(model, frames[t], t, lv, ctx.cfg.export.chunk)
+            kept[t] = correction(model, frames[t], t, lv)
         return kept[t]
 
     for t in ts:
@@ -190,7 +204,7 @@ def faithful_hdr(ctx: Context, model, ts) -> Iterator[tuple[int, np.ndarray, dic
                 if merging:
                     still = np.zeros_like(fl) if static else fl  # a static camera: the same scene point, whatever the flow says
                     merge.append((c["model_log2_r"] + c["weight"] * c["delta"], merge_weight(c["exposed"], c["log2_dts"][n], c["log2_dts"]), still))
-        res = faithful_log2(model, frames[t], t, lv, frames if static else None, corr=corr(t), fill=neighbour_fill(neighbours), merge=merge, clipped=ctx.cfg.export.clipped_everywhere, denoise=denoise)
+        res = faithful_log2(model, frames[t], t, lv, frames if static else None, corr=corr(t), fill=neighbour_fill(neighbours), merge=merge, clipped=ctx.resolved.settings.export.clipped_everywhere, denoise=denoise)
         for k in [k for k in kept if k < t]:
             del kept[k]
         yield t, np.exp2(res["log2_r"]).astype(np.float32), res["info"]
@@ -212,7 +226,9 @@ def _flow_to(ctx: Context, t: int, n: int) -> np.ndarray | None:
     if not np.isfinite(hom).all() or abs(np.linalg.det(hom)) < 1e-12:  # no homography: the flow alone
         return np.where(np.asarray(ok, bool)[..., None], f, np.nan).astype(np.float32)
     hom = hom if n == t + 1 else np.linalg.inv(hom)
-    yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
+    from layercam.geometry import pixel_grid
+
+    xx, yy = (g.astype(np.float64) for g in pixel_grid(h, w))
     q = np.stack([xx, yy, np.ones_like(xx)], -1) @ hom.T
     by_hom = (q[..., :2] / q[..., 2:3] - np.stack([xx, yy], -1)).astype(np.float32)
     return np.where(np.asarray(ok, bool)[..., None], f, by_hom).astype(np.float32)
@@ -230,15 +246,44 @@ def hdr_writer(ctx: Context, model, dest: Path, cache: Path) -> dict:
     from layercam.io import VideoWriter
 
     stats, peak = first_pass(ctx, model)
-    exrs = HdrSet(ctx.cfg.export.half and peak <= HALF_MAX, ctx.say)
+    exrs = HdrSet(ctx.resolved.settings.export.half and peak <= HALF_MAX, ctx.say)
     (dest / "hdr").mkdir(exist_ok=True)
     infos = []
-    with VideoWriter(dest / "preview.mp4", fps=_fps(ctx)) as preview:
+    with VideoWriter(dest / "preview.mp4", fps=_fps(ctx), audio=audio(ctx)) as preview:
         for t, hdr, info in faithful_hdr(ctx, model, _frames(ctx)):
             exrs.add(dest / "hdr" / f"frame_{t:05d}.exr", hdr)
             preview.add(render.tonemap_display(hdr, stats)[0])
             infos.append(info)
-    return {"frames": int(ctx.clip.T), "hdr_min": exrs.lo, "hdr_max": exrs.hi, "exr": "half" if exrs.half else "float32", "display": stats, **_faithful_summary(infos)}
+    return {"frames": int(ctx.clip.T), "hdr_min": exrs.lo, "hdr_max": exrs.hi, "exr": "half" if exrs.half else "float32", "display": stats, **_faithful_summary(infos),
+            "hdr_video": hdr_video(ctx, model, exrs.paths, dest), "fps": _fps(ctx), "sound": _sound(ctx, preview)}
+
+
+def hdr_video(ctx: Context, model, paths: list[Path], dest: Path) -> dict:
+    """``hdr.mp4`` from the EXRs at ``paths`` in ``export.hdr_format`` (:mod:`layercam.io.hdr_video`),
+    diffuse white (:func:`layercam.render.white_radiance`) at ``export.nits_white``; with an ffmpeg
+    that cannot write one, a warning naming what it lacks, and none (as ``hdr_format=none``)."""
+    from layercam.io import read_exr
+    from layercam.io.clip import primaries_of
+    from layercam.io.hdr_video import ANCHOR, MIN_SIDE, missing_for_hdr, write_hdr_video
+    from layercam.io.video import ffmpeg_exe
+    from layercam.render import white_radiance
+
+    fmt = ctx.resolved.settings.export.hdr_format
+    if fmt == "none":
+        return {"format": "none"}
+    missing = missing_for_hdr()
+    if missing:
+        ctx.warn(f"ffmpeg ({ffmpeg_exe()}) has no {missing}: hdr.mp4 is not written (as with --hdr-format none); imageio-ffmpeg >= 0.8 ships an ffmpeg with it")
+        return {"format": "none", "why": f"ffmpeg has no {missing}"}
+    if min(ctx.clip.H, ctx.clip.W) < MIN_SIDE:
+        ctx.warn(f"hdr.mp4 is not written: libx265 encodes frames of at least {MIN_SIDE} px a side, these are {ctx.clip.W}x{ctx.clip.H}")
+        return {"format": "none", "why": f"frames below {MIN_SIDE} px"}
+    prim = ctx.clip.meta.get("primaries") or primaries_of(None)
+    white = white_radiance(model)
+    info = write_hdr_video(dest / "hdr.mp4", lambda: (read_exr(p) for p in paths), _fps(ctx), fmt, white, ctx.resolved.settings.export.nits_white, prim["name"], audio=audio(ctx), progress=ctx.progress)
+    if info["audio"] and not info["audio"]["kept"]:
+        ctx.warn(f"hdr.mp4 is written without the input's sound: {info['audio']['why']}")
+    return {**info, "input_primaries": prim, "anchor": ANCHOR}
 
 
 def sharp_writer(ctx: Context, model, dest: Path, cache: Path) -> dict:
@@ -247,15 +292,15 @@ def sharp_writer(ctx: Context, model, dest: Path, cache: Path) -> dict:
 
     T, hw = ctx.clip.T, (ctx.clip.H, ctx.clip.W)
     with_hdr = exposures_vary(ctx)
-    exrs = HdrSet(ctx.cfg.export.half, ctx.say)
+    exrs = HdrSet(ctx.resolved.settings.export.half, ctx.say)
     (dest / "frames").mkdir(exist_ok=True)
     if with_hdr:
         (dest / "hdr").mkdir(exist_ok=True)
     kept = np.lib.format.open_memmap(cache / "deblurred.npy", mode="w+", dtype=np.float32, shape=(T, *hw, 3))  # for the evaluation, on disk
-    with VideoWriter(dest / "deblurred.mp4", fps=_fps(ctx)) as video:
+    with VideoWriter(dest / "deblurred.mp4", fps=_fps(ctx), audio=audio(ctx)) as video:
         for t in _frames(ctx):
             reached("export", t)
-            out = render.render_frame(model, t, hw, ("ldr", "hdr") if with_hdr else ("ldr",), chunk=ctx.cfg.export.chunk)
+            out = render.render_frame(model, t, hw, ("ldr", "hdr") if with_hdr else ("ldr",))
             ldr = out["ldr"]
             if not np.isfinite(ldr).all():
                 raise LayercamError(f"frame {t}: the model rendered non-finite values; not writing it")
@@ -266,7 +311,7 @@ def sharp_writer(ctx: Context, model, dest: Path, cache: Path) -> dict:
                 exrs.add(dest / "hdr" / f"frame_{t:05d}.exr", out["hdr"])
     kept.flush()
     del kept
-    return {"frames": int(T), "hdr": with_hdr, "hdr_max": exrs.hi if with_hdr else 0.0, "png_bits": _bits(ctx)}
+    return {"frames": int(T), "hdr": with_hdr, "hdr_max": exrs.hi if with_hdr else 0.0, "png_bits": _bits(ctx), "fps": _fps(ctx), "sound": _sound(ctx, video)}
 
 
 def fused_writer(ctx: Context, model, dest: Path, cache: Path) -> dict:
@@ -274,12 +319,12 @@ def fused_writer(ctx: Context, model, dest: Path, cache: Path) -> dict:
     from layercam.io import write_png
 
     hw = (ctx.clip.H, ctx.clip.W)
-    ref = resolve_reference(ctx.cfg.export.reference, ctx.clip.T)
+    ref = resolve_reference(ctx.resolved.settings.export.reference, ctx.clip.T)
     _, hdr, info = next(faithful_hdr(ctx, model, [ref]))
-    write_hdr_set([dest / "fused.exr"], [hdr], ctx.cfg.export.half, ctx.say)
+    write_hdr_set([dest / "fused.exr"], [hdr], ctx.resolved.settings.export.half, ctx.say)
     np.save(cache / "fused.npy", hdr.astype(np.float32))
-    if ctx.cfg.model.tone_mapper == "fixed":  # one exposure: the sharp image as the camera would have recorded it
-        png = render.render_frame(model, ref, hw, ("ldr",), chunk=ctx.cfg.export.chunk)["ldr"]
+    if ctx.resolved.settings.model.tone_mapper == "fixed":  # one exposure: the sharp image as the camera would have recorded it
+        png = render.render_frame(model, ref, hw, ("ldr",))["ldr"]
         how, stats = "fixed sRGB tone curve at the stack's exposure (input tonality)", None
     else:
         png, stats = render.tonemap_display(hdr)
@@ -291,8 +336,7 @@ def fused_writer(ctx: Context, model, dest: Path, cache: Path) -> dict:
 def atlas_writer(ctx: Context, model, dest: Path, cache: Path) -> dict:
     from layercam.pipelines.atlas_export import export_atlases
 
-    e = ctx.cfg.export
-    return {"atlas": export_atlases(model, dest, ctx.clip.frames, fps=_fps(ctx), chunk=e.chunk, progress=ctx.progress, res_range=(e.atlas_min_res, e.atlas_max_res))}
+    return {"atlas": export_atlases(model, dest, ctx.clip.frames, fps=_fps(ctx), progress=ctx.progress)}
 
 
 def crf_writer(ctx: Context, model, dest: Path, cache: Path) -> dict:
@@ -326,14 +370,14 @@ def checkpoint_writer(ctx: Context, model, dest: Path, cache: Path) -> dict:
 
     meta = model_meta(ctx)
     if ctx.task == "fuse-stack":
-        meta["reference"] = resolve_reference(ctx.cfg.export.reference, ctx.clip.T)
+        meta["reference"] = resolve_reference(ctx.resolved.settings.export.reference, ctx.clip.T)
     save_run_model(dest / CHECKPOINT_NAME, model, meta)
     return {}
 
 
 # writer name -> (function, what it may write at the top of the run folder)
 WRITERS = {
-    "hdr": (hdr_writer, ["hdr", "preview.mp4"]),
+    "hdr": (hdr_writer, ["hdr", "preview.mp4", "hdr.mp4"]),
     "sharp": (sharp_writer, ["frames", "deblurred.mp4", "hdr"]),
     "fused": (fused_writer, ["fused.exr", "fused.png"]),
     "atlases": (atlas_writer, ["atlases", "alpha"]),
@@ -361,23 +405,15 @@ class ExportStage(Stage):
 
     name = "export"
     deps = ("train",)
-    version = 5  # 2: one stage for every task, atlases included; 3: HDR faithful to the frames (layercam.faithful); 4: merged with the neighbours; 5: noise at least 2 codes
-
-    def key_material(self, ctx):
-        d = ctx.cfg.section_dict("export")
-        if ctx.task != "fuse-stack":
-            d["export"].pop("reference")  # only a stack is fused into one view
-        return {**d, "writers": list(writers_for(ctx.task))}
+    reads = ("export", "task", "static")
 
     def output_names(self, ctx):
         return [n for n in outputs_for(ctx.task) if n != REPORT_NAME]
 
     def run(self, ctx, out):
-        from layercam.pipelines.stages import resolve_device
-
         dest = out  # published to the top of the run folder when the run ends
         model = ctx.model
-        model.to(resolve_device(ctx.cfg.train.device))  # render where it trained (GPU when there is one)
+        model.to(ctx.resolved.settings.train.device)  # render where it trained (GPU when there is one)
         summary: dict = {}
         for name in writers_for(ctx.task):
             if name == "crf":

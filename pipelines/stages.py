@@ -16,10 +16,7 @@ class FlowStage(Stage):
     per-pair global homography fitted to each forward flow (RANSAC)."""
 
     name = "flow"
-    version = 3  # 2: homographies fitted where both frames see well (visibility.pair_visible); "vis" saved; 3: a working size (flow.short_side)
-
-    def key_material(self, ctx):
-        return ctx.cfg.section_dict("flow")
+    reads = ("flow",)
 
     def run(self, ctx, out):
         from layercam import flow
@@ -29,13 +26,9 @@ class FlowStage(Stage):
             ctx.flow = None
             return {"pairs": 0}
         hw = (ctx.clip.H, ctx.clip.W)
-        work = flow.working_size(hw, ctx.cfg.flow.short_side)
+        work = flow.working_size(hw)
         frames = ctx.clip.frames if work == hw else flow.resize_frames(ctx.clip.frames, work)
-        method = ctx.cfg.flow.method
-        if method == "raft":
-            fw, bw = flow.raft_flow(frames, ctx.cfg.flow.raft_weights)
-        else:
-            fw, bw = flow.compute_flow(frames, method=method, progress=ctx.progress)
+        fw, bw = flow.compute_flow(frames, method=ctx.cfg.flow.method, progress=ctx.progress, weights_path=ctx.cfg.flow.raft_weights)
         arrays = flow.pair_arrays(frames, fw, bw)  # homographies fitted only where both frames see well
         fw_ok = arrays["fw_ok"]
         # as cached: every array on the working grid (flows in its pixels); flow.at_frame_size scales them up
@@ -52,7 +45,6 @@ class FlowStage(Stage):
         return summary
 
 
-from layercam.geometry import STATIC_CORNER_PX  # noqa: E402 - the static-scene threshold (see there)
 
 
 class BootstrapStage(Stage):
@@ -62,53 +54,38 @@ class BootstrapStage(Stage):
 
     name = "bootstrap"
     deps = ("flow",)
-    version = 3  # 3: reports "static" (identity because nothing moved)
-
-    def key_material(self, ctx):
-        m = ctx.cfg.model
-        d = {"bootstrap": ctx.cfg.scene.bootstrap, "layers": m.layers, "init_slope": ctx.cfg.tone.init_slope, "tone": m.tone_mapper}
-        if m.layers > 1:
-            from layercam import segment
-
-            # the segment settings that differ from their defaults (the defaults are the code's, named
-            # by SEGMENT_VERSION: bump it when one changes); refine's are read by the refine stage.
-            # Before 2026-11-25 none were keyed (the version overwrote them): a run made again with
-            # another segment.* setting reused its masks. Runs at the defaults keep their key.
-            seg, default = ctx.cfg.section_dict("segment")["segment"], dataclasses.asdict(segment.SegmentConfig())
-            changed = {k: v for k, v in seg.items() if k not in ("refine", "refine_threshold") and v != default[k]}
-            d["foreground"] = {"segment": segment.SEGMENT_VERSION, **({"settings": changed} if changed else {})}
-        return d
+    reads = ("scene.bootstrap", "model.layers", "model.tone_mapper", "segment", "static")
 
     def run(self, ctx, out):
         from layercam.camera.tone import initial_log2
-        from layercam.geometry import atlas_mappings, chain_homographies, max_corner_shift, middle_frame
+        from layercam.geometry import atlas_mappings, chain_homographies, middle_frame
 
         from layercam.flow import at_frame_size
 
         clip = ctx.clip
         T, H, W = clip.T, clip.H, clip.W
-        fl = at_frame_size(ctx.flow, (H, W), None if ctx.cfg.model.layers > 1 else ("homs",))  # the motion segmentation reads the flows too
+        r = ctx.resolved
+        fl = at_frame_size(ctx.flow, (H, W), None if r.settings.model.layers > 1 else ("homs",))  # the motion segmentation reads the flows too
         ref = middle_frame(T)
-        static = False
-        if ctx.cfg.scene.bootstrap == "flow" and fl is not None:
+        static = r.static  # the flow's chained homographies move no corner by STATIC_CORNER_PX (layercam.resolve)
+        if static:
+            bg = np.stack([np.eye(3)] * T)
+            how = f"identity: {r.reasons.get('static', 'a static camera')}"
+        elif r.settings.scene.bootstrap == "flow" and fl is not None:
             bg = chain_homographies(fl["homs"].astype(np.float64), ref)
             how = f"chained flow homographies to frame {ref}"
-            moved = max_corner_shift(bg, H, W)
-            if moved < STATIC_CORNER_PX:  # flow between differently focused/exposed frames: noise
-                bg = np.stack([np.eye(3)] * T)
-                how = f"identity: the flow homographies move no frame corner by {STATIC_CORNER_PX} px (at most {moved:.2f} px)"
-                static = True
         else:
             bg = np.stack([np.eye(3)] * T)
             how = "identity"
         h0 = [atlas_mappings(H, W, bg)]
         fg = {}
-        if ctx.cfg.segment.detector and (ctx.cfg.model.layers == 1 or ctx.masks is not None):
-            ctx.say(f"[bootstrap] segment.detector unused: {'one layer, no foreground' if ctx.cfg.model.layers == 1 else '--masks given'}")
-        if ctx.cfg.model.layers > 1:  # foreground: user masks, else motion segmentation of the flow
+        cfg = r.settings
+        if cfg.segment.detector and (cfg.model.layers == 1 or ctx.masks is not None):
+            ctx.say(f"[bootstrap] segment.detector unused: {'one layer, no foreground' if cfg.model.layers == 1 else '--masks given'}")
+        if cfg.model.layers > 1:  # foreground: user masks, else motion segmentation of the flow
             from layercam import segment
 
-            fg = segment.foreground_bootstrap(clip.frames, fl, ctx.masks, ctx.cfg.segment, progress=ctx.progress)
+            fg = segment.foreground_bootstrap(clip.frames, fl, ctx.masks, cfg.segment, progress=ctx.progress)
             h0.append(fg["h0"])
             if fg["computed"]:
                 segment.save_masks(out, fg["masks"])
@@ -116,7 +93,7 @@ class BootstrapStage(Stage):
                 if "detector_frames" in fg["info"]:
                     ctx.say(f"[bootstrap] the detector's instances replaced the motion masks in {fg['info']['detector_frames']} of {T} frames")
         h0 = np.stack(h0)
-        init_log2 = initial_log2(clip.frames, ctx.exposures.log2_dt, ctx.cfg.tone.init_slope, ctx.cfg.model.tone_mapper)  # layercam.camera.tone
+        init_log2 = initial_log2(clip.frames, ctx.exposures.log2_dt, cfg.model.tone_mapper)  # layercam.camera.tone
         np.save(out / "h0.npy", h0)
         res = {"how": how, "init_log2": init_log2, "layers": int(h0.shape[0]), "static": static}
         if fg:
@@ -138,26 +115,16 @@ class TrainStage(Stage):
 
     name = "train"
     deps = ("flow", "bootstrap")
-    version = 4  # 2: alpha trained on bootstrap masks with balanced BCE, tapered (MaskTaper); 3: grid at most one cell per pixel with a blur generator; 4: sparse grid levels, row-wise Adam (layercam/optim.py)
+    reads = ("model", "scene", "tone", "blur", "loss", "train", "static")
     all_ranks = True  # data-parallel under torch.distributed (layercam/distributed.py)
     final = True      # the run's model (ctx.model), probed by the benchmark's callbacks; not the refine option's first fit
 
-    def key_material(self, ctx):
-        d = ctx.cfg.section_dict("model", "scene", "tone", "blur", "loss", "train")
-        d["train"].pop("checkpoint_every", None)
-        d["train"].pop("device", None)
-        if ctx.cfg.model.layers == 1:
-            d["loss"].pop("fg_follow", None)  # a two-layer term: one-layer runs trained before it keep their key
-        if ctx.cfg.model.layers == 1 or d["loss"].get("alpha_flow_keep") == 0:
-            d["loss"].pop("alpha_flow_keep", None)  # one layer, or the decay as before the setting: those runs keep their key
-        if ctx.cfg.model.layers == 1 or not d["loss"].get("mask_anchor"):
-            for k in ("mask_anchor", "anchor_band"):
-                d["loss"].pop(k, None)  # off (the default) or one layer: runs trained before the anchor keep their key
-        if d["loss"].get("robust") in (0.0, "auto"):
-            d["loss"].pop("robust")  # MSE, as before the setting: those runs keep their key
-        if "refine" in ctx.keys:  # only after the first fit: trained on the refine stage's masks
-            d["refined_masks"] = ctx.keys["refine"]
-            d["refined_balance"] = "all"  # class-balanced all through, as motion masks (runs before it balanced them during the bootstrap steps only)
+    def options(self, ctx):
+        """Trained on the refine stage's masks, after its first fit: their key; a long clip's later
+        window: the key of window 0's camera, held fixed."""
+        d = {"refined_masks": ctx.keys["refine"]} if "refine" in ctx.keys else {}
+        if getattr(ctx, "camera", None) is not None:
+            d["camera"] = ctx.camera["key"]
         return d
 
     @staticmethod
@@ -173,43 +140,29 @@ class TrainStage(Stage):
         import torch
 
         from layercam import distributed
-        from layercam.analyse import has_floor_model
         from layercam.camera.tone import fit_init_curve
         from layercam.data import PixelSampler
-        from layercam.segment import sure_pixels
         from layercam.train import Trainer
 
-        cfg = self.model_cfg(ctx)
+        r = ctx.resolved
+        cfg = r.settings
         torch.manual_seed(cfg.train.seed)
-        model = self.build(ctx, cfg)
-        if cfg.scene.residual_scale == 0 and ctx.cfg.scene.residual_scale > 0:
-            ctx.say("[train] static one-layer scene: per-frame homographies only, no residual warp (scene.residual=on keeps it)")
-        if cfg.model.layers > 1 and cfg.scene.still_background == "on" and ctx.cfg.scene.still_background == "auto":
-            ctx.say("[train] static camera: the background layer held still, no per-frame correction or residual warp (scene.still_background=off frees it)")
-        if cfg.train.steps < ctx.cfg.train.steps and cfg.train.steps == cfg.train.min_steps and has_floor_model(cfg):
-            ctx.say(f"[train] {cfg.train.steps} steps of {cfg.train.batch} pixels instead of {ctx.cfg.train.steps}: a clip this short trains at the step cap's floor, "
-                    f"one model whatever the preset ({cfg.scene.grid_levels} grid levels, atlas width {cfg.scene.atlas_width}; more fit a short stack's noise; "
-                    "train.passes_per_frame=0: no cap)")
-        elif cfg.train.steps < ctx.cfg.train.steps:
-            ctx.say(f"[train] {cfg.train.steps} steps instead of {ctx.cfg.train.steps}: at most {cfg.train.passes_per_frame:g} x {ctx.clip.T} passes over "
-                    f"the clip's {ctx.clip.T * ctx.clip.H * ctx.clip.W:,} pixels (more fit a short stack's noise; train.passes_per_frame=0: no cap)")
-        if model.blur is not None and ctx.cfg.blur.centre == "auto":
-            ctx.say(f"[train] blur PSFs {'centred on their pixel (static scene)' if cfg.blur.centre == 'on' else 'free to shift (moving scene)'}; blur.centre=on|off overrides")
-        if cfg.model.tone_mapper == "learned" and not cfg.tone.monotone:
-            fit_init_curve(model.tone, cfg.tone.init_slope, seed=cfg.train.seed)
+        model = self.build(ctx)
+        if getattr(ctx, "camera", None) is not None:  # pipelines/windows.py: window 0's camera, held fixed
+            from layercam.pipelines.windows import hold_camera
+
+            hold_camera(model, ctx.camera)
+        elif cfg.model.tone_mapper == "learned":
+            fit_init_curve(model.tone, seed=cfg.train.seed)
         masks, source = self.masks(ctx)
         fl = ctx.flow if cfg.model.flow_loss else None
-        dev = resolve_device(cfg.train.device)
-        ctx.say(f"[{self.name}] device: {device_line(cfg.train.device, dev)}")
+        dev = device_of(cfg.train.device)
+        ctx.say(f"[{self.name}] device: {device_line(ctx.cfg.train.device, dev)}")
         model.to(dev)
-        if cfg.train.compile:
-            for atlas in model.scene.atlases:
-                atlas.compile()
         callbacks = model.training_callbacks(masks is not None, given=source == "given")
         sampler = PixelSampler(
             ctx.clip.frames, *(fl[k] for k in ("fw", "bw", "fw_ok", "bw_ok")) if fl else (None,) * 4,
             masks=masks, device=dev, seed=distributed.rank_seed(cfg.train.seed),
-            sure=sure_pixels(masks, cfg.loss.anchor_band) if model.loss_weights.alpha_anchor > 0 else None,  # the model decides (motion masks, two layers)
         )
         if self.final:
             callbacks += [make(model) for make in ctx.train_callbacks]  # e.g. the benchmark's quality probe
@@ -225,7 +178,8 @@ class TrainStage(Stage):
             "steps": res.steps,
             "processes": distributed.world_size(),
             "device": str(dev),
-            "device_asked": cfg.train.device,
+            "device_asked": ctx.cfg.train.device,
+            "model_sizes": model.sizes,
             "seconds_this_session": round(res.seconds, 2),
             "cpu_seconds_this_session": round(res.cpu_seconds, 2),
             "steps_per_s": round((res.steps - res.resumed_from) / max(res.seconds, 1e-9), 2),
@@ -239,25 +193,17 @@ class TrainStage(Stage):
         }
 
     @staticmethod
-    def model_cfg(ctx):
-        """The model's own config: ``ctx.cfg`` (analysed) with what the bootstrap decides resolved."""
-        from layercam.analyse import resolve_auto
-
-        boot = ctx.results["bootstrap"]
-        return resolve_auto(ctx.cfg, boot.get("static", False), boot["h0"], (ctx.clip.H, ctx.clip.W))
-
-    @staticmethod
-    def build(ctx, cfg):
+    def build(ctx):
         from layercam.checkpoint import build_model
 
-        return build_model(cfg, model_meta(ctx))
+        return build_model(ctx.resolved, model_meta(ctx))
 
     @classmethod
     def trained(cls, ctx, out):
         """The model a training stage's folder ``out`` holds (its last checkpoint), in eval mode."""
         import torch
 
-        model = cls.build(ctx, cls.model_cfg(ctx))
+        model = cls.build(ctx)
         model.load_state_dict(torch.load(out / "ckpt.pt", map_location="cpu", weights_only=False)["model"])
         return model.eval()
 
@@ -274,7 +220,6 @@ class PrefitStage(TrainStage):
     ``ckpt.pt`` by the refine stage and is not the run's model."""
 
     name = "prefit"
-    version = 1
     final = False
 
     def load(self, ctx, out, summary):
@@ -287,10 +232,7 @@ class RefineStage(Stage):
 
     name = "refine"
     deps = ("bootstrap", "prefit")
-    version = 2  # 2: frame and background compared at the clip's mean exposure
-
-    def key_material(self, ctx):
-        return {"threshold": ctx.cfg.segment.refine_threshold}
+    reads = ("segment.refine_threshold",)
 
     def run(self, ctx, out):
         import torch
@@ -314,7 +256,7 @@ class RefineStage(Stage):
             bg.append(tone_map_log2(model, r["layers"][0], common))
             seen.append(tone_map_log2(model, inverse_tone(model, clip.frames[t], float(dts[t])), common))
             alpha.append(r["alpha"])
-        masks = segment.refine_masks(np.stack(seen), np.stack(bg), np.stack(alpha), ctx.cfg.segment.refine_threshold)
+        masks = segment.refine_masks(np.stack(seen), np.stack(bg), np.stack(alpha), ctx.resolved.settings.segment.refine_threshold)
         segment.save_masks(out, masks)
         boot = ctx.results["bootstrap"].get("masks")
         agree = float(np.mean([iou(a, b > 0.5) for a, b in zip(masks, boot)]))  # refine_wanted: the bootstrap made masks
@@ -330,17 +272,19 @@ class RefineStage(Stage):
 def refine_wanted(ctx) -> bool:
     """``segment.refine`` applies: two layers whose masks came from the motion segmentation."""
     boot = ctx.results.get("bootstrap", {})
-    return bool(ctx.cfg.segment.refine) and ctx.cfg.model.layers > 1 and ctx.masks is None and boot.get("masks") is not None
+    cfg = ctx.resolved.settings
+    return bool(cfg.segment.refine) and cfg.model.layers > 1 and ctx.masks is None and boot.get("masks") is not None
 
 
-def resolve_device(name: str) -> str:
-    """``train.device`` -> the device to use: "auto" is CUDA when torch sees a GPU, else the CPU."""
+def device_of(name: str) -> str:
+    """A resolved ``train.device`` (or a command's ``--device``; "auto": CUDA when torch sees a GPU,
+    else the CPU) checked against what torch sees."""
     import torch
 
     if name == "auto":
         return "cuda" if torch.cuda.is_available() else "cpu"
-    if name == "cuda" and not torch.cuda.is_available():
-        raise LayercamError("--device cuda asked for, but torch sees no CUDA device")
+    if name.startswith("cuda") and not torch.cuda.is_available():
+        raise LayercamError(f"--device {name} asked for, but torch sees no CUDA device")
     return name
 
 
@@ -370,8 +314,6 @@ def model_meta(ctx: Context) -> dict:
     b = ctx.results["bootstrap"]
     e = ctx.exposures
     return {
-        "clip_levels": ctx_clip_levels(ctx).tolist(),
-        "reasons": dict(ctx.reasons),
         "h0": b["h0"],
         "log2_dt": np.asarray(e.log2_dt, dtype=np.float32),
         "exposure_learn": e.learn,
@@ -381,6 +323,8 @@ def model_meta(ctx: Context) -> dict:
         "n_frames": ctx.clip.T,
         "names": list(ctx.clip.names),
         "fps": float(ctx.clip.fps or 24.0),
+        "audio": ctx.clip.meta.get("audio"),  # the sound `render` and `edit` carry over (layercam.io.clip.audio_plan)
+        "primaries": (ctx.clip.meta.get("primaries") or {}).get("name", "bt709"),
         "task": ctx.task,
         "source": str(ctx.clip.source),
     }

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import platform
 import time
 from pathlib import Path
@@ -10,6 +11,7 @@ import numpy as np
 
 from layercam import analyse, distributed
 from layercam.config import validate
+from layercam.resolve import format_table, resolve
 from layercam.errors import LayercamError
 from layercam.io.lock import run_lock
 from layercam.pipelines import publish
@@ -30,11 +32,16 @@ def stages_for(task: str) -> list:
     return [FlowStage(), BootstrapStage(), TrainStage(), ExportStage()]
 
 
-def run_task(task: str, clip, exposures, cfg, run_dir: Path, masks=None, progress: bool = True, extra_stages: list | None = None, train_callbacks: list | None = None) -> Context:
+def run_task(task: str, clip, exposures, cfg, run_dir: Path, masks=None, progress: bool = True, extra_stages: list | None = None, train_callbacks: list | None = None,
+             window: int | None = None, ray: str | None = None) -> Context:
     """Analyse ``clip``, run the task's stages (and ``extra_stages``, e.g. an evaluate stage) into
-    ``run_dir`` and write ``report.json``. The analysis decides each ``auto`` of ``cfg.model``
-    (values set there are kept: ``--layers`` etc.). ``train_callbacks``: functions of the model
-    that return more trainer callbacks (the benchmark's quality probe)."""
+    ``run_dir`` and write ``report.json``. After the flow, the settings are resolved once
+    (:func:`layercam.resolve.resolve`: each ``auto`` decided from what the analysis measured, values
+    set are kept: ``--layers`` etc.) into ``ctx.resolved``, which every later stage reads.
+    ``train_callbacks``: functions of the model that return more trainer callbacks (the benchmark's
+    quality probe). ``window``: a video's windows (``pipelines/windows.py``): None as the analysis
+    decides, 0 none, N frames each; ``ray``: a Ray cluster (``auto`` or an address) that trains the
+    windows (``layercam.cluster``)."""
     t0 = time.perf_counter()
     validate(cfg)
     ctx = Context(run_dir=Path(run_dir), clip=clip, exposures=exposures, cfg=cfg, task=task, masks=masks, progress=progress, train_callbacks=list(train_callbacks or []))
@@ -42,39 +49,66 @@ def run_task(task: str, clip, exposures, cfg, run_dir: Path, masks=None, progres
     for w in list(getattr(exposures, "warnings", [])) + list(clip.meta.get("notes", [])):
         ctx.warn(w)
     stages = stages_for(task) + list(extra_stages or [])
+    if ray:
+        from layercam import cluster
+
+        cluster.available()  # before any work
+    evaluated = bool(extra_stages or train_callbacks)  # the demo and the benchmark score one model of the whole clip
+    if evaluated and window not in (None, 0):
+        raise LayercamError("--window: this command scores one model of the whole clip; leave --window out")
     with run_lock(ctx.run_dir, ctx.say, enabled=distributed.is_main()):  # one writer per run folder
-        _run(ctx, stages, t0)
+        _run(ctx, stages, t0, 0 if evaluated else window, ray)
     return ctx
 
 
-def _run(ctx: Context, stages: list, t0: float) -> None:
+def _run(ctx: Context, stages: list, t0: float, window=None, ray: str | None = None) -> None:
+    from layercam.pipelines import windows
+
     clip, exposures, task, cfg = ctx.clip, ctx.exposures, ctx.task, ctx.cfg
-    publish.check_folder(ctx.run_dir, [n for st in stages for n in st.output_names(ctx)])  # before any work
+    publish.check_folder(ctx.run_dir, [n for st in stages + [windows.WindowsStage()] for n in st.output_names(ctx)])  # before any work
+    extra = {}
     try:
         # flow first: the analysis reads it to decide what the model needs
         run_stages(ctx, stages[:1])
         ctx.measures = analyse.measure(clip, exposures, ctx.flow)
         ctx.measures["masks_given"] = ctx.masks is not None and bool(np.asarray(ctx.masks).any())
-        ctx.cfg, ctx.reasons = analyse.decide(cfg, clip, exposures, task, ctx.measures)
-        ctx.say("model chosen:\n" + analyse.format_table(ctx.cfg, ctx.reasons))
-        run_stages(ctx, stages[1:2])  # the bootstrap: motion masks for two layers
-        unfound = analyse.unfound_foreground(cfg, ctx.results.get("bootstrap"))
-        if unfound:  # the analysis chose two layers and the finder found no object: one layer, saying why
-            ctx.measures.update(foreground_found=False, foreground_reason=unfound)
-            ctx.cfg, ctx.reasons = analyse.decide(cfg, clip, exposures, task, ctx.measures)
-            ctx.say("model chosen again (no foreground found):\n" + analyse.format_table(ctx.cfg, ctx.reasons))
-            run_stages(ctx, stages[1:2])
-        if refine_wanted(ctx):  # segment.refine: a first fit, and masks from its background residual
-            run_stages(ctx, [PrefitStage(), RefineStage()])
-        run_stages(ctx, stages[2:])
-        faded = faded_foreground(ctx)
-        if faded:
-            ctx.warn(faded)
+        ctx.resolved = resolve(cfg, clip, exposures, task, ctx.measures)
+        plan = windows.plan(clip, exposures, ctx.flow, task, window)
+        if task != "fuse-stack" and len(stages) == 4 and not ctx.train_callbacks:  # not for a stack, nor a scored run (demo, bench)
+            ctx.resolved = dataclasses.replace(ctx.resolved, reasons={**ctx.resolved.reasons, "window": plan.reason})
+        if ray and plan.count == 1:
+            ctx.say("[ray] one model for the whole clip: it trains here (--ray distributes a long clip's windows)")
+        ctx.say("model chosen:\n" + format_table(ctx.resolved, plan.count))
+        if plan.count > 1:  # a long clip: windows of the stages below, then joined
+            results = windows.run_all(ctx, plan, ray)
+            for r in results:
+                for w in r["warnings"]:
+                    ctx.warn(f"window {r['index']} (frames {r['frames'][0]}..{r['frames'][1] - 1}): {w}")
+            stages = [stages[0], windows.WindowsStage(plan, results)]
+            run_stages(ctx, stages[1:])
+            ctx.results["train"] = windows.train_summary(results)
+            runs = [{**{k: r[k] for k in ("index", "frames", "keys", "times")}, "folder": str(Path(r["folder"]).relative_to(ctx.run_dir))} for r in results]
+            extra = {"windows": {**plan.to_dict(), "runs": runs, "ray": ctx.results.get("ray")}}
+        else:
+            run_stages(ctx, stages[1:2])  # the bootstrap: motion masks for two layers
+            unfound = analyse.unfound_foreground(cfg, ctx.results.get("bootstrap"))
+            if unfound:  # the analysis chose two layers and the finder found no object: one layer, saying why
+                ctx.measures.update(foreground_found=False, foreground_reason=unfound)
+                again = resolve(cfg, clip, exposures, task, ctx.measures)
+                ctx.resolved = dataclasses.replace(again, reasons={**ctx.resolved.reasons, **again.reasons})
+                ctx.say("model chosen again (no foreground found):\n" + format_table(ctx.resolved, plan.count))
+                run_stages(ctx, stages[1:2])
+            if refine_wanted(ctx):  # segment.refine: a first fit, and masks from its background residual
+                run_stages(ctx, [PrefitStage(), RefineStage()])
+            run_stages(ctx, stages[2:])
+            faded = faded_foreground(ctx)
+            if faded:
+                ctx.warn(faded)
     except LayercamError as e:
         if getattr(e, "events", None) is not None:  # training stopped: say why in report_failed.json
             write_report(ctx, time.perf_counter() - t0, "report_failed.json", {"error": str(e), "train": {"stopped": True, "events": e.events}})
         raise
-    report = write_report(ctx, time.perf_counter() - t0, name=None)
+    report = write_report(ctx, time.perf_counter() - t0, name=None, extra=extra)
     if distributed.is_main():  # the top of the run folder becomes this run's outputs and report, at once
         sources, keys = output_sources(ctx, stages)
         publish.publish(ctx.run_dir, sources, report, publish.set_key(keys), ctx.say)
@@ -101,7 +135,7 @@ def faded_foreground(ctx: Context) -> str | None:
     ref = float(np.mean(np.asarray(masks) > 0.5))
     if ref <= 0 or share >= FADED_SHARE * ref:
         return None
-    hint = "" if source == "given" else "; --set loss.mask_anchor=0.05 holds alpha to the masks where they are sure, --masks gives masks"
+    hint = "" if source == "given" else "; --masks gives masks"
     return (f"{FADED}: its alpha holds {share:.2%} of the frames, the {source} masks it started from "
             f"{ref:.2%}; alpha/, the atlases and `layercam edit` miss the object{hint}")
 
@@ -113,10 +147,11 @@ def write_report(ctx: Context, wall: float, name: str | None = "report.json", ex
     train = dict(ctx.results.get("train", {}))
     rep = {
         "task": ctx.task,
-        "input": {"source": str(ctx.clip.source), "frames": ctx.clip.T, "width": ctx.clip.W, "height": ctx.clip.H, "fps": ctx.clip.fps, "bit_depth": ctx.clip.bit_depth},
+        "input": {"source": str(ctx.clip.source), "frames": ctx.clip.T, "width": ctx.clip.W, "height": ctx.clip.H, "fps": ctx.clip.fps, "bit_depth": ctx.clip.bit_depth,
+                  **{k: ctx.clip.meta[k] for k in ("primaries", "audio", "video") if k in ctx.clip.meta}},  # video: what the input's header says (frame rate, variable, sound)
         "exposures": {"spec": ctx.exposures.spec, "reason": ctx.exposures.reason, "log2_dt_given": ctx.exposures.log2_dt.tolist(), "learn": ctx.exposures.learn},
-        "analysis": {**(analyse.model_summary(ctx.cfg) if ctx.measures is not None else {}), "reasons": ctx.reasons, "measures": ctx.measures},
-        "settings": ctx.cfg.to_dict(),
+        "analysis": {**(analyse.model_summary(ctx.resolved.settings) if ctx.resolved is not None else {}), "reasons": dict(ctx.resolved.reasons) if ctx.resolved is not None else {}, "measures": ctx.measures},
+        "settings": ctx.resolved.to_dict() if ctx.resolved is not None else ctx.cfg.to_dict(),
         "stages": ctx.times,
         "wall_seconds": round(wall, 2),
         "train": train,

@@ -499,3 +499,59 @@ def test_a_large_clip_is_segmented_at_the_working_size(monkeypatch):
     masks, info = seg.find_foreground(frames, {"fw": fw, "bw": bw})
     assert masks.shape == truth.shape and info["working_size"] == [32, 32]
     assert np.mean([metrics.iou(m > 0.5, g) for m, g in zip(masks, truth)]) > 0.7
+
+
+def test_the_border_ring_reads_the_cameras_motion_under_a_large_subject():
+    """Step 1's contract: a subject covering most of the frame's centre moves one way, the world
+    another; the homography fitted to the border ring is the world's (the camera's), and a pair's
+    residual is small on the world and large on the subject."""
+    from layercam.segment.camera import border_homographies, border_ring, pair_residuals
+
+    h, w = 60, 80
+    ring = border_ring(h, w)
+    assert ring.shape == (h, w) and ring[0].all() and ring[:, 0].all() and not ring[h // 2, w // 2]
+    d = np.zeros((h, w, 2), np.float32)
+    d[..., 0], d[..., 1] = 2.0, -1.0  # the world pans (2, -1) px
+    subject = np.zeros((h, w), bool)
+    subject[12:48, 16:64] = True  # 36% of the frame, inside the ring
+    d[subject] = (-3.0, 0.5)
+    homs = border_homographies(d[None])
+    assert homs.shape == (1, 3, 3) and np.allclose(homs[0][:2, 2], (2.0, -1.0), atol=0.05)
+    res, epipolar = pair_residuals(d, np.ones((h, w), bool))
+    assert res.shape == (h, w) and not epipolar
+    assert np.median(res[~subject]) < 0.1 and np.median(res[subject]) > 4.0
+    assert pair_residuals(d, np.zeros((h, w), bool)) == (None, False)  # too few valid ring pixels
+
+
+def test_motion_evidence_is_a_share_high_on_the_moving_square(square):
+    """Step 2's contract: ``(T, H, W)`` float32 in [0, 1], high on what moves against the camera,
+    low on the panning background; ``offsets`` are the powers of two up to ``reach``."""
+    from layercam.segment.evidence import motion_evidence, offsets
+
+    assert offsets(8) == (1, 2, 4, 8) and offsets(5) == (1, 2, 4) and offsets(0) == (1,)
+    from layercam.segment.moving import flow_checks
+
+    ev, info = motion_evidence(square["fw"], square["bw"], *flow_checks(square["fw"], square["bw"]), reach=4)
+    assert ev.shape == square["masks"].shape and ev.dtype == np.float32 and 0 <= ev.min() and ev.max() <= 1
+    inside, outside = ev[square["masks"]].mean(), ev[~square["masks"]].mean()
+    assert inside > 0.5 and outside < 0.1, (inside, outside)
+
+
+def test_grabcut_pulls_an_overshooting_mask_to_the_objects_edge():
+    """Step 4's contract: a mask 4 px too large on every side of a square of its own colour is
+    pulled back to the square; a mask too small to seed GrabCut comes back as it was."""
+    from layercam.segment.edges import grabcut_refine
+
+    rng = np.random.default_rng(0)
+    frame = (0.2 + 0.1 * rng.uniform(0, 1, (80, 80, 3))).astype(np.float32)
+    truth = np.zeros((80, 80), bool)
+    truth[25:55, 20:50] = True
+    frame[truth] = (0.9, 0.5, 0.1)
+    over = np.zeros_like(truth)
+    over[21:59, 16:54] = True
+    out = grabcut_refine(frame, over)
+    assert out.shape == truth.shape and out.dtype == bool
+    assert metrics.iou(out, truth) > 0.9 > metrics.iou(over, truth)
+    tiny = np.zeros_like(truth)
+    tiny[5:7, 5:7] = True
+    assert (grabcut_refine(frame, tiny) == tiny).all()

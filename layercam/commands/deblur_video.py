@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from layercam.cli import EPILOG, common_model_args, default_out, finish, input_args, load_cfg, load_masks
+from layercam.cli import EPILOG, common_model_args, default_out, finish, input_args, load_cfg, window_args
 
 
 def register(sub) -> argparse.ArgumentParser:
@@ -16,19 +16,22 @@ def register(sub) -> argparse.ArgumentParser:
             "Fits the scene with the blur generator explaining each frame's blur, then renders every frame "
             "through the learned tone mapper at the frame's own exposure with the blur generator dropped: "
             "frames/frame_00000.png, deblurred.mp4, hdr/frame_00000.exr (only when exposures vary), "
-            "crf.json/png, psf.json (learned blur per frame), report.json, checkpoint.pt."
+            "crf.json/png, psf.json (learned blur per frame), report.json, checkpoint.pt. The video keeps the input's "
+            "frame rate and sound."
         ),
         epilog=EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     input_args(d, "none")
     common_model_args(d)
+    window_args(d)
     return d
 
 
 def run(args) -> int:
     from layercam.errors import LayercamError
     from layercam.io import load_clip, parse_exposures
+    from layercam.io.masks import load_masks
     from layercam.pipelines.tasks import run_task
 
     cfg = load_cfg(args)
@@ -38,6 +41,6 @@ def run(args) -> int:
     exposures = parse_exposures(args.exposures, clip, args.ev_step, args.force_ev_step)
     masks = load_masks(args.masks, clip) if args.masks else None
     out = Path(args.out) if args.out else default_out(args.inputs)
-    ctx = run_task("deblur-video", clip, exposures, cfg, out, masks=masks, progress=not args.quiet)
+    ctx = run_task("deblur-video", clip, exposures, cfg, out, masks=masks, progress=not args.quiet, window=args.window, ray=args.ray)
     finish(ctx)
     return 0

@@ -41,9 +41,8 @@ from layercam.segment.moving import motion_masks
 from layercam.segment.refine import refine_masks
 from layercam.segment.store import load_masks, save_masks, sure_pixels
 
-__all__ = ["SegmentConfig", "SEGMENT_VERSION", "STEPS", "foreground_bootstrap", "motion_masks", "motion_offsets", "clean_mask", "object_motion", "foreground_mappings", "refine_masks", "sure_pixels", "load_masks", "save_masks"]
+__all__ = ["SegmentConfig", "STEPS", "foreground_bootstrap", "motion_masks", "motion_offsets", "clean_mask", "object_motion", "foreground_mappings", "refine_masks", "sure_pixels", "load_masks", "save_masks"]
 
-SEGMENT_VERSION = 11  # bump when foreground_bootstrap changes the masks it returns (11: the segment package, the camera read from the border, the verdict)
 STEPS = ("grabcut", "background", "colour", "failure")  # the optional steps after the motion masks (each measured: the ablation)
 WORK_SHORT = 240  # the finder sees frames at most this many pixels on the short side (masks are upsampled to the
                   # frame; training refines alpha's edges at the frame's size): its cost stays under a second a frame

@@ -23,16 +23,17 @@ F_GAIN = 0.1       # ... otherwise the epipolar model joins when it explains thi
 RING_POINTS = 4000  # about this many ring pixels are fitted (a subsample on large frames)
 
 
-def border_ring(h: int, w: int, width: float = BORDER) -> np.ndarray:
-    """``(H, W)`` bool: the pixels within ``width`` of the short side of the frame's edge."""
-    r = max(2, int(round(width * min(h, w))))
+def border_ring(h: int, w: int, width: float | None = None) -> np.ndarray:
+    """``(H, W)`` bool: the pixels within ``width`` (default ``BORDER``) of the short side of the frame's edge."""
+    r = max(2, int(round((BORDER if width is None else width) * min(h, w))))
     yy, xx = np.mgrid[0:h, 0:w]
     return (yy < r) | (yy >= h - r) | (xx < r) | (xx >= w - r)
 
 
 def _grid(h: int, w: int) -> np.ndarray:
-    yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
-    return np.stack([xx, yy], -1)
+    from layercam.geometry import pixel_grid
+
+    return np.stack(pixel_grid(h, w), -1)
 
 
 def _sampson(f: np.ndarray, x1: np.ndarray, x2: np.ndarray) -> np.ndarray:

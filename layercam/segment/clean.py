@@ -67,7 +67,7 @@ def clean_mask(mask: np.ndarray, colour: np.ndarray | None = None, reach: float 
 
 def warp_mask(mask: np.ndarray, flow_t: np.ndarray) -> np.ndarray:
     """``mask`` of frame t+-1 brought into frame t along ``flow_t`` (t's pixels -> the other's), float."""
-    from layercam.flow import warp
+    from layercam.geometry import warp
 
     return warp(np.asarray(mask, np.float32), flow_t, border="constant")
 

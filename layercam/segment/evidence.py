@@ -38,7 +38,7 @@ def _ends(ev: np.ndarray, fw: np.ndarray, bw: np.ndarray, has: np.ndarray) -> np
     """A frame seen from one side only (the clip's first and last) cannot tell the object from the
     background it is about to cover or has just uncovered: there the evidence is also capped by its
     neighbour's, brought along the flow."""
-    from layercam.flow import warp
+    from layercam.geometry import warp
 
     T = len(ev)
     if T < 3:

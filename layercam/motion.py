@@ -1,6 +1,6 @@
 """Motion over many frames: pixels followed along the chained flow (:func:`chained_displacements`),
 a pair's residual against the static scene (:func:`pair_residuals`: a homography, or an epipolar
-model when the clip has parallax), where the flow loses a pixel (:func:`flow_failure`) and the
+model when the clip has parallax) and the
 share of pixels that leave the static scene over ``reach`` frames (:func:`long_range_moving_share`,
 what the analysis reads to choose two layers).
 
@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["chained_displacements", "pair_residuals", "flow_failure", "long_range_moving_share"]
+__all__ = ["chained_displacements", "pair_residuals", "long_range_moving_share"]
 
 
 def _grid(h: int, w: int) -> np.ndarray:
@@ -119,38 +119,6 @@ def pair_residuals(d: np.ndarray, valid: np.ndarray, step: int = 4, ransac_px: f
     res_f = np.minimum(res_h, _sampson(fm, x1, x2)).astype(np.float32)
     vote = _edge_fraction(valid & (res_h > 2 * ransac_px) & (res_f <= ransac_px), x2) >= edge
     return res_h, res_f, vote
-
-
-def flow_failure(fw, bw, fw_ok, bw_ok, reach: int = 4) -> np.ndarray:
-    """Where the flow fails to follow a pixel: for each pixel of each frame, the share of the
-    frames 1 .. ``reach`` away on either side that it lands inside of along the chained flow but
-    not on a forward-backward consistent track (:func:`chained_displacements`), blurred by 1% of the
-    short side; 0 where no track is judged (the last row and column). ``(T, H, W)`` float16 in [0, 1].
-
-    A rigid background, moving or not, is followed for frames (near 0). A running animal's
-    legs, head and tail change shape from frame to frame and the flow loses them within a few
-    frames (near 1), where the flow's residual against the camera's motion may still be small (the
-    flow of a thin, fast part is smoothed into the background's). Occlusion edges fail too, on one
-    side: the cue is a weight beside the others, not a mask (:func:`layercam.segment.colour_cut`)."""
-    import cv2
-
-    fw, bw = np.asarray(fw, np.float32), np.asarray(bw, np.float32)
-    T = fw.shape[0] + 1
-    h, w = fw.shape[1:3]
-    base = _grid(h, w)
-    out = np.zeros((T, h, w), np.float16)  # 2 bytes a pixel, as the background check's residual: long 1080p clips fit
-    sigma = 0.01 * min(h, w)
-    judged = (base[..., 0] < w - 1) & (base[..., 1] < h - 1)  # the last column and row: no bilinear neighbour to look up
-    for t in range(T):
-        lost = np.zeros((h, w), np.float32)
-        seen = np.zeros((h, w), np.float32)
-        for d, v in chained_displacements(fw, bw, fw_ok, bw_ok, t, reach).values():
-            p = base + d
-            inside = judged & (p[..., 0] >= 0) & (p[..., 0] < w - 1) & (p[..., 1] >= 0) & (p[..., 1] < h - 1)
-            lost += inside & ~v
-            seen += inside
-        out[t] = cv2.GaussianBlur(lost / np.maximum(seen, 1.0), (0, 0), sigma)
-    return out
 
 
 def long_range_moving_share(fw, fw_ok, reach: int = 8, base_px: float = 1.5, rel: float = 0.05) -> np.ndarray:

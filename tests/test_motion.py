@@ -95,23 +95,3 @@ def test_parallax_reaching_the_edge_is_explained_the_object_is_not():
 def test_motion_offsets(reach, offsets):
     assert segment.motion_offsets(reach) == offsets
 
-
-def test_flow_failure_marks_what_the_flow_loses_not_the_rigid_background():
-    """A background panning 1.5 px a frame with consistent flows, and a patch whose forward and
-    backward flows disagree (a leg that changes shape between frames): the patch is lost (near 1),
-    the background followed (near 0), and where a track leaves the frame it does not count."""
-    T, h, w = 6, 40, 60
-    fw = np.zeros((T - 1, h, w, 2), np.float32)
-    fw[..., 0] = 1.5
-    bw = -fw
-    patch = np.zeros((h, w), bool)
-    patch[15:25, 25:35] = True
-    bw[:, patch] = [3.0, 2.0]  # backward flow that does not undo the forward flow
-    fo = flow.flow_consistency(fw, bw)
-    bo = flow.flow_consistency(bw, fw)
-    fail = motion.flow_failure(fw, bw, fo, bo, reach=2)
-    assert fail.shape == (T, h, w) and fail.dtype == np.float16
-    assert fail.min() >= 0.0 and fail.max() <= 1.0
-    assert fail[:, 18:22, 28:32].mean() > 0.8
-    assert fail[:, 2:8, 10:20].max() < 0.05  # far from the patch: followed
-    assert fail[:, 2:8, -3:].max() < 0.05  # near the right edge, where the tracks leave the frame

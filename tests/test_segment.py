@@ -389,29 +389,6 @@ def test_colour_cut_pays_for_distance_from_the_mask(monkeypatch):
     assert paid[far].mean() < 0.2 and paid[masks].mean() > 0.95
 
 
-def test_colour_cut_takes_in_what_the_flow_loses(monkeypatch):
-    """A head of a colour the background holds a little more of than the object (log-likelihood
-    ratio just below 0) beside the mask: by colour alone the cut leaves it out; where the flow
-    fails to follow it (a running animal's head) and follows the background, it joins."""
-    frames, masks = _red_object_clip(3, slice(31, 33))  # the body, in its mask, with a thin grey stripe
-    head = np.zeros_like(masks)
-    for t in range(len(frames)):
-        x0 = 20 + 2 * t
-        frames[t, 26:38, x0 + 20 : x0 + 30] = _GREY  # the head, outside the mask
-        head[t, 26:38, x0 + 20 : x0 + 30] = True
-        frames[t, 0:4, 60:96] = _GREY  # grey background far off
-    rel = (masks | head).astype(np.float16)
-    failure = (masks | head).astype(np.float32)
-    with_flow = colour.colour_cut(frames, masks, rel, failure)  # the default weight, 1
-    monkeypatch.setattr(colour, "FAILURE", 0.0)
-    by_colour = colour.colour_cut(frames, masks, rel, failure)
-    assert by_colour[head].mean() < 0.1 and by_colour[masks].mean() > 0.95
-    assert with_flow[head].mean() > 0.9 and with_flow[masks].mean() > 0.95
-    assert with_flow[~(masks | head)].mean() < 0.01
-    monkeypatch.setattr(colour, "FAILURE", 1.0)
-    assert (colour.colour_cut(frames, masks, rel) == by_colour).all()  # no failure map: colour alone
-
-
 def test_sure_pixels_leave_a_band_around_each_mask_edge():
     masks = np.zeros((2, 40, 40), bool)
     masks[0, 10:30, 10:30] = True  # frame 1: no object at all

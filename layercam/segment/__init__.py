@@ -43,7 +43,7 @@ from layercam.segment.store import load_masks, save_masks, sure_pixels
 
 __all__ = ["SegmentConfig", "STEPS", "foreground_bootstrap", "motion_masks", "motion_offsets", "clean_mask", "object_motion", "foreground_mappings", "refine_masks", "sure_pixels", "load_masks", "save_masks"]
 
-STEPS = ("grabcut", "background", "colour", "failure")  # the optional steps after the motion masks (each measured: the ablation)
+STEPS = ("grabcut", "background", "colour")  # the optional steps after the motion masks (each measured: the ablation)
 WORK_SHORT = 240  # the finder sees frames at most this many pixels on the short side (masks are upsampled to the
                   # frame; training refines alpha's edges at the frame's size): its cost stays under a second a frame
 
@@ -102,12 +102,7 @@ def find_foreground(frames: np.ndarray, flows: dict, cfg: SegmentConfig | None =
         if "colour" in steps:
             from layercam.segment.colour import colour_cut
 
-            failure = None
-            if "failure" in steps:
-                from layercam.motion import flow_failure
-
-                failure = flow_failure(fw, bw, fo, bo)
-            masks = colour_cut(frames, fill_still_frames(masks, fw, bw)[0], rel, failure)  # frames the check emptied start again from their neighbours'
+            masks = colour_cut(frames, fill_still_frames(masks, fw, bw)[0], rel)  # frames the check emptied start again from their neighbours'
     masks = np.asarray(masks, np.float32)
     info["verdict"] = verdict(masks, evidence, fw)
     if masks.shape[1:] != (h, w):

@@ -10,10 +10,7 @@ object : background. Per frame a graph cut (:func:`graph_cut`; contrast-sensitiv
 clip's median mask area) of the mask, the mask counting +1 towards the object, and only where the
 frame differs from the clean plate (:func:`layercam.segment.background.background_refine`'s
 relative residual, above ``GATE``) or the mask already is: background of the object's colours
-does not join. Each pixel pays ``DISTANCE`` per object size it lies away from the mask, and counts
-``FAILURE * (failure - 0.5)`` towards the object where the flow loses it within a few frames
-(:func:`layercam.motion.flow_failure`: a running animal's legs are lost, a rigid post is followed).
-Then :func:`layercam.segment.clean.clean_mask` at half its radii (legs and tails 1-3 px wide),
+does not join. Each pixel pays ``DISTANCE`` per object size it lies away from the mask. Then :func:`layercam.segment.clean.clean_mask` at half its radii (legs and tails 1-3 px wide),
 keeping parts of the object's colours within its size of the largest; a cut that leaves nothing
 keeps the mask.
 """
@@ -29,7 +26,6 @@ GATE = 0.3       # the relative residual against the clean plate where the cut m
 REACH = 2.0      # how far from the mask the cut looks, in object sizes
 SMOOTH = 2.0     # the cut's weight on following colour edges
 DISTANCE = 1.0   # the cost per object size away from the mask
-FAILURE = 1.0    # the weight of where the flow loses a pixel
 CLEAN = 0.5      # the cleaning's radii, a share of clean_mask's
 
 
@@ -85,10 +81,9 @@ def colour_bins(lab: np.ndarray) -> np.ndarray:
     return (lq * b + aq) * b + bq
 
 
-def colour_cut(frames: np.ndarray, masks: np.ndarray, residual: np.ndarray, failure: np.ndarray | None = None) -> np.ndarray:
+def colour_cut(frames: np.ndarray, masks: np.ndarray, residual: np.ndarray) -> np.ndarray:
     """Masks ``(T, H, W)`` bool grown to the whole object by its colours (module docstring).
-    ``residual (T, H, W)``: the relative residual against the clean plate; ``failure (T, H, W)``
-    (optional): where the flow loses a pixel within a few frames."""
+    ``residual (T, H, W)``: the relative residual against the clean plate."""
     import cv2
 
     m = np.asarray(masks) > 0.5
@@ -119,8 +114,6 @@ def colour_cut(frames: np.ndarray, masks: np.ndarray, residual: np.ndarray, fail
         y0, y1, x0, x1 = ys.min(), ys.max() + 1, xs.min(), xs.max() + 1
         box = (slice(y0, y1), slice(x0, x1))
         unary = llr[bins[t][box]] + prior[box] - DISTANCE * away[box] / size
-        if failure is not None and FAILURE > 0:
-            unary = unary + FAILURE * (np.asarray(failure[t][box], np.float32) - 0.5)
         unary = np.where(region[box], unary, -50.0).astype(np.float32)
         cut = np.zeros((h, w), bool)
         guide = equalised_lab(frames[t])[box] / 100.0  # again, not kept from the histogram pass: 12 bytes a pixel of the clip

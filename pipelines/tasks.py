@@ -93,6 +93,13 @@ def _run(ctx: Context, stages: list, t0: float, window=None, ray: str | None = N
             extra = {"windows": {**plan.to_dict(), "runs": runs, "ray": ctx.results.get("ray")}}
         else:
             run_stages(ctx, stages[1:2])  # the bootstrap: motion masks for two layers
+            unfound = analyse.unfound_foreground(cfg, ctx.results.get("bootstrap"))
+            if unfound:  # the analysis chose two layers and the finder found no object: one layer, saying why
+                ctx.measures.update(foreground_found=False, foreground_reason=unfound)
+                again = resolve(cfg, clip, exposures, task, ctx.measures)
+                ctx.resolved = dataclasses.replace(again, reasons={**ctx.resolved.reasons, **again.reasons})
+                ctx.say("model chosen again (no foreground found):\n" + format_table(ctx.resolved, plan.count))
+                run_stages(ctx, stages[1:2])
             if refine_wanted(ctx):  # segment.refine: a first fit, and masks from its background residual
                 run_stages(ctx, [PrefitStage(), RefineStage()])
             run_stages(ctx, stages[2:])

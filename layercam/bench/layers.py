@@ -1,17 +1,21 @@
 """``layercam bench --table layers``: the layered scene on real footage, scored against ground truth.
 
 Every ``layers_davis_*`` clip under ``--data`` (DAVIS clips with per-frame foreground masks in
-``masks_gt/``) runs as ``layercam hdr-video FRAMES --exposures none --resize R`` twice: with its
-masks given (``--masks``, variant "masks") and without (variant "motion": the foreground is found by
-the motion bootstrap). Each run is its own process (one torch thread unless told otherwise) and
-keeps its run folder under ``OUT/runs/``; a finished job leaves ``OUT/results/<clip>-<variant>.json``
-and is not run again (delete the file to re-measure), so an interrupted benchmark resumes.
+``masks_gt/``) runs as ``layercam hdr-video FRAMES --exposures none --layers 2 --resize R``, on its
+first ``MAX_FRAMES`` frames (one protocol for every clip), at each preset asked for: with its masks
+given (``--masks``, variant "masks") and without (variant "motion": the foreground is found by
+:mod:`layercam.segment`). Each run is its own process (one torch thread unless told otherwise) and
+keeps its run folder under ``OUT/runs/``; a finished job leaves
+``OUT/results/<clip>-<variant>-<preset>.json`` and is not run again (delete the file to re-measure),
+so an interrupted benchmark resumes.
 
-Per run: the layers the analysis chose; the foreground alpha's IoU against the true masks (alpha >
-0.5, per frame, then the mean); the bootstrap masks' IoU (variant "motion"); the reconstruction PSNR
-(every frame re-rendered through the learned camera against the input frame); wall time (flow +
-bootstrap + training + export). Writes ``OUT/layers.json``, ``OUT/layers.md`` (the table) and one
-figure per run, ``OUT/<clip>-<variant>.png`` (:func:`layercam.bench.viz.layer_bench_figure`).
+Per run: the layers; the foreground alpha's IoU against the true masks (alpha > 0.5, per frame, then
+the mean) and its worst frame; the share of the object inside alpha (true mask pixels under alpha >
+0.5, over the clip); the bootstrap masks' IoU and the finder's verdict (variant "motion"); the
+reconstruction PSNR (every frame re-rendered through the learned camera against the input frame);
+wall time (flow + bootstrap + training + export). Writes ``OUT/layers.json``, ``OUT/layers.md`` (the
+table, and per preset and variant the set's mean and worst clip) and one figure per run,
+``OUT/<clip>-<variant>-<preset>.png`` (:func:`layercam.bench.viz.layer_bench_figure`).
 """
 
 from __future__ import annotations
@@ -28,6 +32,7 @@ from layercam.core.errors import LayercamError
 
 VARIANTS = ("motion", "masks")
 PREFIX = "layers_davis_"
+MAX_FRAMES = 24  # every clip's first 24 frames (the shortest DAVIS clip in the set has 30; libby has 49)
 
 
 def find_clips(data: Path, names: list[str] | None = None) -> dict[str, Path]:
@@ -49,6 +54,13 @@ def mask_ious(pred: np.ndarray, truth: np.ndarray) -> list[float]:
     from layercam.core.metrics import iou
 
     return [iou(p > 0.5, g > 0.5) for p, g in zip(pred, truth)]
+
+
+def inside_share(pred: np.ndarray, truth: np.ndarray) -> float:
+    """The share of the object inside ``pred``: true pixels (``truth > 0.5``) where ``pred > 0.5``,
+    over every frame (1 when the truth holds none)."""
+    g = np.asarray(truth) > 0.5
+    return float(np.count_nonzero((np.asarray(pred) > 0.5) & g) / max(np.count_nonzero(g), 1)) if g.any() else 1.0
 
 
 def read_alpha(run: Path, T: int, hw: tuple[int, int]) -> np.ndarray:
@@ -98,12 +110,14 @@ def run_layer_job(job: dict) -> dict:
     ious = mask_ious(alpha, truth)
     boot = ctx.results["bootstrap"].get("masks")
     boot_ious = mask_ious(boot, truth) if boot is not None and job["variant"] == "motion" else None
+    verdict = ((ctx.results["bootstrap"].get("foreground") or {}).get("verdict") or {}) if job["variant"] == "motion" else {}
     model, _ = load_run_model(run)
     psnrs = reconstruction_psnr(model, clip.frames)
     row = {
         "clip": job["clip"], "variant": job["variant"], "frames": clip.T, "size": f"{clip.W}x{clip.H}", "preset": job["preset"],
         "layers": int(ctx.resolved.settings.model.layers), "layers_reason": ctx.resolved.reasons.get("model.layers", ""),
-        "iou": round(float(np.mean(ious)), 4), "iou_min": round(float(np.min(ious)), 4),
+        "iou": round(float(np.mean(ious)), 4), "iou_min": round(float(np.min(ious)), 4), "inside": round(inside_share(alpha, truth), 4),
+        "found": verdict.get("found"), "verdict": verdict.get("reason", ""),
         "bootstrap_iou": None if boot_ious is None else round(float(np.mean(boot_ious)), 4),
         "psnr": round(float(np.mean(psnrs)), 3), "wall_s": round(wall, 1), "total_s": round(total, 1),
         "steps": ctx.results["train"]["steps"], "per_frame_iou": [round(v, 4) for v in ious],
@@ -129,7 +143,7 @@ def draw_run(path: Path, run: Path, frames: np.ndarray, alpha: np.ndarray, truth
             im = cv2.imread(str(p), cv2.IMREAD_UNCHANGED).astype(np.float32) / 255.0
             rgb, cov = im[..., 2::-1], im[..., 3:]
             atlases.append(rgb * cov + (1 - cov) * 0.5)  # grey where no frame looks
-    title = f"{row['clip']} ({row['variant']}): alpha IoU {row['iou']:.3f}" + ("" if row["bootstrap_iou"] is None else f", bootstrap masks {row['bootstrap_iou']:.3f}") + f", PSNR {row['psnr']:.2f} dB, {row['layers']} layer(s)"
+    title = f"{row['clip']} ({row['variant']}, {row['preset']}): alpha IoU {row['iou']:.3f}" + ("" if row["bootstrap_iou"] is None else f", bootstrap masks {row['bootstrap_iou']:.3f}") + f", PSNR {row['psnr']:.2f} dB, {row['layers']} layer(s)"
     fig = layer_bench_figure(frames, alpha, truth, atlases, boot=boot, title=title)
     atomic_write(path, lambda p: fig.savefig(p, dpi=80))
 
@@ -142,8 +156,8 @@ def _job_main() -> None:  # entry of the per-job subprocess
     atomic_write(Path(job["result"]), lambda p: p.write_text(json.dumps(row, indent=1)))
 
 
-def run_layers_table(out: Path, data: Path, clips: list[str] | None = None, variants: tuple = VARIANTS, preset: str = "fast", resize: str = "0.33", overrides: list[str] | None = None, layers: str = "auto", max_frames: int | None = None, threads: int = 1, force: bool = False, progress: bool = True) -> list[dict]:
-    """Runs (or re-uses) every clip x variant job, then writes the table. Returns the rows."""
+def run_layers_table(out: Path, data: Path, clips: list[str] | None = None, variants: tuple = VARIANTS, presets: tuple = ("fast", "balanced"), resize: str = "0.33", overrides: list[str] | None = None, layers: str = "2", max_frames: int | None = MAX_FRAMES, threads: int = 1, force: bool = False, progress: bool = True) -> list[dict]:
+    """Runs (or re-uses) every preset x clip x variant job, then writes the table. Returns the rows."""
     from layercam.io.atomic import ensure_writable_dir
 
     out = ensure_writable_dir(out)
@@ -152,36 +166,60 @@ def run_layers_table(out: Path, data: Path, clips: list[str] | None = None, vari
     for v in variants:
         if v not in VARIANTS:
             raise LayercamError(f"unknown variant {v!r} (one of {', '.join(VARIANTS)})")
+    if isinstance(presets, str):
+        presets = (presets,)
     rows = []
-    for name, folder in find_clips(data, clips).items():
-        for v in variants:
-            res = out / "results" / f"{name}-{v}.json"
-            job = {"clip": name, "folder": str(folder), "variant": v, "preset": preset, "resize": resize, "overrides": list(overrides or []), "layers": layers,
-                   "max_frames": max_frames, "threads": threads, "run": str(out / "runs" / f"{name}-{v}"), "figure": str(out / f"{name}-{v}.png"), "result": str(res)}
-            if force:
-                res.unlink(missing_ok=True)
-            if not res.exists():
-                say(f"{name:>16} {v:>6}: running ...", flush=True)
-                cmd = [sys.executable, "-c", "from layercam.bench.layers import _job_main; _job_main()", json.dumps(job)]
-                p = subprocess.run(cmd, capture_output=True, text=True)
-                if p.returncode != 0 or not res.exists():
-                    tail = (p.stderr or p.stdout).strip().splitlines()[-1:] or ["?"]
-                    raise LayercamError(f"layers bench job {name}/{v} failed: {tail[0]}")
-            r = json.loads(res.read_text())
-            rows.append(r)
-            boot = "" if r["bootstrap_iou"] is None else f" (bootstrap {r['bootstrap_iou']:.3f})"
-            say(f"{name:>16} {v:>6}: {r['layers']} layers, alpha IoU {r['iou']:.3f}{boot}, PSNR {r['psnr']:.2f} dB, {r['wall_s']:.0f} s")
+    for preset, (name, folder), v in ((p, c, v) for p in presets for c in find_clips(data, clips).items() for v in variants):
+        tag = f"{name}-{v}-{preset}"
+        res = out / "results" / f"{tag}.json"
+        job = {"clip": name, "folder": str(folder), "variant": v, "preset": preset, "resize": resize, "overrides": list(overrides or []), "layers": layers,
+               "max_frames": max_frames, "threads": threads, "run": str(out / "runs" / tag), "figure": str(out / f"{tag}.png"), "result": str(res)}
+        if force:
+            res.unlink(missing_ok=True)
+        if not res.exists():
+            say(f"{name:>18} {v:>6} {preset:>8}: running ...", flush=True)
+            cmd = [sys.executable, "-c", "from layercam.bench.layers import _job_main; _job_main()", json.dumps(job)]
+            p = subprocess.run(cmd, capture_output=True, text=True)
+            if p.returncode != 0 or not res.exists():
+                tail = (p.stderr or p.stdout).strip().splitlines()[-1:] or ["?"]
+                raise LayercamError(f"layers bench job {name}/{v} failed: {tail[0]}")
+        r = json.loads(res.read_text())
+        rows.append(r)
+        boot = "" if r["bootstrap_iou"] is None else f" (bootstrap {r['bootstrap_iou']:.3f})"
+        say(f"{name:>18} {v:>6} {preset:>8}: {r['layers']} layers, alpha IoU {r['iou']:.3f}, inside {r.get('inside', float('nan')):.3f}{boot}, PSNR {r['psnr']:.2f} dB, {r['wall_s']:.0f} s")
     write_layers_table(out, rows)
     return rows
 
 
+def summaries(rows: list[dict]) -> list[dict]:
+    """Per preset and variant: the set's mean alpha IoU, mean share inside, and its worst clip."""
+    out = []
+    for key in dict.fromkeys((r.get("preset", ""), r["variant"]) for r in rows):
+        rs = [r for r in rows if (r.get("preset", ""), r["variant"]) == key]
+        worst = min(rs, key=lambda r: r["iou"])
+        inside = [r["inside"] for r in rs if r.get("inside") is not None]
+        out.append({"preset": key[0], "variant": key[1], "clips": len(rs), "iou_mean": round(float(np.mean([r["iou"] for r in rs])), 4),
+                    "inside_mean": round(float(np.mean(inside)), 4) if inside else None, "inside_min": round(float(np.min(inside)), 4) if inside else None,
+                    "worst_clip": worst["clip"], "worst_iou": worst["iou"]})
+    return out
+
+
 def write_layers_table(out: Path, rows: list[dict]) -> None:
-    """``layers.json`` (every row, per-frame values included) and ``layers.md`` (the table)."""
+    """``layers.json`` (every row, per-frame values included, and the summaries) and ``layers.md``
+    (the table, then one line per preset and variant: the set's mean and its worst clip)."""
     from layercam.io.atomic import atomic_write
 
-    atomic_write(out / "layers.json", lambda p: p.write_text(json.dumps(rows, indent=1)))
-    md = ["| clip | frames | size | masks | layers | alpha IoU (mean) | alpha IoU (worst frame) | bootstrap IoU | PSNR dB | wall s |", "|---|---|---|---|---|---|---|---|---|---|"]
+    sums = summaries(rows)
+    atomic_write(out / "layers.json", lambda p: p.write_text(json.dumps({"rows": rows, "summary": sums}, indent=1)))
+    md = ["| clip | preset | frames | size | masks | layers | alpha IoU (mean) | alpha IoU (worst frame) | object inside alpha | bootstrap IoU | found | PSNR dB | wall s |", "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         boot = "" if r["bootstrap_iou"] is None else f"{r['bootstrap_iou']:.3f}"
-        md.append(f"| {r['clip']} | {r['frames']} | {r['size']} | {'given' if r['variant'] == 'masks' else 'none (motion)'} | {r['layers']} | {r['iou']:.3f} | {r['iou_min']:.3f} | {boot} | {r['psnr']:.2f} | {r['wall_s']:.0f} |")
+        inside = "" if r.get("inside") is None else f"{r['inside']:.3f}"
+        found = "" if r.get("found") is None else ("yes" if r["found"] else "no")
+        md.append(f"| {r['clip']} | {r.get('preset', '')} | {r['frames']} | {r['size']} | {'given' if r['variant'] == 'masks' else 'none (motion)'} | {r['layers']} | {r['iou']:.3f} | {r['iou_min']:.3f} | {inside} | {boot} | {found} | {r['psnr']:.2f} | {r['wall_s']:.0f} |")
+    md += ["", "| preset | masks | clips | mean alpha IoU | mean share inside | least share inside | worst clip |", "|---|---|---|---|---|---|---|"]
+    for sm in sums:
+        ins = "" if sm["inside_mean"] is None else f"{sm['inside_mean']:.3f}"
+        least = "" if sm["inside_min"] is None else f"{sm['inside_min']:.3f}"
+        md.append(f"| {sm['preset']} | {'given' if sm['variant'] == 'masks' else 'none (motion)'} | {sm['clips']} | {sm['iou_mean']:.3f} | {ins} | {least} | {sm['worst_clip']} {sm['worst_iou']:.3f} |")
     atomic_write(out / "layers.md", lambda p: p.write_text("\n".join(md) + "\n"))

@@ -27,18 +27,18 @@ def register(sub) -> argparse.ArgumentParser:
     b.add_argument("--out", help="output folder (default: runs/bench, or runs/real for --suite real)")
     b.add_argument("--scenes", default="pan", help="synthetic suite: comma-separated scene names (default: pan)")
     b.add_argument("--cases", help="real suite: comma-separated case names (default: all)")
-    b.add_argument("--presets", help="comma-separated presets (default: fast,balanced,quality,paper; real suite and --table scaling: fast,balanced)")
+    b.add_argument("--presets", help="comma-separated presets (default: fast,balanced,quality,paper; real suite, --table layers and scaling: fast,balanced)")
     b.add_argument("--quick", action="store_true", help="tiny scenes and a few steps: a smoke test, not a measurement")
     b.add_argument("--threads", type=POSITIVE_INT, help="torch threads per job (default: 2; real suite: 1)")
     b.add_argument("--table", choices=["presets", "analysis", "layers", "scaling"], default="presets", help="synthetic suite: presets, the speed/quality trade (default); analysis: the analysed model against the full model on each synthetic family; layers: alpha against the true masks on the real DAVIS clips, with and without --masks; scaling: cost against frame size (steps/s, stage times, peak memory, quality) -> scaling.csv, scaling.png")
-    b.add_argument("--preset", default="fast", help="preset for --table analysis and layers (default: fast)")
+    b.add_argument("--preset", default="fast", help="preset for --table analysis (default: fast)")
     b.add_argument("--force", action="store_true", help="real suite, --table layers: redo finished jobs")
     b.add_argument("--data", help="real suite, --table layers: the shared captures (default: $LAYERCAM_DATA or ../shared/data)")
-    b.add_argument("--max-frames", type=POSITIVE_INT, help="real suite: frames of the Basler clip (default: all 74); --table layers: of each clip")
+    b.add_argument("--max-frames", type=POSITIVE_INT, help="real suite: frames of the Basler clip (default: all 74); --table layers: the first N of each clip (default: 24)")
     b.add_argument("--clips", help="--table layers: comma-separated clip names, e.g. libby,cows (default: every layers_davis_* clip)")
     b.add_argument("--variants", default="motion,masks", help="--table layers: motion (no masks: the motion bootstrap), masks (the true masks given) (default: both)")
     b.add_argument("--resize", default="0.33", help="--table layers: frame scale, as hdr-video's --resize (default: 0.33)")
-    b.add_argument("--layers", choices=["auto", "2"], default="auto", help="--table layers: auto, the analysis decides (default); 2: forced")
+    b.add_argument("--layers", choices=["auto", "2"], default="2", help="--table layers: 2, forced (default: alpha is scored on every clip); auto: the analysis decides (a clip where the finder finds no object runs with one layer)")
     b.add_argument("--sizes", default="128x128,256x256,512x512,1080x1920", help="--table scaling: frame sizes HxW (default: 128x128,256x256,512x512,1080x1920)")
     b.add_argument("--frames", type=POSITIVE_INT, default=48, help="--table scaling: frames per clip (default 48)")
     b.add_argument("--no-baseline", action="store_true", help="--table scaling: no flow + Debevec rows")
@@ -68,10 +68,10 @@ def run(args) -> int:
     if args.table == "layers":
         import os
 
-        from layercam.bench.layers import run_layers_table
+        from layercam.bench.layers import MAX_FRAMES, run_layers_table
 
         data = Path(args.data or os.environ.get("LAYERCAM_DATA") or "../shared/data")
-        rows = run_layers_table(out, data, _list(args.clips), tuple(_list(args.variants) or ()), args.preset, args.resize, args.overrides, args.layers, args.max_frames, args.threads or 1, args.force, progress=not args.quiet)
+        rows = run_layers_table(out, data, _list(args.clips), tuple(_list(args.variants) or ()), tuple(_list(args.presets) or ("fast", "balanced")), args.resize, args.overrides, args.layers, args.max_frames or MAX_FRAMES, args.threads or 1, args.force, progress=not args.quiet)
         if not args.quiet:
             print(f"wrote {out / 'layers.md'} ({len(rows)} rows)")
         return 0

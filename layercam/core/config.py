@@ -169,90 +169,29 @@ class FlowConfig(Section):
 
 @dataclass
 class SegmentConfig(Section):
-    """Motion segmentation of a two-layer clip (:func:`layercam.segment.motion_masks`) and the
-    foreground layer's bootstrap. Distances in pixels of the clip being segmented.
-
-    ``abs_px``: a residual below this (times sqrt(k) over k frames) is never motion. ``k_sigma``: a
-    residual must also exceed the pair's robust residual level (median + k_sigma * 1.4826 MAD).
-    ``reach``: pixels are followed along the flow to frames 1, 2, 4, ... up to ``reach`` away on
-    each side (:func:`layercam.vision.motion.long_range_evidence`); ``evidence``: the share of those pairs
-    in which a pixel must move. ``f_vote``: the share of pairs that must vote for the epipolar model
-    (parallax) for the clip to use it, and ``min_object``: the median share of a frame that its
-    masks must still cover (otherwise it explained the object away as well). ``window``: neighbours
-    on each side averaged along the flow; ``vote``: the averaged evidence that makes a pixel
-    foreground. ``min_area``: components
-    smaller than this fraction of the frame are dropped, and so are those smaller than
-    ``keep_fraction`` of the frame's largest or farther from it than ``gap`` times its size (one
-    object per frame). ``still_fraction``: a frame whose mask is smaller than
-    this fraction of the clip's median area inherits its neighbours' masks (the object stood still).
-    ``texture``: where a frame has texture the flow can follow
-    (:func:`layercam.core.visibility.textured`: the structure tensor's smaller eigenvalue, in a Gaussian
-    window of ``texture_window`` of the short side, over the local grey level; 0: off); a part of
-    the voted evidence less than ``texture_share`` of which has texture is dropped.
-    ``grabcut``: GrabCut iterations that tighten the masks to colour edges (0: off). ``background``:
-    then each mask is corrected by the frame's residual against the background its neighbours show
-    (:func:`layercam.segment.background_refine`; pixels in a ring of ``background_ring`` of the short
-    side above ``background`` join, mask pixels within ``background_keep`` of it leave, judged by
-    neighbours whose object overlaps this frame's by IoU under ``background_apart``; neighbours up
-    to ``2 * background_reach`` frames away; 0: off; the residual that joins and drops pixels is
-    the smallest over the background shifted by up to ``background_shift`` of the short side, so a
-    post whose parallax the homography misses by a pixel matches it; 0: unshifted). ``colour``: then each mask is grown to the
-    object's colours learned over the clip by a graph cut (:func:`layercam.segment.colour_cut`),
-    within ``colour_reach`` times the object's size of it and only where the frame's relative
-    residual against that background exceeds ``colour`` (0: off; it needs ``background``);
-    ``colour_smooth``: the cut's weight on following colour edges; ``colour_distance``: its cost per
-    object size a pixel lies away from the mask; ``colour_failure``: its weight on where the flow
-    loses a pixel within 4 frames (:func:`layercam.vision.motion.flow_failure`; 0: off); ``colour_clean``:
-    the radii of the opening and closing that clean the cut (:func:`layercam.segment.clean_mask`),
-    as a share of the other cleanings' (1% and 2% of the short side; 0.5 keeps legs and tails 1-3 px
-    wide at 282x158; 1: the same radii; 0: neither). ``foreground``:
-    the foreground layer's starting mapping, the object's own motion or the identity.
-    ``margin``: the part of the foreground atlas the masked object fills at the start.
-    ``refine``: fit the model once on the motion masks, take new masks from where each frame differs
-    from its background layer near the fitted alpha (:func:`layercam.segment.refine_masks`, residual
-    above ``refine_threshold`` in pixel values) and fit again on them: twice the training time.
-    ``detector``: a local torchvision Mask R-CNN state dict (never downloaded); its instances scoring
-    at least ``detector_score``, seen with the frame's short side at ``detector_size`` px, replace
-    a frame's motion mask where at least ``detector_overlap`` of their area lies in it
-    (:func:`layercam.detect.pick_instances`).
+    """The foreground finder of a two-layer clip (:mod:`layercam.segment`: the camera's motion read
+    from the frame's border, what moves against it followed over frames, grown to the object) and
+    the foreground layer's bootstrap. Every other number of the finder is derived from the clip (its
+    size, its flow's measured noise) or named once in its module.
     """
 
-    abs_px: float = setting(0.5, 0.0)
-    k_sigma: float = setting(4.0, 0.0)
-    reach: int = setting(8, 1, 64)
-    evidence: float = setting(0.5, 0.0, 1.0)
-    f_vote: float = setting(0.5, 0.0, 1.0)
-    min_object: float = setting(0.005, 0.0, 1.0)
-    window: int = setting(2, 0, 16)
-    vote: float = setting(0.4, 0.0, 1.0)
-    texture: float = setting(0.006, 0.0)
-    texture_window: float = setting(0.0125, above=0.0, hi=1.0)
-    texture_share: float = setting(0.5, 0.0, 1.0)
-    min_area: float = setting(0.002, 0.0, 1.0)
-    keep_fraction: float = setting(0.15, 0.0, 1.0)
-    gap: float = setting(0.25, 0.0)
-    still_fraction: float = setting(0.3, 0.0, 1.0)
-    grabcut: int = setting(4, 0, 32)
-    background: float = setting(0.15, 0.0, 1.0)
-    background_keep: float = setting(0.075, 0.0, 1.0)
-    background_apart: float = setting(0.5, 0.0, 1.0)
-    background_reach: int = setting(4, 1, 32)
-    background_ring: float = setting(0.05, 0.0, 1.0)
-    background_shift: float = setting(0.0, 0.0, 0.05)
-    colour: float = setting(0.3, 0.0)
-    colour_reach: float = setting(2.0, above=0.0)
-    colour_smooth: float = setting(2.0, 0.0)
-    colour_distance: float = setting(1.0, 0.0)
-    colour_failure: float = setting(1.0, 0.0)
-    colour_clean: float = setting(0.5, 0.0, 1.0)
-    foreground: Literal["object", "identity"] = "object"
-    margin: float = setting(0.6, above=0.0, hi=1.0)
-    refine: bool = False
-    refine_threshold: float = setting(0.1, above=0.0, hi=1.0)
-    detector: str = ""                       # a torchvision Mask R-CNN weights file (layercam.detect); "": the motion masks alone
-    detector_score: float = setting(0.5, 0.0, 1.0)
-    detector_overlap: float = setting(0.3, above=0.0, hi=1.0)
-    detector_size: int = setting(800, 64, 4096)
+    reach: int = setting(8, 1, 64)          # frames each pixel is followed to (1, 2, 4, .. reach): more finds slower
+                                            # objects (grazing cows move 0.1-0.5 px a frame) and costs a pair each
+    k_sigma: float = setting(4.0, 0.0)      # noise levels (the pair's robust spread, the flow's measured noise) a
+                                            # residual must exceed to be motion: lower finds fainter motion and more
+                                            # of the background's own (water, foliage)
+    foreground: Literal["object", "identity"] = "object"  # the foreground layer's starting mapping: the object's own
+                                            # motion (its atlas holds it still) | the identity (the paper's start)
+    margin: float = setting(0.6, above=0.0, hi=1.0)  # the share of the foreground atlas the masked object fills at the
+                                            # start: more texels for it, less slack for what the masks missed
+    refine: bool = False                    # fit once, take new masks from where each frame differs from its background
+                                            # layer near the fitted alpha (segment.refine_masks), fit again: twice the training
+    refine_threshold: float = setting(0.1, above=0.0, hi=1.0)  # that residual, in pixel values: lower takes in more
+    detector: str = ""                      # a torchvision Mask R-CNN weights file (layercam.detect); "": the motion masks alone
+    detector_score: float = setting(0.5, 0.0, 1.0)   # the detector's instances scoring at least this: lower finds more, and more wrongly
+    detector_overlap: float = setting(0.3, above=0.0, hi=1.0)  # an instance replaces a frame's mask where this share of it lies
+                                            # in the mask: lower trusts the detector over the motion
+    detector_size: int = setting(800, 64, 4096)  # the short side (px) the detector sees: more finds smaller objects, slower
 
 
 @dataclass

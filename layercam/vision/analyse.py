@@ -169,6 +169,19 @@ def measure(clip, exposures, flow: dict | None) -> dict:
     return m
 
 
+def unfound_foreground(cfg: Config, bootstrap: dict | None) -> str | None:
+    """Why a two-layer run found no foreground, when the analysis chose its two layers (``cfg``:
+    the settings as given, ``model.layers`` auto) and the foreground finder's verdict
+    (:mod:`layercam.segment.verdict`) is that its masks hold no consistent, independently moving
+    object; None otherwise (one layer, layers given, masks given, an object found). The task then
+    decides again with ``measures["foreground_found"] = False`` (one layer, this reason)."""
+    fg = (bootstrap or {}).get("foreground") or {}
+    verdict = fg.get("verdict") or {}
+    if cfg.model.layers != AUTO or fg.get("masks") != "motion segmentation" or verdict.get("found", True):
+        return None
+    return verdict.get("reason") or "the foreground finder found none"
+
+
 MODEL_KEYS = ("layers", "tone_mapper", "exposures", "blur", "max_offset", "flow_loss")  # what the analysis reports
 
 
@@ -197,6 +210,8 @@ def decide(cfg: Config, clip, exposures, task: str, measures: dict | None = None
     if not forced("model.layers", m.layers):
         if mm.get("masks_given"):
             m.layers, r["layers"] = 2, "foreground masks given (--masks)"
+        elif mm.get("foreground_found") is False:  # two layers were chosen, and the finder found no object (unfound_foreground)
+            m.layers, r["layers"] = 1, f"no consistent independently moving object: {mm.get('foreground_reason', '')}"
         elif clip.T > 1 and pairs >= IND_MOTION_PAIRS and mm.get("moving_pairs", 0) >= MIN_MOVING_PAIRS:
             m.layers = 2
             r["layers"] = f"independent motion in {pairs:.0%} of frame pairs (median {frac:.1%} of pixels beyond {IND_MOTION_PX} px of the global homography)"

@@ -1,40 +1,23 @@
-"""Long-range motion evidence: what moves against the static scene consistently over many frames.
+"""Motion over many frames: pixels followed along the chained flow (:func:`chained_displacements`),
+a pair's residual against the static scene (:func:`pair_residuals`: a homography, or an epipolar
+model when the clip has parallax) and the
+share of pixels that leave the static scene over ``reach`` frames (:func:`long_range_moving_share`,
+what the analysis reads to choose two layers).
 
-For every frame ``t`` and every offset ``k`` of ``offsets`` (both directions), each pixel is followed
-to frame ``t +- k`` along the chained neighbour flows (valid while every step passes the
-forward-backward check; at ``k = 1`` the raw flow counts everywhere, since a moving object often
-fails the check), and its displacement is compared with the static scene's:
+:func:`pair_residuals` uses the fundamental matrix only when the points it explains beyond the
+homography lie in regions that reach the frame's edge (near background runs off the frame; an
+object seen whole does not): a degenerate fit can take in any object moving in a straight line.
+The foreground finder reads the camera's motion from the frame's border instead
+(:mod:`layercam.segment.camera`).
 
-* a **homography** (RANSAC) when the scene is a plane or the camera only rotates;
-* an **epipolar model** (fundamental matrix, RANSAC; residual = Sampson distance) when the clip has
-  parallax: near background (a wall along the path, a fence, branches in front of the lens) moves
-  differently from far background under a translating camera, but stays on its epipolar lines,
-  which an object moving on its own leaves.
-
-The fundamental matrix is also satisfied by an object that moves only along epipolar lines, and
-when the background is one plane it is degenerate and can take in any object moving in a straight
-line (a car tracked by a panning camera, a cow walking on a field). So a pair votes for it only when
-the points it explains beyond the homography lie in regions that reach the frame's edge (near
-background runs off the frame; an object seen whole does not), and the clip uses it only when at
-least ``f_vote`` of its pairs vote so. Measured at 282x158 (DAVIS, DIS fast flow): parkour 0.98 of
-pairs (the wall beside the path), libby 0.69 (branches, fence posts), car-roundabout 0.10, cows 0.
-
-Per pair a pixel moves when its residual exceeds ``max(abs_px * sqrt(k), median + k_sigma * 1.4826
-MAD)`` of the pair's residuals. The evidence of frame ``t`` is, per direction, the fraction of its
-valid pairs in which the pixel moved (a pair ``k`` frames apart weighs ``sqrt(k)``: an object moving
-0.5 px per frame leaves the model only over 4 and 8 frames); then the two directions' mean, but at
-most twice the smaller: the background an object is about to cover or has just uncovered moves in
-one direction only, while a slow object near the clip's end may lack the long pairs on one side. A slow object (0.1-0.2 px per frame) builds up evidence
-over 8 frames; flicker (noise, water, reflections) does not add up along a consistent track.
-
-Shapes: flows ``(T-1, H, W, 2)`` in pixels, validity ``(T-1, H, W)`` bool, evidence ``(T, H, W)``.
+Shapes: flows ``(T-1, H, W, 2)`` in pixels, validity ``(T-1, H, W)`` bool.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["chained_displacements", "pair_residuals", "long_range_evidence", "flow_failure"]
+__all__ = ["chained_displacements", "pair_residuals", "long_range_moving_share"]
 
 
 def _grid(h: int, w: int) -> np.ndarray:
@@ -136,103 +119,6 @@ def pair_residuals(d: np.ndarray, valid: np.ndarray, step: int = 4, ransac_px: f
     res_f = np.minimum(res_h, _sampson(fm, x1, x2)).astype(np.float32)
     vote = _edge_fraction(valid & (res_h > 2 * ransac_px) & (res_f <= ransac_px), x2) >= edge
     return res_h, res_f, vote
-
-
-def _moved(res: np.ndarray, valid: np.ndarray, k: int, abs_px: float, k_sigma: float) -> np.ndarray:
-    r = res[valid]
-    med = float(np.median(r))
-    mad = float(np.median(np.abs(r - med))) * 1.4826
-    return valid & (res > max(abs_px * np.sqrt(k), med + k_sigma * mad))
-
-
-def _ends(ev: np.ndarray, fw: np.ndarray, bw: np.ndarray, has: np.ndarray) -> np.ndarray:
-    """A frame seen from one side only (the clip's first and last) cannot tell the object from the
-    background it is about to cover or has just uncovered: there the evidence is also capped by its
-    neighbour's, brought along the flow."""
-    from layercam.core.geometry import warp
-
-    T = len(ev)
-    if T < 3:
-        return ev
-    if not has[0].all() and has[1].all():
-        ev[0] = np.minimum(ev[0], warp(ev[1], fw[0], border="constant"))
-    if not has[-1].all() and has[-2].all():
-        ev[-1] = np.minimum(ev[-1], warp(ev[-2], bw[-1], border="constant"))
-    return ev
-
-
-def long_range_evidence(fw, bw, fw_ok, bw_ok, offsets=(1, 2, 4, 8), abs_px: float = 0.5, k_sigma: float = 4.0, f_vote: float = 0.5, **pair_kw) -> tuple[dict, float]:
-    """Evidence that a pixel moves against the static scene (module docstring): ``({"homography":
-    (T, H, W), "epipolar": (T, H, W) | None}, share)``, float32 in [0, 1]; the epipolar evidence only
-    when at least ``f_vote`` of the pairs voted for it (``share``)."""
-    fw, bw = np.asarray(fw, np.float32), np.asarray(bw, np.float32)
-    T = fw.shape[0] + 1
-    h, w = fw.shape[1:3]
-    kmax = max(offsets)
-    acc = np.zeros((2, T, 2, h, w), np.float32)  # model (homography, epipolar), frame, direction
-    cnt = np.zeros((T, 2, h, w), np.float32)
-    votes = []
-    for t in range(T):
-        ch = chained_displacements(fw, bw, fw_ok, bw_ok, t, kmax)
-        for di, sgn in enumerate((1, -1)):
-            for k in offsets:
-                if sgn * k not in ch:
-                    continue
-                d, v = ch[sgn * k]
-                if k == 1:
-                    v = np.ones_like(v)
-                res_h, res_f, vote = pair_residuals(d, v, **pair_kw)
-                if res_h is None:
-                    continue
-                votes.append(vote)
-                wk = np.float32(np.sqrt(k))  # a longer pair sees a slow object move farther
-                acc[0, t, di] += wk * _moved(res_h, v, k, abs_px, k_sigma)
-                acc[1, t, di] += wk * _moved(res_h if res_f is None else res_f, v, k, abs_px, k_sigma)
-                cnt[t, di] += wk * v
-    share = float(np.mean(votes)) if votes else 0.0
-    has = cnt.reshape(T, 2, -1).max(-1) > 0  # (T, 2): a direction with any valid pair
-    out = {}
-    for name, m in (("homography", 0), ("epipolar", 1)):
-        frac = acc[m] / np.maximum(cnt, 1.0)
-        ev = np.empty((T, h, w), np.float32)
-        for t in range(T):
-            ev[t] = np.minimum(2 * frac[t].min(0), frac[t].mean(0)) if has[t].all() else frac[t, 0 if has[t, 0] else 1]
-        out[name] = _ends(ev, fw, bw, has)
-    if share < f_vote:
-        out["epipolar"] = None
-    return out, share
-
-
-def flow_failure(fw, bw, fw_ok, bw_ok, reach: int = 4) -> np.ndarray:
-    """Where the flow fails to follow a pixel: for each pixel of each frame, the share of the
-    frames 1 .. ``reach`` away on either side that it lands inside of along the chained flow but
-    not on a forward-backward consistent track (:func:`chained_displacements`), blurred by 1% of the
-    short side; 0 where no track is judged (the last row and column). ``(T, H, W)`` float16 in [0, 1].
-
-    A rigid background, moving or not, is followed for frames (near 0). A running animal's
-    legs, head and tail change shape from frame to frame and the flow loses them within a few
-    frames (near 1), where the flow's residual against the camera's motion may still be small (the
-    flow of a thin, fast part is smoothed into the background's). Occlusion edges fail too, on one
-    side: the cue is a weight beside the others, not a mask (:func:`layercam.segment.colour_cut`)."""
-    import cv2
-
-    fw, bw = np.asarray(fw, np.float32), np.asarray(bw, np.float32)
-    T = fw.shape[0] + 1
-    h, w = fw.shape[1:3]
-    base = _grid(h, w)
-    out = np.zeros((T, h, w), np.float16)  # 2 bytes a pixel, as the background check's residual: long 1080p clips fit
-    sigma = 0.01 * min(h, w)
-    judged = (base[..., 0] < w - 1) & (base[..., 1] < h - 1)  # the last column and row: no bilinear neighbour to look up
-    for t in range(T):
-        lost = np.zeros((h, w), np.float32)
-        seen = np.zeros((h, w), np.float32)
-        for d, v in chained_displacements(fw, bw, fw_ok, bw_ok, t, reach).values():
-            p = base + d
-            inside = judged & (p[..., 0] >= 0) & (p[..., 0] < w - 1) & (p[..., 1] >= 0) & (p[..., 1] < h - 1)
-            lost += inside & ~v
-            seen += inside
-        out[t] = cv2.GaussianBlur(lost / np.maximum(seen, 1.0), (0, 0), sigma)
-    return out
 
 
 def long_range_moving_share(fw, fw_ok, reach: int = 8, base_px: float = 1.5, rel: float = 0.05) -> np.ndarray:

@@ -37,10 +37,26 @@ def test_find_clips_and_table(tmp_path):
     assert list(bench_layers.find_clips(tmp_path, ["b"])) == ["b"]
     with pytest.raises(LayercamError, match="unknown clip 'c'"):
         bench_layers.find_clips(tmp_path, ["c"])
-    row = {"clip": "a", "variant": "motion", "frames": 3, "size": "8x8", "layers": 2, "iou": 0.5, "iou_min": 0.25, "bootstrap_iou": 0.4, "psnr": 30.0, "wall_s": 12.0}
-    bench_layers.write_layers_table(tmp_path, [row, {**row, "variant": "masks", "bootstrap_iou": None}])
+    row = {"clip": "a", "variant": "motion", "preset": "fast", "frames": 3, "size": "8x8", "layers": 2, "iou": 0.5, "iou_min": 0.25, "inside": 0.9, "bootstrap_iou": 0.4, "found": True, "psnr": 30.0, "wall_s": 12.0}
+    rows = [row, {**row, "clip": "b", "iou": 0.7, "inside": 0.7, "found": False}, {**row, "variant": "masks", "bootstrap_iou": None, "found": None, "iou": 0.9}]
+    bench_layers.write_layers_table(tmp_path, rows)
     md = (tmp_path / "layers.md").read_text().splitlines()
-    assert len(md) == 4 and "| a | 3 | 8x8 | none (motion) | 2 | 0.500 | 0.250 | 0.400 | 30.00 | 12 |" in md
+    assert "| a | fast | 3 | 8x8 | none (motion) | 2 | 0.500 | 0.250 | 0.900 | 0.400 | yes | 30.00 | 12 |" in md
+    assert "| b | fast | 3 | 8x8 | none (motion) | 2 | 0.700 | 0.250 | 0.700 | 0.400 | no | 30.00 | 12 |" in md
+    # the set: the mean over the clips, the least share inside, the worst clip, per preset and variant
+    assert "| fast | none (motion) | 2 | 0.600 | 0.800 | 0.700 | a 0.500 |" in md
+    assert "| fast | given | 1 | 0.900 | 0.900 | 0.900 | a 0.900 |" in md
+    assert json.loads((tmp_path / "layers.json").read_text())["summary"][0]["worst_clip"] == "a"
+
+
+def test_inside_share_is_the_object_under_alpha():
+    truth = np.zeros((2, 4, 4), bool)
+    truth[:, :2, :2] = True
+    pred = np.zeros((2, 4, 4), np.float32)
+    pred[0, :2, :2] = 1.0
+    pred[1] = 0.4  # under 0.5: not inside
+    assert bench_layers.inside_share(pred, truth) == 0.5
+    assert bench_layers.inside_share(pred, np.zeros_like(truth)) == 1.0
 
 
 @pytest.mark.data
@@ -52,11 +68,12 @@ def test_layer_job_on_a_real_clip_and_resume(shared_data, tmp_path):
            "overrides": ["train.steps=20", "train.bootstrap_steps=5", "train.batch=1024"], "run": str(tmp_path / "runs" / "cows-motion"), "figure": str(tmp_path / "cows-motion.png")}
     row = bench_layers.run_layer_job(job)
     assert row["layers"] == 2 and row["frames"] == 4 and row["size"] == "85x48"
-    assert len(row["per_frame_iou"]) == 4 and 0.0 <= row["iou"] <= 1.0 and 0.0 <= row["bootstrap_iou"] <= 1.0
+    assert len(row["per_frame_iou"]) == 4 and 0.0 <= row["iou"] <= 1.0 and 0.0 <= row["bootstrap_iou"] <= 1.0 and 0.0 <= row["inside"] <= 1.0
+    assert row["found"] in (True, False) and row["verdict"]
     assert np.isfinite(row["psnr"]) and row["psnr"] > 10
     assert (tmp_path / "cows-motion.png").stat().st_size > 10_000
     # a finished job's result is re-used, not re-run (no subprocess is started for it)
     (tmp_path / "results").mkdir()
-    (tmp_path / "results" / "cows-motion.json").write_text(json.dumps(row))
-    rows = bench_layers.run_layers_table(tmp_path, shared_data, ["cows"], ("motion",), progress=False)
-    assert rows == [row] and "| cows | 4 | 85x48 |" in (tmp_path / "layers.md").read_text()
+    (tmp_path / "results" / "cows-motion-fast.json").write_text(json.dumps(row))
+    rows = bench_layers.run_layers_table(tmp_path, shared_data, ["cows"], ("motion",), ("fast",), progress=False)
+    assert rows == [row] and "| cows | fast | 4 | 85x48 |" in (tmp_path / "layers.md").read_text()

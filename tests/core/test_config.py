@@ -26,6 +26,7 @@ BAD = [
     ("train.steps=-5", ">= 1"), ("train.steps=0", ">= 1"), ("train.batch=0", ">= 1"), ("train.steps=2.5", "integer"),
     ("train.lr=-1", "> 0"), ("train.lr=0", "> 0"), ("train.lr=nan", "finite"), ("train.lr=inf", "finite"), ("train.grid_lr=1e6", "<= 1"),
     ("blur.max_offset=-5", ">= 0"), ("blur.max_offset=nan", "finite"), ("blur.n=4", "odd"), ("loss.alpha_flow_keep=1.5", "<= 1"),
+    ("segment.margin=2", "<= 1"),
     ("model.layers=3", "model.layers"), ("model.flow_loss=maybe", "model.flow_loss"), ("tone.lut=1", "tone.lut"),
     ("train.device=gpu", "train.device"), ("flow.method=raft", "raft_weights"), ("flow.method=raft_small", "raft_weights"),
     ("scene.grid_max_res=8", "unknown setting"),
@@ -85,8 +86,8 @@ def test_every_section_is_reachable_by_set():
         name, value = next(iter(vars(getattr(cfg, sec)).items()))
         cfg.set(f"{sec}.{name}", str(value))
     assert set(SECTIONS) >= {"model", "segment", "blur", "export"}
-    cfg = load_config("fast", ["segment.detector=", "blur.n=5"])
-    assert (cfg.segment.detector, cfg.blur.n) == ("", 5)
+    cfg = load_config("fast", ["segment.reach=4", "segment.foreground=identity", "blur.n=5"])
+    assert (cfg.segment.reach, cfg.segment.foreground, cfg.blur.n) == (4, "identity", 5)
 
 
 def test_auto_is_left_to_the_analysis():

@@ -168,9 +168,33 @@ def test_a_segment_setting_changed_makes_the_masks_again(two_layer_run, tmp_path
     run = tmp_path / "run"
     shutil.copytree(two_layer_run["run"], run)
     cfg = copy.deepcopy(two_layer_run["cfg"])
-    cfg.segment.colour_clean = 1.0  # the default until 2026-11-25
+    cfg.segment.k_sigma = 3.0  # not the default
     ctx = run_task("hdr-video", scene.clip, exposures, cfg, run, progress=False)
     assert not ctx.times["bootstrap"]["cached"] and ctx.keys["bootstrap"] != two_layer_run["ctx"].keys["bootstrap"]
     assert ctx.keys["train"] != two_layer_run["ctx"].keys["train"]  # trained on the new masks
     material = json.loads((ctx.dirs["bootstrap"] / "settings.json").read_text())["settings"]
-    assert material["segment"]["colour_clean"] == 1.0
+    assert material["segment"]["k_sigma"] == 3.0
+
+
+def test_no_object_found_runs_one_layer_and_says_why(tmp_path, monkeypatch):
+    """hdr-video without --layers on a clip whose flow shows independent motion: when the foreground
+    finder's verdict is that its masks hold no consistent object, the run goes on with one layer,
+    the finder's reason in the analysis; forced two layers keep them."""
+    from conftest import TINY
+    from layercam import synth
+    from layercam.core.presets import load_config
+    from layercam.io import Exposures
+    from layercam.pipelines.tasks import run_task
+    from layercam.segment import verdict as verdict_module
+
+    scene = synth.moving_object(frames=6, size=(48, 48), seed=0, object_radius=0.25)
+    exposures = Exposures(np.zeros(6), "none", np.zeros(6, int), "none", "test")
+    said = "the candidate masks jump between frames (test)"
+    monkeypatch.setattr(verdict_module, "verdict", lambda *a, **k: {"found": False, "reason": said, "consistency": 0.1, "contrast": 1.0})
+    cfg = load_config("fast", TINY + ["train.steps=30", "train.bootstrap_steps=10"])
+    ctx = run_task("hdr-video", scene.clip, exposures, cfg, tmp_path / "auto", progress=False)
+    rep = json.loads((tmp_path / "auto" / "report.json").read_text())
+    assert rep["analysis"]["layers"] == 1 and said in rep["analysis"]["reasons"]["model.layers"]
+    assert ctx.results["bootstrap"]["layers"] == 1 and not (tmp_path / "auto" / "alpha").exists()
+    forced = run_task("hdr-video", scene.clip, exposures, load_config("fast", TINY + ["train.steps=30", "train.bootstrap_steps=10", "model.layers=2"]), tmp_path / "two", progress=False)
+    assert forced.resolved.settings.model.layers == 2 and forced.results["bootstrap"]["foreground"]["verdict"]["found"] is False

@@ -383,3 +383,26 @@ def test_short_stack_trains_fewer_steps():
     assert (paper.train.steps, paper.train.batch, paper.scene.atlas_width) == (300, 30000, 512)
     # a smaller batch asked for is kept at the floor
     assert _cap("balanced", ["train.batch=1024"], 3, (64, 64)).train.batch == 1024
+
+
+def test_no_foreground_found_means_one_layer_and_says_why():
+    """The analysis chose two layers from the flow; the foreground finder found no consistent
+    object: deciding again with its verdict gives one layer, with the finder's reason. A layer
+    count the user set, or masks the user gave, are kept."""
+    from layercam.vision.analyse import unfound_foreground
+    from layercam.core.presets import load_config
+
+    cfg = load_config("fast")
+    boot = {"foreground": {"masks": "motion segmentation", "verdict": {"found": False, "reason": "the candidate masks jump between frames"}}}
+    why = unfound_foreground(cfg, boot)
+    assert why == "the candidate masks jump between frames"
+    assert unfound_foreground(load_config("fast", ["model.layers=2"]), boot) is None
+    assert unfound_foreground(cfg, {"foreground": {"masks": "given"}}) is None
+    assert unfound_foreground(cfg, {"foreground": {"masks": "motion segmentation", "verdict": {"found": True}}}) is None
+    clip = SimpleNamespace(T=8, H=32, W=32)
+    measures = {"independent_pairs": 1.0, "moving_pairs": 7, "independent_motion_frac": 0.1}
+    exposures = SimpleNamespace(count_distinct=1, learn="none", reason="given")
+    two, r2 = analyse.decide(cfg, clip, exposures, "hdr-video", measures)
+    assert two.model.layers == 2
+    one, r1 = analyse.decide(cfg, clip, exposures, "hdr-video", {**measures, "foreground_found": False, "foreground_reason": why})
+    assert one.model.layers == 1 and why in r1["layers"] and "no consistent" in r1["layers"]

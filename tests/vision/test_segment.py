@@ -12,6 +12,9 @@ from layercam.core import metrics, visibility
 
 from layercam import segment
 from layercam.core.errors import LayercamError
+from layercam.segment import colour
+from layercam.segment.background import _matched, _nan_median, background_refine
+from layercam.segment.clean import fill_still_frames
 
 
 def _square_clip(T=6, size=64, side=16, seed=0):
@@ -130,7 +133,7 @@ def test_clean_mask_gives_back_thin_parts_of_the_objects_colours():
 
 
 def test_clean_mask_at_half_scale_keeps_a_thin_leg_and_the_gap_between_legs():
-    """``scale`` (``segment.colour_clean`` in the colour cut): on a 200 px short side the opening is
+    """``scale`` (``colour.CLEAN`` in the colour cut): on a 200 px short side the opening is
     2 px and the closing 4 px at 1; at 0.5 (1 px, 2 px) two 3 px legs stay, without any colour,
     and the 5 px gap between them stays open; at 0 neither runs; 1 is the cleaning as before."""
     m = np.zeros((200, 200), bool)
@@ -149,7 +152,7 @@ def test_still_object_inherits_neighbour_masks(square):
     # the object's evidence vanishes in frame 5 (as if it stood still): its mask comes from frame 4
     ev_masks = square["masks"].copy()
     ev_masks[5] = False
-    out, filled = segment._fill_still_frames(ev_masks, fw, bw, 0.3)
+    out, filled = fill_still_frames(ev_masks, fw, bw, 0.3)
     assert filled == [5]
     assert metrics.iou(out[5], square["masks"][5]) > 0.4
 
@@ -241,7 +244,7 @@ def test_background_refine_finds_a_missed_limb_at_alternating_exposures():
         limb[t, y0 : y0 + side, x1 - 4 : x1] = True   # the object's right edge, missed
         bleed[t, y0 - 4 : y0, x1 - side : x1 - 4] = True  # background above it, taken in
     given = (truth & ~limb) | bleed
-    out, _ = segment.background_refine(frames, given.astype(np.float32), homs)
+    out, _ = background_refine(frames, given.astype(np.float32), homs)
     assert out.shape == truth.shape and out.dtype == bool
     before = np.mean([metrics.iou(given[t], truth[t]) for t in range(T)])
     after = np.mean([metrics.iou(out[t], truth[t]) for t in range(T)])
@@ -250,25 +253,6 @@ def test_background_refine_finds_a_missed_limb_at_alternating_exposures():
     assert out[bleed].mean() < 0.6  # partly: the slow object hid that background in most neighbours
     off = segment.foreground_bootstrap(frames, None, given.astype(np.float32))  # given masks are kept as given
     assert np.array_equal(off["masks"] > 0.5, given)
-
-
-def test_the_shifted_residual_lets_a_post_with_a_pixel_of_parallax_match():
-    """``segment.background_shift``: a thin post the homography misregisters by one pixel differs
-    from the background by its whole contrast unshifted and matches it with one pixel of shift; an
-    object that is not in the background differs either way; 0 is the plain residual."""
-    bg = np.full((40, 40, 3), 0.2, np.float32)
-    bg[:, 10:12] = 0.8  # the post, where the neighbours show it
-    frame = bg.copy()
-    frame[:, 10:13] = 0.2
-    frame[:, 11:13] = 0.8  # here one pixel to the right (parallax)
-    frame[20:30, 25:32] = 0.6  # an object
-    plain = segment._shifted_residual(bg, frame, 0)
-    assert np.allclose(plain, np.abs(bg - frame).max(-1))
-    assert plain[:, 10].max() > 0.5 and plain[:, 12].max() > 0.5
-    one = segment._shifted_residual(bg, frame, 1)
-    assert one[:, 8:14].max() < 1e-6
-    assert one[20:30, 26:31].min() > 0.3
-    assert (one <= plain + 1e-7).all()
 
 
 def test_background_median_and_level_map_shortcuts():
@@ -282,19 +266,19 @@ def test_background_median_and_level_map_shortcuts():
     count = (~np.isnan(stack[..., 0])).sum(0)
     with np.errstate(all="ignore"), pytest.warns(RuntimeWarning):
         want = np.nanmedian(stack, 0)
-    got = segment._nan_median(stack, count)
+    got = _nan_median(stack, count)
     assert np.allclose(got[count > 0], want[count > 0]) and np.isnan(got[0, 0]).all()
     src = rng.uniform(0, 1, (400, 400, 3)).astype(np.float32)  # 160,000 pixels: above the limit
     dst = src**0.6
     ok = np.ones((400, 400), bool)
-    fast = segment._matched(src, dst, ok)
-    exact = segment._matched(src, dst, ok, samples=10**7)
+    fast = _matched(src, dst, ok)
+    exact = _matched(src, dst, ok, samples=10**7)
     assert np.abs(fast - exact).max() < 1 / 255
     assert np.abs(fast - dst).max() < np.abs(exact - dst).max() + 1 / 255 < 0.03  # 65 levels of a curve
 
 
 def test_graph_cut_finds_the_least_energy_labelling():
-    """``_graph_cut`` on 3x4 grids: the labelling it returns costs what the cheapest of all 4096
+    """``colour.graph_cut`` on 3x4 grids: the labelling it returns costs what the cheapest of all 4096
     labellings costs (unaries and the contrast-sensitive smoothness, brute force)."""
     import itertools
 
@@ -311,12 +295,12 @@ def test_graph_cut_finds_the_least_energy_labelling():
             return e + sum(wk for wk, (a, b) in zip(wgt, pairs) if lab[a] != lab[b])
 
         best = min(energy(np.array(bits, bool).reshape(3, 4)) for bits in itertools.product((0, 1), repeat=12))
-        got = segment._graph_cut(unary, guide, 0.7)
+        got = colour.graph_cut(unary, guide, 0.7)
         assert got.shape == (3, 4) and got.dtype == bool
         assert energy(got) <= best + 0.05, (trial, energy(got), best)  # capacities are rounded to 1/100
 
 
-def test_colour_cut_grows_a_half_mask_to_the_object_not_to_its_colours_elsewhere():
+def test_colour_cut_grows_a_half_mask_to_the_object_not_to_its_colours_elsewhere(monkeypatch):
     """Motion masks that hold only the back half of a red object grow to the object by its colours,
     at alternating exposures; a static patch of the same colours that the object runs over stays
     out: it does not differ from the background the neighbours show (without that gate it joins).
@@ -352,19 +336,18 @@ def test_colour_cut_grows_a_half_mask_to_the_object_not_to_its_colours_elsewhere
         y, x = 100 - 60 - int(np.ceil(0.5 * t)), 45 - 10 - t
         patch[t, y + 1 : y + 19, max(x + 1, 0) : x + 19] = True  # its inside (sub-pixel pan)
     patch &= ~truth
-    kept, rel = segment.background_refine(frames, half.astype(np.float32), homs)
+    kept, rel = background_refine(frames, half.astype(np.float32), homs)
     assert rel.shape == truth.shape and rel.dtype == np.float16
-    out = segment.colour_cut(frames, kept, rel)
+    out = colour.colour_cut(frames, kept, rel)
     assert out.shape == truth.shape and out.dtype == bool
     before = np.mean([metrics.iou(half[t], truth[t]) for t in range(T)])
     after = np.mean([metrics.iou(out[t], truth[t]) for t in range(T)])
     assert before < 0.6 and after > 0.65 and after > before + 0.15, (before, after)
     assert out[patch].mean() < 0.05
-    from layercam.core.config import SegmentConfig
-
-    ungated = segment.colour_cut(frames, kept, rel, SegmentConfig(colour=1e-6))
+    monkeypatch.setattr(colour, "GATE", 1e-6)
+    ungated = colour.colour_cut(frames, kept, rel)
     assert ungated[patch].mean() > 0.5
-    off = segment.colour_cut(frames, np.zeros_like(truth), rel)  # no mask anywhere: nothing to grow
+    off = colour.colour_cut(frames, np.zeros_like(truth), rel)  # no mask anywhere: nothing to grow
     assert not off.any()
 
 
@@ -388,12 +371,10 @@ def _red_object_clip(seed: int, stripe: slice) -> tuple[np.ndarray, np.ndarray]:
     return frames, masks
 
 
-def test_colour_cut_pays_for_distance_from_the_mask():
+def test_colour_cut_pays_for_distance_from_the_mask(monkeypatch):
     """A post of colours between the object's and the background's, moving (the residual marks
     it), runs from the object to the frame's edges: without the distance cost the cut follows it
     across the frame; with it, the post's far ends stay out and the object stays in."""
-    from layercam.core.config import SegmentConfig
-
     frames, masks = _red_object_clip(2, slice(30, 34))  # the object with a stripe of the post's colour
     post = np.zeros_like(masks)
     for t in range(len(frames)):
@@ -405,33 +386,11 @@ def test_colour_cut_pays_for_distance_from_the_mask():
     rel = (masks | post).astype(np.float16)
     far = post.copy()
     far[:, 12:52] = False  # the post more than 10 px above or below the object
-    free = segment.colour_cut(frames, masks, rel, SegmentConfig(colour_distance=0.0))
-    paid = segment.colour_cut(frames, masks, rel)  # the default cost, 1 an object size
+    paid = colour.colour_cut(frames, masks, rel)  # the default cost, 1 an object size
+    monkeypatch.setattr(colour, "DISTANCE", 0.0)
+    free = colour.colour_cut(frames, masks, rel)
     assert free[far].mean() > 0.5
     assert paid[far].mean() < 0.2 and paid[masks].mean() > 0.95
-
-
-def test_colour_cut_takes_in_what_the_flow_loses():
-    """A head of a colour the background holds a little more of than the object (log-likelihood
-    ratio just below 0) beside the mask: by colour alone the cut leaves it out; where the flow
-    fails to follow it (a running animal's head) and follows the background, it joins."""
-    from layercam.core.config import SegmentConfig
-
-    frames, masks = _red_object_clip(3, slice(31, 33))  # the body, in its mask, with a thin grey stripe
-    head = np.zeros_like(masks)
-    for t in range(len(frames)):
-        x0 = 20 + 2 * t
-        frames[t, 26:38, x0 + 20 : x0 + 30] = _GREY  # the head, outside the mask
-        head[t, 26:38, x0 + 20 : x0 + 30] = True
-        frames[t, 0:4, 60:96] = _GREY  # grey background far off
-    rel = (masks | head).astype(np.float16)
-    failure = (masks | head).astype(np.float32)
-    by_colour = segment.colour_cut(frames, masks, rel, SegmentConfig(colour_failure=0.0), failure)
-    with_flow = segment.colour_cut(frames, masks, rel, SegmentConfig(), failure)  # the default weight, 1
-    assert by_colour[head].mean() < 0.1 and by_colour[masks].mean() > 0.95
-    assert with_flow[head].mean() > 0.9 and with_flow[masks].mean() > 0.95
-    assert with_flow[~(masks | head)].mean() < 0.01
-    assert (segment.colour_cut(frames, masks, rel) == by_colour).all()  # no failure map: colour alone
 
 
 def test_sure_pixels_leave_a_band_around_each_mask_edge():
@@ -442,3 +401,146 @@ def test_sure_pixels_leave_a_band_around_each_mask_edge():
     assert not sure[0, 10, 20] and not sure[0, 29, 20] and not sure[0, 20, 8] and not sure[0, 20, 32]  # on and near the edge
     assert sure[1].all()  # nothing to be unsure about
     assert segment.sure_pixels(masks, band=0.0).all()
+
+
+def _pan_clip(T=8, size=64, seed=0, follow=False):
+    """A textured world panning 2 px and 0.5 px a frame; with ``follow``, a textured 24x20 subject
+    the camera follows (it keeps its place, bobbing a pixel); and the subject's masks."""
+    import cv2
+
+    rng = np.random.default_rng(seed)
+    big = cv2.GaussianBlur(rng.uniform(0, 1, (size * 2, size * 3, 3)).astype(np.float32), (0, 0), 2.0)
+    big = (big - big.min()) / (big.max() - big.min())
+    sq = cv2.GaussianBlur(rng.uniform(0, 1, (24, 20, 3)).astype(np.float32), (0, 0), 0.8)
+    sq = 0.6 + 0.4 * (sq - sq.min()) / (sq.max() - sq.min())
+    frames, masks = [], []
+    for t in range(T):
+        f = cv2.warpAffine(big, np.float32([[1, 0, -(10 + 2.0 * t)], [0, 1, -(8 + 0.5 * t)]]), (size, size))
+        m = np.zeros((size, size), bool)
+        if follow:
+            y0 = 20 + t % 2
+            f[y0 : y0 + 24, 22:42] = sq
+            m[y0 : y0 + 24, 22:42] = True
+        frames.append(f)
+        masks.append(m)
+    return np.clip(np.stack(frames), 0, 1), np.stack(masks)
+
+
+def test_a_subject_the_camera_follows_is_the_object_not_the_world():
+    """The camera follows a subject: it keeps its place while the world flows past. The camera's
+    motion is read from the frame's border, so the subject is what moves against it."""
+    frames, truth = _pan_clip(follow=True)
+    fw, bw = flow.compute_flow(frames, "dis_fast", progress=False)
+    masks, info = segment.find_foreground(frames, {"fw": fw, "bw": bw})
+    assert masks.shape == truth.shape and masks.dtype == np.float32
+    assert np.mean([metrics.iou(m > 0.5, g) for m, g in zip(masks, truth)]) > 0.8
+    assert info["verdict"]["found"], info["verdict"]
+
+
+def test_a_clip_without_an_object_says_so():
+    """A world panning with nothing moving on its own: no masks, and the verdict says why."""
+    frames, _ = _pan_clip()
+    fw, bw = flow.compute_flow(frames, "dis_fast", progress=False)
+    fb = segment.foreground_bootstrap(frames, {"fw": fw, "bw": bw})
+    v = fb["info"]["verdict"]
+    assert fb["computed"] and not v["found"] and "moves" in v["reason"]
+
+
+def test_the_verdict_rejects_masks_that_jump_or_sit_on_the_background():
+    """Masks that land somewhere else in every frame (the flow is still) do not hold together;
+    masks that hold together where the evidence is no higher than around them move like the
+    background; a square that moves with its evidence is an object."""
+    from layercam.segment.verdict import verdict
+
+    T, h, w = 6, 48, 48
+    fw = np.zeros((T - 1, h, w, 2), np.float32)
+    jump = np.zeros((T, h, w), bool)
+    for t in range(T):
+        y, x = (t * 17) % 36, (t * 23) % 36
+        jump[t, y : y + 10, x : x + 10] = True
+    evidence = jump.astype(np.float32)
+    v = verdict(jump, evidence, fw)
+    assert not v["found"] and "jump" in v["reason"] and v["consistency"] < 0.5
+    still = np.zeros((T, h, w), bool)
+    still[:, 10:30, 10:30] = True
+    v = verdict(still, np.full((T, h, w), 0.3, np.float32), fw)
+    assert not v["found"] and "like what surrounds" in v["reason"] and v["contrast"] < 2
+    v = verdict(still, still.astype(np.float32), fw)
+    assert v["found"] and v["consistency"] == 1.0
+    # a thin limb 4 px wide that moves 2 px a frame against a still flow (the flow missed it): a
+    # plain IoU of 1/3, but every pixel lies within the tolerance (1 px here) of the other mask or
+    # next to it: the same object
+    limb = np.zeros((T, h, w), bool)
+    for t in range(T):
+        limb[t, 10:30, 10 + 2 * (t % 2) : 14 + 2 * (t % 2)] = True
+    v = verdict(limb, limb.astype(np.float32), fw)
+    assert v["found"] and 0.7 < v["consistency"] < 0.8, v
+
+
+def test_a_large_clip_is_segmented_at_the_working_size(monkeypatch):
+    """Frames larger than ``WORK_SHORT`` on the short side are segmented at that size: the masks
+    come back at the frame's size and find the same object."""
+    import layercam.segment as seg
+
+    frames, truth = _pan_clip(follow=True)
+    fw, bw = flow.compute_flow(frames, "dis_fast", progress=False)
+    monkeypatch.setattr(seg, "WORK_SHORT", 32)
+    masks, info = seg.find_foreground(frames, {"fw": fw, "bw": bw})
+    assert masks.shape == truth.shape and info["working_size"] == [32, 32]
+    assert np.mean([metrics.iou(m > 0.5, g) for m, g in zip(masks, truth)]) > 0.7
+
+
+def test_the_border_ring_reads_the_cameras_motion_under_a_large_subject():
+    """Step 1's contract: a subject covering most of the frame's centre moves one way, the world
+    another; the homography fitted to the border ring is the world's (the camera's), and a pair's
+    residual is small on the world and large on the subject."""
+    from layercam.segment.camera import border_homographies, border_ring, pair_residuals
+
+    h, w = 60, 80
+    ring = border_ring(h, w)
+    assert ring.shape == (h, w) and ring[0].all() and ring[:, 0].all() and not ring[h // 2, w // 2]
+    d = np.zeros((h, w, 2), np.float32)
+    d[..., 0], d[..., 1] = 2.0, -1.0  # the world pans (2, -1) px
+    subject = np.zeros((h, w), bool)
+    subject[12:48, 16:64] = True  # 36% of the frame, inside the ring
+    d[subject] = (-3.0, 0.5)
+    homs = border_homographies(d[None])
+    assert homs.shape == (1, 3, 3) and np.allclose(homs[0][:2, 2], (2.0, -1.0), atol=0.05)
+    res, epipolar = pair_residuals(d, np.ones((h, w), bool))
+    assert res.shape == (h, w) and not epipolar
+    assert np.median(res[~subject]) < 0.1 and np.median(res[subject]) > 4.0
+    assert pair_residuals(d, np.zeros((h, w), bool)) == (None, False)  # too few valid ring pixels
+
+
+def test_motion_evidence_is_a_share_high_on_the_moving_square(square):
+    """Step 2's contract: ``(T, H, W)`` float32 in [0, 1], high on what moves against the camera,
+    low on the panning background; ``offsets`` are the powers of two up to ``reach``."""
+    from layercam.segment.evidence import motion_evidence, offsets
+
+    assert offsets(8) == (1, 2, 4, 8) and offsets(5) == (1, 2, 4) and offsets(0) == (1,)
+    from layercam.segment.moving import flow_checks
+
+    ev, info = motion_evidence(square["fw"], square["bw"], *flow_checks(square["fw"], square["bw"]), reach=4)
+    assert ev.shape == square["masks"].shape and ev.dtype == np.float32 and 0 <= ev.min() and ev.max() <= 1
+    inside, outside = ev[square["masks"]].mean(), ev[~square["masks"]].mean()
+    assert inside > 0.5 and outside < 0.1, (inside, outside)
+
+
+def test_grabcut_pulls_an_overshooting_mask_to_the_objects_edge():
+    """Step 4's contract: a mask 4 px too large on every side of a square of its own colour is
+    pulled back to the square; a mask too small to seed GrabCut comes back as it was."""
+    from layercam.segment.edges import grabcut_refine
+
+    rng = np.random.default_rng(0)
+    frame = (0.2 + 0.1 * rng.uniform(0, 1, (80, 80, 3))).astype(np.float32)
+    truth = np.zeros((80, 80), bool)
+    truth[25:55, 20:50] = True
+    frame[truth] = (0.9, 0.5, 0.1)
+    over = np.zeros_like(truth)
+    over[21:59, 16:54] = True
+    out = grabcut_refine(frame, over)
+    assert out.shape == truth.shape and out.dtype == bool
+    assert metrics.iou(out, truth) > 0.9 > metrics.iou(over, truth)
+    tiny = np.zeros_like(truth)
+    tiny[5:7, 5:7] = True
+    assert (grabcut_refine(frame, tiny) == tiny).all()

@@ -1,0 +1,104 @@
+"""Shared mask cleaning: one object per frame, and frames without evidence filled along the flow.
+
+Radii and sizes scale with the frame: the opening is ``OPEN`` of the short side, the closing twice
+that; parts smaller than ``MIN_AREA`` of the frame or ``KEEP_FRACTION`` of the largest go, and so do
+parts farther than ``GAP`` times the largest part's size (the square root of its area) from it.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+OPEN = 0.01          # the opening's radius, a share of the short side (the closing's is twice it)
+MIN_AREA = 0.002     # a part smaller than this share of the frame is a speck
+KEEP_FRACTION = 0.15  # ... and one smaller than this share of the largest part is not the object
+GAP = 0.25           # parts an occluder splits off lie within this many object sizes of the largest
+PART_LLR = 1.0       # a farther part is the object's where its mean colour log-likelihood ratio is this high
+THIN_LLR = 3.0       # a thin part the opening took comes back where its ratio is this high
+
+
+def part_means(lab: np.ndarray, n: int, values: np.ndarray) -> np.ndarray:
+    """Mean of ``values (H, W)`` over each of the ``n`` labels of ``lab`` (0 included) ``(n,)``."""
+    return np.bincount(lab.ravel(), weights=np.asarray(values, np.float64).ravel(), minlength=n) / np.maximum(np.bincount(lab.ravel(), minlength=n), 1)
+
+
+def clean_mask(mask: np.ndarray, colour: np.ndarray | None = None, reach: float = 0.0, scale: float = 1.0) -> np.ndarray:
+    """Morphology on one ``(H, W)`` bool mask: open, close, fill holes, drop small components, and
+    keep one object: the largest component and those within ``GAP`` times its size of it (parts an
+    occluder splits off). With ``colour`` (``(H, W)``, the object : background colour
+    log-likelihood ratio of :func:`layercam.segment.colour.colour_cut`), a component farther than
+    that is kept too when its mean ratio is at least ``PART_LLR`` and it lies within ``reach``
+    pixels of the largest, and what the opening took comes back where its ratio is at least
+    ``THIN_LLR`` and it touches what the opening left (legs, a tail). ``scale``: the radii of the
+    opening and the closing times this (0: neither)."""
+    import cv2
+    from scipy import ndimage
+
+    h, w = mask.shape
+    m = mask.astype(np.uint8)
+    r = max(1, int(round(OPEN * min(h, w))))
+    ro, rc = int(round(scale * r)), int(round(scale * 2 * r))
+    if ro > 0:
+        m = cv2.morphologyEx(m, cv2.MORPH_OPEN, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * ro + 1, 2 * ro + 1)))
+    if colour is not None:
+        thin = (mask.astype(bool) & (m == 0) & (np.asarray(colour) >= THIN_LLR)).astype(np.uint8)
+        nt, lt = cv2.connectedComponents(m | thin, connectivity=8)
+        m = (part_means(lt, nt, m) > 0)[lt].astype(np.uint8)
+    if rc > 0:
+        m = cv2.morphologyEx(m, cv2.MORPH_CLOSE, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * rc + 1, 2 * rc + 1)))
+    flood = np.pad(m, 1).copy()  # fill holes: background is what the border reaches
+    cv2.floodFill(flood, np.zeros((h + 4, w + 4), np.uint8), (0, 0), 1)
+    m = (m.astype(bool) | (flood[1:-1, 1:-1] == 0)).astype(np.uint8)
+    n, lab, stats, _ = cv2.connectedComponentsWithStats(m, connectivity=8)
+    if n <= 1:
+        return np.zeros((h, w), bool)
+    areas = stats[1:, cv2.CC_STAT_AREA]
+    keep = (areas >= MIN_AREA * h * w) & (areas >= KEEP_FRACTION * areas.max())
+    if keep.sum() > 1:
+        main = 1 + int(np.argmax(areas))
+        dist = cv2.distanceTransform((lab != main).astype(np.uint8), cv2.DIST_L2, 3)
+        gaps = ndimage.minimum(dist, lab, np.arange(1, n))
+        near = gaps <= GAP * np.sqrt(areas.max())
+        if colour is not None:
+            near |= (gaps <= reach) & (part_means(lab, n, colour)[1:] >= PART_LLR)
+        keep &= near
+    return np.isin(lab, 1 + np.flatnonzero(keep))
+
+
+def warp_mask(mask: np.ndarray, flow_t: np.ndarray) -> np.ndarray:
+    """``mask`` of frame t+-1 brought into frame t along ``flow_t`` (t's pixels -> the other's), float."""
+    from layercam.core.geometry import warp
+
+    return warp(np.asarray(mask, np.float32), flow_t, border="constant")
+
+
+STILL = 0.3  # a frame whose mask is under this share of the clip's median area has lost the object
+
+
+def fill_still_frames(masks: np.ndarray, fw: np.ndarray, bw: np.ndarray, frac: float | None = None) -> tuple[np.ndarray, list[int]]:
+    """Frames whose mask is under ``frac`` (default ``STILL``) of the clip's median area inherit the
+    nearest good neighbour's, carried along the flow."""
+    frac = STILL if frac is None else frac
+    T = masks.shape[0]
+    area = masks.reshape(T, -1).sum(1)
+    ref = float(np.median(area[area > 0])) if (area > 0).any() else 0.0
+    if ref <= 0:
+        return masks, []
+    good = area >= frac * ref
+    out = masks.copy()
+    filled = []
+    for t in np.flatnonzero(~good):
+        cand = [(abs(s - t), s) for s in np.flatnonzero(good)]
+        if not cand:
+            break
+        _, s = min(cand)
+        m = masks[s].astype(np.float32)
+        if s > t:
+            for j in range(s - 1, t - 1, -1):
+                m = warp_mask(m, fw[j])
+        else:
+            for j in range(s, t):
+                m = warp_mask(m, bw[j])
+        out[t] = m > 0.5
+        filled.append(int(t))
+    return out, filled

@@ -1,0 +1,84 @@
+"""The foreground layer's bootstrap mapping: the object's own motion (a similarity per frame pair
+fitted to the flow inside its mask, chained to a reference frame), scaled so that the object fills
+the foreground atlas.
+
+Shapes: flows ``(T-1, H, W, 2)`` in pixels, masks ``(T, H, W)``, mappings ``(T, 3, 3)``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from layercam.core.errors import LayercamError
+
+
+def object_motion(fw, masks, fw_ok=None, min_points: int = 12, seed: int = 0) -> np.ndarray:
+    """Per pair ``(T-1, 3, 3)``: a similarity (rotation, scale, shift; RANSAC) mapping frame t's
+    object pixels to frame t+1, fitted to the flow inside ``masks[t]``. Pairs with too few object
+    pixels fall back to the median flow inside the mask, or to the identity. Where the fit moves the
+    mask's centroid far from where the next mask's centroid is (the flow lost the object), the
+    pair's motion is the centroid shift instead."""
+    import cv2
+
+    f = np.asarray(fw, dtype=np.float32)
+    n, h, w = f.shape[:3]
+    out = np.repeat(np.eye(3)[None], n, 0)
+    cv2.setRNGSeed(seed)
+    step = max(1, int(np.sqrt(h * w / 4000)))
+    for i in range(n):
+        sel = masks[i] > 0.5
+        if fw_ok is not None:
+            ok = sel & np.asarray(fw_ok[i], bool)
+            sel = ok if ok.sum() >= min_points else sel
+        ys, xs = np.nonzero(sel[::step, ::step])
+        ys, xs = ys * step, xs * step
+        if len(xs) < 3:
+            continue
+        d = f[i][ys, xs]
+        a = None
+        if len(xs) >= min_points:
+            src = np.stack([xs, ys], -1).astype(np.float32)
+            a, _ = cv2.estimateAffinePartial2D(src, src + d, method=cv2.RANSAC, ransacReprojThreshold=1.0, maxIters=2000, confidence=0.995)
+        if a is None or not np.all(np.isfinite(a)):
+            out[i][:2, 2] = np.median(d, axis=0)
+        else:
+            out[i][:2] = a
+        nxt = masks[i + 1] > 0.5
+        if masks[i].sum() >= min_points and nxt.sum() >= min_points:
+            y0, x0 = np.nonzero(masks[i] > 0.5)
+            y1, x1 = np.nonzero(nxt)
+            c0, c1 = np.array([x0.mean(), y0.mean()]), np.array([x1.mean(), y1.mean()])
+            pred = out[i][:2, :2] @ c0 + out[i][:2, 2]
+            if np.linalg.norm(pred - c1) > max(1.5, 0.15 * np.sqrt(len(x0))):
+                out[i] = np.eye(3)
+                out[i][:2, 2] = c1 - c0
+    return out
+
+
+def foreground_mappings(h: int, w: int, masks: np.ndarray, fw=None, fw_ok=None, margin: float = 0.6, how: str = "object") -> tuple[np.ndarray, str]:
+    """The foreground layer's ``h0`` ``(T, 3, 3)``: normalised frame coordinates -> atlas uv.
+
+    how "object": the object's own chained motion (:func:`object_motion`) to the frame where the
+    mask is largest, scaled isotropically so that the union of the mapped masks fills
+    ``[-margin, margin]^2`` (the rest of the atlas is slack for what the masks missed).
+    how "identity": every frame maps the same way (the paper's start), whole frame in the atlas.
+    """
+    from layercam.core.geometry import atlas_mappings, chain_homographies, fit_into_atlas
+
+    T = masks.shape[0]
+    if how == "identity" or fw is None or T < 2 or masks.sum() == 0:
+        return atlas_mappings(h, w, np.stack([np.eye(3)] * T)), "identity"
+    if how != "object":
+        raise LayercamError(f"unknown foreground bootstrap {how!r} (object | identity)")
+    ref = int(np.argmax(masks.reshape(T, -1).sum(1)))
+    pix = chain_homographies(object_motion(fw, masks, fw_ok), ref)
+    pts = []
+    for t in range(T):
+        ys, xs = np.nonzero(masks[t] > 0.5)
+        if len(xs) == 0:
+            continue
+        p = pix[t] @ np.stack([xs + 0.5, ys + 0.5, np.ones_like(xs, dtype=np.float64)])
+        pts.append((p[:2] / p[2:]).T)
+    pts = np.concatenate(pts)
+    lo, hi = np.percentile(pts, 1, axis=0), np.percentile(pts, 99, axis=0)
+    return fit_into_atlas(pix, (lo + hi) / 2, max((hi - lo).max() / 2, 2.0), margin, h, w), f"object motion chained to frame {ref}"

@@ -1,0 +1,105 @@
+"""Step 3: the motion masks: the evidence (:mod:`layercam.segment.evidence`) voted with its
+neighbours along the flow, rid of parts that lie where the frame has no texture the flow can
+follow, cleaned to one object per frame, and frames where the object stood still filled from
+their neighbours.
+
+A frame's evidence counts where at least half of its pairs moved (``EVIDENCE``); it is averaged
+with that of ``WINDOW`` neighbours on each side brought into its view along the flow, and a pixel is
+foreground where the average reaches ``VOTE``, and only where the frame has texture the flow can
+follow (:func:`layercam.core.visibility.textured`): flow over a smooth sky or road is interpolated from
+its edges (the object's motion spills onto the road beside it), not measured. The object's own
+smooth parts come back by their colours (:mod:`layercam.segment.colour`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from layercam.core.errors import LayercamError
+from layercam.segment.clean import clean_mask, fill_still_frames, warp_mask
+
+EVIDENCE = 0.5       # a pixel moved in this share of its pairs
+WINDOW = 2           # neighbours on each side that vote
+VOTE = 0.4           # the voted share that makes a pixel foreground
+TEXTURE = 0.006      # visibility.textured's threshold and window (a share of the short side)
+TEXTURE_WINDOW = 0.0125
+
+
+def check_flows(fw, bw) -> tuple[np.ndarray, np.ndarray]:
+    f = np.asarray(fw, dtype=np.float32)
+    b = np.asarray(bw, dtype=np.float32)
+    if f.ndim != 4 or f.shape[-1] != 2 or b.shape != f.shape:
+        raise LayercamError(f"motion segmentation needs forward and backward flows (T-1,H,W,2), got {f.shape} and {b.shape}")
+    if f.shape[0] < 1:
+        raise LayercamError("motion segmentation needs at least two frames")
+    return f, b
+
+
+def flow_checks(f: np.ndarray, b: np.ndarray, fw_ok=None, bw_ok=None) -> tuple[np.ndarray, np.ndarray]:
+    """The flows' forward-backward checks ``(T-1, H, W)`` bool: the given ones, else computed."""
+    from layercam.vision.flow import flow_consistency
+
+    fo = flow_consistency(f, b) if fw_ok is None else np.asarray(fw_ok, bool)
+    bo = flow_consistency(b, f) if bw_ok is None else np.asarray(bw_ok, bool)
+    return fo, bo
+
+
+def temporal_vote(ev: np.ndarray, fw: np.ndarray, bw: np.ndarray, window: int) -> np.ndarray:
+    """Average of each frame's evidence with its neighbours' (up to ``window`` each side), brought
+    into its view along the chained flow. ``(T, H, W)`` float in [0, 1]."""
+    T = ev.shape[0]
+    acc = ev.astype(np.float32).copy()
+    cnt = np.ones(T, np.float32)
+    for t in range(T):
+        for k in range(1, window + 1):
+            if t + k >= T:
+                break
+            m = ev[t + k].astype(np.float32)
+            for j in range(t + k - 1, t - 1, -1):
+                m = warp_mask(m, fw[j])
+            acc[t] += m
+            cnt[t] += 1
+        for k in range(1, window + 1):
+            if t - k < 0:
+                break
+            m = ev[t - k].astype(np.float32)
+            for j in range(t - k, t):
+                m = warp_mask(m, bw[j])
+            acc[t] += m
+            cnt[t] += 1
+    return acc / cnt[:, None, None]
+
+
+def motion_masks(fw, bw, fw_ok=None, bw_ok=None, cfg=None, frames=None) -> tuple[np.ndarray, dict]:
+    """Foreground masks of whatever moves on its own: ``(T, H, W)`` float32 in {0, 1}, and an info
+    dict (coverage per frame, frames filled from neighbours, and ``evidence``: the motion evidence
+    ``(T, H, W)`` the masks came from). ``fw_ok``, ``bw_ok`` ``(T-1, H, W)``: the flows'
+    forward-backward checks (computed when None); ``cfg``: a :class:`layercam.core.config.SegmentConfig`
+    (``reach``, ``k_sigma``). With the ``frames`` ``(T, H, W[, C])``, evidence counts only where
+    the frame has texture."""
+    from layercam.core.config import SegmentConfig
+    from layercam.segment.evidence import motion_evidence
+    from layercam.core.visibility import textured
+
+    f, b = check_flows(fw, bw)
+    fo, bo = flow_checks(f, b, fw_ok, bw_ok)
+    cfg = cfg or SegmentConfig()
+    soft, info = motion_evidence(f, b, fo, bo, cfg.reach, cfg.k_sigma)
+    tex = None
+    if frames is not None:
+        tex = textured(frames, TEXTURE, TEXTURE_WINDOW)
+        if tex.shape != soft.shape:
+            raise LayercamError(f"motion segmentation: frames {tex.shape} do not match the flows {soft.shape}")
+        info["untextured"] = round(float(1 - tex.mean()), 4)
+    vote = temporal_vote(soft >= EVIDENCE, f, b, WINDOW)
+    masks = []
+    for t, v in enumerate(vote):
+        m = v >= VOTE
+        if tex is not None:
+            m = m & tex[t]
+        masks.append(clean_mask(m))
+    masks, filled = fill_still_frames(np.stack(masks), f, b)
+    masks = np.stack([clean_mask(m) for m in masks]) if filled else masks
+    cover = masks.reshape(len(masks), -1).mean(1)
+    info.update(evidence=soft, coverage_mean=float(cover.mean()), coverage_min=float(cover.min()), coverage_max=float(cover.max()), filled_from_neighbours=filled, empty_frames=int((cover == 0).sum()))
+    return masks.astype(np.float32), info

@@ -83,7 +83,7 @@ class BootstrapStage(Stage):
         if cfg.segment.detector and (cfg.model.layers == 1 or ctx.masks is not None):
             ctx.say(f"[bootstrap] segment.detector unused: {'one layer, no foreground' if cfg.model.layers == 1 else '--masks given'}")
         if cfg.model.layers > 1:  # foreground: user masks, else motion segmentation of the flow
-            from layercam import segment
+            from layercam.vision import segment
 
             fg = segment.foreground_bootstrap(clip.frames, fl, ctx.masks, cfg.segment, progress=ctx.progress)
             h0.append(fg["h0"])
@@ -101,7 +101,7 @@ class BootstrapStage(Stage):
         return res
 
     def load(self, ctx, out, summary):
-        from layercam.segment import load_masks
+        from layercam.vision.segment import load_masks
 
         res = {**summary, "h0": np.load(out / "h0.npy")}
         masks = load_masks(out)
@@ -227,7 +227,7 @@ class PrefitStage(TrainStage):
 
 
 class RefineStage(Stage):
-    """``segment.refine``: new foreground masks from the first fit (:func:`layercam.segment.refine_masks`),
+    """``segment.refine``: new foreground masks from the first fit (:func:`layercam.vision.segment.refine_masks`),
     saved as ``masks.npz`` and ``masks/`` PNGs; the train stage fits alpha to them."""
 
     name = "refine"
@@ -237,7 +237,7 @@ class RefineStage(Stage):
     def run(self, ctx, out):
         import torch
 
-        from layercam import segment
+        from layercam.vision import segment
         from layercam.core.metrics import iou
         from layercam.scene.render import inverse_tone, render_frame, tone_map_log2
 
@@ -264,7 +264,7 @@ class RefineStage(Stage):
         return {"coverage": float(masks.mean()), "iou_with_motion_masks": agree}
 
     def load(self, ctx, out, summary):
-        from layercam.segment import load_masks
+        from layercam.vision.segment import load_masks
 
         return {**summary, "masks": load_masks(out)}
 

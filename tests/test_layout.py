@@ -59,3 +59,12 @@ def test_core_imports_only_core():
         if m.startswith("layercam.core"):
             outside = {d for d in _imports(p, mods) if not d.startswith("layercam.core")}
             assert not outside, f"{m} imports {outside}"
+
+
+def test_every_package_is_installed():
+    """A non-editable install holds every package folder (pyproject.toml lists them)."""
+    import tomllib
+
+    listed = set(tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"])
+    found = {".".join(p.parent.relative_to(ROOT).parts) for p in (ROOT / "layercam").rglob("__init__.py")}
+    assert found - listed == set(), f"add to pyproject.toml's packages: {sorted(found - listed)}"

@@ -4,7 +4,7 @@ Every ``layers_davis_*`` clip under ``--data`` (DAVIS clips with per-frame foreg
 ``masks_gt/``) runs as ``layercam hdr-video FRAMES --exposures none --layers 2 --resize R``, on its
 first ``MAX_FRAMES`` frames (one protocol for every clip), at each preset asked for: with its masks
 given (``--masks``, variant "masks") and without (variant "motion": the foreground is found by
-:mod:`layercam.segment`). Each run is its own process (one torch thread unless told otherwise) and
+:mod:`layercam.vision.segment`). Each run is its own process (one torch thread unless told otherwise) and
 keeps its run folder under ``OUT/runs/``; a finished job leaves
 ``OUT/results/<clip>-<variant>-<preset>.json`` and is not run again (delete the file to re-measure),
 so an interrupted benchmark resumes.

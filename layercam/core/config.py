@@ -169,7 +169,7 @@ class FlowConfig(Section):
 
 @dataclass
 class SegmentConfig(Section):
-    """The foreground finder of a two-layer clip (:mod:`layercam.segment`: the camera's motion read
+    """The foreground finder of a two-layer clip (:mod:`layercam.vision.segment`: the camera's motion read
     from the frame's border, what moves against it followed over frames, grown to the object) and
     the foreground layer's bootstrap. Every other number of the finder is derived from the clip (its
     size, its flow's measured noise) or named once in its module.
@@ -187,7 +187,7 @@ class SegmentConfig(Section):
     refine: bool = False                    # fit once, take new masks from where each frame differs from its background
                                             # layer near the fitted alpha (segment.refine_masks), fit again: twice the training
     refine_threshold: float = setting(0.1, above=0.0, hi=1.0)  # that residual, in pixel values: lower takes in more
-    detector: str = ""                      # a torchvision Mask R-CNN weights file (layercam.detect); "": the motion masks alone
+    detector: str = ""                      # a torchvision Mask R-CNN weights file (layercam.vision.segment.detect); "": the motion masks alone
     detector_score: float = setting(0.5, 0.0, 1.0)   # the detector's instances scoring at least this: lower finds more, and more wrongly
     detector_overlap: float = setting(0.3, above=0.0, hi=1.0)  # an instance replaces a frame's mask where this share of it lies
                                             # in the mask: lower trusts the detector over the motion

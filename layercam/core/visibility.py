@@ -153,7 +153,7 @@ def textured(frames: np.ndarray, threshold: float = 0.006, window: float = 0.012
     (a frame exposed darker is judged alike), at least ``threshold``; ``threshold <= 0``: all True.
     In a smooth patch (sky, a plain wall) dense flow is interpolated from its edges: at ``--resize
     0.5`` DAVIS parkour's motion masks followed a patch of sky instead of the runner in frames
-    15-18 (:func:`layercam.segment.motion_masks` drops parts of its evidence that are mostly
+    15-18 (:func:`layercam.vision.segment.motion_masks` drops parts of its evidence that are mostly
     untextured; per pixel it also lost the Basler clip's person in plain dark clothes:
     docs/measurements.md)."""
     import cv2

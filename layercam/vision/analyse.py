@@ -172,7 +172,7 @@ def measure(clip, exposures, flow: dict | None) -> dict:
 def unfound_foreground(cfg: Config, bootstrap: dict | None) -> str | None:
     """Why a two-layer run found no foreground, when the analysis chose its two layers (``cfg``:
     the settings as given, ``model.layers`` auto) and the foreground finder's verdict
-    (:mod:`layercam.segment.verdict`) is that its masks hold no consistent, independently moving
+    (:mod:`layercam.vision.segment.verdict`) is that its masks hold no consistent, independently moving
     object; None otherwise (one layer, layers given, masks given, an object found). The task then
     decides again with ``measures["foreground_found"] = False`` (one layer, this reason)."""
     fg = (bootstrap or {}).get("foreground") or {}

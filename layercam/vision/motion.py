@@ -8,7 +8,7 @@ what the analysis reads to choose two layers).
 homography lie in regions that reach the frame's edge (near background runs off the frame; an
 object seen whole does not): a degenerate fit can take in any object moving in a straight line.
 The foreground finder reads the camera's motion from the frame's border instead
-(:mod:`layercam.segment.camera`).
+(:mod:`layercam.vision.segment.camera`).
 
 Shapes: flows ``(T-1, H, W, 2)`` in pixels, validity ``(T-1, H, W)`` bool.
 """

@@ -185,7 +185,7 @@ def test_no_object_found_runs_one_layer_and_says_why(tmp_path, monkeypatch):
     from layercam.core.presets import load_config
     from layercam.io import Exposures
     from layercam.pipelines.tasks import run_task
-    from layercam.segment import verdict as verdict_module
+    from layercam.vision.segment import verdict as verdict_module
 
     scene = synth.moving_object(frames=6, size=(48, 48), seed=0, object_radius=0.25)
     exposures = Exposures(np.zeros(6), "none", np.zeros(6, int), "none", "test")

@@ -1,4 +1,4 @@
-"""The optional detector (layercam.detect): a local Mask R-CNN weights file's instances replace the
+"""The optional detector (layercam.vision.segment.detect): a local Mask R-CNN weights file's instances replace the
 motion masks where they lie in them. No weights are downloaded; the tests build a torchvision
 Mask R-CNN with random weights and save it, so they check the file handling and the plumbing,
 not what trained weights find (none are on these machines)."""
@@ -8,7 +8,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from layercam import detect, segment
+from layercam.vision.segment import detect
+
+from layercam.vision import segment
 from layercam.core.presets import load_config
 from layercam.core.errors import LayercamError
 

@@ -10,7 +10,7 @@ from layercam.vision import flow, motion
 
 from layercam.core import metrics
 
-from layercam import segment
+from layercam.vision import segment
 
 
 def _texture(rng, h, w, sigma=1.5):

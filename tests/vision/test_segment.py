@@ -1,4 +1,4 @@
-"""Motion segmentation without a detector (layercam.segment): masks of what moves on its own, and
+"""Motion segmentation without a detector (layercam.vision.segment): masks of what moves on its own, and
 the foreground layer's bootstrap mapping that follows it."""
 
 from __future__ import annotations
@@ -10,11 +10,11 @@ from layercam.vision import flow
 
 from layercam.core import metrics, visibility
 
-from layercam import segment
+from layercam.vision import segment
 from layercam.core.errors import LayercamError
-from layercam.segment import colour
-from layercam.segment.background import _matched, _nan_median, background_refine
-from layercam.segment.clean import fill_still_frames
+from layercam.vision.segment import colour
+from layercam.vision.segment.background import _matched, _nan_median, background_refine
+from layercam.vision.segment.clean import fill_still_frames
 
 
 def _square_clip(T=6, size=64, side=16, seed=0):
@@ -450,7 +450,7 @@ def test_the_verdict_rejects_masks_that_jump_or_sit_on_the_background():
     """Masks that land somewhere else in every frame (the flow is still) do not hold together;
     masks that hold together where the evidence is no higher than around them move like the
     background; a square that moves with its evidence is an object."""
-    from layercam.segment.verdict import verdict
+    from layercam.vision.segment.verdict import verdict
 
     T, h, w = 6, 48, 48
     fw = np.zeros((T - 1, h, w, 2), np.float32)
@@ -480,7 +480,7 @@ def test_the_verdict_rejects_masks_that_jump_or_sit_on_the_background():
 def test_a_large_clip_is_segmented_at_the_working_size(monkeypatch):
     """Frames larger than ``WORK_SHORT`` on the short side are segmented at that size: the masks
     come back at the frame's size and find the same object."""
-    import layercam.segment as seg
+    import layercam.vision.segment as seg
 
     frames, truth = _pan_clip(follow=True)
     fw, bw = flow.compute_flow(frames, "dis_fast", progress=False)
@@ -494,7 +494,7 @@ def test_the_border_ring_reads_the_cameras_motion_under_a_large_subject():
     """Step 1's contract: a subject covering most of the frame's centre moves one way, the world
     another; the homography fitted to the border ring is the world's (the camera's), and a pair's
     residual is small on the world and large on the subject."""
-    from layercam.segment.camera import border_homographies, border_ring, pair_residuals
+    from layercam.vision.segment.camera import border_homographies, border_ring, pair_residuals
 
     h, w = 60, 80
     ring = border_ring(h, w)
@@ -515,10 +515,10 @@ def test_the_border_ring_reads_the_cameras_motion_under_a_large_subject():
 def test_motion_evidence_is_a_share_high_on_the_moving_square(square):
     """Step 2's contract: ``(T, H, W)`` float32 in [0, 1], high on what moves against the camera,
     low on the panning background; ``offsets`` are the powers of two up to ``reach``."""
-    from layercam.segment.evidence import motion_evidence, offsets
+    from layercam.vision.segment.evidence import motion_evidence, offsets
 
     assert offsets(8) == (1, 2, 4, 8) and offsets(5) == (1, 2, 4) and offsets(0) == (1,)
-    from layercam.segment.moving import flow_checks
+    from layercam.vision.segment.moving import flow_checks
 
     ev, info = motion_evidence(square["fw"], square["bw"], *flow_checks(square["fw"], square["bw"]), reach=4)
     assert ev.shape == square["masks"].shape and ev.dtype == np.float32 and 0 <= ev.min() and ev.max() <= 1
@@ -529,7 +529,7 @@ def test_motion_evidence_is_a_share_high_on_the_moving_square(square):
 def test_grabcut_pulls_an_overshooting_mask_to_the_objects_edge():
     """Step 4's contract: a mask 4 px too large on every side of a square of its own colour is
     pulled back to the square; a mask too small to seed GrabCut comes back as it was."""
-    from layercam.segment.edges import grabcut_refine
+    from layercam.vision.segment.edges import grabcut_refine
 
     rng = np.random.default_rng(0)
     frame = (0.2 + 0.1 * rng.uniform(0, 1, (80, 80, 3))).astype(np.float32)

@@ -26,7 +26,7 @@ def clean_mask(mask: np.ndarray, colour: np.ndarray | None = None, reach: float 
     """Morphology on one ``(H, W)`` bool mask: open, close, fill holes, drop small components, and
     keep one object: the largest component and those within ``GAP`` times its size of it (parts an
     occluder splits off). With ``colour`` (``(H, W)``, the object : background colour
-    log-likelihood ratio of :func:`layercam.segment.colour.colour_cut`), a component farther than
+    log-likelihood ratio of :func:`layercam.vision.segment.colour.colour_cut`), a component farther than
     that is kept too when its mean ratio is at least ``PART_LLR`` and it lies within ``reach``
     pixels of the largest, and what the opening took comes back where its ratio is at least
     ``THIN_LLR`` and it touches what the opening left (legs, a tail). ``scale``: the radii of the

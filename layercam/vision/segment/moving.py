@@ -1,4 +1,4 @@
-"""Step 3: the motion masks: the evidence (:mod:`layercam.segment.evidence`) voted with its
+"""Step 3: the motion masks: the evidence (:mod:`layercam.vision.segment.evidence`) voted with its
 neighbours along the flow, rid of parts that lie where the frame has no texture the flow can
 follow, cleaned to one object per frame, and frames where the object stood still filled from
 their neighbours.
@@ -8,7 +8,7 @@ with that of ``WINDOW`` neighbours on each side brought into its view along the 
 foreground where the average reaches ``VOTE``, and only where the frame has texture the flow can
 follow (:func:`layercam.core.visibility.textured`): flow over a smooth sky or road is interpolated from
 its edges (the object's motion spills onto the road beside it), not measured. The object's own
-smooth parts come back by their colours (:mod:`layercam.segment.colour`).
+smooth parts come back by their colours (:mod:`layercam.vision.segment.colour`).
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 
 from layercam.core.errors import LayercamError
-from layercam.segment.clean import clean_mask, fill_still_frames, warp_mask
+from layercam.vision.segment.clean import clean_mask, fill_still_frames, warp_mask
 
 EVIDENCE = 0.5       # a pixel moved in this share of its pairs
 WINDOW = 2           # neighbours on each side that vote
@@ -78,7 +78,7 @@ def motion_masks(fw, bw, fw_ok=None, bw_ok=None, cfg=None, frames=None) -> tuple
     (``reach``, ``k_sigma``). With the ``frames`` ``(T, H, W[, C])``, evidence counts only where
     the frame has texture."""
     from layercam.core.config import SegmentConfig
-    from layercam.segment.evidence import motion_evidence
+    from layercam.vision.segment.evidence import motion_evidence
     from layercam.core.visibility import textured
 
     f, b = check_flows(fw, bw)

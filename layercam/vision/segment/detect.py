@@ -1,6 +1,6 @@
 """Optional: the foreground's masks from a local Mask R-CNN weights file (never downloads).
 
-The motion bootstrap (:func:`layercam.segment.foreground_bootstrap`) finds what moves against the
+The motion bootstrap (:func:`layercam.vision.segment.foreground_bootstrap`) finds what moves against the
 background; where the flow loses thin or fast parts, or a trunk cuts the object in two, its masks
 do too (docs/layers/ceiling/). A detector sees the whole object in each frame but not which object
 is the one that moves. So the two are joined: the detector's instances in each frame that lie

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from layercam.segment.clean import clean_mask
+from layercam.vision.segment.clean import clean_mask
 
 
 def refine_masks(frames: np.ndarray, background: np.ndarray, alpha: np.ndarray, threshold: float = 0.1) -> np.ndarray:

@@ -8,9 +8,9 @@ alternating clip reads alike; CIELAB, ``BINS`` an axis), give each pixel the log
 object : background. Per frame a graph cut (:func:`graph_cut`; contrast-sensitive smoothness
 ``SMOOTH``) labels the pixels within ``REACH`` times the object's size (the square root of the
 clip's median mask area) of the mask, the mask counting +1 towards the object, and only where the
-frame differs from the clean plate (:func:`layercam.segment.background.background_refine`'s
+frame differs from the clean plate (:func:`layercam.vision.segment.background.background_refine`'s
 relative residual, above ``GATE``) or the mask already is: background of the object's colours
-does not join. Each pixel pays ``DISTANCE`` per object size it lies away from the mask. Then :func:`layercam.segment.clean.clean_mask` at half its radii (legs and tails 1-3 px wide),
+does not join. Each pixel pays ``DISTANCE`` per object size it lies away from the mask. Then :func:`layercam.vision.segment.clean.clean_mask` at half its radii (legs and tails 1-3 px wide),
 keeping parts of the object's colours within its size of the largest; a cut that leaves nothing
 keeps the mask.
 """
@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from layercam.segment.clean import clean_mask
+from layercam.vision.segment.clean import clean_mask
 
 BINS = 16        # colour histogram bins per CIELAB axis
 GATE = 0.3       # the relative residual against the clean plate where the cut may add pixels

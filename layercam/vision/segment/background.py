@@ -1,7 +1,7 @@
 """Step 5: each mask checked against the background its neighbours show (a clean plate).
 
 Frames ``t +- 2, 4, .., 2 * REACH`` are warped into frame ``t`` by the chained camera homographies
-(:func:`layercam.segment.camera.border_homographies`), their object (its mask, dilated) left out,
+(:func:`layercam.vision.segment.camera.border_homographies`), their object (its mask, dilated) left out,
 each mapped onto frame ``t``'s levels by quantiles (another exposure reads the same), samples not
 well exposed left out; the per-pixel median is the background behind the object. A limb the flow
 was too coarse to see differs from it: within a ring of ``RING`` of the short side around the mask,
@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from layercam.segment.clean import clean_mask
+from layercam.vision.segment.clean import clean_mask
 
 JOIN = 0.15     # a pixel this far from the clean plate (pixel values) near the mask joins it
 LEAVE = 0.075   # a mask pixel this close to it leaves
@@ -64,7 +64,7 @@ def background_refine(frames: np.ndarray, masks: np.ndarray, homs: np.ndarray) -
     Returns ``(masks, residual)``: the residual is each frame's relative difference from that
     background, ``(T, H, W)`` float16, the largest channel of ``|log(bg + 0.03) - log(frame +
     0.03)|`` smoothed 1 px, 0 where no neighbour shows the background (what
-    :func:`layercam.segment.colour.colour_cut` gates on)."""
+    :func:`layercam.vision.segment.colour.colour_cut` gates on)."""
     import cv2
 
     from layercam.core.geometry import chain_homographies

@@ -6,7 +6,7 @@ frame along the flow overlaps that frame's mask (the share of either mask's pixe
 masks made from a flow cannot be compared more finely than that, and a small person's legs move
 more than a plain IoU forgives; the median over the pairs that hold a mask on either side, and a
 frame without mask counts as a jump)? Do they cover what moves against the camera
-(:mod:`layercam.segment.evidence`) more than what lies around them: the motion evidence inside the
+(:mod:`layercam.vision.segment.evidence`) more than what lies around them: the motion evidence inside the
 masks over that outside? Masks that jump about, or that sit where nothing moves more than the
 background, are not an object: the run says so and, without ``--layers``, the analysis chooses one
 layer (:func:`layercam.vision.analyse.decide`).
@@ -27,7 +27,7 @@ def temporal_iou(masks: np.ndarray, fw: np.ndarray) -> np.ndarray:
     of the other mask (1: the same mask; NaN where neither holds a pixel)."""
     import cv2
 
-    from layercam.segment.clean import warp_mask
+    from layercam.vision.segment.clean import warp_mask
 
     m = np.asarray(masks) > 0.5
     r = max(1, int(round(TOLERANCE * float(np.hypot(*m.shape[1:])))))

@@ -5,25 +5,25 @@ from the frame's border, what persistently moves against it seeds the foreground
 grown to the object by its edges, by the clean plate its neighbours show, and by its colours
 learned over the whole clip. One step per module:
 
-1. :mod:`~layercam.segment.camera`: the camera's motion per frame pair, fitted to the flow of a
+1. :mod:`~layercam.vision.segment.camera`: the camera's motion per frame pair, fitted to the flow of a
    ring along the frame's border (a homography, the epipolar geometry where the border shows
    parallax): a subject the camera follows keeps its place and cannot pass for the background.
-2. :mod:`~layercam.segment.evidence`: each pixel followed along the flow to frames 1, 2, 4, ...
+2. :mod:`~layercam.vision.segment.evidence`: each pixel followed along the flow to frames 1, 2, 4, ...
    ``reach`` away; it moves in a pair where its residual exceeds ``k_sigma`` times the pair's
    measured noise (its robust spread) and the flow's precision.
-3. :mod:`~layercam.segment.moving`: the evidence voted with its neighbours along the flow, counted
+3. :mod:`~layercam.vision.segment.moving`: the evidence voted with its neighbours along the flow, counted
    where the frame has texture the flow can follow, one object per frame, still frames filled from
    their neighbours.
-4. :mod:`~layercam.segment.edges`: GrabCut pulls each mask to the object's colour edges.
-5. :mod:`~layercam.segment.background`: the clean plate (neighbours registered by the camera's
+4. :mod:`~layercam.vision.segment.edges`: GrabCut pulls each mask to the object's colour edges.
+5. :mod:`~layercam.vision.segment.background`: the clean plate (neighbours registered by the camera's
    motion, their object left out) adds limbs the flow missed and drops background the flow smeared.
-6. :mod:`~layercam.segment.colour`: a graph cut on the object's colours learned over the clip grows
+6. :mod:`~layercam.vision.segment.colour`: a graph cut on the object's colours learned over the clip grows
    the masks to the whole object where the frame differs from the clean plate.
-7. :mod:`~layercam.segment.verdict`: masks that jump about or move like their surroundings are no
+7. :mod:`~layercam.vision.segment.verdict`: masks that jump about or move like their surroundings are no
    object: the run says so.
 
-:mod:`~layercam.segment.mapping` turns the masks into the foreground layer's starting mapping,
-:mod:`~layercam.segment.store` keeps them on disk, :mod:`~layercam.detect` (``segment.detector``)
+:mod:`~layercam.vision.segment.mapping` turns the masks into the foreground layer's starting mapping,
+:mod:`~layercam.vision.segment.store` keeps them on disk, :mod:`~layercam.vision.segment.detect` (``segment.detector``)
 and ``--masks`` replace them. Every step's share of the result is measured in ``docs``
 (the ablation table). Shapes: frames ``(T, H, W, 3)``, flows ``(T-1, H, W, 2)`` in pixels, masks
 ``(T, H, W)``.
@@ -34,12 +34,12 @@ from __future__ import annotations
 import numpy as np
 
 from layercam.core.config import SegmentConfig
-from layercam.segment.clean import clean_mask
-from layercam.segment.mapping import foreground_mappings, object_motion
-from layercam.segment.evidence import offsets as motion_offsets
-from layercam.segment.moving import motion_masks
-from layercam.segment.refine import refine_masks
-from layercam.segment.store import load_masks, save_masks, sure_pixels
+from layercam.vision.segment.clean import clean_mask
+from layercam.vision.segment.mapping import foreground_mappings, object_motion
+from layercam.vision.segment.evidence import offsets as motion_offsets
+from layercam.vision.segment.moving import motion_masks
+from layercam.vision.segment.refine import refine_masks
+from layercam.vision.segment.store import load_masks, save_masks, sure_pixels
 
 __all__ = ["SegmentConfig", "STEPS", "foreground_bootstrap", "motion_masks", "motion_offsets", "clean_mask", "object_motion", "foreground_mappings", "refine_masks", "sure_pixels", "load_masks", "save_masks"]
 
@@ -75,10 +75,10 @@ def find_foreground(frames: np.ndarray, flows: dict, cfg: SegmentConfig | None =
     ``fw``, ``bw`` (and optionally ``fw_ok``, ``bw_ok``) at the frames' size; ``steps``: the
     optional steps to run (all of :data:`STEPS` unless ablating). Frames larger than ``WORK_SHORT``
     on the short side are segmented at that size and the masks upsampled."""
-    from layercam.segment.camera import border_homographies
-    from layercam.segment.evidence import motion_evidence
-    from layercam.segment.moving import check_flows, flow_checks
-    from layercam.segment.verdict import verdict
+    from layercam.vision.segment.camera import border_homographies
+    from layercam.vision.segment.evidence import motion_evidence
+    from layercam.vision.segment.moving import check_flows, flow_checks
+    from layercam.vision.segment.verdict import verdict
 
     import cv2
 
@@ -91,16 +91,16 @@ def find_foreground(frames: np.ndarray, flows: dict, cfg: SegmentConfig | None =
     masks, info = motion_masks(fw, bw, fo, bo, cfg, frames=frames)
     evidence = info.pop("evidence")
     if "grabcut" in steps:
-        from layercam.segment.edges import grabcut_refine
+        from layercam.vision.segment.edges import grabcut_refine
 
         masks = np.stack([grabcut_refine(frames[t], masks[t]) for t in range(T)]).astype(np.float32)
     if "background" in steps:
-        from layercam.segment.background import background_refine
-        from layercam.segment.clean import fill_still_frames
+        from layercam.vision.segment.background import background_refine
+        from layercam.vision.segment.clean import fill_still_frames
 
         masks, rel = background_refine(frames, masks, border_homographies(fw))
         if "colour" in steps:
-            from layercam.segment.colour import colour_cut
+            from layercam.vision.segment.colour import colour_cut
 
             masks = colour_cut(frames, fill_still_frames(masks, fw, bw)[0], rel)  # frames the check emptied start again from their neighbours'
     masks = np.asarray(masks, np.float32)
@@ -119,7 +119,7 @@ def foreground_bootstrap(frames: np.ndarray, flows: dict | None, masks: np.ndarr
     ``masks`` given by the user win; otherwise, with flow (``flows`` holds ``fw``, ``bw``,
     ``fw_ok``, ``bw_ok`` at the frames' size, as :func:`layercam.vision.scale.at_frame_size` gives them),
     :func:`find_foreground`'s masks (``info["verdict"]`` says whether they hold one object), then,
-    with ``cfg.detector``, a local Mask R-CNN's instances that lie in them (:mod:`layercam.detect`);
+    with ``cfg.detector``, a local Mask R-CNN's instances that lie in them (:mod:`layercam.vision.segment.detect`);
     with neither (one frame), no masks and the identity mapping.
     """
     cfg = cfg or SegmentConfig()
@@ -129,7 +129,7 @@ def foreground_bootstrap(frames: np.ndarray, flows: dict | None, masks: np.ndarr
     if masks is None and flows is not None and T > 1:
         masks, info = find_foreground(frames, flows, cfg)
         if cfg.detector:  # a local Mask R-CNN's instances where they lie in the motion masks
-            from layercam.detect import detect_instances, pick_instances
+            from layercam.vision.segment.detect import detect_instances, pick_instances
 
             found = detect_instances(frames, cfg.detector, cfg.detector_score, cfg.detector_size, progress)
             masks, picked = pick_instances(found, masks, cfg.detector_overlap)

@@ -2,7 +2,7 @@
 
 Each pixel of frame t is followed along the chained flow to frames t +- 1, 2, 4, ... up to
 ``reach`` (:func:`layercam.vision.motion.chained_displacements`); each such pair's displacements are set
-against the camera's motion read from the border (:func:`layercam.segment.camera.pair_residuals`).
+against the camera's motion read from the border (:func:`layercam.vision.segment.camera.pair_residuals`).
 A pixel moves in a pair when its residual exceeds the pair's own residual level by ``k_sigma``
 robust standard deviations (median + k_sigma * 1.4826 MAD: the pair's measured noise), and
 by never less than ``MIN_PX`` (the flow's precision; times sqrt(k) over k frames). Longer pairs see a slow
@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from layercam.segment.camera import pair_residuals
+from layercam.vision.segment.camera import pair_residuals
 
 MIN_PX = 0.5  # the flow's precision on real footage: a residual under this (times sqrt(k) over k frames) is never motion
 

@@ -44,6 +44,7 @@ from typing import Any, Literal
 from layercam.errors import LayercamError
 
 AUTO = "auto"
+INT_MAX = 2**31 - 1  # every integer setting fits a C int (OpenCV, torch's sizes and seeds): a larger one is refused
 
 
 def setting(default: Any, lo: float | None = None, hi: float | None = None, *, above: float | None = None, below: float | None = None, check=None) -> Any:
@@ -436,6 +437,8 @@ def check_value(key: str, value: Any, hint, meta: dict | None = None) -> Any:
         raise LayercamError(f"{key}: expected {_describe(hint)}, got {value!r}")
     if isinstance(v, float) and not math.isfinite(v):
         raise LayercamError(f"{key}: must be a finite number, got {value!r}")
+    if isinstance(v, int) and not isinstance(v, bool) and abs(v) > INT_MAX:
+        raise LayercamError(f"{key}: must be an integer of at most {INT_MAX}, got {value!r}")
     if isinstance(v, (int, float)) and not isinstance(v, bool):
         lo, hi, above, below = meta.get("lo"), meta.get("hi"), meta.get("above"), meta.get("below")
         if lo is not None and v < lo:
@@ -515,7 +518,14 @@ def preset_names() -> list[str]:
 def _read_preset(name: str) -> dict:
     path = Path(name)
     if path.suffix == ".toml" and path.exists():
-        text = path.read_text()
+        if not path.is_file():
+            raise LayercamError(f"preset {name}: not a file (a preset is a name or a .toml file)")
+        try:
+            text = path.read_text(encoding="utf-8")
+        except UnicodeDecodeError:
+            raise LayercamError(f"preset {name}: not a text file (a preset is TOML)") from None
+        except OSError as e:
+            raise LayercamError(f"preset {name}: cannot read it ({e.strerror or e})") from None
     else:
         res = resources.files("layercam.configs").joinpath(f"{name}.toml")
         if not res.is_file():

@@ -103,7 +103,7 @@ CORPUS = [
     ("seed-huge", ["hdr-video", "{video}", "--set", "train.seed=1e30", "--out", "{fresh}"], "train.seed"),
     ("exposure-time-huge", ["hdr-video", "{video}", "--exposures", "{times_huge}", "--out", "{fresh}"], "1e400/1"),
     ("exposure-time-tiny", ["hdr-video", "{video}", "--exposures", "{times_tiny}", "--out", "{fresh}"], "1/1e400"),
-    ("exposure-cycle-huge", ["hdr-video", "{video}", "--exposures", "0,1e300", "--out", "{fresh}"], "stops"),
+    ("exposure-cycle-huge", ["hdr-video", "{video}", "--exposures", "0,1e300", "--out", "{fresh}"], "1e300"),
     ("preset-binary", ["hdr-video", "{video}", "--preset", "{binary_toml}", "--out", "{fresh}"], "preset"),
     ("preset-folder", ["hdr-video", "{video}", "--preset", "{folder_toml}", "--out", "{fresh}"], "preset"),
     # demo

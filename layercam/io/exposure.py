@@ -60,7 +60,7 @@ class Exposures:
             if self.phase.shape != self.log2_dt.shape:
                 raise ValueError("phase and log2_dt must have the same length")
         if self.log2_dt.size and not np.isfinite(self.log2_dt).all():
-            raise LayercamError(f"exposures ({self.spec}): an exposure is not a finite number")
+            raise LayercamError(f"exposures ({self.spec}): an exposure is beyond the range of numbers (check the times or EVs given)")
         if self.log2_dt.size and float(np.ptp(self.log2_dt)) > MAX_SPAN_EV:
             raise LayercamError(f"exposures ({self.spec}) span {float(np.ptp(self.log2_dt)):.3g} stops; at most {MAX_SPAN_EV:g} are supported (check the times or EVs given)")
 

@@ -247,13 +247,14 @@ def object_motion(fw, masks, fw_ok=None, min_points: int = 12, seed: int = 0) ->
     pair's motion is the centroid shift instead."""
     import cv2
 
-    f = np.asarray(fw, dtype=np.float32)
-    n, h, w = f.shape[:3]
+    n, h, w = np.shape(fw)[:3]  # flows and masks read a pair at a time (they may be on disk)
     out = np.repeat(np.eye(3)[None], n, 0)
     cv2.setRNGSeed(seed)
     step = max(1, int(np.sqrt(h * w / 4000)))
+    nxt = np.asarray(masks[0]) if n else None
     for i in range(n):
-        sel = masks[i] > 0.5
+        cur, nxt = nxt, np.asarray(masks[i + 1])
+        sel = cur > 0.5
         if fw_ok is not None:
             ok = sel & np.asarray(fw_ok[i], bool)
             sel = ok if ok.sum() >= min_points else sel
@@ -261,7 +262,7 @@ def object_motion(fw, masks, fw_ok=None, min_points: int = 12, seed: int = 0) ->
         ys, xs = ys * step, xs * step
         if len(xs) < 3:
             continue
-        d = f[i][ys, xs]
+        d = np.asarray(fw[i], np.float32)[ys, xs]
         a = None
         if len(xs) >= min_points:
             src = np.stack([xs, ys], -1).astype(np.float32)
@@ -270,16 +271,18 @@ def object_motion(fw, masks, fw_ok=None, min_points: int = 12, seed: int = 0) ->
             out[i][:2, 2] = np.median(d, axis=0)
         else:
             out[i][:2] = a
-        nxt = masks[i + 1] > 0.5
-        if masks[i].sum() >= min_points and nxt.sum() >= min_points:
-            y0, x0 = np.nonzero(masks[i] > 0.5)
-            y1, x1 = np.nonzero(nxt)
+        if cur.sum() >= min_points and (nxt > 0.5).sum() >= min_points:
+            y0, x0 = np.nonzero(cur > 0.5)
+            y1, x1 = np.nonzero(nxt > 0.5)
             c0, c1 = np.array([x0.mean(), y0.mean()]), np.array([x1.mean(), y1.mean()])
             pred = out[i][:2, :2] @ c0 + out[i][:2, 2]
             if np.linalg.norm(pred - c1) > max(1.5, 0.15 * np.sqrt(len(x0))):
                 out[i] = np.eye(3)
                 out[i][:2, 2] = c1 - c0
     return out
+
+
+MAX_MAPPED_POINTS = 1 << 23  # foreground_mappings: mask pixels mapped into the atlas for its extent (every k-th beyond)
 
 
 def foreground_mappings(h: int, w: int, masks: np.ndarray, fw=None, fw_ok=None, margin: float = 0.6, how: str = "object") -> tuple[np.ndarray, str]:
@@ -293,15 +296,20 @@ def foreground_mappings(h: int, w: int, masks: np.ndarray, fw=None, fw_ok=None, 
     from layercam.geometry import atlas_mappings, chain_homographies, fit_into_atlas
 
     T = masks.shape[0]
-    if how == "identity" or fw is None or T < 2 or masks.sum() == 0:
+    if how == "identity" or fw is None or T < 2:
+        return atlas_mappings(h, w, np.stack([np.eye(3)] * T)), "identity"
+    area = np.array([np.count_nonzero(np.asarray(masks[t]) > 0.5) for t in range(T)])  # a frame at a time (masks may be on disk)
+    if area.sum() == 0:
         return atlas_mappings(h, w, np.stack([np.eye(3)] * T)), "identity"
     if how != "object":
         raise LayercamError(f"unknown foreground bootstrap {how!r} (object | identity)")
-    ref = int(np.argmax(masks.reshape(T, -1).sum(1)))
+    ref = int(np.argmax(area))
     pix = chain_homographies(object_motion(fw, masks, fw_ok), ref)
     pts = []
+    every = max(1, -(-int(area.sum()) // MAX_MAPPED_POINTS))  # the percentiles from at most this many points
     for t in range(T):
-        ys, xs = np.nonzero(masks[t] > 0.5)
+        ys, xs = np.nonzero(np.asarray(masks[t]) > 0.5)
+        ys, xs = ys[::every], xs[::every]
         if len(xs) == 0:
             continue
         p = pix[t] @ np.stack([xs + 0.5, ys + 0.5, np.ones_like(xs, dtype=np.float64)])
@@ -679,19 +687,24 @@ def foreground_bootstrap(frames: np.ndarray, flows: dict | None, masks: np.ndarr
     return {"h0": h0, "masks": masks, "computed": computed, "how": desc, "info": info}
 
 
-def sure_pixels(masks: np.ndarray, band: float) -> np.ndarray:
+def sure_pixels(masks: np.ndarray, band: float, out=None) -> np.ndarray:
     """Where masks ``(T, H, W)`` are trusted: pixels farther than ``band`` (a share of the short
     side) from the other class, so a band around each mask's edge is left out. A frame without any
-    mask pixel is sure everywhere."""
+    mask pixel is sure everywhere. ``out``: a ``(T, H, W)`` bool array to fill (a
+    :class:`~layercam.io.frames.DiskArray` for a long clip), returned."""
     import cv2
 
-    m = np.asarray(masks) > 0.5
-    px = band * min(m.shape[1:])
-    out = np.ones(m.shape, dtype=bool)
+    px = band * min(masks.shape[1:])
+    if out is None:
+        out = np.ones(masks.shape, dtype=bool)
     if px <= 0:
+        out[0 : len(out)] = True
         return out
-    for t, f in enumerate(m):
-        if f.any() and not f.all():
+    for t in range(len(masks)):  # a frame at a time (masks and out may be on disk)
+        f = np.asarray(masks[t]) > 0.5
+        if not f.any() or f.all():
+            out[t] = True
+        else:
             u = f.astype(np.uint8)
             d_in = cv2.distanceTransform(u, cv2.DIST_L2, 3)       # inside: distance to the nearest outside pixel
             d_out = cv2.distanceTransform(1 - u, cv2.DIST_L2, 3)  # outside: to the nearest mask pixel
@@ -700,9 +713,17 @@ def sure_pixels(masks: np.ndarray, band: float) -> np.ndarray:
 
 
 def load_masks(folder) -> np.ndarray | None:
-    """The masks :func:`save_masks` wrote in ``folder``, ``(T, H, W)`` float32 in {0, 1}; None without."""
+    """The masks :func:`save_masks` wrote in ``folder``, ``(T, H, W)`` float32 in {0, 1} (a long
+    clip's, :func:`foreground_bootstrap_long`: a uint8 :class:`~layercam.io.frames.DiskArray` of
+    0 and 1, read as needed); None without."""
+    import json
     from pathlib import Path
 
+    from layercam.io.frames import DiskArray
+
+    raw = Path(folder) / "masks.raw"
+    if raw.exists():
+        return DiskArray(raw, np.uint8, json.loads((Path(folder) / "masks.json").read_text())["shape"])
     path = Path(folder) / "masks.npz"
     if not path.exists():
         return None
@@ -711,13 +732,97 @@ def load_masks(folder) -> np.ndarray | None:
 
 
 def save_masks(folder, masks: np.ndarray) -> None:
-    """``masks.npz`` (what training reads) and ``masks/frame_00000.png`` (to look at) in ``folder``."""
+    """``masks.npz`` (what training reads; a long clip's are in ``masks.raw`` already, written by
+    :func:`foreground_bootstrap_long`) and ``masks/frame_00000.png`` (to look at) in ``folder``."""
     from pathlib import Path
 
     from layercam.io import write_png
+    from layercam.io.frames import DiskArray
 
     folder = Path(folder)
-    np.savez_compressed(folder / "masks.npz", masks=(np.asarray(masks) > 0.5))
+    if not isinstance(masks, DiskArray):
+        np.savez_compressed(folder / "masks.npz", masks=(np.asarray(masks) > 0.5))
     (folder / "masks").mkdir(exist_ok=True)
-    for t, m in enumerate(masks):
-        write_png(folder / "masks" / f"frame_{t:05d}.png", (m > 0.5).astype(np.float32))
+    for t in range(len(masks)):
+        write_png(folder / "masks" / f"frame_{t:05d}.png", (np.asarray(masks[t]) > 0.5).astype(np.float32))
+
+
+def mask_coverage(masks) -> np.ndarray:
+    """Per frame ``(T,)``: the share of the frame the mask covers (read a frame at a time)."""
+    return np.array([float(np.mean(np.asarray(masks[t]) > 0.5)) for t in range(len(masks))])
+
+
+SEG_FRAMES = 48   # a clip longer than this is segmented in windows of this many frames (foreground_bootstrap_long):
+SEG_MARGIN = 8    # memory and the colour model of a 48-frame clip, whatever its length; windows overlap by this
+                  # many frames on each side (the default segment.reach: what a frame's motion evidence sees)
+
+
+def segment_windows(T: int) -> list[tuple[int, int, int, int]]:
+    """``(a0, b0, a, b)`` per window: frames ``a0:b0`` are segmented together, and ``a:b`` (its
+    middle, ``SEG_FRAMES - 2 SEG_MARGIN`` frames) keep their masks; the cores tile ``0:T``.
+
+    >>> segment_windows(40)
+    [(0, 40, 0, 40)]
+    >>> segment_windows(100)[:2], segment_windows(100)[-1]
+    ([(0, 40, 0, 32), (24, 72, 32, 64)], (88, 100, 96, 100))
+    """
+    if T <= SEG_FRAMES:
+        return [(0, T, 0, T)]
+    core = SEG_FRAMES - 2 * SEG_MARGIN
+    return [(max(a - SEG_MARGIN, 0), min(a + core + SEG_MARGIN, T), a, min(a + core, T)) for a in range(0, T, core)]
+
+
+def windowed(T: int, hw: tuple[int, int], work: tuple[int, int]) -> bool:
+    """Whether a two-layer clip of ``T`` frames of ``hw`` with flow on the grid ``work`` is
+    segmented by :func:`foreground_bootstrap_long` (more than ``SEG_FRAMES`` frames, or frames
+    larger than the flow's working grid) rather than whole, at the frames' size."""
+    return T > SEG_FRAMES or tuple(work) != tuple(hw)
+
+
+def foreground_bootstrap_long(frames, flows: dict, out, masks=None, cfg: SegmentConfig | None = None, progress: bool = False) -> dict:
+    """:func:`foreground_bootstrap` for a long clip or one larger than the flow's working grid
+    (:func:`windowed`), with the memory of a ``SEG_FRAMES``-frame clip on that grid: each window of
+    :func:`segment_windows` is segmented on the flow's grid (its frames scaled to it, its flows as
+    the flow stage keeps them), each frame's mask taken from the window it is the middle of, scaled
+    up to the frames' size (bilinear, at 0.5) and written to ``out/masks.raw`` (uint8,
+    :func:`load_masks` reads it); then the foreground mapping from all of them and the flows, read a
+    frame or a pair at a time. ``flows`` as the flow stage keeps them (possibly at a working size
+    and on disk); ``masks`` given by the user are not segmented again. Returns what
+    :func:`foreground_bootstrap` does, ``masks`` the ``DiskArray``."""
+    import json
+    from pathlib import Path
+
+    import cv2
+
+    from layercam.flow import AtFrameSize
+    from layercam.io.frames import DiskArray
+    from layercam.progress import bar
+
+    cfg = cfg or SegmentConfig()
+    T, H, W = frames.shape[:3]
+    h, w = flows["fw"].shape[1:3]
+    info: dict = {}
+    computed = masks is None
+    if computed:
+        out = Path(out)
+        masks = DiskArray.create(out / "masks.raw", np.uint8, (T, H, W))
+        (out / "masks.json").write_text(json.dumps({"shape": [T, H, W]}))
+        wins = segment_windows(T)
+        models = []
+        small = lambda f: f if f.shape[:2] == (h, w) else cv2.resize(f, (w, h), interpolation=cv2.INTER_AREA)  # noqa: E731
+        for a0, b0, a, b in bar(wins, desc="bootstrap (windows)", unit="window", enabled=progress and len(wins) > 1):
+            fl = {k: np.asarray(flows[k][a0 : b0 - 1]) for k in ("fw", "bw", "fw_ok", "bw_ok", "vis") if k in flows}
+            fl["homs"] = np.asarray(flows["homs"])[a0 : b0 - 1]
+            part = foreground_bootstrap(np.stack([small(frames[t]) for t in range(a0, b0)]), fl, None, cfg)  # a full-size frame at a time
+            for t in range(a, b):
+                m = np.asarray(part["masks"][t - a0], np.float32)
+                masks[t] = (m if (h, w) == (H, W) else cv2.resize(m, (W, H), interpolation=cv2.INTER_LINEAR)) > 0.5
+            models.append(part["info"].get("model"))
+            del part, fl
+        masks.flush()
+        cover = mask_coverage(masks)
+        info = {"windows": len(wins), "window_frames": SEG_FRAMES, "window_margin": SEG_MARGIN, "grid": [h, w], "models": models,
+                "coverage_mean": float(cover.mean()), "coverage_min": float(cover.min()), "coverage_max": float(cover.max()), "empty_frames": int((cover == 0).sum())}
+    fw, fw_ok = AtFrameSize(flows["fw"], (H, W)), AtFrameSize(flows["fw_ok"], (H, W))
+    h0, desc = foreground_mappings(H, W, masks, fw, fw_ok, cfg.margin, how=cfg.foreground)
+    return {"h0": h0, "masks": masks, "computed": computed, "how": desc, "info": info}

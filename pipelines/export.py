@@ -81,6 +81,7 @@ HALF_MAX = 65504.0  # the largest half float
 # frame): the export then renders each frame once, writes it and lets it go, so that its memory
 # does not grow with the clip.
 FIRST_PASS_PIXELS = 65536
+FIRST_PASS_TOTAL = 64 * FIRST_PASS_PIXELS  # ... and at most this many over the clip (a longer clip: fewer a frame)
 
 
 class HdrSet:
@@ -128,7 +129,7 @@ def first_pass(ctx: Context, model) -> tuple[dict, float]:
     from layercam.colour import REC709, luma
 
     H, W = ctx.clip.H, ctx.clip.W
-    s = min(1.0, (FIRST_PASS_PIXELS / (H * W)) ** 0.5)
+    s = min(1.0, (min(FIRST_PASS_PIXELS, FIRST_PASS_TOTAL // ctx.clip.T) / (H * W)) ** 0.5)
     hw = (max(1, round(H * s)), max(1, round(W * s)))
     lum, peak = [], 0.0
     for t in _frames(ctx, "export (first pass)"):
@@ -174,6 +175,10 @@ def faithful_hdr(ctx: Context, model, ts) -> Iterator[tuple[int, np.ndarray, dic
     if denoise and dmode == "auto":
         ctx.say("[export] the fused view filtered against the reference frame's own noise (export.denoise=off keeps it as fitted)")
 
+    from layercam.faithful import stack_extremes
+
+    extremes = stack_extremes(frames, lv) if static else None  # once, a frame at a time (it was the whole clip, per frame)
+
     def corr(t: int) -> dict:
         if t not in kept:
             kept[t] = correction(model, frames[t], t, lv, ctx.cfg.export.chunk)
@@ -190,7 +195,7 @@ def faithful_hdr(ctx: Context, model, ts) -> Iterator[tuple[int, np.ndarray, dic
                 if merging:
                     still = np.zeros_like(fl) if static else fl  # a static camera: the same scene point, whatever the flow says
                     merge.append((c["model_log2_r"] + c["weight"] * c["delta"], merge_weight(c["exposed"], c["log2_dts"][n], c["log2_dts"]), still))
-        res = faithful_log2(model, frames[t], t, lv, frames if static else None, corr=corr(t), fill=neighbour_fill(neighbours), merge=merge, clipped=ctx.cfg.export.clipped_everywhere, denoise=denoise)
+        res = faithful_log2(model, frames[t], t, lv, extremes if static else None, corr=corr(t), fill=neighbour_fill(neighbours), merge=merge, clipped=ctx.cfg.export.clipped_everywhere, denoise=denoise)
         for k in [k for k in kept if k < t]:
             del kept[k]
         yield t, np.exp2(res["log2_r"]).astype(np.float32), res["info"]

@@ -13,42 +13,28 @@ from layercam.pipelines.runner import Context, Stage
 
 class FlowStage(Stage):
     """Optical flow between neighbours, forward and backward, with consistency masks and the
-    per-pair global homography fitted to each forward flow (RANSAC)."""
+    per-pair global homography fitted to each forward flow (RANSAC). Computed a pair at a time and
+    kept on disk (:mod:`layercam.flow_store`): memory is that of a pair, whatever the clip's length."""
 
     name = "flow"
-    version = 3  # 2: homographies fitted where both frames see well (visibility.pair_visible); "vis" saved; 3: a working size (flow.short_side)
+    version = 4  # 2: homographies fitted where both frames see well (visibility.pair_visible); "vis" saved; 3: a working size (flow.short_side); 4: on disk, a file per array (flow_store)
 
     def key_material(self, ctx):
         return ctx.cfg.section_dict("flow")
 
     def run(self, ctx, out):
-        from layercam import flow
+        from layercam import flow_store
 
-        if ctx.clip.T < 2:
-            np.savez(out / "flow.npz", fw=np.zeros((0, ctx.clip.H, ctx.clip.W, 2), np.float16))
-            ctx.flow = None
-            return {"pairs": 0}
-        hw = (ctx.clip.H, ctx.clip.W)
-        work = flow.working_size(hw, ctx.cfg.flow.short_side)
-        frames = ctx.clip.frames if work == hw else flow.resize_frames(ctx.clip.frames, work)
-        method = ctx.cfg.flow.method
-        if method == "raft":
-            fw, bw = flow.raft_flow(frames, ctx.cfg.flow.raft_weights)
-        else:
-            fw, bw = flow.compute_flow(frames, method=method, progress=ctx.progress)
-        arrays = flow.pair_arrays(frames, fw, bw)  # homographies fitted only where both frames see well
-        fw_ok = arrays["fw_ok"]
-        # as cached: every array on the working grid (flows in its pixels); flow.at_frame_size scales them up
-        ctx.flow = {"fw": fw.astype(np.float16), "bw": bw.astype(np.float16), **arrays}
-        np.savez(out / "flow.npz", **ctx.flow)
-        mag = np.sqrt((fw.astype(np.float32) ** 2).sum(-1)) * (hw[1] / work[1])
-        return {"pairs": int(len(fw)), "working_size": list(work), "mean_flow_px": float(mag.mean()), "consistent_fraction": float(fw_ok.mean())}
+        summary = flow_store.compute(ctx.clip.frames, out, ctx.cfg.flow, progress=ctx.progress)
+        ctx.flow = flow_store.load(out)
+        return summary
 
     def load(self, ctx, out, summary):
-        """The cached arrays, read once into ``ctx.flow`` (None for a single frame)."""
+        """The cached arrays, opened once into ``ctx.flow`` (None for a single frame)."""
+        from layercam import flow_store
+
         if ctx.flow is None and summary.get("pairs"):
-            with np.load(out / "flow.npz") as z:
-                ctx.flow = {k: z[k] for k in z.files}
+            ctx.flow = flow_store.load(out)
         return summary
 
 
@@ -62,7 +48,7 @@ class BootstrapStage(Stage):
 
     name = "bootstrap"
     deps = ("flow",)
-    version = 3  # 3: reports "static" (identity because nothing moved)
+    version = 3  # 3: reports "static" (identity because nothing moved); clips over segment.SEG_FRAMES are segmented in windows (those were not run before)
 
     def key_material(self, ctx):
         m = ctx.cfg.model
@@ -77,6 +63,8 @@ class BootstrapStage(Stage):
             seg, default = ctx.cfg.section_dict("segment")["segment"], dataclasses.asdict(segment.SegmentConfig())
             changed = {k: v for k, v in seg.items() if k not in ("refine", "refine_threshold") and v != default[k]}
             d["foreground"] = {"segment": segment.SEGMENT_VERSION, **({"settings": changed} if changed else {})}
+            if ctx.flow is not None and segment.windowed(ctx.clip.T, (ctx.clip.H, ctx.clip.W), ctx.flow["fw"].shape[1:3]):
+                d["foreground"]["windows"] = [segment.SEG_FRAMES, segment.SEG_MARGIN]  # long or large clips (clips that were not are keyed as before)
         return d
 
     def run(self, ctx, out):
@@ -85,9 +73,12 @@ class BootstrapStage(Stage):
 
         from layercam.flow import at_frame_size
 
+        from layercam import segment
+
         clip = ctx.clip
         T, H, W = clip.T, clip.H, clip.W
-        fl = at_frame_size(ctx.flow, (H, W), None if ctx.cfg.model.layers > 1 else ("homs",))  # the motion segmentation reads the flows too
+        long = ctx.cfg.model.layers > 1 and ctx.flow is not None and segment.windowed(T, (H, W), ctx.flow["fw"].shape[1:3])  # on the flow's grid, in windows
+        fl = at_frame_size(ctx.flow, (H, W), None if ctx.cfg.model.layers > 1 and not long else ("homs",))  # the motion segmentation reads the flows too
         ref = middle_frame(T)
         static = False
         if ctx.cfg.scene.bootstrap == "flow" and fl is not None:
@@ -106,13 +97,17 @@ class BootstrapStage(Stage):
         if ctx.cfg.segment.detector and (ctx.cfg.model.layers == 1 or ctx.masks is not None):
             ctx.say(f"[bootstrap] segment.detector unused: {'one layer, no foreground' if ctx.cfg.model.layers == 1 else '--masks given'}")
         if ctx.cfg.model.layers > 1:  # foreground: user masks, else motion segmentation of the flow
-            from layercam import segment
-
-            fg = segment.foreground_bootstrap(clip.frames, fl, ctx.masks, ctx.cfg.segment, progress=ctx.progress)
+            if long:
+                fg = segment.foreground_bootstrap_long(clip.frames, ctx.flow, out, ctx.masks, ctx.cfg.segment, progress=ctx.progress)
+                if fg["computed"]:
+                    g = fg["info"]["grid"]
+                    ctx.say(f"[bootstrap] motion segmentation on the flow's {g[1]}x{g[0]} grid, in {fg['info']['windows']} window(s) of at most {segment.SEG_FRAMES} frames overlapping by {segment.SEG_MARGIN}")
+            else:
+                fg = segment.foreground_bootstrap(clip.frames, fl, ctx.masks, ctx.cfg.segment, progress=ctx.progress)
             h0.append(fg["h0"])
             if fg["computed"]:
                 segment.save_masks(out, fg["masks"])
-                ctx.say(f"[bootstrap] motion masks (no --masks given): mean coverage {fg['masks'].mean():.3f}, saved in {out / 'masks'}")
+                ctx.say(f"[bootstrap] motion masks (no --masks given): mean coverage {segment.mask_coverage(fg['masks']).mean():.3f}, saved in {out / 'masks'}")
                 if "detector_frames" in fg["info"]:
                     ctx.say(f"[bootstrap] the detector's instances replaced the motion masks in {fg['info']['detector_frames']} of {T} frames")
         h0 = np.stack(h0)
@@ -155,6 +150,11 @@ class TrainStage(Stage):
                 d["loss"].pop(k, None)  # off (the default) or one layer: runs trained before the anchor keep their key
         if d["loss"].get("robust") in (0.0, "auto"):
             d["loss"].pop("robust")  # MSE, as before the setting: those runs keep their key
+        from layercam.scene.fields import ALPHA_GRID_CELLS, alpha_grid_capped
+
+        clip = getattr(ctx, "clip", None)
+        if clip is not None and ctx.cfg.model.layers != 1 and alpha_grid_capped(ctx.cfg.scene, clip.T, (clip.H, clip.W)):
+            d["alpha_grid_cells"] = ALPHA_GRID_CELLS  # a long clip's frames share the alpha grid's slices (runs where it has no effect keep their key)
         if "refine" in ctx.keys:  # only after the first fit: trained on the refine stage's masks
             d["refined_masks"] = ctx.keys["refine"]
             d["refined_balance"] = "all"  # class-balanced all through, as motion masks (runs before it balanced them during the bootstrap steps only)
@@ -209,7 +209,7 @@ class TrainStage(Stage):
         sampler = PixelSampler(
             ctx.clip.frames, *(fl[k] for k in ("fw", "bw", "fw_ok", "bw_ok")) if fl else (None,) * 4,
             masks=masks, device=dev, seed=distributed.rank_seed(cfg.train.seed),
-            sure=sure_pixels(masks, cfg.loss.anchor_band) if model.loss_weights.alpha_anchor > 0 else None,  # the model decides (motion masks, two layers)
+            sure=sure_pixels(masks, cfg.loss.anchor_band, _sure_store(masks)) if model.loss_weights.alpha_anchor > 0 else None,  # the model decides (motion masks, two layers)
         )
         if self.final:
             callbacks += [make(model) for make in ctx.train_callbacks]  # e.g. the benchmark's quality probe
@@ -318,13 +318,21 @@ class RefineStage(Stage):
         segment.save_masks(out, masks)
         boot = ctx.results["bootstrap"].get("masks")
         agree = float(np.mean([iou(a, b > 0.5) for a, b in zip(masks, boot)]))  # refine_wanted: the bootstrap made masks
-        ctx.say(f"[refine] masks from the first fit's background residual: mean coverage {masks.mean():.3f} (motion masks {boot.mean():.3f}, IoU with them {agree:.3f}), saved in {out / 'masks'}")
+        ctx.say(f"[refine] masks from the first fit's background residual: mean coverage {masks.mean():.3f} (motion masks {segment.mask_coverage(boot).mean():.3f}, IoU with them {agree:.3f}), saved in {out / 'masks'}")
         return {"coverage": float(masks.mean()), "iou_with_motion_masks": agree}
 
     def load(self, ctx, out, summary):
         from layercam.segment import load_masks
 
         return {**summary, "masks": load_masks(out)}
+
+
+def _sure_store(masks):
+    """Where :func:`layercam.segment.sure_pixels` writes for ``masks``: beside them on disk (an
+    unlinked temporary file) when they are kept on disk, else in memory (None)."""
+    from layercam.io.frames import DiskArray, TempArray
+
+    return TempArray(np.bool_, masks.shape, masks.path.parent) if isinstance(masks, DiskArray) else None
 
 
 def refine_wanted(ctx) -> bool:

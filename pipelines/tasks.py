@@ -41,6 +41,7 @@ def run_task(task: str, clip, exposures, cfg, run_dir: Path, masks=None, progres
     ctx.say(f"layercam {task}: {clip.T} frames {clip.W}x{clip.H} from {clip.source}; preset {cfg.preset}")
     for w in list(getattr(exposures, "warnings", [])) + list(clip.meta.get("notes", [])):
         ctx.warn(w)
+    ctx.estimate["before"] = _estimate(ctx, cfg, "")  # refused here, before any stage, when it cannot fit
     stages = stages_for(task) + list(extra_stages or [])
     with run_lock(ctx.run_dir, ctx.say, enabled=distributed.is_main()):  # one writer per run folder
         _run(ctx, stages, t0)
@@ -53,10 +54,14 @@ def _run(ctx: Context, stages: list, t0: float) -> None:
     try:
         # flow first: the analysis reads it to decide what the model needs
         run_stages(ctx, stages[:1])
+        from layercam.pipelines import runner
+
+        runner.CURRENT[0] = "analysis"
         ctx.measures = analyse.measure(clip, exposures, ctx.flow)
-        ctx.measures["masks_given"] = ctx.masks is not None and bool(np.asarray(ctx.masks).any())
+        ctx.measures["masks_given"] = ctx.masks is not None and any(np.asarray(m).any() for m in ctx.masks)
         ctx.cfg, ctx.reasons = analyse.decide(cfg, clip, exposures, task, ctx.measures)
         ctx.say("model chosen:\n" + analyse.format_table(ctx.cfg, ctx.reasons))
+        ctx.estimate["after_analysis"] = _estimate(ctx, ctx.cfg, " (the model chosen)")
         run_stages(ctx, stages[1:2])  # the bootstrap: motion masks for two layers
         if refine_wanted(ctx):  # segment.refine: a first fit, and masks from its background residual
             run_stages(ctx, [PrefitStage(), RefineStage()])
@@ -73,6 +78,20 @@ def _run(ctx: Context, stages: list, t0: float) -> None:
         sources, keys = output_sources(ctx, stages)
         publish.publish(ctx.run_dir, sources, report, publish.set_key(keys), ctx.say)
         (ctx.run_dir / "report_failed.json").unlink(missing_ok=True)
+
+
+def _estimate(ctx: Context, cfg, what: str) -> dict:
+    """:func:`layercam.estimate.estimate` of this run with ``cfg``, said in one line and checked
+    against the memory available and the disk free (less what the run folder's cache holds)."""
+    from layercam import estimate as cost
+    from layercam.pipelines import runner
+
+    runner.CURRENT[0] = "estimate"
+    clip = ctx.clip
+    est = cost.estimate({"frames": clip.T, "width": clip.W, "height": clip.H, "bit_depth": clip.bit_depth}, cfg, ctx.task)
+    ctx.say(cost.summary_line(est) + what)
+    cost.check(est, ctx.run_dir, cost.disk_used(ctx.run_dir / "cache"))
+    return {k: est[k] for k in ("memory", "disk", "stages", "disk_parts", "assumed")} | {"params": int(sum(est["params"].values()))}
 
 
 FADED_SHARE = 0.25  # the foreground's alpha over less than this share of its masks' area: it lost the object
@@ -92,7 +111,9 @@ def faded_foreground(ctx: Context) -> str | None:
     masks, source = TrainStage.masks(ctx)
     if share is None or masks is None:
         return None
-    ref = float(np.mean(np.asarray(masks) > 0.5))
+    from layercam.segment import mask_coverage
+
+    ref = float(mask_coverage(masks).mean())  # a frame at a time (a long clip's masks are on disk)
     if ref <= 0 or share >= FADED_SHARE * ref:
         return None
     hint = "" if source == "given" else "; --set loss.mask_anchor=0.05 holds alpha to the masks where they are sure, --masks gives masks"
@@ -121,9 +142,20 @@ def write_report(ctx: Context, wall: float, name: str | None = "report.json", ex
         "baselines": ctx.results.get("evaluate", {}).get("baselines"),
         "machine": {"python": platform.python_version(), "torch": torch.__version__, "threads": torch.get_num_threads(), "cpu": platform.processor() or platform.machine()},
         "cache_keys": ctx.keys,
+        "memory": {"estimate": ctx.estimate, "peak_rss_bytes": _peak_rss()},
         "warnings": ctx.warnings,
         **(extra or {}),
     }
     if name and distributed.is_main():  # with torch.distributed, rank 0 reports
         write_json(ctx.run_dir / name, rep)
     return rep
+
+
+def _peak_rss() -> int | None:
+    """This process's peak resident memory so far (bytes; ``ru_maxrss``), None where unknown."""
+    try:
+        import resource
+
+        return int(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss) * 1024
+    except (ImportError, OSError):
+        return None

@@ -6,7 +6,7 @@ import argparse
 from pathlib import Path
 
 from layercam import distributed
-from layercam.cli import EPILOG, common_model_args, default_out, finish, input_args, load_cfg, load_masks
+from layercam.cli import EPILOG, before_stages, common_model_args, default_out, finish, input_args, load_cfg, load_masks, open_clip
 
 
 def register(sub) -> argparse.ArgumentParser:
@@ -18,7 +18,7 @@ def register(sub) -> argparse.ArgumentParser:
 
 
 def run(args) -> int:
-    from layercam.io import load_clip, parse_exposures
+    from layercam.io import parse_exposures
     from layercam.pipelines.stages import resolve_device
     from layercam.pipelines.tasks import run_task
 
@@ -27,10 +27,11 @@ def run(args) -> int:
     if distributed.launch_requested(args):
         return distributed.launch(args, device)
     with distributed.session(device):  # joins the process group under torchrun, else nothing
-        clip = load_clip(args.inputs if len(args.inputs) > 1 else args.inputs[0], max_frames=args.max_frames, stride=args.stride, resize=args.resize)
-        exposures = parse_exposures(args.exposures, clip, args.ev_step, args.force_ev_step)
-        masks = load_masks(args.masks, clip) if args.masks else None
         out = Path(args.out) if args.out else default_out(args.inputs)
+        with before_stages(out):
+            clip = open_clip(args, cfg, out, "hdr-video", args.resize, args.max_frames, args.stride)
+            exposures = parse_exposures(args.exposures, clip, args.ev_step, args.force_ev_step)
+            masks = load_masks(args.masks, clip) if args.masks else None
         ctx = run_task("hdr-video", clip, exposures, cfg, out, masks=masks, progress=not args.quiet and distributed.is_main())
         finish(ctx)
     return 0

@@ -1,5 +1,8 @@
 """A clip: the frames of one input (video file, folder of images, list of images) as
-``(T,H,W,3)`` float32 RGB in [0,1], with per-frame names, fps, bit depth and EXIF exposures.
+``(T,H,W,3)`` RGB in [0,1] (:class:`layercam.io.frames.Frames`: stored compactly, in memory or in a
+file on disk, read as float32 a frame or a window at a time), with per-frame names, fps, bit depth
+and EXIF exposures. ``load_clip`` decodes frame by frame into a file (the run's cache, or an
+unlinked temporary file), so that no stage ever holds the whole clip.
 """
 
 from __future__ import annotations
@@ -8,16 +11,20 @@ import glob
 import hashlib
 import os
 import re
+import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from layercam.errors import LayercamError
+from layercam.io.frames import DiskArray, Frames
 from layercam.io.images import IMAGE_SUFFIXES, read_exif_exposure, read_image
-from layercam.io.video import VIDEO_SUFFIXES, read_video
+from layercam.io.video import VIDEO_SUFFIXES, iter_video, probe_video
 
-__all__ = ["Clip", "load_clip", "parse_resize", "natural_key"]
+__all__ = ["Clip", "load_clip", "probe_clip", "parse_resize", "natural_key"]
+
+FRAMES_VERSION = 1  # the layout of a decoded clip in the cache (frames-<key>/frames.raw + clip.json)
 
 _EXIF_SUFFIXES = (".jpg", ".jpeg", ".tif", ".tiff")
 _GLOB_CHARS = re.compile(r"[*?\[]")
@@ -27,7 +34,12 @@ _GLOB_CHARS = re.compile(r"[*?\[]")
 class Clip:
     """Frames of one input and what is known about them.
 
-    frames: ``(T,H,W,3)`` float32 RGB in [0,1].
+    frames: ``(T,H,W,3)`` RGB in [0,1], a :class:`~layercam.io.frames.Frames`: ``frames[t]``
+        ``(H,W,3)`` and ``frames[t0:t1]`` ``(n,H,W,3)`` are float32 copies of those frames only,
+        ``for f in frames`` gives one frame at a time, ``frames.shape`` is ``(T,H,W,3)`` and
+        ``np.asarray(frames)`` is the whole clip in float32 (only for clips known to be short).
+        An ndarray given here is kept in memory as float32; ``load_clip`` stores the frames on
+        disk as uint8 (uint16 for 16-bit sources, float32 for float images).
     source: what the user passed (a path, or e.g. ``"synthetic:..."``).
     names: ``T`` per-frame stems (``"00000"`` for video frame 0, ``"IMG_2600"`` for images).
     fps: frames per second (24 when unknown, e.g. for image folders).
@@ -40,7 +52,7 @@ class Clip:
         when a run starts, e.g. a dropped alpha channel) for images.
     """
 
-    frames: np.ndarray
+    frames: Frames
     source: str
     names: list[str]
     fps: float = 24.0
@@ -49,14 +61,15 @@ class Clip:
     meta: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        f = np.asarray(self.frames)
-        if f.ndim != 4 or f.shape[3] != 3:
-            raise ValueError(f"Clip.frames must be (T,H,W,3), got shape {f.shape}")
+        if not isinstance(self.frames, Frames):
+            f = np.asarray(self.frames)
+            if f.ndim != 4 or f.shape[3] != 3:
+                raise ValueError(f"Clip.frames must be (T,H,W,3), got shape {f.shape}")
+            self.frames = Frames(f.astype(np.float32, copy=False))
+        f = self.frames
         if f.shape[0] < 1:
             raise ValueError("Clip needs at least one frame")
-        if f.dtype != np.float32:
-            f = f.astype(np.float32)
-        self.frames = f
+        self._fingerprint = self.meta.pop("_fingerprint", None) if isinstance(self.meta, dict) else None
         self.names = [str(n) for n in self.names]
         if len(self.names) != f.shape[0]:
             raise ValueError(f"Clip has {f.shape[0]} frames but {len(self.names)} names")
@@ -79,8 +92,11 @@ class Clip:
         return int(self.frames.shape[2])
 
     def fingerprint(self) -> str:
-        """SHA-1 hex of the shape and the float16-quantised frames: a cache key for this content."""
-        return fingerprint(self.frames)
+        """SHA-1 hex of the shape and the float16-quantised frames: a cache key for this content
+        (computed once: the frames do not change)."""
+        if self._fingerprint is None:
+            self._fingerprint = fingerprint(self.frames)
+        return self._fingerprint
 
     def __repr__(self) -> str:
         return (
@@ -242,11 +258,123 @@ def _unique_names(paths: list[Path]) -> list[str]:
     return names
 
 
+def _source_key(kind: str, what, stride: int, max_frames: int | None, rs) -> str:
+    """What names a decoded clip in the cache: the files (path, size, modification time), the
+    frames taken and the resize."""
+    files = [what] if kind == "video" else list(what)
+    ident = []
+    for p in files:
+        st = Path(p).stat()
+        ident.append([str(Path(p).resolve()), st.st_size, st.st_mtime_ns])
+    blob = repr((FRAMES_VERSION, kind, ident, stride, max_frames, rs)).encode()
+    return hashlib.sha1(blob).hexdigest()[:12]
+
+
+def probe_clip(
+    inputs: str | os.PathLike | list,
+    max_frames: int | None = None,
+    stride: int = 1,
+    resize: str | float | None = None,
+) -> dict:
+    """What :func:`load_clip` would give, without decoding the clip: ``{"kind", "frames", "width",
+    "height", "source_size", "bit_depth"}``. ``frames`` is exact for images and, for a video, the
+    count its container states (duration times rate; None when it states none); ``bit_depth`` is
+    the first image's (8 for a video). Reads a video's header and the first image only, so that a
+    run can say what it will cost (:mod:`layercam.estimate`) before anything is decoded. Bad input
+    raises ``LayercamError`` as ``load_clip`` does."""
+    _check_count("stride", stride, 1)
+    _check_count("max_frames", max_frames, 1)
+    rs = parse_resize(resize)
+    kind, what = _expand_inputs(inputs)
+    if kind == "video":
+        info = probe_video(what)
+        w, h = info["size"]
+        n = info["frames"]
+        n = None if n is None else -(-n // stride)
+        depth = 8
+    else:
+        n = len(range(0, len(what), stride))
+        img, depth = read_image(what[0], return_bit_depth=True)
+        h, w = img.shape[:2]
+    if max_frames is not None:
+        n = max_frames if n is None else min(n, max_frames)
+    tw, th = _target_size(rs, w, h)
+    return {"kind": kind, "frames": n, "width": tw, "height": th, "source_size": (w, h), "bit_depth": depth}
+
+
+_STORE = {8: np.uint8, 16: np.uint16, 32: np.float32}
+
+
+def _store_dtype(depth: int):
+    return _STORE.get(depth, np.float32 if depth > 16 else np.uint16)
+
+
+def _quantise(img: np.ndarray, dtype) -> np.ndarray:
+    """A float32 frame in [0,1] as stored: ``round(v * 255)`` (uint8), ``round(v * 65535)``
+    (uint16) or as it is (float32)."""
+    if dtype == np.float32:
+        return np.asarray(img, np.float32)
+    top = 255.0 if dtype == np.uint8 else 65535.0
+    return np.rint(np.clip(img, 0.0, 1.0) * np.float32(top)).astype(dtype)
+
+
+class _Sink:
+    """Frames appended one at a time to a raw file: in ``folder`` as ``frames.raw``, or an unlinked
+    temporary file when ``folder`` is None."""
+
+    def __init__(self, folder: Path | None, dtype):
+        import tempfile
+
+        self.dtype, self.shape, self.n = np.dtype(dtype), None, 0
+        if folder is None:
+            self.fd, name = tempfile.mkstemp(prefix="layercam-frames-", suffix=".raw")
+            os.unlink(name)
+            self.path = Path(name)
+        else:
+            self.path = folder / "frames.raw"
+            self.fd = os.open(self.path, os.O_RDWR | os.O_CREAT | os.O_TRUNC, 0o644)
+
+    def add(self, frame: np.ndarray) -> None:
+        f = np.ascontiguousarray(frame, self.dtype)
+        if self.shape is None:
+            self.shape = f.shape
+        buf = memoryview(f.reshape(-1).view(np.uint8))
+        done = 0
+        while done < len(buf):
+            done += os.write(self.fd, buf[done:])
+        self.n += 1
+
+    def finish(self) -> DiskArray:
+        return DiskArray(self.path, self.dtype, (self.n, *self.shape), _fd=self.fd)
+
+    def abandon(self) -> None:
+        os.close(self.fd)
+
+
+def _cached_clip(folder: Path) -> Clip | None:
+    """The clip a finished decode left in ``folder`` (``clip.json`` written last), else None."""
+    import json
+
+    try:
+        info = json.loads((folder / "clip.json").read_text())
+        if info.get("version") != FRAMES_VERSION:
+            return None
+        raw = DiskArray(folder / "frames.raw", info["dtype"], info["shape"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+    meta = dict(info["meta"], frames_cache=str(folder), _fingerprint=info["fingerprint"])
+    if meta.get("source_size") is not None:
+        meta["source_size"] = tuple(meta["source_size"])
+    return Clip(frames=Frames(raw), source=info["source"], names=info["names"], fps=info["fps"], bit_depth=info["bit_depth"],
+                exif_exposures=info["exif_exposures"], meta=meta)
+
+
 def load_clip(
     inputs: str | os.PathLike | list,
     max_frames: int | None = None,
     stride: int = 1,
     resize: str | float | None = None,
+    cache: str | os.PathLike | None = None,
 ) -> Clip:
     """Load a video file, a folder of images or a list of image files as a ``Clip``.
 
@@ -254,6 +382,13 @@ def load_clip(
         files ignored), list of image paths (kept in the given order) or an unexpanded glob.
     stride: keep every K-th frame; then max_frames keeps the first N of those.
     resize: None, a factor (``0.5`` or ``"0.5"``) or ``"WxH"``; INTER_AREA when shrinking.
+    cache: a folder (a run's ``cache/``) where the decoded frames are kept as
+        ``frames-<key>/frames.raw`` and ``clip.json``, the key naming the files (path, size,
+        modification time), stride, max_frames and resize: the same call again maps them without
+        decoding. None: an unlinked temporary file that disappears with the clip.
+    Frames are decoded one at a time (video: the ffmpeg stream) and appended to the file as uint8
+    (uint16 for 16-bit images, float32 for float images); memory is that of one frame, whatever
+    the clip's length. A resized frame is rounded to its storage (half a level of 8 bits at most).
     Images of differing sizes raise ``LayercamError`` naming the file unless resize is "WxH".
     Every user-input problem raises ``LayercamError`` with a one-line message.
     """
@@ -264,60 +399,115 @@ def load_clip(
     source = os.fspath(inputs) if isinstance(inputs, (str, os.PathLike)) else ",".join(
         os.fspath(p) for p in inputs
     )
+    folder = None
+    if cache is not None:
+        from layercam.io.atomic import ensure_writable_dir
 
-    if kind == "video":
-        assert isinstance(what, Path)
-        u8, fps = read_video(what, max_frames=max_frames, stride=stride)
-        t, h, w, _ = u8.shape
-        tw, th = _target_size(rs, w, h)
-        frames = np.empty((t, th, tw, 3), np.float32)
-        for i in range(t):
-            frames[i] = _resize(u8[i].astype(np.float32) / 255.0, (tw, th))
-        idx = [i * stride for i in range(t)]
-        return Clip(
-            frames=frames,
-            source=source,
-            names=[f"{i:05d}" for i in idx],
-            fps=fps,
-            bit_depth=8,
-            exif_exposures=None,
-            meta={
-                "kind": "video",
-                "frame_indices": idx,
-                "n_source_frames": None,
-                "source_size": (w, h),
-            },
-        )
+        key = _source_key(kind, what, stride, max_frames, rs)
+        folder = Path(cache) / f"frames-{key}"
+        found = _cached_clip(folder)
+        if found is not None:
+            found.source = source
+            return found
+        ensure_writable_dir(Path(cache))
+        partial = Path(cache) / f".frames-{key}.partial-{os.getpid()}"
+        shutil.rmtree(partial, ignore_errors=True)
+        partial.mkdir()
+    try:
+        clip = (_decode_video if kind == "video" else _decode_images)(what, source, max_frames, stride, rs, None if folder is None else partial)
+        if folder is not None:
+            _keep(clip, partial, folder)
+            clip = _cached_clip(folder)
+            if clip is None:
+                raise LayercamError(f"cannot read back the decoded frames in {folder}")
+            clip.source = source
+    finally:
+        if folder is not None and partial.exists():
+            shutil.rmtree(partial, ignore_errors=True)
+    return clip
 
-    assert isinstance(what, list)
-    all_paths = what
+
+def _keep(clip: Clip, partial: Path, folder: Path) -> None:
+    """``clip.json`` beside ``frames.raw`` in ``partial``, then ``partial`` renamed to ``folder``
+    (a decode another process finished first is kept instead)."""
+    import json
+
+    raw = clip.frames.raw
+    info = {"version": FRAMES_VERSION, "dtype": raw.dtype.str, "shape": list(raw.shape), "source": clip.source, "names": clip.names,
+            "fps": clip.fps, "bit_depth": clip.bit_depth, "exif_exposures": clip.exif_exposures, "fingerprint": clip.fingerprint(),
+            "meta": {k: (list(v) if isinstance(v, tuple) else v) for k, v in clip.meta.items()}}
+    os.fsync(raw._fd)
+    (partial / ".made").touch()  # decoded by this command: removed again if it fails before its stages (cli.before_stages)
+    (partial / "clip.json").write_text(json.dumps(info))
+    raw.close()
+    try:
+        os.rename(partial, folder)
+    except OSError:
+        if _cached_clip(folder) is None:  # not a finished decode of another process: ours replaces it
+            shutil.rmtree(folder, ignore_errors=True)
+            os.rename(partial, folder)
+
+
+def _decode_video(path: Path, source: str, max_frames, stride: int, rs, folder: Path | None) -> Clip:
+    sink, info = _Sink(folder, np.uint8), {}
+    try:
+        for frame in iter_video(path, max_frames=max_frames, stride=stride, info=info):
+            if sink.n == 0:
+                w, h = info["size"]
+                tw, th = _target_size(rs, w, h)
+            if (tw, th) == (w, h):
+                sink.add(frame)
+            else:
+                sink.add(_quantise(_resize(frame.astype(np.float32) / 255.0, (tw, th)), np.uint8))
+    except BaseException:
+        sink.abandon()
+        raise
+    idx = [i * stride for i in range(sink.n)]
+    return Clip(
+        frames=Frames(sink.finish()),
+        source=source,
+        names=[f"{i:05d}" for i in idx],
+        fps=info["fps"],
+        bit_depth=8,
+        exif_exposures=None,
+        meta={"kind": "video", "frame_indices": idx, "n_source_frames": None, "source_size": info["size"]},
+    )
+
+
+def _decode_images(all_paths: list[Path], source: str, max_frames, stride: int, rs, folder: Path | None, depth: int = 8) -> Clip:
     idx = list(range(0, len(all_paths), stride))
     if max_frames is not None:
         idx = idx[:max_frames]
     paths = [all_paths[i] for i in idx]
-    frames, depths, alphas = None, [], []
-    size0 = None
-    target = None
-    for i, p in enumerate(paths):
-        img, depth, alpha = read_image(p, return_bit_depth=True, return_alpha=True)
-        if alpha is not None:
-            alphas.append(alpha)
-        h, w = img.shape[:2]
-        if size0 is None:
-            size0 = (w, h)
-            target = _target_size(rs, w, h)
-        elif (w, h) != size0 and not (rs is not None and rs[0] == "size"):
-            raise LayercamError(
-                f"{p.name} is {w}x{h} but {paths[0].name} is {size0[0]}x{size0[1]}; "
-                "give --resize WxH to bring all frames to one size"
-            )
-        if frames is None:  # filled frame by frame: no second copy of the clip (1080p x 48: 1.2 GB)
-            frames = np.empty((len(paths), target[1], target[0], 3), np.float32)
-        frames[i] = _resize(img, target)
-        depths.append(depth)
+    dtype = _store_dtype(depth)
+    sink = _Sink(folder, dtype)
+    depths, alphas = [], []
+    size0 = target = None
+    try:
+        for p in paths:
+            img, d, alpha = read_image(p, return_bit_depth=True, return_alpha=True)
+            if d > depth and _store_dtype(d) != dtype:  # a deeper frame than the first: again, stored as deep as it
+                sink.abandon()
+                return _decode_images(all_paths, source, max_frames, stride, rs, folder, d)
+            if alpha is not None:
+                alphas.append(alpha)
+            h, w = img.shape[:2]
+            if size0 is None:
+                size0 = (w, h)
+                target = _target_size(rs, w, h)
+            elif (w, h) != size0 and not (rs is not None and rs[0] == "size"):
+                raise LayercamError(
+                    f"{p.name} is {w}x{h} but {paths[0].name} is {size0[0]}x{size0[1]}; "
+                    "give --resize WxH to bring all frames to one size"
+                )
+            sink.add(_quantise(_resize(img, target), dtype))
+            depths.append(d)
+    except BaseException:
+        sink.abandon()
+        raise
     exif = [read_exif_exposure(p) if p.suffix.lower() in _EXIF_SUFFIXES else None for p in paths]
     return Clip(
-        frames=frames,
+        frames=Frames(sink.finish()),
         source=source,
         names=_unique_names(paths),
         fps=24.0,

@@ -96,6 +96,18 @@ class Deformation(nn.Module):
         return uv + self.residual_scale * torch.tanh(res)
 
 
+ALPHA_GRID_CELLS = 1 << 24  # cells of each alpha grid level at most (64 frames at 512 x 512; a longer clip's frames share slices)
+
+
+def alpha_grid_capped(cfg: SceneConfig, n_frames: int, frame_hw: tuple[int, int]) -> bool:
+    """Whether ``ALPHA_GRID_CELLS`` shapes the alpha grid of a clip of ``n_frames`` (its finest level,
+    ``alpha_grid_res`` or what :func:`layercam.analyse.resolve_auto` derives, over the frames)."""
+    from layercam.analyse import ALPHA_GRID_MAX
+
+    r = cfg.alpha_grid_res or int(min(max(frame_hw), ALPHA_GRID_MAX))
+    return cfg.alpha_encoding == "grid" and n_frames * r * r > ALPHA_GRID_CELLS
+
+
 class AlphaField(nn.Module):
     """``(xy, t) -> alpha (N, 1)`` in ``(0, 1)``: foreground opacity of a two-layer scene.
 
@@ -103,7 +115,9 @@ class AlphaField(nn.Module):
     frequencies it cannot draw a dog's legs at 282x158, and with the true masks of DAVIS libby held
     all through training its IoU stayed below 0.6). "grid": the same MLP also reads multi-resolution
     dense ``(x, y, t)`` grids (:class:`DenseGrid3D`, ``alpha_grid_levels`` levels, the finest
-    ``alpha_grid_res`` cells across and one slice per frame) that can follow the object's outline.
+    ``alpha_grid_res`` cells across and one slice per frame, or per few frames in a clip long
+    enough that the level would hold more than ``ALPHA_GRID_CELLS``) that can follow the object's
+    outline.
     """
 
     def __init__(self, cfg: SceneConfig, n_frames: int):
@@ -115,7 +129,7 @@ class AlphaField(nn.Module):
         if cfg.alpha_encoding == "grid":
             if cfg.alpha_grid_res < 2:
                 raise ValueError("scene.alpha_grid_res must be resolved (analyse.resolve_auto) before the alpha grid is built")
-            self.grid = DenseGrid3D(cfg.alpha_grid_levels, cfg.alpha_grid_res, n_frames, cfg.alpha_grid_features)
+            self.grid = DenseGrid3D(cfg.alpha_grid_levels, cfg.alpha_grid_res, n_frames, cfg.alpha_grid_features, max_cells=ALPHA_GRID_CELLS)
             width += self.grid.out_dim
         self.net = MLP(width, 1, cfg.alpha_width, cfg.alpha_depth)
 

@@ -1,0 +1,258 @@
+"""What a run will cost, known before the work: peak memory and disk from the clip's size, the
+preset and the settings, and a one-line refusal of what cannot fit.
+
+:func:`estimate` takes the clip's size (``layercam.io.probe_clip``: a video's header, the first
+image) and a config; the model's ``auto`` choices not yet made by the analysis are taken at their
+costliest plausible value (two layers for a clip of more than one frame, the blur generator for
+deblur-video and fuse-stack, or the ``n`` given), so that what is said before the work is an upper
+bound of what the analysis can choose; the run says it again once the analysis has chosen
+(:func:`layercam.pipelines.tasks.run_task`). The model's parameters are counted exactly (the model is
+built on PyTorch's meta device: no memory); the working sets of the stages are per-pixel and
+per-sample costs measured on this project's runs (``docs/notes/longmem.md``), scaled by what each
+stage holds at once: a pair of frames (flow), at most ``analyse.MOTION_PAIRS`` pairs (analysis), a
+window of at most ``segment.SEG_FRAMES`` frames (two-layer bootstrap), the model, its optimiser and
+a batch (training), a frame and a render chunk (export). None of them grows with the clip's length
+except the alpha grid's slices up to ``scene.fields.ALPHA_GRID_CELLS``; the disk does.
+
+:func:`check` refuses (``LayercamError``, one line) an estimate above the memory available
+(``MemAvailable``) or the free disk of the run folder, naming the estimate, its largest part and
+what to change.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import shutil
+from pathlib import Path
+
+import numpy as np
+
+from layercam.errors import LayercamError
+
+# measured costs (bytes), see docs/notes/longmem.md: this process after its imports, and per pixel /
+# per sample of what each stage holds at once
+BASE = 600e6             # python, torch, OpenCV and layercam imported (VmRSS ~560 MB on this machine)
+FLOW_PER_PX = 120.0      # per working-grid pixel of a pair: the two frames, flows, checks, DIS
+ANALYSIS_PER_PX = 40.0   # per working-grid pixel of each pair measured (flow in float32, residuals, chains)
+SEG_PER_PX = 150.0       # two layers: per frame pixel of each frame of a segmentation window
+BOOT_PER_PX = 24.0       # one layer: per frame pixel (a frame and its temporaries)
+EXPORT_PER_PX = 400.0    # per frame pixel: the faithful export's arrays for a frame and its neighbours
+PARAM_BYTES = 16.0       # per model parameter in training: value, gradient, Adam's two moments
+ACT_PER_FLOAT = 12.0     # bytes of activations per float a sample carries through a network (autograd)
+
+
+def _fmt(b: float) -> str:
+    for unit, scale in (("TB", 1e12), ("GB", 1e9), ("MB", 1e6)):
+        if b >= scale or unit == "MB":
+            return f"{b / scale:.3g} {unit}"
+    return f"{b:.0f} B"
+
+
+def costliest(cfg, task: str, frames: int):
+    """A copy of ``cfg`` with each model ``auto`` at its costliest plausible choice (see the module)."""
+    from layercam.config import AUTO
+
+    c = cfg.copy()
+    m, b = c.model, c.blur
+    if m.layers == AUTO:
+        m.layers = 2 if frames > 1 else 1
+    if m.tone_mapper == AUTO:
+        m.tone_mapper = "learned"
+    if m.exposures == AUTO:
+        m.exposures = "learned"
+    if m.blur == AUTO:
+        m.blur = "on" if task in ("deblur-video", "fuse-stack") else "off"
+    if m.flow_loss == AUTO:
+        m.flow_loss = frames > 1
+    if b.n == AUTO:
+        b.n = 5 if m.blur == "on" else 3
+    if b.max_offset == AUTO:
+        b.max_offset = 5.0
+    if c.loss.robust == AUTO:
+        c.loss.robust = 0.0
+    return c
+
+
+def _model_parts(cfg, frames: int, hw: tuple[int, int]) -> tuple[dict, object]:
+    """Parameters by part of the model ``cfg`` (decided) builds for ``frames`` frames of ``hw``
+    (counted on the meta device), and the resolved config."""
+    import torch
+
+    from layercam.analyse import resolve_auto
+    from layercam.checkpoint import build_model
+    from layercam.geometry import atlas_mappings
+
+    T, (H, W) = frames, hw
+    h0 = np.stack([atlas_mappings(H, W, np.repeat(np.eye(3)[None], T, 0))] * int(cfg.model.layers))
+    rc = resolve_auto(cfg, False, h0, hw)
+    rc.scene.alpha_grid_res = max(rc.scene.alpha_grid_res, 2)  # a frame of 1 px: counted as 2 (the analysis gives it one layer)
+    meta = {"h0": h0, "log2_dt": np.zeros(T, np.float32), "init_log2": 0.0, "frame_hw": hw, "clip_levels": [1.0, 1.0, 1.0]}
+    with torch.device("meta"):
+        model = build_model(rc, meta)
+    parts: dict[str, int] = {}
+    for name, p in model.named_parameters():
+        parts[_part(name)] = parts.get(_part(name), 0) + p.numel()
+    return parts, rc
+
+
+def _part(name: str) -> str:
+    if ".alpha.grid" in name:
+        return "alpha grid"
+    if ".alpha." in name:
+        return "alpha MLP"
+    if ".enc" in name:
+        return "atlas grids"
+    if ".atlases." in name:
+        return "atlas MLP"
+    if ".deformations." in name:
+        return "deformation"
+    if name.startswith("blur"):
+        return "blur generator"
+    return "tone mapper and exposures"
+
+
+SETTINGS = {  # the settings that size each part, named in a refusal
+    "alpha grid": ("scene.alpha_grid_res", "scene.alpha_grid_features", "scene.alpha_grid_levels"),
+    "alpha MLP": ("scene.alpha_width", "scene.alpha_depth"),
+    "atlas grids": ("scene.grid_features", "scene.grid_max_res", "scene.grid_levels"),
+    "atlas MLP": ("scene.atlas_width", "scene.atlas_depth"),
+    "deformation": ("scene.deform_width", "scene.deform_depth"),
+    "blur generator": ("blur.width", "blur.depth"),
+    "tone mapper and exposures": ("tone.width", "tone.depth"),
+}
+
+
+def _settings(rc, keys) -> str:
+    return ", ".join(f"{k}={getattr(getattr(rc, k.split('.')[0]), k.split('.')[1])}" for k in keys)
+
+
+def floats_per_sample(rc) -> dict:
+    """Floats one training sample carries through each part's networks (their inputs and each
+    layer's output), by part (as :data:`SETTINGS` names them): times ``ACT_PER_FLOAT`` the
+    activations autograd keeps and the backward pass makes."""
+    s, L = rc.scene, int(rc.model.layers)
+    mlp = lambda i, w, d, o=1: i + w * (d + 1) * 2 + o  # noqa: E731 - pre- and post-activation per hidden layer
+    n = int(rc.blur.n) if rc.model.blur == "on" else 1
+    k = n * n * (2 if rc.model.flow_loss else 1)  # each sample's n x n PSF taps, and its match for the flow loss
+    out = {"deformation": k * L * mlp(3 * (1 + 2 * s.deform_pe_freqs), s.deform_width, s.deform_depth, 2),
+           "atlas grids": k * L * (s.grid_levels * s.grid_features * 4 if s.encoding == "grid" else 2 * (1 + 2 * s.pe_freqs)),
+           "atlas MLP": k * L * mlp(0, s.atlas_width, s.atlas_depth, 3),
+           "tone mapper and exposures": k * 3 * mlp(1, rc.tone.width, rc.tone.depth)}
+    if L > 1:
+        out["alpha grid"] = k * (s.alpha_grid_levels * s.alpha_grid_features * 8 if s.alpha_encoding == "grid" else 0)
+        out["alpha MLP"] = k * mlp(3 * (1 + 2 * s.alpha_pe_freqs), s.alpha_width, s.alpha_depth)
+    if n > 1:
+        out["blur generator"] = (2 if rc.model.flow_loss else 1) * 2 * mlp(16, rc.blur.width, rc.blur.depth, n * n)
+    return out
+
+
+def estimate(info: dict, cfg, task: str = "hdr-video") -> dict:
+    """Peak memory and disk of a run on a clip of ``info`` (:func:`layercam.io.probe_clip`:
+    ``frames``, ``width``, ``height``, ``bit_depth``) with ``cfg``: ``{"memory": bytes, "disk":
+    bytes, "stages": {stage: bytes}, "disk_parts": {...}, "params": {...}, "largest": str, "settings":
+    str}``; ``largest`` names the costliest stage or part and ``settings`` what sizes it."""
+    from layercam.analyse import MOTION_PAIRS
+    from layercam.flow import working_size
+    from layercam.segment import SEG_FRAMES
+
+    T = max(int(info.get("frames") or 1), 1)
+    H, W = int(info["height"]), int(info["width"])
+    px = H * W
+    c = costliest(cfg, task, T)
+    params, rc = _model_parts(c, T, (H, W))
+    n_params = sum(params.values())
+    h, w = working_size((H, W), cfg.flow.short_side)
+    wpx = h * w
+    batch = int(rc.train.batch)
+    per_part = floats_per_sample(rc)
+    sample = sum(per_part.values()) * ACT_PER_FLOAT
+    stages = {
+        "flow": FLOW_PER_PX * wpx + 16.0 * px if T > 1 else 0.0,
+        "analysis": ANALYSIS_PER_PX * min(T - 1, MOTION_PAIRS) * wpx,
+        "bootstrap": SEG_PER_PX * min(T, SEG_FRAMES) * px if rc.model.layers > 1 else BOOT_PER_PX * px,
+        "train": PARAM_BYTES * n_params + sample * batch,
+        "export": 4.0 * n_params + EXPORT_PER_PX * px + sample / 3 * min(int(cfg.export.chunk), px),
+    }
+    store = 1 if int(info.get("bit_depth") or 8) <= 8 else (2 if int(info.get("bit_depth")) <= 16 else 4)
+    disk = {
+        "frames": float(T) * px * 3 * store,
+        "flow": float(max(T - 1, 0)) * wpx * 11,
+        "masks": float(T) * px if rc.model.layers > 1 else 0.0,
+        "checkpoints": 16.0 * n_params,
+        "outputs": float(T) * px * (6 * 0.6 + (1 if rc.model.layers > 1 else 0)) + (float(T) * px * 3 * 5 if task == "deblur-video" else 0.0),
+    }
+    stage = max(stages, key=stages.get)
+    if stage == "train" and PARAM_BYTES * n_params >= sample * batch:
+        part = max(params, key=params.get)
+        largest = f"training the model's {n_params:,} parameters ({params[part]:,} in the {part})"
+        settings = _settings(rc, SETTINGS[part])
+    elif stage == "train":
+        part = max(per_part, key=per_part.get)
+        largest = f"training on batches of {batch:,} samples ({_fmt(sample * batch)}, most through the {part})"
+        settings = f"train.batch={cfg.train.batch}, " + _settings(rc, SETTINGS[part])
+    else:
+        largest = f"the {stage} stage on {W}x{H} frames"
+        settings = "--resize"
+    return {"memory": BASE + max(stages.values()), "disk": sum(disk.values()), "stages": {k: round(v) for k, v in stages.items()},
+            "disk_parts": {k: round(v) for k, v in disk.items()}, "params": params, "largest": largest, "settings": settings,
+            "frames": T, "size": [W, H], "assumed": {"layers": rc.model.layers, "blur": "off" if rc.model.blur == "off" else f"{rc.blur.n}x{rc.blur.n}"}}
+
+
+def available_memory() -> float:
+    """``MemAvailable`` (bytes; Linux), else the physical memory, else infinity."""
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return float(line.split()[1]) * 1024
+    except OSError:
+        pass
+    try:
+        return float(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES"))
+    except (ValueError, OSError, AttributeError):
+        return math.inf
+
+
+def free_disk(folder: Path) -> float:
+    """Free bytes where ``folder`` is (or would be made: its nearest existing parent)."""
+    p = Path(folder).absolute()
+    while not p.exists() and p != p.parent:
+        p = p.parent
+    try:
+        return float(shutil.disk_usage(p).free)
+    except OSError:
+        return math.inf
+
+
+def disk_used(folder: Path) -> float:
+    """Bytes the files under ``folder`` occupy on disk (allocated blocks: a sparse file counts what
+    it holds), 0 when it does not exist."""
+    total = 0
+    for root, _, files in os.walk(folder):
+        for f in files:
+            try:
+                total += os.lstat(os.path.join(root, f)).st_blocks * 512
+            except OSError:
+                pass
+    return float(total)
+
+
+def summary_line(est: dict) -> str:
+    """One line for the run's printout: ``estimate: peak memory 2.1 GB (train), disk 1.3 GB``."""
+    stage = max(est["stages"], key=est["stages"].get)
+    return f"estimate: peak memory {_fmt(est['memory'])} ({stage}), disk {_fmt(est['disk'])} for {est['frames']} frames {est['size'][0]}x{est['size'][1]}"
+
+
+def check(est: dict, run_dir: Path, used_disk: float = 0.0) -> None:
+    """Refuses (one line) an estimate that does not fit: memory above what is available, disk above
+    what is free where the run folder is (less ``used_disk``, what the run already holds there)."""
+    mem, have = est["memory"], available_memory()
+    if mem > have:
+        raise LayercamError(f"this run needs about {_fmt(mem)} of memory, {_fmt(have)} is available: most for {est['largest']}; "
+                            f"lower {est['settings']}{' or --resize' if est['settings'] != '--resize' else ''}")
+    need, free = est["disk"] - used_disk, free_disk(run_dir)
+    if need > free:
+        big = max(est["disk_parts"], key=est["disk_parts"].get)
+        raise LayercamError(f"this run needs about {_fmt(est['disk'])} of disk in {run_dir}, {_fmt(free)} is free (most for the {big}); "
+                            f"free some space, or use --resize, --max-frames or --stride")

@@ -35,7 +35,7 @@ from layercam.errors import LayercamError
 BASE = 600e6             # python, torch, OpenCV and layercam imported (VmRSS ~560 MB on this machine)
 FLOW_PER_PX = 120.0      # per working-grid pixel of a pair: the two frames, flows, checks, DIS
 ANALYSIS_PER_PX = 40.0   # per working-grid pixel of each pair measured (flow in float32, residuals, chains)
-SEG_PER_PX = 150.0       # two layers: per frame pixel of each frame of a segmentation window
+SEG_PER_PX = 150.0       # two layers: per pixel of the flow's grid of each frame of a segmentation window
 BOOT_PER_PX = 24.0       # one layer: per frame pixel (a frame and its temporaries)
 EXPORT_PER_PX = 400.0    # per frame pixel: the faithful export's arrays for a frame and its neighbours
 PARAM_BYTES = 16.0       # per model parameter in training: value, gradient, Adam's two moments
@@ -170,7 +170,7 @@ def estimate(info: dict, cfg, task: str = "hdr-video") -> dict:
     stages = {
         "flow": FLOW_PER_PX * wpx + 16.0 * px if T > 1 else 0.0,
         "analysis": ANALYSIS_PER_PX * min(T - 1, MOTION_PAIRS) * wpx,
-        "bootstrap": SEG_PER_PX * min(T, SEG_FRAMES) * px if rc.model.layers > 1 else BOOT_PER_PX * px,
+        "bootstrap": SEG_PER_PX * min(T, SEG_FRAMES) * wpx + 16.0 * px if rc.model.layers > 1 else BOOT_PER_PX * px,  # segmented on the flow's grid
         "train": PARAM_BYTES * n_params + sample * batch,
         "export": 4.0 * n_params + EXPORT_PER_PX * px + sample / 3 * min(int(cfg.export.chunk), px),
     }

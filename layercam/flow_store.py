@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
+from layercam.interrupts import reached
 from layercam.io.frames import DiskArray
 
 ARRAYS = {"fw": (np.float16, 2), "bw": (np.float16, 2), "fw_ok": (np.bool_, 0), "bw_ok": (np.bool_, 0), "vis": (np.bool_, 0)}
@@ -65,6 +66,7 @@ def compute(frames, out: Path, cfg, progress: bool = False) -> dict:
     cv2.setRNGSeed(0)  # once, as global_homographies seeds it for all pairs
     vis_next = None
     for i, (fw, bw) in enumerate(bar(pairs, total=n, desc=f"flow ({cfg.method})", unit="pair", enabled=progress)):
+        reached("flow", i)
         cur, nxt = last2
         fw_ok = flow.flow_consistency(fw[None], bw[None])[0]
         bw_ok = flow.flow_consistency(bw[None], fw[None])[0]

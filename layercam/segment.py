@@ -795,6 +795,7 @@ def foreground_bootstrap_long(frames, flows: dict, out, masks=None, cfg: Segment
     import cv2
 
     from layercam.flow import AtFrameSize
+    from layercam.interrupts import reached
     from layercam.io.frames import DiskArray
     from layercam.progress import bar
 
@@ -810,7 +811,8 @@ def foreground_bootstrap_long(frames, flows: dict, out, masks=None, cfg: Segment
         wins = segment_windows(T)
         models = []
         small = lambda f: f if f.shape[:2] == (h, w) else cv2.resize(f, (w, h), interpolation=cv2.INTER_AREA)  # noqa: E731
-        for a0, b0, a, b in bar(wins, desc="bootstrap (windows)", unit="window", enabled=progress and len(wins) > 1):
+        for i, (a0, b0, a, b) in enumerate(bar(wins, desc="bootstrap (windows)", unit="window", enabled=progress and len(wins) > 1)):
+            reached("segment", i)
             fl = {k: np.asarray(flows[k][a0 : b0 - 1]) for k in ("fw", "bw", "fw_ok", "bw_ok", "vis") if k in flows}
             fl["homs"] = np.asarray(flows["homs"])[a0 : b0 - 1]
             part = foreground_bootstrap(np.stack([small(frames[t]) for t in range(a0, b0)]), fl, None, cfg)  # a full-size frame at a time

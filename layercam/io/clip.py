@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from layercam.errors import LayercamError
+from layercam.interrupts import reached
 from layercam.io.frames import DiskArray, Frames
 from layercam.io.images import IMAGE_SUFFIXES, read_exif_exposure, read_image
 from layercam.io.video import VIDEO_SUFFIXES, iter_video, probe_video
@@ -410,6 +411,9 @@ def load_clip(
             found.source = source
             return found
         ensure_writable_dir(Path(cache))
+        for stale in Path(cache).glob(f".frames-{key}.partial-*"):  # left by a decode that was killed
+            if not _alive(stale.name.rsplit("-", 1)[-1]):
+                shutil.rmtree(stale, ignore_errors=True)
         partial = Path(cache) / f".frames-{key}.partial-{os.getpid()}"
         shutil.rmtree(partial, ignore_errors=True)
         partial.mkdir()
@@ -425,6 +429,17 @@ def load_clip(
         if folder is not None and partial.exists():
             shutil.rmtree(partial, ignore_errors=True)
     return clip
+
+
+def _alive(pid: str) -> bool:
+    """Whether the process ``pid`` (text) still runs (a decode of another process in progress)."""
+    try:
+        os.kill(int(pid), 0)
+    except (ValueError, ProcessLookupError):
+        return False
+    except PermissionError:
+        return True
+    return True
 
 
 def _keep(clip: Clip, partial: Path, folder: Path) -> None:
@@ -452,6 +467,7 @@ def _decode_video(path: Path, source: str, max_frames, stride: int, rs, folder: 
     sink, info = _Sink(folder, np.uint8), {}
     try:
         for frame in iter_video(path, max_frames=max_frames, stride=stride, info=info):
+            reached("decode", sink.n)
             if sink.n == 0:
                 w, h = info["size"]
                 tw, th = _target_size(rs, w, h)
@@ -484,7 +500,8 @@ def _decode_images(all_paths: list[Path], source: str, max_frames, stride: int, 
     depths, alphas = [], []
     size0 = target = None
     try:
-        for p in paths:
+        for i, p in enumerate(paths):
+            reached("decode", i)
             img, d, alpha = read_image(p, return_bit_depth=True, return_alpha=True)
             if d > depth and _store_dtype(d) != dtype:  # a deeper frame than the first: again, stored as deep as it
                 sink.abandon()

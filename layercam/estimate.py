@@ -32,14 +32,15 @@ from layercam.errors import LayercamError
 
 # measured costs (bytes), see docs/notes/longmem.md: this process after its imports, and per pixel /
 # per sample of what each stage holds at once
-BASE = 600e6             # python, torch, OpenCV and layercam imported (VmRSS ~560 MB on this machine)
-FLOW_PER_PX = 120.0      # per working-grid pixel of a pair: the two frames, flows, checks, DIS
-ANALYSIS_PER_PX = 40.0   # per working-grid pixel of each pair measured (flow in float32, residuals, chains)
-SEG_PER_PX = 150.0       # two layers: per pixel of the flow's grid of each frame of a segmentation window
+BASE = 700e6             # python, torch, OpenCV and layercam imported, a clip opened (VmRSS 680-700 MB on this machine)
+FLOW_PER_PX = 180.0      # per working-grid pixel of a pair: the two frames, flows, checks, DIS
+ANALYSIS_PER_PX = 28.0   # per working-grid pixel of each pair measured (flow in float32, residuals, chains)
+SEG_PER_PX = 72.0        # two layers: per pixel of the flow's grid of each frame of a segmentation window
 BOOT_PER_PX = 24.0       # one layer: per frame pixel (a frame and its temporaries)
-EXPORT_PER_PX = 400.0    # per frame pixel: the faithful export's arrays for a frame and its neighbours
-PARAM_BYTES = 16.0       # per model parameter in training: value, gradient, Adam's two moments
-ACT_PER_FLOAT = 12.0     # bytes of activations per float a sample carries through a network (autograd)
+EXPORT_PER_PX = 1300.0   # per frame pixel: the faithful export's arrays for a frame and its two neighbours
+RENDER_PER_PX = 1600.0   # per pixel of a render chunk (export.chunk): the networks' layers, one at a time
+PARAM_BYTES = 24.0       # per model parameter in training: value, gradient, Adam's two moments, and a copy when saved
+ACT_PER_FLOAT = 21.0     # bytes of activations per float a sample carries through a network (autograd)
 
 
 def _fmt(b: float) -> str:
@@ -168,11 +169,11 @@ def estimate(info: dict, cfg, task: str = "hdr-video") -> dict:
     per_part = floats_per_sample(rc)
     sample = sum(per_part.values()) * ACT_PER_FLOAT
     stages = {
-        "flow": FLOW_PER_PX * wpx + 16.0 * px if T > 1 else 0.0,
+        "flow": FLOW_PER_PX * wpx + 24.0 * px if T > 1 else 0.0,
         "analysis": ANALYSIS_PER_PX * min(T - 1, MOTION_PAIRS) * wpx,
         "bootstrap": SEG_PER_PX * min(T, SEG_FRAMES) * wpx + 16.0 * px if rc.model.layers > 1 else BOOT_PER_PX * px,  # segmented on the flow's grid
         "train": PARAM_BYTES * n_params + sample * batch,
-        "export": 4.0 * n_params + EXPORT_PER_PX * px + sample / 3 * min(int(cfg.export.chunk), px),
+        "export": 4.0 * n_params + EXPORT_PER_PX * px + RENDER_PER_PX * min(int(cfg.export.chunk), px),  # no autograd: a render chunk's layers one at a time
     }
     store = 1 if int(info.get("bit_depth") or 8) <= 8 else (2 if int(info.get("bit_depth")) <= 16 else 4)
     disk = {

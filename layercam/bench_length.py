@@ -13,6 +13,7 @@ the rows of the lengths it runs and keeps the others.
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 import threading
@@ -108,6 +109,27 @@ def long_clip(frames_dir: Path, n: int, out: Path, size: tuple[int, int] | None 
     return out
 
 
+def long_masks(masks_dir: Path, n: int, out: Path, size: tuple[int, int] | None = None) -> Path:
+    """The masks of ``masks_dir`` played forth and back as :func:`long_clip` plays its frames: a
+    folder of ``n`` PNGs (nearest-neighbour resized to ``size = (W, H)``), for ``--masks``."""
+    import cv2
+
+    from layercam.io.clip import natural_key
+
+    out = Path(out)
+    if out.is_dir() and len(list(out.glob("*.png"))) == n:
+        return out
+    paths = sorted((p for p in Path(masks_dir).iterdir() if p.suffix.lower() == ".png"), key=lambda p: natural_key(p.name))
+    cycle = list(range(len(paths))) + list(range(len(paths) - 2, 0, -1))
+    out.mkdir(parents=True, exist_ok=True)
+    for i in range(n):
+        m = cv2.imread(str(paths[cycle[i % len(cycle)]]), cv2.IMREAD_UNCHANGED)
+        if size is not None and (m.shape[1], m.shape[0]) != tuple(size):
+            m = cv2.resize(m, tuple(size), interpolation=cv2.INTER_NEAREST)
+        cv2.imwrite(str(out / f"{i:05d}.png"), m)
+    return out
+
+
 # -- the job, in its own process ------------------------------------------------------------------
 def run_job(job: dict) -> None:
     """``layercam hdr-video`` on the clip, in this process, with the memory sampler running."""
@@ -117,15 +139,18 @@ def run_job(job: dict) -> None:
 
     torch.set_num_threads(job["threads"])
     argv = ["hdr-video", job["clip"], "--exposures", "none", "--preset", job["preset"], "--out", job["out"], "--quiet"]
+    if job.get("masks"):
+        argv += ["--masks", job["masks"]]
     for s in job["overrides"]:
         argv += ["--set", s]
     t0 = time.perf_counter()
     with MemorySampler() as mem:
         code = main(argv)
-    if code != 0:
+    stopped = os.environ.get("LAYERCAM_SIGNAL_AT") if code == 130 else None  # stopped on purpose (a partial run)
+    if code != 0 and not stopped:
         raise SystemExit(code)
     res = {"wall_s": round(time.perf_counter() - t0, 2), "peak_rss_mb": round(mem.peak, 1), "peak_anon_mb": round(mem.peak_anon, 1),
-           "stage_peak_mb": {k: round(v, 1) for k, v in mem.by_stage.items()}}
+           "stage_peak_mb": {k: round(v, 1) for k, v in mem.by_stage.items()}, **({"stopped_at": stopped} if stopped else {})}
     Path(job["out"], "memory.json").write_text(json.dumps({**res, "series": mem.series}))
     Path(job["result"]).write_text(json.dumps(res))
 
@@ -156,10 +181,11 @@ def _row(clip: str, n: int, size: tuple[int, int], preset: str, run: Path, res: 
 
 
 def run_length(out: Path, data: Path, clip: str = "cows", lengths: list[int] | None = None, preset: str = "fast", size: tuple[int, int] | None = None,
-               threads: int = 1, overrides: list[str] | None = None, progress: bool = True) -> list[dict]:
+               threads: int = 1, overrides: list[str] | None = None, progress: bool = True, masks: bool = False) -> list[dict]:
     """The table: for each length of ``lengths`` (default 48, 192, 768) the DAVIS clip ``clip``
     played forth and back (:func:`long_clip`, at ``size`` ``(W, H)`` or its own), ``layercam
-    hdr-video --exposures none --preset PRESET`` on it in its own process, one at a time."""
+    hdr-video --exposures none --preset PRESET`` on it in its own process, one at a time; with
+    ``masks``, its true masks played alike given as ``--masks`` (no motion segmentation)."""
     from layercam.io.atomic import ensure_writable_dir
 
     out = ensure_writable_dir(Path(out))
@@ -171,11 +197,15 @@ def run_length(out: Path, data: Path, clip: str = "cows", lengths: list[int] | N
     for n in lengths or LENGTHS:
         tag = f"{clip}-{n}" + (f"-{size[0]}x{size[1]}" if size else "")
         video = long_clip(frames_dir, n, out / "clips" / f"{tag}.mp4", size)
+        job = {"clip": str(video), "preset": preset, "threads": threads, "overrides": list(overrides or []), "frames": n}
+        if masks:
+            job["masks"] = str(long_masks(frames_dir.parent / "masks_gt", n, out / "clips" / f"{tag}-masks", size))
+            tag += "-masks"
         run = out / "runs" / f"{tag}-{preset}"
-        res = _spawn({"clip": str(video), "preset": preset, "out": str(run), "threads": threads, "overrides": list(overrides or []), "frames": n}, out / "result.json")
+        res = _spawn({**job, "out": str(run)}, out / "result.json")
         from layercam.io.video import probe_video
 
-        row = _row(clip, n, probe_video(video)["size"], preset, run, res, f"{threads} thread(s); " + " ".join(overrides or []))
+        row = _row(clip + (" (true masks given)" if masks else ""), n, probe_video(video)["size"], preset, run, res, f"{threads} thread(s); " + " ".join(overrides or []))
         rows = [r for r in rows if (r["clip"], r["frames"], r["size"], r["preset"]) != (row["clip"], row["frames"], row["size"], row["preset"])] + [row]
         rows.sort(key=lambda r: (r["size"], r["preset"], r["frames"]))
         write_length(out, rows)

@@ -159,3 +159,19 @@ def test_the_analysis_of_a_long_clip_reads_windows():
     assert motion_windows(MOTION_PAIRS) == [(0, MOTION_PAIRS)]
     w = motion_windows(1000)
     assert sum(b - a for a, b in w) <= MOTION_PAIRS and w[0][0] == 0 and w[-1][1] == 1000
+
+
+def test_masks_of_a_clip_on_disk_are_on_disk_too(tmp_path):
+    from layercam.io import load_clip, write_png
+    from layercam.io.masks import load_masks
+
+    v = _video(tmp_path / "v.mp4", n=3)
+    (tmp_path / "m").mkdir()
+    for t in range(3):
+        m = np.zeros((24, 32), np.float32)
+        m[t : t + 5, 4:9] = 1.0
+        write_png(tmp_path / "m" / f"{t:03d}.png", m)
+    on_disk = load_masks(tmp_path / "m", load_clip(v, cache=tmp_path / "cache"))
+    in_memory = load_masks(tmp_path / "m", load_clip(v))
+    assert isinstance(on_disk, DiskArray) and on_disk.dtype == np.uint8 and in_memory.dtype == np.float32
+    assert np.array_equal(np.asarray(on_disk), in_memory) and in_memory.sum() == 75

@@ -40,7 +40,7 @@ def register(sub) -> argparse.ArgumentParser:
     b.add_argument("--data", help="real suite, --table layers: the shared captures (default: $LAYERCAM_DATA or ../shared/data)")
     b.add_argument("--max-frames", type=POSITIVE_INT, help="real suite: frames of the Basler clip (default: all 74); --table layers: of each clip")
     b.add_argument("--clips", help="--table layers: comma-separated clip names, e.g. libby,cows (default: every layers_davis_* clip)")
-    b.add_argument("--variants", default="motion,masks", help="--table layers: motion (no masks: the motion bootstrap), masks (the true masks given) (default: both)")
+    b.add_argument("--variants", default="motion,masks", help="--table layers: motion (no masks: the motion bootstrap), masks (the true masks given) (default: both); --table length: masks alone gives the true masks")
     b.add_argument("--resize", default="0.33", help="--table layers: frame scale, as hdr-video's --resize (default: 0.33)")
     b.add_argument("--layers", choices=["auto", "2"], default="auto", help="--table layers: auto, the analysis decides (default); 2: forced")
     b.add_argument("--sizes", default=SIZES_DEFAULT, help="--table scaling: frame sizes HxW (default: 128x128,256x256,512x512,1080x1920)")
@@ -86,7 +86,8 @@ def run(args) -> int:
             raise LayercamError(f"--lengths: expected frame counts like 48,192,768, got {args.lengths!r}") from None
         if not lengths or min(lengths) < 2:
             raise LayercamError(f"--lengths: expected frame counts of at least 2, got {args.lengths!r}")
-        rows = run_length(out if args.out else Path("runs/length"), data, (_list(args.clips) or ["cows"])[0], lengths, args.preset, size, args.threads or 1, args.overrides, progress=not args.quiet)
+        rows = run_length(out if args.out else Path("runs/length"), data, (_list(args.clips) or ["cows"])[0], lengths, args.preset, size, args.threads or 1, args.overrides,
+                          progress=not args.quiet, masks="masks" in (_list(args.variants) or []) and "motion" not in (_list(args.variants) or []))
         if not args.quiet:
             print(f"wrote {(out if args.out else Path('runs/length')) / 'length.csv'} and length.png ({len(rows)} rows)")
         return 0

@@ -148,6 +148,10 @@ def test_a_long_two_layer_clip_is_segmented_in_windows_and_resumes(tmp_path, mon
     boot = ctx.results["bootstrap"]
     assert boot["foreground"]["windows"] == 3 and isinstance(boot["masks"], DiskArray) and boot["masks"].shape == (10, 40, 40)
     assert np.asarray(boot["masks"]).any()
+    import json
+
+    mem = json.loads((tmp_path / "run" / "report.json").read_text())["memory"]
+    assert set(mem["estimate"]) == {"before", "after_analysis"} and mem["estimate"]["before"]["memory"] > 0 and mem["peak_rss_bytes"] > 0
     first = (tmp_path / "run" / "hdr" / "frame_00009.exr").read_bytes()
     again = run_task("hdr-video", scene.clip, ex, cfg, tmp_path / "run", progress=False)
     assert all(t["cached"] for t in again.times.values()) and (tmp_path / "run" / "hdr" / "frame_00009.exr").read_bytes() == first
@@ -175,3 +179,18 @@ def test_masks_of_a_clip_on_disk_are_on_disk_too(tmp_path):
     in_memory = load_masks(tmp_path / "m", load_clip(v))
     assert isinstance(on_disk, DiskArray) and on_disk.dtype == np.uint8 and in_memory.dtype == np.float32
     assert np.array_equal(np.asarray(on_disk), in_memory) and in_memory.sum() == 75
+
+
+def test_the_estimate_grows_with_the_clip_on_disk_not_in_memory(tmp_path):
+    from layercam.config import load_config
+    from layercam.errors import LayercamError
+    from layercam.estimate import check, estimate
+
+    cfg = load_config("fast")
+    short, long = (estimate({"frames": n, "width": 854, "height": 480, "bit_depth": 8}, cfg) for n in (48, 768))
+    assert long["memory"] < 1.3 * short["memory"] and long["disk"] > 6 * short["disk"]
+    assert short["assumed"] == {"layers": 2, "blur": "off"}  # the analysis's costliest plausible choice
+    huge = estimate({"frames": 4, "width": 100000, "height": 100000, "bit_depth": 8}, cfg)
+    with pytest.raises(LayercamError, match="--resize"):
+        check(huge, tmp_path)
+    check(short, tmp_path)  # fits this machine

@@ -19,6 +19,7 @@ import numpy as np
 
 from layercam.config import AUTO, Config
 from layercam.geometry import STATIC_CORNER_PX
+from layercam.visibility import at_floor, clipped
 
 # thresholds of the rules (each documented where it is used)
 IND_MOTION_PX = 1.5          # residual flow (px) beyond which a pixel moves on its own
@@ -42,14 +43,17 @@ FLOOR_GRID_LEVELS = 6        # a clip whose training the step cap shortens (a sh
                              # scene point) gets at most this many atlas grid levels (`quality` has 8):
                              # more scales between the same coarsest and finest fitted its few shots'
                              # disagreements. docs/measurements.md
+MIN_STEPS = 300              # the step cap's floor: a clip the cap gives fewer steps trains this many (and FLOOR)
+MIN_SAMPLES = 2_457_600      # ... with a blur generator, the floor in pixels sampled (fast's 600 steps x 4096) in the
+                             # preset's model and batch: its PSFs learn after a warm-up
 FLOOR = {"scene.grid_levels": FLOOR_GRID_LEVELS, "scene.atlas_width": 64, "train.batch": 4096}
-                             # ... and one the cap puts at its floor (train.min_steps; a 3-shot stack of
+                             # ... and one the cap puts at its floor (MIN_STEPS; a 3-shot stack of
                              # up to ~300x300 px) trains this model whatever the preset (the batch at most
                              # this): on the NTIRE crops and twelve taipei crops no preset's difference
                              # there was larger than the spread of three seeds, larger batches learned a
                              # softer tone shoulder (000001, 300 steps: 4096 27.31 dB, 8192 25.95) and
                              # more steps fitted the shots' noise (taipei crops, 4096: 300 34.83, 600
-                             # 34.32). Not with a blur generator (train.min_samples). docs/measurements.md
+                             # 34.32). Not with a blur generator (MIN_SAMPLES). docs/measurements.md
 BLUR_SIGMA = 0.8             # relative blur (Gaussian sigma, px) of a tile that needs a blur generator
 BLUR_TILE_SHARE = 0.4        # ... on at least this share of the tiles of some pair (both signs: focus
                              # that differs by region; the real captures' shares: docs/measurements.md)
@@ -65,11 +69,11 @@ OFFSET_PER_SIGMA = 5.0       # max offset (px) per px of relative blur: the ener
                              # motion and disc blur (8 px shake reads as sigma ~0.9; s = 5 in the paper)
 
 
-def _motion(frames: np.ndarray, flow: dict) -> tuple[dict, np.ndarray]:
+def _motion(frames: np.ndarray, flow: dict, frame_hw: tuple[int, int]) -> tuple[dict, np.ndarray]:
     """Global and independent motion from the flow stage's arrays, on what both frames see well;
     also the pixels that move on their own ``(T-1, H, W)`` bool."""
     part, moving = _motion_part(frames, flow)
-    return _motion_summary([part], flow["homs"], frames.shape[1:3]), moving
+    return _motion_summary([part], flow["homs"], tuple(np.shape(flow["fw"])[1:3]), frame_hw), moving
 
 
 def _motion_part(frames, flow: dict) -> tuple[dict, np.ndarray]:
@@ -93,9 +97,10 @@ def _motion_part(frames, flow: dict) -> tuple[dict, np.ndarray]:
             "long": long_range_moving_share(fw, seen, LONG_REACH, IND_MOTION_PX)}, moving  # followed through what both frames see well
 
 
-def _motion_summary(parts: list[dict], homs: np.ndarray, hw: tuple[int, int]) -> dict:
+def _motion_summary(parts: list[dict], homs: np.ndarray, hw: tuple[int, int], frame_hw: tuple[int, int]) -> dict:
     """The motion measures over the pairs of ``parts`` (:func:`_motion_part` of one or more runs of
-    consecutive pairs); the corner shift from every pair's homography ``homs``."""
+    consecutive pairs); the corner shift (frame pixels) from every pair's homography ``homs`` (on
+    the flow's grid ``hw``)."""
     share = np.concatenate([p["share"] for p in parts])
     mag_seen = np.concatenate([p["mag_seen"] for p in parts])
     frac = np.concatenate([p["frac"] for p in parts])
@@ -104,7 +109,7 @@ def _motion_summary(parts: list[dict], homs: np.ndarray, hw: tuple[int, int]) ->
         "flow_consistent": float(sum(p["ok"] for p in parts) / max(sum(p["pixels"] for p in parts), 1)),
         "seen_well": float(share.mean()),
         "global_motion_px": float(np.median(mag_seen)) if mag_seen.size else 0.0,  # nothing seen: no evidence of motion
-        "corner_shift_px": _corner_shift(homs, hw),
+        "corner_shift_px": _corner_shift(homs, hw, frame_hw),
     }
     evidence = share >= MIN_EVIDENCE
     lo, hi = IND_MOTION_FRAC
@@ -155,13 +160,14 @@ class _Resized:
         return f if f.shape[:2] == self.hw else cv2.resize(f, (self.hw[1], self.hw[0]), interpolation=cv2.INTER_AREA)
 
 
-def _corner_shift(homs: np.ndarray, hw: tuple[int, int]) -> float:
-    """How far (px) the chained pair homographies move a frame corner from the middle frame's view:
-    below ``STATIC_CORNER_PX`` the bootstrap registers the frames by the identity."""
+def _corner_shift(homs: np.ndarray, hw: tuple[int, int], frame_hw: tuple[int, int]) -> float:
+    """How far (frame pixels) the chained pair homographies (on the flow's grid ``hw``) move a
+    frame corner from the middle frame's view: below ``STATIC_CORNER_PX`` the camera is static
+    (:func:`layercam.resolve.resolve`) and the bootstrap registers the frames by the identity."""
     from layercam.geometry import chain_homographies, max_corner_shift, middle_frame
 
     homs = np.asarray(homs, np.float64)
-    return round(max_corner_shift(chain_homographies(homs, middle_frame(len(homs) + 1)), *hw), 3)
+    return round(max_corner_shift(chain_homographies(homs, middle_frame(len(homs) + 1)), *hw) * frame_hw[0] / hw[0], 3)
 
 
 def _blur(frames: np.ndarray, homs: np.ndarray | None, moving: np.ndarray | None, pairs=None) -> dict:
@@ -197,16 +203,17 @@ def _blur(frames: np.ndarray, homs: np.ndarray | None, moving: np.ndarray | None
 def measure(clip, exposures, flow: dict | None) -> dict:
     """The numbers the decisions are made from. ``flow`` is the flow stage's arrays or None; the
     motion and blur are measured on the flow's grid (a working size for large frames,
-    ``flow.short_side``: there distances are in its pixels), on at most ``MOTION_PAIRS`` pairs
-    (:func:`motion_windows`). Frames and flows are read a frame or a window at a time."""
+    :data:`layercam.flow.WORKING_SHORT_SIDE`: there distances are in its pixels; the corner shift is in frame
+    pixels), on at most ``MOTION_PAIRS`` pairs (:func:`motion_windows`). Frames and flows are read a frame or
+    a window at a time."""
     frames = clip.frames
     n = clip.T * clip.H * clip.W
     m: dict = {
         "frames": clip.T,
         "distinct_exposures": exposures.count_distinct,
         "exposure_range_ev": float(np.ptp(exposures.log2_dt)) if exposures.T else 0.0,
-        "clipped_high": sum(int((f.max(-1) >= 0.99).sum()) for f in frames) / n,  # a frame at a time
-        "clipped_low": sum(int((f.max(-1) <= 0.01).sum()) for f in frames) / n,
+        "clipped_high": sum(int(clipped(f).any(-1).sum()) for f in frames) / n,  # a frame at a time
+        "clipped_low": sum(int(at_floor(f).all(-1).sum()) for f in frames) / n,
     }
     if flow is None or "fw" not in flow or len(flow["fw"]) == 0:
         m.update(global_motion_px=0.0, independent_motion_frac=0.0, independent_pairs=0.0, moving_pairs=0, flow_consistent=1.0, motion_pairs_measured=0)
@@ -222,7 +229,7 @@ def measure(clip, exposures, flow: dict | None) -> dict:
         part, mov = _motion_part(fr, win)
         parts.append(part)
         moving.update({a + i: mov[i] for i in range(b - a)})
-    m.update(_motion_summary(parts, flow["homs"], work))
+    m.update(_motion_summary(parts, flow["homs"], work, (clip.H, clip.W)))
     m.update(_blur(small, flow["homs"], moving, sorted(moving)))
     return m
 
@@ -345,115 +352,31 @@ def model_summary(cfg: Config) -> dict:
     return {"layers": m.layers, "tone_mapper": m.tone_mapper, "exposures": m.exposures, "blur": "off" if m.blur == "off" else f"{b.n}x{b.n}", "max_offset": b.max_offset, "flow_loss": m.flow_loss}
 
 
-def format_table(cfg: Config, reasons: dict) -> str:
-    s = model_summary(cfg)
-    rows = [(k, str(s[k]), reasons.get(k, "")) for k in MODEL_KEYS]
-    w0 = max(len(a) for a, _, _ in rows)
-    w1 = max(len(b) for _, b, _ in rows)
-    return "\n".join(f"  {a:<{w0}}  {b:<{w1}}  {c}" for a, b, c in rows)
-
-
-ALPHA_GRID_MAX = 512  # cells across the alpha grid's finest level at most (T x 512^2 x 2 floats)
-
-
-def resolve_auto(cfg: Config, static: bool, h0, frame_hw: tuple[int, int]) -> Config:
-    """The settings left ``auto`` until the bootstrap has run, resolved in a copy of ``cfg``:
-
-    * a static one-layer scene (``static``: the bootstrap found the frames registered by the
-      identity) has no residual warp (``scene.residual`` -> ``off``, ``scene.residual_scale = 0``)
-      and PSFs centred on their pixel (``blur.centre`` -> ``on``); elsewhere the residual is on
-      and the centre free. A static stack has nothing for a free per-pixel warp or a PSF shift to
-      follow, and both were used to fit the images' blur instead (README, How it works). On moving
-      footage the shift stays free: centred, the PSFs of the Adobe240 triplet grew to 4 px on its
-      sharp background, which came out over-sharpened.
-    * ``scene.still_background`` (two layers): ``on`` when ``static`` (a static camera): the
-      background maps every frame through its bootstrap homography alone, no per-frame correction
-      and no residual warp. On the Basler clip (a tripod) they wandered a pixel from frame to frame
-      and the rendered background flickered 3.1 codes, 1.35 held still (``docs/measurements.md``).
-    * ``scene.grid_max_res = 0``: the finest atlas grid level from the atlas's extent in frame
-      pixels (:func:`layercam.geometry.atlas_pixels` of the bootstrap mappings ``h0 (L, T, 3, 3)``),
-      within 32..2048: without a blur generator the power of two at or above it (at least one cell
-      per pixel); with one, or for a static one-layer scene, the extent itself (at most one cell per
-      pixel). Every frame of a static scene samples the same pixel centres, so a finer grid gains no
-      detail, and with the per-frame homographies' sub-pixel corrections it let each frame keep its
-      own cells and its own noise instead of averaging (``docs/measurements.md``). The blur generator
-      samples the scene between pixels, so a finer grid lets the scene keep sub-pixel content that
-      each image's PSF reads on its own, fitting every image without one sharp scene (the PSFs
-      collapsed to deltas on the focus x exposure stack: ``docs/measurements.md``).
-    * ``scene.alpha_grid_res = 0``: the alpha grid's finest level has one cell per pixel along the
-      frame's longer side, at most ``ALPHA_GRID_MAX``.
-    * ``train.steps`` at most ``train.passes_per_frame`` x frames passes over the clip's pixels
-      (frames x H x W), never fewer than ``train.min_steps`` (:func:`step_cap`); where that cap
-      shortens training, ``scene.grid_levels`` at most :data:`FLOOR_GRID_LEVELS`, and at the floor
-      (``train.min_steps``; without a blur generator, grid atlases) the model and batch of
-      :data:`FLOOR`, whatever the preset (`paper`'s positional encoding keeps its own).
-      On the NTIRE 3-shot brackets (256x256, real noise) the model's HDR got noisier the longer it
-      trained: crop 000000 PSNR-mu 34.94 dB after 12.5 passes (600 steps x 4096, fast), 32.92 after
-      42, 32.10 after 83 (2000 x 8192, balanced); the gap closes under a 1 px Gaussian blur (38.2 /
-      37.4 dB): the extra passes fit each pixel's noise. Each frame is another look at every scene
-      point, so a clip may train longer the more frames it has: a 3-shot stack gets 12 passes, the
-      24-frame composites 96 (the presets give them at most 7), a 48-frame clip 192.
-    """
-    from layercam.geometry import atlas_pixels
-
-    cfg = cfg.copy()
-    if cfg.scene.still_background == AUTO:
-        cfg.scene.still_background = "on" if bool(static) else "off"
-    static = cfg.model.layers == 1 and bool(static)
-    if cfg.scene.residual == AUTO:
-        cfg.scene.residual = "off" if static else "on"
-    if cfg.scene.residual == "off" and cfg.scene.deformation == "homography":
-        cfg.scene.residual_scale = 0.0
-    if cfg.blur.centre == AUTO:
-        cfg.blur.centre = "on" if static else "off"
-    s = cfg.scene
-    if s.encoding == "grid" and s.grid_max_res == 0:
-        px = atlas_pixels(h0, frame_hw)
-        res = int(round(px)) if cfg.model.blur == "on" or static else 2 ** math.ceil(math.log2(max(px, 2.0)))
-        s.grid_max_res = int(min(max(res, 32), 2048))
-        s.grid_min_res = min(s.grid_min_res, s.grid_max_res)
-    if s.alpha_grid_res == 0:  # one cell per frame pixel along the longer side
-        s.alpha_grid_res = int(min(max(frame_hw), ALPHA_GRID_MAX))
-    t = cfg.train
-    cap = step_cap(t, np.asarray(h0).shape[-3], frame_hw[0] * frame_hw[1], cfg.model.blur == "on")
-    if cap < t.steps:
-        t.steps = cap
-        t.bootstrap_steps = min(t.bootstrap_steps, cap // 2)
-        s.grid_levels = min(s.grid_levels, FLOOR_GRID_LEVELS)
-        if cap == t.min_steps and has_floor_model(cfg):  # the floor: its model, whatever the preset
-            s.grid_levels, s.atlas_width = FLOOR["scene.grid_levels"], min(s.atlas_width, FLOOR["scene.atlas_width"])
-            t.batch = min(t.batch, FLOOR["train.batch"])
-    return cfg
-
-
 def has_floor_model(cfg: Config) -> bool:
     """Whether a clip ``cfg`` trains at the step cap's floor gets :data:`FLOOR`'s model: grid
     atlases without a blur generator (the floor was measured there; a blur generator keeps
-    ``train.min_samples``, and `paper`'s positional encoding its own width and batch)."""
+    :data:`MIN_SAMPLES`, and `paper`'s positional encoding its own width and batch)."""
     return cfg.model.blur != "on" and cfg.scene.encoding == "grid"
 
 
 def step_cap(train, frames: int, pixels: int, blur: bool = False) -> int:
     """The most steps ``train`` (a :class:`layercam.config.TrainConfig`) may take on a clip of
     ``frames`` frames of ``pixels`` pixels each: ``passes_per_frame * frames`` passes over its
-    ``frames * pixels`` pixels in batches of ``train.batch``, but never fewer than ``min_steps``
-    (the floor, where :func:`resolve_auto` also sets :data:`FLOOR`), or with a ``blur``
-    generator never fewer pixels sampled than ``min_samples`` (its PSFs learn after a warm-up:
-    the synthetic 9-image focus x exposure stack, `fast`, 41.03 dB PSNR-mu with 600 steps, 38.01 at
-    the floor's 300); ``passes_per_frame = 0``: ``train.steps``.
+    ``frames * pixels`` pixels in batches of ``train.batch``, but never fewer than :data:`MIN_STEPS`
+    (the floor, where :func:`layercam.resolve.resolve` also sets :data:`FLOOR`), or with a ``blur``
+    generator never fewer pixels sampled than :data:`MIN_SAMPLES`; ``passes_per_frame = 0``:
+    ``train.steps``.
 
     >>> from layercam.config import TrainConfig
     >>> step_cap(TrainConfig(steps=2000, batch=8192), 3, 256 * 256)  # a 3-shot bracket: the floor
     300
     >>> step_cap(TrainConfig(steps=2000, batch=8192), 3, 768 * 510)  # 6 passes over a larger one
     861
-    >>> step_cap(TrainConfig(steps=150000, batch=30000, passes_per_frame=4), 3, 768 * 510)  # paper: 12
-    471
     >>> step_cap(TrainConfig(steps=6000, batch=16384), 48, 256 * 144)  # a 48-frame clip: not capped
     6000
     >>> step_cap(TrainConfig(steps=600, batch=4096), 4, 32 * 32)  # a tiny clip: the floor
     300
-    >>> step_cap(TrainConfig(steps=2000, batch=8192), 3, 256 * 256, blur=True)  # a focus stack: min_samples
+    >>> step_cap(TrainConfig(steps=2000, batch=8192), 3, 256 * 256, blur=True)  # a focus stack: MIN_SAMPLES
     300
     >>> step_cap(TrainConfig(steps=600, batch=4096), 4, 32 * 32, blur=True)
     600
@@ -461,5 +384,5 @@ def step_cap(train, frames: int, pixels: int, blur: bool = False) -> int:
     if train.passes_per_frame <= 0:
         return int(train.steps)
     need = math.ceil(train.passes_per_frame * frames * frames * pixels / train.batch)
-    floor = math.ceil(train.min_samples / train.batch) if blur else train.min_steps
+    floor = math.ceil(MIN_SAMPLES / train.batch) if blur else MIN_STEPS
     return int(min(train.steps, max(need, floor, 1)))

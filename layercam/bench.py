@@ -195,7 +195,7 @@ def run_bench(out: Path, scenes: list[str], presets: list[str], quick: bool = Fa
             say(f"{sc:>8} {r['method']:>10} {'':>9} {r['wall_s']:>8.1f} s  PSNR-mu {r['psnr_mu']:.2f}")
         quality_wall = None
         for pr in presets:
-            ov = ["train.steps=20", "train.bootstrap_steps=2", "train.batch=1024", "export.atlas_max_res=64"] if quick else []
+            ov = ["train.steps=20", "train.bootstrap_steps=2", "train.batch=1024"] if quick else []
             note = ""
             if pr == "paper" and not quick:
                 # measure the paper preset's speed, then give it quality's budget
@@ -331,8 +331,8 @@ def analysis_job(name: str, variant: str, out: Path, preset: str, quick: bool, o
     wall = sum(v["seconds"] for k, v in ctx.times.items() if k != "evaluate")
     m = ctx.results["evaluate"]["metrics"]
     metric, value = ("psnr_mu", m["psnr_mu"]) if "psnr_mu" in m else ("psnr", m["psnr"])
-    return {"family": name, "variant": variant, **model_summary(ctx.cfg), "metric": metric, "value": round(float(value), 2), "wall_s": round(wall, 1),
-            "total_s": round(time.perf_counter() - t0, 1), "reasons": ctx.reasons}
+    return {"family": name, "variant": variant, **model_summary(ctx.resolved.settings), "metric": metric, "value": round(float(value), 2), "wall_s": round(wall, 1),
+            "total_s": round(time.perf_counter() - t0, 1), "reasons": dict(ctx.resolved.reasons)}
 
 
 def run_analysis_table(out: Path, preset: str = "fast", quick: bool = False, families: list[str] | None = None, progress: bool = True, overrides_cfg: list[str] | None = None) -> list[dict]:

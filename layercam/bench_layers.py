@@ -100,7 +100,7 @@ def run_layer_job(job: dict) -> dict:
     psnrs = reconstruction_psnr(model, clip.frames)
     row = {
         "clip": job["clip"], "variant": job["variant"], "frames": clip.T, "size": f"{clip.W}x{clip.H}", "preset": job["preset"],
-        "layers": int(ctx.cfg.model.layers), "layers_reason": ctx.reasons.get("layers", ""),
+        "layers": int(ctx.resolved.settings.model.layers), "layers_reason": ctx.resolved.reasons.get("model.layers", ""),
         "iou": round(float(np.mean(ious)), 4), "iou_min": round(float(np.min(ious)), 4),
         "bootstrap_iou": None if boot_ious is None else round(float(np.mean(boot_ious)), 4),
         "psnr": round(float(np.mean(psnrs)), 3), "wall_s": round(wall, 1), "total_s": round(total, 1),

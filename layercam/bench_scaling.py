@@ -139,7 +139,7 @@ def _grid_res(run: Path) -> int | str:
     import torch
 
     ck = torch.load(run / "checkpoint.pt", map_location="cpu", weights_only=False)
-    return int(ck["cfg"]["scene"]["grid_max_res"])
+    return int(ck["sizes"]["grid_max_res"])
 
 
 def run_scaling(out: Path, sizes: list[str] | None = None, presets: list[str] | None = None, frames: int = 48, threads: int = 2,

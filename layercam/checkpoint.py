@@ -1,14 +1,11 @@
 """A run's model on disk: save it, load it, rebuild it.
 
-A checkpoint is ``{"format": 2, "state": model state dict, "cfg": the model's own config (every
-``auto`` decided, derived sizes filled in), **meta}`` where ``meta`` (:func:`run_meta`) holds what
-the model is built from besides its settings (bootstrap mappings ``h0``, exposures, the starting
-irradiance, frame size) and what describes the run (frame names, fps, task, source, the analysis's
-reasons, a fused stack's reference view).
-
-Older checkpoints (format 1, before the ``model`` config section) stored the analysis's choices as
-a separate ``spec`` dict; :func:`upgrade` turns them into the current form, so runs saved then still
-load, render and edit.
+A checkpoint is ``{"format": 3, "state": model state dict, "settings": the run's resolved settings
+(:meth:`layercam.resolve.Resolved.to_dict`), "sizes": the sizes derived from the clip, **meta}``
+where ``meta`` (``pipelines.stages.model_meta``) holds what the model is built from besides its
+settings (bootstrap mappings ``h0``, exposures, the starting irradiance, frame size) and what
+describes the run (frame names, fps, task, source, a fused stack's reference view). A checkpoint
+of an earlier format is refused with one line: the command that made it, run again, makes it anew.
 """
 
 from __future__ import annotations
@@ -20,78 +17,45 @@ import torch
 
 from layercam.errors import LayercamError
 
-FORMAT = 2
+FORMAT = 3
 
 
-def build_model(cfg, meta: dict):
-    """The (untrained) model that ``cfg`` (decided, see :func:`layercam.config.unresolved`) and
-    ``meta`` describe."""
+def build_model(resolved, meta: dict):
+    """The (untrained) model that ``resolved`` (:class:`layercam.resolve.Resolved`) and ``meta``
+    describe (``meta["sizes"]``, when there, are the derived sizes it was trained with)."""
     from layercam.model import ImplicitCameraModel
 
     return ImplicitCameraModel(
-        cfg, torch.as_tensor(np.asarray(meta["h0"]), dtype=torch.float32), np.asarray(meta["log2_dt"], dtype=np.float32),
+        resolved, torch.as_tensor(np.asarray(meta["h0"]), dtype=torch.float32), np.asarray(meta["log2_dt"], dtype=np.float32),
         meta.get("exposure_learn", "none"), None if meta.get("phase") is None else np.asarray(meta["phase"]),
-        float(meta["init_log2"]), tuple(meta["frame_hw"]), meta.get("clip_levels"),
+        float(meta["init_log2"]), tuple(meta["frame_hw"]), meta.get("sizes"),
     )
 
 
 def save_run_model(path: Path, model, meta: dict) -> None:
-    """Write ``model`` with ``meta`` atomically; ``cfg`` is the model's own (decided, with the sizes
-    derived in code filled in), so a later change to a derivation cannot change the shapes a saved
-    run is rebuilt with."""
+    """Write ``model`` with ``meta`` atomically, with its resolved settings and derived sizes (so a
+    later change to a derivation cannot change the shapes a saved run is rebuilt with)."""
     from layercam.io.atomic import atomic_write
 
-    state = {**meta, "format": FORMAT, "state": model.state_dict(), "cfg": model.cfg.to_dict()}
+    state = {**meta, "format": FORMAT, "state": model.state_dict(), "settings": model.resolved.to_dict(), "sizes": dict(model.sizes)}
     atomic_write(path, lambda tmp: torch.save(state, tmp))
 
 
-def upgrade(ck: dict) -> dict:
-    """A checkpoint dict in the current format: a format-1 ``spec`` (layers, tone_mapper, exposures,
-    blur "off"|"3x3"|"5x5", max_offset, flow_loss, reasons) becomes the ``model`` section and the
-    blur generator's ``n``/``max_offset``; settings that were left ``auto`` then (residual, PSF
-    centre) are given the values those runs were trained with; a derived grid size that was not
-    stored is read from the saved grid; an alpha field saved before the alpha grid is the positional
-    encoding alone."""
-    ck = dict(ck)
-    cfg = {k: dict(v) if isinstance(v, dict) else v for k, v in ck["cfg"].items()}
-    spec = ck.pop("spec", None)
-    if spec is not None and "model" not in cfg:
-        blur = spec.get("blur", "off")
-        cfg["model"] = {"layers": spec["layers"], "tone_mapper": spec["tone_mapper"], "exposures": spec["exposures"], "blur": "off" if blur == "off" else "on", "flow_loss": spec["flow_loss"]}
-        b = cfg.setdefault("blur", {})
-        b["n"] = int(blur[0]) if blur != "off" else 3
-        b["max_offset"] = float(spec.get("max_offset", 5.0))
-        ck.setdefault("reasons", spec.get("reasons", {}))
-    scene, b = cfg.setdefault("scene", {}), cfg.setdefault("blur", {})
-    if scene.get("residual", "auto") == "auto":  # format 1 resolved it into residual_scale
-        scene["residual"] = "off" if scene.get("residual_scale", 0.05) == 0 else "on"
-    if b.get("centre", "auto") == "auto":  # before blur.centre existed, or off the blur path: free
-        b["centre"] = "off"
-    if scene.get("encoding", "grid") == "grid" and not scene.get("grid_max_res"):
-        sizes = [v.shape[-1] for k, v in ck["state"].items() if k.startswith("scene.atlases.0.enc.grids.")]
-        if sizes:
-            scene["grid_min_res"], scene["grid_max_res"] = int(min(sizes)), int(max(sizes))
-    if "alpha_encoding" not in scene:  # saved before the alpha grid existed: positional encoding only
-        scene["alpha_encoding"] = "pe"
-    ck["cfg"] = cfg
-    ck["format"] = FORMAT
-    return ck
+def model_from_checkpoint(ck: dict, where: str = "checkpoint"):
+    """The model a saved checkpoint dict describes, weights loaded, in eval mode."""
+    from layercam.resolve import Resolved
 
-
-def model_from_checkpoint(ck: dict):
-    """The model a saved checkpoint dict describes (any format), weights loaded, in eval mode."""
-    from layercam.config import config_from_dict
-
-    ck = upgrade(ck)
-    model = build_model(config_from_dict(ck["cfg"]), ck)
+    if ck.get("format") != FORMAT:
+        raise LayercamError(f"{where}: saved by an earlier layercam (checkpoint format {ck.get('format', 1)}, this one reads {FORMAT}); "
+                            "run the command that made the run again to train it anew")
+    model = build_model(Resolved.from_dict(ck["settings"]), ck)
     model.load_state_dict(ck["state"])
     model.eval()
     return model
 
 
 def load_run_model(run_dir: Path, device: str = "cpu"):
-    """``run_dir/checkpoint.pt`` -> ``(model, meta)`` ready to render (``meta`` upgraded to the
-    current format)."""
+    """``run_dir/checkpoint.pt`` -> ``(model, meta)`` ready to render."""
     path = Path(run_dir) / "checkpoint.pt"
     if not path.exists():
         raise LayercamError(f"{run_dir}: no checkpoint.pt (is this a finished layercam run folder?)")
@@ -99,5 +63,4 @@ def load_run_model(run_dir: Path, device: str = "cpu"):
         ck = torch.load(path, map_location=device, weights_only=False)
     except Exception as e:  # noqa: BLE001 - any unreadable checkpoint is a user-facing error
         raise LayercamError(f"{path}: cannot read checkpoint ({e.__class__.__name__})") from None
-    ck = upgrade(ck)
-    return model_from_checkpoint(ck).to(device), ck
+    return model_from_checkpoint(ck, str(path)).to(device), ck

@@ -15,7 +15,7 @@ EPILOG = """examples:
   layercam demo                                   # built-in synthetic clip, with metrics
   layercam hdr-video in.mp4 --exposures alt --ev-step 3 --out runs/clip
   layercam hdr-video frames/ --exposures times.txt --preset fast
-  layercam hdr-video in.mp4 --set train.steps=500 --set scene.grid_max_res=128
+  layercam hdr-video in.mp4 --set train.steps=500 --set scene.grid_levels=8
 
 Re-running a command with the same input and settings skips finished stages; after Ctrl-C (or a
 crash) the same command again goes on: training resumes from its last checkpoint, an unfinished
@@ -164,12 +164,6 @@ def before_stages(out: Path):
 def default_out(inputs: list[str]) -> Path:
     first = Path(inputs[0])
     return Path("runs") / (first.stem if first.suffix else first.name or "run")
-
-
-def load_masks(folder: str, clip):
-    from layercam.io.masks import load_masks as _load
-
-    return _load(folder, clip)
 
 
 def finish(ctx) -> None:

@@ -10,11 +10,10 @@ A preset (``configs/<name>.toml``, shipped inside the package as ``layercam.conf
 the values that differ from the defaults below. ``load_config("fast", ["train.steps=500"])``
 returns a :class:`Config`; ``Config.section_dict("train")`` is what a stage hashes for its cache key.
 
-``"auto"`` values are decided per clip: the ``model`` section and the blur generator's ``n`` and
-``max_offset`` by :func:`layercam.analyse.decide` (from what the analysis measures), the static
-scene's ``scene.residual`` and ``blur.centre`` and the derived grid size by
-:func:`layercam.analyse.resolve_auto` (from the bootstrap). A model is built only from a config
-without ``auto`` left (:func:`unresolved`).
+``"auto"`` values are decided per clip, once, by :func:`layercam.resolve.resolve` (from what the
+analysis measures), which returns the run's frozen settings; sizes that follow from the clip (the atlas
+grid's finest level, the alpha grid) are derived in code, and fixed sizes and weights are named
+constants in the modules that use them. Each setting's comment says what it trades.
 
 >>> cfg = load_config("fast", ["train.steps=50", "model.layers=2"])
 >>> cfg.train.steps, cfg.model.layers, cfg.flow.method
@@ -47,10 +46,32 @@ AUTO = "auto"
 INT_MAX = 2**31 - 1  # every integer setting fits a C int (OpenCV, torch's sizes and seeds): a larger one is refused
 
 
-def setting(default: Any, lo: float | None = None, hi: float | None = None, *, above: float | None = None, below: float | None = None, check=None) -> Any:
+class Section:
+    """Base of the settings' dataclasses: settable while a :class:`Config` is built (defaults,
+    preset, ``--set``), frozen once resolved (:func:`freeze`; :mod:`layercam.resolve`)."""
+
+    def __setattr__(self, name, value):
+        if getattr(self, "_frozen", False):
+            raise dataclasses.FrozenInstanceError(f"settings are resolved once (layercam.resolve): cannot set {getattr(self, '_name', '')}{name}")
+        object.__setattr__(self, name, value)
+
+
+def freeze(cfg: "Config") -> "Config":
+    """``cfg`` made read-only, in place (each section and the config); returns it."""
+    for sec in SECTIONS:
+        obj = getattr(cfg, sec)
+        object.__setattr__(obj, "_name", f"{sec}.")
+        object.__setattr__(obj, "_frozen", True)
+    object.__setattr__(cfg, "_frozen", True)
+    return cfg
+
+
+def setting(default: Any, lo: float | None = None, hi: float | None = None, *, above: float | None = None, below: float | None = None, check=None, keyed: bool = True) -> Any:
     """A dataclass field with a range: ``lo <= v <= hi``, ``v > above``, ``v < below`` (numbers;
-    ``"auto"`` is not range-checked) and ``check(v) -> str | None`` (a message when wrong)."""
-    return field(default=default, metadata={"lo": lo, "hi": hi, "above": above, "below": below, "check": check})
+    ``"auto"`` is not range-checked) and ``check(v) -> str | None`` (a message when wrong).
+    ``keyed=False``: the setting cannot change a stage's result (how often to save), so it is left
+    out of the cache keys (:meth:`Config.key_dict`)."""
+    return field(default=default, metadata={"lo": lo, "hi": hi, "above": above, "below": below, "check": check, "keyed": keyed})
 
 
 def _odd(v) -> str | None:
@@ -66,146 +87,101 @@ def _lut(v: int) -> str | None:
 
 
 @dataclass
-class ModelConfig:
-    """What the model contains. ``auto``: decided by the analysis of the clip (``layercam.analyse``),
-    which writes its choice here; anything else forces the choice (``--layers``, ``--blur``, ...)."""
+class ModelConfig(Section):
+    """What the model contains. ``auto``: decided for the clip by :func:`layercam.resolve.resolve`
+    from what the analysis measured; anything else forces the choice (``--layers``, ``--blur``, ...)."""
 
-    layers: Literal["auto", 1, 2] = AUTO              # 1 (static or rigid scene) or 2 (an object moves on its own)
-    tone_mapper: Literal["auto", "learned", "fixed"] = AUTO  # learned CRF, or the fixed sRGB curve (one exposure)
-    exposures: Literal["auto", "given", "learned"] = AUTO  # learned only when the exposure spec leaves some unknown
-    blur: Literal["auto", "on", "off"] = AUTO           # the blur generator (its shape: the blur section)
-    flow_loss: bool | Literal["auto"] = AUTO
-
-
-@dataclass
-class SceneConfig:
-    """Scene model: deformation, atlas and alpha fields of each layer."""
-
-    encoding: Literal["grid", "pe"] = "grid"  # atlas encoding: dense multi-res 2D grids | positional encoding (paper)
-    pe_freqs: int = setting(7, 0, 16)        # positional-encoding frequencies (paper: 7)
-    grid_levels: int = setting(6, 1, 16)     # dense grid levels, resolutions geometric from min to max
-    grid_min_res: int = setting(16, 2)
-    grid_max_res: int = setting(0, 0, 8192)  # 0: derived from the atlas's extent in pixels (analyse.resolve_auto)
-    grid_features: int = setting(4, 1)
-    grid_sparse_cells: int = setting(16384, 1)  # levels with at least this many cells: sparse gradients, row-wise Adam
-                                             # (a step's cost grows with the batch, not the grid; scene/encodings.py, optim.py)
-    atlas_width: int = setting(64, 1)        # atlas MLP width / depth (paper: 512 x 4)
-    atlas_depth: int = setting(2, 0)
-    deformation: Literal["homography", "mlp"] = "homography"  # per-frame homography + residual MLP | MLP (paper)
-    deform_width: int = setting(64, 1)       # residual (homography) or full (mlp) deformation MLP (paper: 256 x 4)
-    deform_depth: int = setting(2, 0)
-    deform_pe_freqs: int = setting(4, 0, 16)
-    residual_scale: float = setting(0.05, 0.0)  # bound of the residual deformation, atlas units
-    residual: Literal["auto", "on", "off"] = AUTO  # the residual warp: auto (off for a static one-layer scene)
-    still_background: Literal["auto", "on", "off"] = AUTO  # with two layers, the background layer held still (no per-frame
-                                            # homography correction, no residual warp): auto (on when the camera is static;
-                                            # runs from before it, still auto, move it)
-    bootstrap: Literal["flow", "identity"] = "flow"  # chained homographies of the cached flow | identity (paper)
-    alpha_width: int = setting(64, 1)
-    alpha_depth: int = setting(3, 0)
-    alpha_pe_freqs: int = setting(6, 0, 16)
-    alpha_encoding: Literal["pe", "grid"] = "grid"  # alpha from the positional encoding only | also dense (x, y, t) grids
-    alpha_grid_levels: int = setting(4, 1, 8)
-    alpha_grid_res: int = setting(0, 0, 4096)  # finest cells across; 0: the frame's longer side, at most 512 (analyse.resolve_auto)
-    alpha_grid_features: int = setting(2, 1)
-    bg_change_cells: int = setting(0, 0, 256)  # two layers: a per-frame change of the background, cells x cells (0: off)
+    layers: Literal["auto", 1, 2] = AUTO              # 1: one atlas (static or rigid scene); 2: a foreground layer for an
+                                                      # object moving on its own (an alpha field, twice the atlases)
+    tone_mapper: Literal["auto", "learned", "fixed"] = AUTO  # learned CRF (needs exposures that differ) | the fixed sRGB curve
+    exposures: Literal["auto", "given", "learned"] = AUTO  # learned where the exposure spec leaves them unknown
+    blur: Literal["auto", "on", "off"] = AUTO           # the blur generator: sharp output from blurry frames, at 2-3 x the time
+    flow_loss: bool | Literal["auto"] = AUTO            # flow consistency: keeps moving content registered; nothing to do on a static scene
 
 
 @dataclass
-class ToneConfig:
+class SceneConfig(Section):
+    """Scene model: deformation, atlas and alpha fields of each layer (fixed sizes and constants:
+    :mod:`layercam.scene.fields`)."""
+
+    encoding: Literal["grid", "pe"] = "grid"  # atlas encoding: dense multi-resolution 2D grids (fast) | positional encoding
+                                              # (the paper's PE(7) -> MLP: 1-2 orders of magnitude slower on a CPU)
+    grid_levels: int = setting(6, 1, 16)     # grid levels between 16 cells and the atlas's extent: finer detail vs fitting
+                                             # the frames' noise (quality: 8)
+    atlas_width: int = setting(64, 1)        # atlas MLP width and depth: capacity vs time per step (paper: 512 x 4)
+    atlas_depth: int = setting(2, 0)         # ... its hidden layers
+    deformation: Literal["homography", "mlp"] = "homography"  # per-frame homography + bounded residual MLP (starts exact
+                                             # from the flow) | one MLP of (x, y, t) (paper: fitted to its start first)
+    deform_width: int = setting(64, 1)       # the deformation MLP's width and depth: non-rigid detail vs time (paper: 256 x 4)
+    deform_depth: int = setting(2, 0)        # ... its hidden layers
+    bootstrap: Literal["flow", "identity"] = "flow"  # the mappings' start: chained flow homographies | identity (paper)
+    alpha_encoding: Literal["pe", "grid"] = "grid"  # alpha from a positional encoding alone (smooth outlines, the paper's)
+                                             # | also dense (x, y, t) grids (thin parts; memory grows with the frames)
+
+
+@dataclass
+class ToneConfig(Section):
     """Tone mapper: three per-channel MLPs of log2 r' + log2 dt (paper: 2 layers of 128)."""
 
-    width: int = setting(64, 1)
-    depth: int = setting(2, 0)
-    monotone: bool = False          # monotone by construction (cumulative positive increments)
-    c0: float = setting(0.5, above=0.0, below=1.0)  # white-balance target T(0)
-    init_slope: float = setting(1.0, above=0.0)     # initial curve sigmoid(init_slope * ln2 * z); 1: r / (1 + r) (docs/measurements.md)
-    lut: int = setting(1024, 0, check=_lut)  # evaluate the curves on this many knots and interpolate (0: per pixel, paper)
+    width: int = setting(64, 1)      # each channel's MLP: width and depth (paper: 128 x 2); a wider curve fits more bends
+    depth: int = setting(2, 0)       # ... its hidden layers
+    lut: int = setting(1024, 0, check=_lut)  # the curves evaluated on this many knots and interpolated (error < 1e-4):
+                                     # a step's tone mapping costs the knots, not the batch; 0: per pixel (paper)
 
 
 @dataclass
-class BlurConfig:
-    """Blur generator (paper Sec. 3.2): n x n patch, offsets bounded by max_offset pixels."""
+class BlurConfig(Section):
+    """Blur generator (paper Sec. 3.2): an n x n patch per pixel, offsets bounded by max_offset pixels
+    (its nets' sizes and schedule: :mod:`layercam.camera.blur`)."""
 
-    n: int | Literal["auto"] = setting(AUTO, 1, 15, check=_odd)  # auto: 5 when the frames are blurrier than 2.5 px, else 3
-    max_offset: float | Literal["auto"] = setting(AUTO, 0.0, 64.0)  # s, px; auto: from the measured blur, else 5
-    width: int = setting(64, 1)
-    depth: int = setting(4, 0)
-    init_centre_weight: float = setting(0.2, above=0.0, below=1.0)  # start blurry: a near-sharp start (0.9) lets the scene absorb the blur
-    zero_mean_offsets: bool = True  # a patch's offsets shape it but cannot translate it (no warp)
-    centre: Literal["auto", "on", "off"] = AUTO  # PSFs centred on their pixel: auto (a static one-layer scene)
-    warmup: float = setting(0.2, 0.0, below=1.0)  # fraction of training with the PSFs held at their start: the scene first
-    # takes shape; blur nets trained from step 0 collapse every PSF to a delta within 25 steps
+    n: int | Literal["auto"] = setting(AUTO, 1, 15, check=_odd)  # patch side: larger reaches wider blur, costs n^2 scene
+                                                                 # look-ups per pixel; auto: 5 past 2.5 px of blur, else 3
+    max_offset: float | Literal["auto"] = setting(AUTO, 0.0, 64.0)  # s, px: how far the patch may spread; too little cannot
+                                                                    # model the blur, too much lets it fit noise; auto: measured
 
 
 @dataclass
-class LossConfig:
-    color: float = setting(1.0, 0.0)        # lambda_c
-    flow: float = setting(100.0, 0.0)       # lambda_f, decays linearly to 0 by flow_decay_end of training
-    flow_decay_end: float = setting(0.5, 0.0, 1.0)
-    white_balance: float = setting(1.0, 0.0)  # lambda_w
-    gradient: float = setting(100.0, 0.0)   # lambda_g
-    clipped: Literal["plain", "one_sided"] = "plain"  # MSE (paper) | one-sided at 0 / 1 pixels
-    robust: float | Literal["auto"] = setting(AUTO, 0.0, 1.0)  # colour error: 0 MSE (paper); c > 0 Cauchy c^2 ln(1 + (e / c)^2),
-                                                 # errors past c (pixel value) count less; auto: the analysis sets
-                                                 # analyse.ROBUST_STACK for fuse-stack, 0 for videos (a model built
-                                                 # without it, or a run from before the setting: 0)
-    rigidity: float = setting(0.01, 0.0)
-    sparsity: float = setting(0.001, 0.0)
-    alpha_flow: float = setting(1.0, 0.0)
+class LossConfig(Section):
+    """Loss terms whose weight a preset or a clip changes (the paper's fixed weights: :mod:`layercam.model`)."""
+
+    robust: float | Literal["auto"] = setting(AUTO, 0.0, 1.0)  # colour error: 0 MSE (paper); c > 0 Cauchy
+                                                 # c^2 ln(1 + (e / c)^2), errors past c (pixel value) count less: a bracket's
+                                                 # shots that disagree bend the curve less, but edges fit less; auto: 0.05
+                                                 # for fuse-stack without a blur generator, MSE elsewhere
     alpha_flow_keep: float = setting(0.25, 0.0, 1.0)  # two layers: share of the alpha flow weight kept once the flow has
-                                                 # decayed (1: all through training, as in Kasten et al.; 0: gone with the
-                                                 # flow, as before 2026-11-25). Without it nothing stops the foreground from
-                                                 # taking in background it fits better in a long fit (balanced: DAVIS parkour
-                                                 # alpha IoU 0.31, 0.79 with 0.25; docs/layers/alphaflow/); fast: 0 (its short
-                                                 # free phase refines alpha; held there, libby's faded to 0)
-    mask_given: float = setting(1.0, 0.0, 1.0)   # share of the alpha-mask weight kept all through training with --masks
-    mask_motion: float = setting(0.0, 0.0, 1.0)  # ... with the motion bootstrap's masks
-    mask_anchor: float = setting(0.0, 0.0, 1.0)  # alpha held to the motion masks where they are sure (farther than
-                                                 # anchor_band from their edge), all through training. Off by default: it
-                                                 # kept balanced's layers (DAVIS parkour alpha IoU 0.31 -> 0.79 at 0.05) at a
-                                                 # cost to the HDR (Basler flicker 0.51 -> 1.33; docs/layers/balanced/);
-                                                 # alpha_flow_keep now holds them for less (docs/layers/alphaflow/)
-    anchor_band: float = setting(0.03, 0.0, 0.5)  # ... the band left free, a share of the frame's short side
-    bg_change: float = setting(1.0, 0.0)         # penalty on the background's per-frame change (mean square, log2 units)
-    fg_follow: float = setting(1e-3, 0.0)        # two layers: the foreground's log2 irradiance pulled to the background's
-                                                 # where alpha is low, weight 1 - alpha (losses.fg_follow_loss; 0: off)
+                                                 # decayed (1: all through, as Kasten et al.): holds alpha on its object in a
+                                                 # long fit, but a short fit (fast: 0) refines alpha better without it
 
 
 @dataclass
-class TrainConfig:
-    steps: int = setting(2000, 1)
-    bootstrap_steps: int = setting(200, 0)  # deformation fit to its bootstrap mapping (paper: 10k)
-    batch: int = setting(8192, 1)           # pixels per step (paper: 30,000)
-    lr: float = setting(5e-3, above=0.0, hi=1.0)  # Adam learning rate of MLPs (paper: 1e-4)
-    grid_lr: float = setting(2e-2, above=0.0, hi=1.0)  # learning rate of dense grid tables
-    lr_decay: float = setting(0.1, 0.0, 1.0)  # final lr factor (cosine)
-    seed: int = setting(0, 0)
-    autocast: Literal["auto", "none", "bf16"] = AUTO  # bf16 mixed precision on a GPU, fp32 on the CPU
-    compile: bool = False                   # torch.compile the atlas fields (opt-in: 10-30 s to compile)
-    checkpoint_every: int = setting(500, 0)  # 0: only at the end (and on Ctrl-C)
+class TrainConfig(Section):
+    steps: int = setting(2000, 1)           # training steps: quality vs time (capped on short clips: passes_per_frame)
+    bootstrap_steps: int = setting(200, 0)  # steps fitting the deformation to its start (paper: 10k)
+    batch: int = setting(8192, 1)           # pixels per step: smoother gradients vs time and memory (paper: 30,000)
+    lr: float = setting(5e-3, above=0.0, hi=1.0)  # Adam learning rate of the MLPs: speed vs stability (paper: 1e-4)
+    grid_lr: float = setting(2e-2, above=0.0, hi=1.0)  # ... of the dense grid tables
+    lr_decay: float = setting(0.1, 0.0, 1.0)  # final learning rate factor (cosine): 1 keeps it constant (paper)
+    seed: int = setting(0, 0, 2**63 - 1)    # every random draw of training: the same seed, the same result
+    autocast: Literal["auto", "none", "bf16"] = AUTO  # bf16 mixed precision: about 2x on a GPU, bf16's rounding in the
+                                            # fields; auto: bf16 on a GPU that has it, fp32 elsewhere
+    checkpoint_every: int = setting(500, 0, keyed=False)  # steps between checkpoints: work lost to a crash vs time spent saving
+                                            # (0: only at the end and on Ctrl-C)
     device: str = setting("auto", check=_device)  # auto: CUDA when torch sees a GPU, else the CPU
-    max_bad_steps: int = setting(20, 1)
-    passes_per_frame: float = setting(2.0, 0.0)  # at most this many passes over the clip's pixels (frames x H x W) per
-                                            # frame of the clip (a 3-shot stack: 6), but never fewer steps than min_steps:
-                                            # more passes fit a short stack's noise and take time (analyse.step_cap; 0: no cap;
-                                            # paper: 4)
-    min_steps: int = setting(300, 1)        # the cap's floor: a clip the cap gives fewer steps trains this many, and the
-                                            # floor's model whatever the preset (analyse.FLOOR)
-    min_samples: int = setting(2_457_600, 0)  # ... with a blur generator, the floor in pixels sampled instead (fast's
-                                            # 600 steps x 4096), in the preset's model and batch: its PSFs need the steps
+    passes_per_frame: float = setting(2.0, 0.0)  # at most this many passes over the clip's pixels per frame of the clip:
+                                            # more fit a short stack's noise and take time (0: no cap, the preset's steps;
+                                            # paper: 0)
 
 
 @dataclass
-class FlowConfig:
-    method: Literal["dis_ultrafast", "dis_fast", "dis_medium", "raft", "raft_small", "raft_large"] = "dis_medium"
-    raft_weights: str = ""                  # a torchvision RAFT weights file (the raft methods need one)
-    short_side: int = setting(540, 0)       # flow of frames whose short side is longer is computed on copies scaled
-                                            # to it and read back scaled up (flow.working_size); 0: at the frames' size
+class FlowConfig(Section):
+    method: Literal["dis_ultrafast", "dis_fast", "dis_medium", "raft", "raft_small", "raft_large"] = "dis_medium"  # OpenCV
+                                            # DIS (no weights; faster is coarser) | torchvision RAFT from raft_weights ("raft":
+                                            # the variant the file holds): finer on large motion, ~0.5-1.5 s a pair on a CPU
+    raft_weights: str = ""                  # a local torchvision RAFT state dict for the raft methods (never downloaded)
 
 
 @dataclass
-class SegmentConfig:
+class SegmentConfig(Section):
     """Motion segmentation of a two-layer clip (:func:`layercam.segment.motion_masks`) and the
     foreground layer's bootstrap. Distances in pixels of the clip being segmented.
 
@@ -293,25 +269,23 @@ class SegmentConfig:
 
 
 @dataclass
-class ExportConfig:
-    half: bool = True                       # EXR half floats
-    preview_fps: float = setting(0.0, 0.0, 1000.0)  # 0: the input's frame rate
-    chunk: int = setting(65536, 1)          # pixels rendered at once
-    atlas_min_res: int = setting(32, 2, 8192)  # atlases/ grid side: about one texel per frame pixel, within these
-    atlas_max_res: int = setting(2048, 2, 8192)
+class ExportConfig(Section):
+    half: bool = True                       # EXR half floats: half the disk, 3e-4 relative error
     reference: int | Literal["middle", "first", "last"] = "middle"  # fuse-stack: the view fused into (an index may be negative)
-    faithful: bool = True                   # each frame's HDR agrees with the frame where it saw well (layercam/faithful.py); off: the model alone
-    merge_neighbours: Literal["auto", "on", "off"] = AUTO  # faithful: each frame's measurement merged with its neighbours' where
-                                            # they agree with it; auto: on for a video from a static camera (the bootstrap's identity)
-    clipped_everywhere: Literal["model", "clip"] = "model"  # faithful, where every frame clipped: the model's level (smoothed) |
-                                            # at most the shortest exposure's clipping point, the least the data says (docs/measurements.md:
-                                            # a hard-clipping camera gains, a soft filmic shoulder loses)
+    faithful: bool = True                   # each frame's HDR agrees with the frame where it saw well (layercam/faithful.py):
+                                            # the frame's own detail and noise; off: the model alone (smoother, may miss detail)
+    merge_neighbours: Literal["auto", "on", "off"] = AUTO  # faithful: each frame's measurement merged with its neighbours'
+                                            # where they agree with it: less noise and flicker, but a static scene's pixels
+                                            # only; auto: on for a video from a static camera
+    clipped_everywhere: Literal["model", "clip"] = "model"  # faithful, where every frame clipped: the model's level (smoothed;
+                                            # right for a soft filmic shoulder) | at most the shortest exposure's clipping point
+                                            # (the least the data says; right for a hard-clipping camera)
     denoise: Literal["auto", "on", "off"] = AUTO  # faithful: an adaptive Wiener filter against the frame's own noise read
-                                            # through the camera (faithful.denoise_log2); auto: on for a stack's fused view
+                                            # through the camera: less noise, softer fine texture; auto: on for a stack's fused view
 
 
 @dataclass
-class Config:
+class Config(Section):
     preset: str = "balanced"
     model: ModelConfig = field(default_factory=ModelConfig)
     scene: SceneConfig = field(default_factory=SceneConfig)
@@ -325,6 +299,10 @@ class Config:
 
     def section_dict(self, *names: str) -> dict:
         return {n: dataclasses.asdict(getattr(self, n)) for n in names}
+
+    def key_dict(self, *names: str) -> dict:
+        """:meth:`section_dict` without the settings that cannot change a result (``keyed=False``)."""
+        return {n: {f.name: getattr(getattr(self, n), f.name) for f in dataclasses.fields(getattr(self, n)) if f.metadata.get("keyed", True)} for n in names}
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
@@ -344,7 +322,12 @@ class Config:
         setattr(obj, name, check_value(key, value, hints[name], _meta(type(obj), name)))
 
     def copy(self) -> "Config":
-        return copy.deepcopy(self)
+        """A settable copy (also of a frozen config)."""
+        c = copy.deepcopy(self)
+        for obj in [c] + [getattr(c, sec) for sec in SECTIONS]:
+            obj.__dict__.pop("_frozen", None)
+            obj.__dict__.pop("_name", None)
+        return c
 
 
 SECTIONS = tuple(f.name for f in dataclasses.fields(Config) if f.name != "preset")
@@ -462,29 +445,11 @@ def validate(cfg: Config) -> Config:
         obj = getattr(cfg, sec)
         for name, hint in _hints(type(obj)).items():
             check_value(f"{sec}.{name}", getattr(obj, name), hint, _meta(type(obj), name))
-    s = cfg.scene
-    if s.grid_max_res and s.grid_max_res < s.grid_min_res:
-        raise LayercamError(f"scene.grid_max_res ({s.grid_max_res}) must be 0 (derived) or at least scene.grid_min_res ({s.grid_min_res})")
-    if cfg.export.atlas_max_res < cfg.export.atlas_min_res:
-        raise LayercamError(f"export.atlas_max_res ({cfg.export.atlas_max_res}) must be at least export.atlas_min_res ({cfg.export.atlas_min_res})")
     if cfg.flow.method.startswith("raft") and not cfg.flow.raft_weights:
         raise LayercamError(f"flow.method={cfg.flow.method} needs a weights file: --set flow.raft_weights=PATH")
     if cfg.segment.detector and not os.path.isfile(cfg.segment.detector):
         raise LayercamError(f"segment.detector: no such file: {cfg.segment.detector!r}")
     return cfg
-
-
-def unresolved(cfg: Config) -> list[str]:
-    """The settings still ``auto`` (or 0 = derived) that a model needs decided."""
-    out = [f"model.{k}" for k, v in dataclasses.asdict(cfg.model).items() if v == AUTO]
-    out += [f"blur.{k}" for k in ("n", "max_offset", "centre") if getattr(cfg.blur, k) == AUTO]
-    if cfg.scene.residual == AUTO:
-        out.append("scene.residual")
-    if cfg.scene.encoding == "grid" and cfg.scene.grid_max_res == 0:
-        out.append("scene.grid_max_res")
-    if cfg.scene.alpha_encoding == "grid" and cfg.scene.alpha_grid_res == 0 and cfg.model.layers != 1:
-        out.append("scene.alpha_grid_res")
-    return out
 
 
 def model_overrides(layers=None, tone_mapper=None, blur=None, max_offset=None, flow_loss=None) -> list[str]:

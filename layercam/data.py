@@ -45,8 +45,7 @@ class PixelSampler:
     own grid, x-y order) and ``fw_ok``/``bw_ok`` ``(T-1, h, w)`` consistency masks, or None
     (ndarrays or the flow stage's :class:`~layercam.io.frames.DiskArray`): ``h x w`` may be a
     working resolution below the frames' (the flow is then read at the nearest flow pixel and
-    scaled to frame pixels). ``masks (T, H, W)`` optional foreground masks for alpha bootstrapping;
-    ``sure (T, H, W)`` optional, where those masks are trusted (a batch's ``mask_sure``).
+    scaled to frame pixels). ``masks (T, H, W)`` optional foreground masks for alpha bootstrapping.
     Pixels are drawn on ``device`` and read on the host (a gather through each file's memory map,
     whose pages are given back at once), then moved to ``device`` as float32: memory is the batch's,
     whatever the clip's length. Every random number a training step uses comes from this sampler's
@@ -54,7 +53,7 @@ class PixelSampler:
     state is all a resume needs.
     """
 
-    def __init__(self, frames, fw=None, bw=None, fw_ok=None, bw_ok=None, masks=None, device="cpu", seed: int = 0, sure=None):
+    def __init__(self, frames, fw=None, bw=None, fw_ok=None, bw_ok=None, masks=None, device="cpu", seed: int = 0):
         from layercam.io.frames import Frames
 
         if len(frames.shape) != 4 or frames.shape[-1] != 3:
@@ -68,7 +67,6 @@ class PixelSampler:
             self.fh, self.fwid = (int(v) for v in self.fw.shape[1:3])
             self.fw_ok, self.bw_ok = _host(fw_ok, "fw_ok"), _host(bw_ok, "bw_ok")
         self.masks = _host(masks, "masks")
-        self.sure = _host(sure, "sure") if masks is not None else None
         # the generator lives where the data does, so that a batch is drawn without host transfers
         self.seed, self.draws = int(seed), 0
         self.gen = torch.Generator(device=self.device).manual_seed(self.seed)
@@ -131,8 +129,6 @@ class PixelSampler:
         }
         if self.masks is not None:
             batch["mask"] = self._gather(self.masks, t, y, x)
-            if self.sure is not None:
-                batch["mask_sure"] = self._gather(self.sure, t, y, x, dtype=torch.bool)
         # uniform draws for the model's own regularisers (the tone mapper's monotonicity probe),
         # from a second stream saved with the first (a resumed run draws what an uninterrupted one
         # would); a stream of their own leaves the pixels drawn as they were before they existed

@@ -38,7 +38,8 @@ ANALYSIS_PER_PX = 28.0   # per working-grid pixel of each pair measured (flow in
 SEG_PER_PX = 72.0        # two layers: per pixel of the flow's grid of each frame of a segmentation window
 BOOT_PER_PX = 24.0       # one layer: per frame pixel (a frame and its temporaries)
 EXPORT_PER_PX = 1300.0   # per frame pixel: the faithful export's arrays for a frame and its two neighbours
-RENDER_PER_PX = 1600.0   # per pixel of a render chunk (export.chunk): the networks' layers, one at a time
+RENDER_PER_PX = 1600.0   # per pixel of a render chunk: the networks' layers, one at a time
+RENDER_CHUNK = 65536     # pixels rendered at once (layercam.render)
 PARAM_BYTES = 24.0       # per model parameter in training: value, gradient, Adam's two moments, and a copy when saved
 ACT_PER_FLOAT = 21.0     # bytes of activations per float a sample carries through a network (autograd)
 
@@ -70,31 +71,40 @@ def costliest(cfg, task: str, frames: int):
         b.n = 5 if m.blur == "on" else 3
     if b.max_offset == AUTO:
         b.max_offset = 5.0
-    if c.loss.robust == AUTO:
-        c.loss.robust = 0.0
     return c
 
 
-def _model_parts(cfg, frames: int, hw: tuple[int, int]) -> tuple[dict, object]:
-    """Parameters by part of the model ``cfg`` (decided) builds for ``frames`` frames of ``hw``
-    (counted on the meta device), and the resolved config."""
+def _resolved(cfg, task: str, frames: int, hw: tuple[int, int]):
+    """``cfg`` as the run's :class:`~layercam.resolve.Resolved`: itself when resolved already (after
+    the analysis), else with its ``auto`` at their costliest (:func:`costliest`) and resolved for a
+    clip of ``frames`` frames of ``hw`` with nothing measured."""
+    from layercam.resolve import Resolved, resolve
+
+    if isinstance(cfg, Resolved):
+        return cfg
+    return resolve(costliest(cfg, task, frames), frames=frames, hw=hw, task=task)
+
+
+def _model_parts(r, frames: int, hw: tuple[int, int]) -> dict:
+    """Parameters by part of the model ``r`` (resolved) builds for ``frames`` frames of ``hw``,
+    counted on the meta device (its sizes derived from the identity mappings)."""
     import torch
 
-    from layercam.analyse import resolve_auto
     from layercam.checkpoint import build_model
     from layercam.geometry import atlas_mappings
+    from layercam.scene.layered import derived_sizes
 
     T, (H, W) = frames, hw
-    h0 = np.stack([atlas_mappings(H, W, np.repeat(np.eye(3)[None], T, 0))] * int(cfg.model.layers))
-    rc = resolve_auto(cfg, False, h0, hw)
-    rc.scene.alpha_grid_res = max(rc.scene.alpha_grid_res, 2)  # a frame of 1 px: counted as 2 (the analysis gives it one layer)
-    meta = {"h0": h0, "log2_dt": np.zeros(T, np.float32), "init_log2": 0.0, "frame_hw": hw, "clip_levels": [1.0, 1.0, 1.0]}
+    h0 = np.stack([atlas_mappings(H, W, np.repeat(np.eye(3)[None], T, 0))] * int(r.settings.model.layers))
+    m = r.settings.model
+    sizes = derived_sizes(h0, hw, fine=m.blur == "on" or (r.static and m.layers == 1))  # on the host: the meta device holds no values
+    meta = {"h0": h0, "log2_dt": np.zeros(T, np.float32), "init_log2": 0.0, "frame_hw": hw, "sizes": sizes}
     with torch.device("meta"):
-        model = build_model(rc, meta)
+        model = build_model(r, meta)
     parts: dict[str, int] = {}
     for name, p in model.named_parameters():
         parts[_part(name)] = parts.get(_part(name), 0) + p.numel()
-    return parts, rc
+    return parts
 
 
 def _part(name: str) -> str:
@@ -113,46 +123,50 @@ def _part(name: str) -> str:
     return "tone mapper and exposures"
 
 
-SETTINGS = {  # the settings that size each part, named in a refusal
-    "alpha grid": ("scene.alpha_grid_res", "scene.alpha_grid_features", "scene.alpha_grid_levels"),
-    "alpha MLP": ("scene.alpha_width", "scene.alpha_depth"),
-    "atlas grids": ("scene.grid_features", "scene.grid_max_res", "scene.grid_levels"),
+SETTINGS = {  # the settings that size each part, named in a refusal (the alpha grid follows the frame: --resize)
+    "alpha grid": (),
+    "alpha MLP": (),
+    "atlas grids": ("scene.grid_levels",),
     "atlas MLP": ("scene.atlas_width", "scene.atlas_depth"),
     "deformation": ("scene.deform_width", "scene.deform_depth"),
-    "blur generator": ("blur.width", "blur.depth"),
+    "blur generator": ("blur.n",),
     "tone mapper and exposures": ("tone.width", "tone.depth"),
 }
 
 
-def _settings(rc, keys) -> str:
-    return ", ".join(f"{k}={getattr(getattr(rc, k.split('.')[0]), k.split('.')[1])}" for k in keys)
+def _settings(cfg, keys) -> str:
+    return ", ".join(f"{k}={getattr(getattr(cfg, k.split('.')[0]), k.split('.')[1])}" for k in keys)
 
 
-def floats_per_sample(rc) -> dict:
+def floats_per_sample(cfg) -> dict:
     """Floats one training sample carries through each part's networks (their inputs and each
-    layer's output), by part (as :data:`SETTINGS` names them): times ``ACT_PER_FLOAT`` the
-    activations autograd keeps and the backward pass makes."""
-    s, L = rc.scene, int(rc.model.layers)
+    layer's output), by part (as :data:`SETTINGS` names them), for the resolved settings ``cfg``:
+    times ``ACT_PER_FLOAT`` the activations autograd keeps and the backward pass makes."""
+    from layercam.scene import fields as f
+
+    s, L = cfg.scene, int(cfg.model.layers)
     mlp = lambda i, w, d, o=1: i + w * (d + 1) * 2 + o  # noqa: E731 - pre- and post-activation per hidden layer
-    n = int(rc.blur.n) if rc.model.blur == "on" else 1
-    k = n * n * (2 if rc.model.flow_loss else 1)  # each sample's n x n PSF taps, and its match for the flow loss
-    out = {"deformation": k * L * mlp(3 * (1 + 2 * s.deform_pe_freqs), s.deform_width, s.deform_depth, 2),
-           "atlas grids": k * L * (s.grid_levels * s.grid_features * 4 if s.encoding == "grid" else 2 * (1 + 2 * s.pe_freqs)),
+    n = int(cfg.blur.n) if cfg.model.blur == "on" else 1
+    k = n * n * (2 if cfg.model.flow_loss else 1)  # each sample's n x n PSF taps, and its match for the flow loss
+    out = {"deformation": k * L * mlp(3 * (1 + 2 * f.DEFORM_PE_FREQS), s.deform_width, s.deform_depth, 2),
+           "atlas grids": k * L * (s.grid_levels * f.GRID_FEATURES * 4 if s.encoding == "grid" else 2 * (1 + 2 * f.ATLAS_PE_FREQS)),
            "atlas MLP": k * L * mlp(0, s.atlas_width, s.atlas_depth, 3),
-           "tone mapper and exposures": k * 3 * mlp(1, rc.tone.width, rc.tone.depth)}
+           "tone mapper and exposures": k * 3 * mlp(1, cfg.tone.width, cfg.tone.depth)}
     if L > 1:
-        out["alpha grid"] = k * (s.alpha_grid_levels * s.alpha_grid_features * 8 if s.alpha_encoding == "grid" else 0)
-        out["alpha MLP"] = k * mlp(3 * (1 + 2 * s.alpha_pe_freqs), s.alpha_width, s.alpha_depth)
+        out["alpha grid"] = k * (f.ALPHA_GRID_LEVELS * f.ALPHA_GRID_FEATURES * 8 if s.alpha_encoding == "grid" else 0)
+        out["alpha MLP"] = k * mlp(3 * (1 + 2 * f.ALPHA_PE_FREQS), f.ALPHA_WIDTH, f.ALPHA_DEPTH)
     if n > 1:
-        out["blur generator"] = (2 if rc.model.flow_loss else 1) * 2 * mlp(16, rc.blur.width, rc.blur.depth, n * n)
+        out["blur generator"] = (2 if cfg.model.flow_loss else 1) * 2 * mlp(16, 64, 4, n * n)
     return out
 
 
 def estimate(info: dict, cfg, task: str = "hdr-video") -> dict:
     """Peak memory and disk of a run on a clip of ``info`` (:func:`layercam.io.probe_clip`:
-    ``frames``, ``width``, ``height``, ``bit_depth``) with ``cfg``: ``{"memory": bytes, "disk":
-    bytes, "stages": {stage: bytes}, "disk_parts": {...}, "params": {...}, "largest": str, "settings":
-    str}``; ``largest`` names the costliest stage or part and ``settings`` what sizes it."""
+    ``frames``, ``width``, ``height``, ``bit_depth``) with ``cfg`` (the settings as given, a
+    :class:`~layercam.config.Config`, or as resolved after the analysis, a
+    :class:`~layercam.resolve.Resolved`): ``{"memory": bytes, "disk": bytes, "stages": {stage:
+    bytes}, "disk_parts": {...}, "params": {...}, "largest": str, "settings": str}``; ``largest``
+    names the costliest stage or part and ``settings`` what sizes it."""
     from layercam.analyse import MOTION_PAIRS
     from layercam.flow import working_size
     from layercam.segment import SEG_FRAMES
@@ -160,10 +174,11 @@ def estimate(info: dict, cfg, task: str = "hdr-video") -> dict:
     T = max(int(info.get("frames") or 1), 1)
     H, W = int(info["height"]), int(info["width"])
     px = H * W
-    c = costliest(cfg, task, T)
-    params, rc = _model_parts(c, T, (H, W))
+    r = _resolved(cfg, task, T, (H, W))
+    rc = r.settings
+    params = _model_parts(r, T, (H, W))
     n_params = sum(params.values())
-    h, w = working_size((H, W), cfg.flow.short_side)
+    h, w = working_size((H, W))
     wpx = h * w
     batch = int(rc.train.batch)
     per_part = floats_per_sample(rc)
@@ -173,7 +188,7 @@ def estimate(info: dict, cfg, task: str = "hdr-video") -> dict:
         "analysis": ANALYSIS_PER_PX * min(T - 1, MOTION_PAIRS) * wpx,
         "bootstrap": SEG_PER_PX * min(T, SEG_FRAMES) * wpx + 16.0 * px if rc.model.layers > 1 else BOOT_PER_PX * px,  # segmented on the flow's grid
         "train": PARAM_BYTES * n_params + sample * batch,
-        "export": 4.0 * n_params + EXPORT_PER_PX * px + RENDER_PER_PX * min(int(cfg.export.chunk), px),  # no autograd: a render chunk's layers one at a time
+        "export": 4.0 * n_params + EXPORT_PER_PX * px + RENDER_PER_PX * min(RENDER_CHUNK, px),  # no autograd: a render chunk's layers one at a time
     }
     store = 1 if int(info.get("bit_depth") or 8) <= 8 else (2 if int(info.get("bit_depth")) <= 16 else 4)
     disk = {
@@ -187,11 +202,11 @@ def estimate(info: dict, cfg, task: str = "hdr-video") -> dict:
     if stage == "train" and PARAM_BYTES * n_params >= sample * batch:
         part = max(params, key=params.get)
         largest = f"training the model's {n_params:,} parameters ({params[part]:,} in the {part})"
-        settings = _settings(rc, SETTINGS[part])
+        settings = _settings(rc, SETTINGS[part]) or "--resize"
     elif stage == "train":
         part = max(per_part, key=per_part.get)
         largest = f"training on batches of {batch:,} samples ({_fmt(sample * batch)}, most through the {part})"
-        settings = f"train.batch={cfg.train.batch}, " + _settings(rc, SETTINGS[part])
+        settings = ", ".join(filter(None, [f"train.batch={rc.train.batch}", _settings(rc, SETTINGS[part])]))
     else:
         largest = f"the {stage} stage on {W}x{H} frames"
         settings = "--resize"

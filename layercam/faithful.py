@@ -53,12 +53,14 @@ from __future__ import annotations
 
 import numpy as np
 
+from layercam.visibility import CLIP_LEVEL, FLOOR_LEVEL
+
 KAPPA = 2.0             # the disagreement must reach this many noise variances before the frame is trusted
 WINDOW_SIGMA = 1.5      # px: the Gaussian window over which the disagreement is averaged
 EXPOSED = (2.0 / 255, 12.0 / 255, 20.0 / 255, 2.5 / 255)  # well-exposedness ramps: 0 at the floor and within the
                         # last of these below the clipping level, 1 from the second / above the third below it
-FLOOR = 0.5 / 255       # a channel at or below this is at the floor; at or above its clipping level
-                        # (visibility.clip_levels: 254.5 / 255, or lower where the camera clips lower), clipped
+FLOOR = FLOOR_LEVEL     # a channel at or below this is at the floor; at or above its clipping level
+                        # (visibility.clip_levels: CLIP_LEVEL, or lower where the camera clips lower), clipped
 UNSEEN_SIGMA = 4.0      # px: the smoothing of the model where no frame saw the pixel
 MERGE_KAPPA = 3.0       # a neighbour must reproduce the frame within this many noise deviations to be merged
 NOISE_FLOOR = 2.0 / 255  # the noise the fidelity weight and the merge's agreement test assume at least (compression,
@@ -69,10 +71,10 @@ DENOISE_SIGMA = 1.0     # px: the Gaussian window of the export's adaptive Wiene
 
 def exposure_weight(frame: np.ndarray, levels: np.ndarray | None = None) -> np.ndarray:
     """``(H, W, 3)`` in [0, 1]: how well each channel of ``frame`` is exposed (smooth ramps from 0
-    at the 8-bit floor and at the clipping ``levels (3,)`` (default 254.5 / 255) to 1 in between,
+    at the 8-bit floor and at the clipping ``levels (3,)`` (default :data:`layercam.visibility.CLIP_LEVEL`) to 1 in between,
     ``EXPOSED``)."""
     a, b, c, d = EXPOSED
-    lv = np.full(3, 254.5 / 255, np.float32) if levels is None else np.asarray(levels, np.float32)
+    lv = np.full(3, CLIP_LEVEL, np.float32) if levels is None else np.asarray(levels, np.float32)
     f = np.asarray(frame, np.float32)
     lo = np.clip((f - a) / (b - a), 0.0, 1.0)
     hi = np.clip((lv - d - f) / (c - d), 0.0, 1.0)
@@ -205,7 +207,7 @@ def correction(model, frame: np.ndarray, t: int, levels: np.ndarray | None = Non
     with torch.no_grad():
         dts = model.exposure.values().detach().float().cpu().numpy()
     log2_dt = float(dts[int(t)])
-    levels = np.full(3, 254.5 / 255, np.float32) if levels is None else np.asarray(levels, np.float32)
+    levels = np.full(3, CLIP_LEVEL, np.float32) if levels is None else np.asarray(levels, np.float32)
     w, info = fidelity_weight(frame, out["ldr"], kappa, levels)
     delta = inverse_tone(model, frame, log2_dt) - inverse_tone(model, out["ldr"], log2_dt)
     return {"model_log2_r": out["log2_r"], "delta": delta, "weight": w, "exposed": exposure_weight(frame, levels), "log2_dts": dts, "levels": levels, "info": info}
@@ -231,7 +233,7 @@ def merge_neighbours(own: tuple[np.ndarray, np.ndarray], neighbours: list[tuple[
     frame saw the pixel)."""
     import cv2
 
-    from layercam.flow import warp
+    from layercam.geometry import warp
     from layercam.render import tone_map_log2
 
     z_t, a_t = own
@@ -308,7 +310,7 @@ def neighbour_fill(neighbours: list[tuple[np.ndarray, np.ndarray, np.ndarray]]) 
     flow from this frame's pixels to the neighbour's (NaN where there is none: that neighbour lends
     nothing there), and how much they saw, ``min(sum w_n, 1)``: ``(fill, support)``, ``(H, W, 3)``
     each; None without neighbours."""
-    from layercam.flow import warp
+    from layercam.geometry import warp
 
     num = den = None
     for wd, w, fl in neighbours:
@@ -326,7 +328,7 @@ def faithful_log2(model, frame: np.ndarray, t: int, levels: np.ndarray | None = 
     ``frame (H, W, 3)`` beyond the frame's noise (:func:`correction`, or ``corr`` when computed
     already), where the frame did not see well by the neighbours' corrections ``fill`` (``(fill,
     support)``, :func:`neighbour_fill`), kept within the bounds of the frame's clipping (at the clip's
-    ``levels (3,)``, :func:`layercam.visibility.clip_levels`; default 254.5 / 255) and floor,
+    ``levels (3,)``, :func:`layercam.visibility.clip_levels`; default :data:`layercam.visibility.CLIP_LEVEL`) and floor,
     smooth where no frame of the clip saw it (:func:`unseen`; ``stack``: the clip's frames
     registered into this view, for a static scene) (the module's docstring); ``merge``: the
     neighbours' ``(z_n, a_n, flow)`` to merge with where they agree (:func:`merge_neighbours`);

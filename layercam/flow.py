@@ -17,6 +17,7 @@ import numpy as np
 
 from layercam.colour import REC601, luma
 from layercam.errors import LayercamError
+from layercam.geometry import pixel_grid, warp  # noqa: F401 - warp: the flow's backward warp, imported from here too
 
 __all__ = [
     "FLOW_METHODS",
@@ -150,20 +151,21 @@ def compute_flow(
     """Forward and backward flow between consecutive frames.
 
     frames: ``(T,H,W,3)`` float in [0,1]. method: one of ``FLOW_METHODS`` (OpenCV DIS
-    presets), or "raft_small"/"raft_large" with ``weights_path`` (see ``raft_flow``).
+    presets), or "raft" / "raft_small" / "raft_large" with ``weights_path`` (see ``raft_flow``;
+    "raft": the variant the file holds).
     Returns ``(fw, bw)``, each ``(T-1,H,W,2)`` float32 (``(0,H,W,2)`` when T == 1):
     ``fw[t]`` from frame t to t+1, ``bw[t]`` from t+1 to t.
     """
     f = _check_frames(frames)
     t, h, w = f.shape[:3]
-    if method in ("raft_small", "raft_large"):
-        if weights_path is None:
+    if method in ("raft", "raft_small", "raft_large"):
+        if not weights_path:
             raise LayercamError(f"flow method {method!r} needs a weights file (weights_path)")
-        return raft_flow(f, weights_path, variant=method[5:], progress=progress)
+        return raft_flow(f, weights_path, variant=method[5:] or None, progress=progress)
     if method not in FLOW_METHODS:
         raise LayercamError(
             f"unknown flow method {method!r}; choose one of {', '.join(FLOW_METHODS)}, "
-            "raft_small, raft_large"
+            "raft, raft_small, raft_large"
         )
     fw = np.zeros((max(t - 1, 0), h, w, 2), np.float32)
     bw = np.zeros_like(fw)
@@ -201,36 +203,6 @@ def dis_pairs(frames, method: str = "dis_medium", normaliser: str = "rank"):
 # --------------------------------------------------------------------------------------------
 
 
-def _grid(h: int, w: int) -> tuple[np.ndarray, np.ndarray]:
-    yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
-    return xx, yy
-
-
-def warp(img, flow, border: str = "replicate") -> np.ndarray:
-    """Backward warp: ``result(x) = img(x + flow(x))`` (bilinear, ``cv2.remap``).
-
-    img: ``(H,W)`` or ``(H,W,C)`` (any C; float or uint8). flow: ``(H,W,2)``.
-    border: "replicate" or "constant" (zeros outside). Returns img's dtype and shape.
-    """
-    import cv2
-
-    im = np.asarray(img)
-    fl = np.asarray(flow, dtype=np.float32)
-    if im.ndim not in (2, 3) or fl.shape != im.shape[:2] + (2,):
-        raise LayercamError(f"warp: img {im.shape} and flow {fl.shape} do not match")
-    xx, yy = _grid(*im.shape[:2])
-    bmode = {"replicate": cv2.BORDER_REPLICATE, "constant": cv2.BORDER_CONSTANT}[border]
-    src = im if im.dtype in (np.uint8, np.float32) else im.astype(np.float32)
-    if src.ndim == 3 and src.shape[2] > 4:  # remap handles at most 4 channels
-        out = np.stack(
-            [cv2.remap(np.ascontiguousarray(src[..., c]), xx + fl[..., 0], yy + fl[..., 1],
-                       cv2.INTER_LINEAR, borderMode=bmode) for c in range(src.shape[2])], -1)
-    else:
-        out = cv2.remap(np.ascontiguousarray(src), xx + fl[..., 0], yy + fl[..., 1],
-                        cv2.INTER_LINEAR, borderMode=bmode)
-        if src.ndim == 3 and out.ndim == 2:
-            out = out[..., None]
-    return out.astype(im.dtype, copy=False)
 
 
 def _check_pair(fw, bw=None) -> tuple[np.ndarray, np.ndarray | None]:
@@ -251,7 +223,7 @@ def flow_consistency(fw, bw, abs_tol: float = 1.0, rel_tol: float = 0.05) -> np.
     f, b = _check_pair(fw, bw)
     n, h, w = f.shape[:3]
     out = np.zeros((n, h, w), bool)
-    xx, yy = _grid(h, w)
+    xx, yy = pixel_grid(h, w)
     for i in range(n):
         bw_at = warp(b[i], f[i])
         err = np.linalg.norm(f[i] + bw_at, axis=-1)
@@ -351,7 +323,7 @@ def pair_arrays(frames, fw, bw) -> dict:
 
 
 def _homography_flow(hm: np.ndarray, h: int, w: int) -> np.ndarray:
-    xx, yy = _grid(h, w)
+    xx, yy = pixel_grid(h, w)
     x = hm[0, 0] * xx + hm[0, 1] * yy + hm[0, 2]
     y = hm[1, 0] * xx + hm[1, 1] * yy + hm[1, 2]
     z = hm[2, 0] * xx + hm[2, 1] * yy + hm[2, 2]
@@ -469,9 +441,15 @@ def raft_pairs(frames, model, iters: int = 12):
 # --------------------------------------------------------------------------------------------
 
 
-def working_size(hw: tuple[int, int], short_side: int) -> tuple[int, int]:
+WORKING_SHORT_SIDE = 540  # flow of frames whose short side is longer is computed on copies scaled to it and read
+                          # back scaled up: DIS's cost and memory grow with the pixels, its accuracy barely
+
+
+def working_size(hw: tuple[int, int], short_side: int | None = None) -> tuple[int, int]:
     """The ``(h, w)`` flow is computed at for frames of ``hw = (H, W)``: the frames' own size when
-    their short side is at most ``short_side`` (or ``short_side`` is 0), else scaled down to it."""
+    their short side is at most ``short_side`` (default :data:`WORKING_SHORT_SIDE`; 0: always),
+    else scaled down to it."""
+    short_side = WORKING_SHORT_SIDE if short_side is None else short_side
     h, w = int(hw[0]), int(hw[1])
     if not short_side or min(h, w) <= short_side:
         return h, w

@@ -45,7 +45,7 @@ def compute(frames, out: Path, cfg, progress: bool = False) -> dict:
     out = Path(out)
     T, H, W = frames.shape[:3]
     n = max(T - 1, 0)
-    work = flow.working_size((H, W), cfg.short_side)
+    work = flow.working_size((H, W))
     h, w = work
     arrays = {k: DiskArray.create(out / f"{k}.raw", dt, (n, h, w, 2) if c else (n, h, w)) for k, (dt, c) in ARRAYS.items()}
     homs = np.repeat(np.eye(3)[None], n, 0)
@@ -90,8 +90,11 @@ def compute(frames, out: Path, cfg, progress: bool = False) -> dict:
 
 
 def load(out: Path) -> dict | None:
-    """The arrays :func:`compute` left in ``out`` (opened, not read), or None for a single frame."""
+    """The arrays :func:`compute` left in ``out`` (opened, not read), or None for a single frame. A
+    flow cached before (one ``flow.npz``) is moved to this layout first, an array at a time."""
     out = Path(out)
+    if not (out / "flow.json").exists() and (out / "flow.npz").exists():
+        _migrate(out)
     info = json.loads((out / "flow.json").read_text())
     n = info["pairs"]
     if not n:
@@ -100,3 +103,19 @@ def load(out: Path) -> dict | None:
     fl = {k: DiskArray(out / f"{k}.raw", dt, (n, h, w, 2) if c else (n, h, w)) for k, (dt, c) in info["arrays"].items()}
     fl["homs"] = np.load(out / "homs.npy")
     return fl
+
+
+def _migrate(out: Path) -> None:
+    """``flow.npz`` (the flow stage's cache before it was kept a file per array) as :func:`compute`
+    leaves it: the same arrays, so the stages after it keep their caches."""
+    with np.load(out / "flow.npz") as z:
+        n = len(z["fw"])
+        h, w = z["fw"].shape[1:3] if n else (0, 0)
+        for k, (dt, c) in ARRAYS.items():
+            if k in z.files or n == 0:
+                a = DiskArray.create(out / f"{k}.raw", dt, (n, h, w, 2) if c else (n, h, w))
+                if n:
+                    a[0:n] = z[k]
+                a.close()
+        np.save(out / "homs.npy", z["homs"].astype(np.float64) if "homs" in z.files else np.repeat(np.eye(3)[None], n, 0))
+    (out / "flow.json").write_text(json.dumps({"pairs": n, "working_size": [int(h), int(w)], "arrays": {k: [np.dtype(dt).str, c] for k, (dt, c) in ARRAYS.items()}}))

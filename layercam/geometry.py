@@ -18,6 +18,43 @@ from __future__ import annotations
 
 import numpy as np
 
+from layercam.errors import LayercamError
+
+
+def pixel_grid(h: int, w: int) -> tuple[np.ndarray, np.ndarray]:
+    """``(xx, yy)``, each ``(h, w)`` float32: the index coordinates of every pixel (column, row),
+    as flow vectors and ``cv2.remap`` count them; the pixel's centre in the continuous pixel
+    coordinates above is ``+ 0.5`` of them."""
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
+    return xx, yy
+
+
+def warp(img, flow, border: str = "replicate") -> np.ndarray:
+    """Backward warp: ``result(x) = img(x + flow(x))`` (bilinear, ``cv2.remap``).
+
+    img: ``(H,W)`` or ``(H,W,C)`` (any C; float or uint8). flow: ``(H,W,2)``.
+    border: "replicate" or "constant" (zeros outside). Returns img's dtype and shape.
+    """
+    import cv2
+
+    im = np.asarray(img)
+    fl = np.asarray(flow, dtype=np.float32)
+    if im.ndim not in (2, 3) or fl.shape != im.shape[:2] + (2,):
+        raise LayercamError(f"warp: img {im.shape} and flow {fl.shape} do not match")
+    xx, yy = pixel_grid(*im.shape[:2])
+    bmode = {"replicate": cv2.BORDER_REPLICATE, "constant": cv2.BORDER_CONSTANT}[border]
+    src = im if im.dtype in (np.uint8, np.float32) else im.astype(np.float32)
+    if src.ndim == 3 and src.shape[2] > 4:  # remap handles at most 4 channels
+        out = np.stack(
+            [cv2.remap(np.ascontiguousarray(src[..., c]), xx + fl[..., 0], yy + fl[..., 1],
+                       cv2.INTER_LINEAR, borderMode=bmode) for c in range(src.shape[2])], -1)
+    else:
+        out = cv2.remap(np.ascontiguousarray(src), xx + fl[..., 0], yy + fl[..., 1],
+                        cv2.INTER_LINEAR, borderMode=bmode)
+        if src.ndim == 3 and out.ndim == 2:
+            out = out[..., None]
+    return out.astype(im.dtype, copy=False)
+
 
 def middle_frame(n: int) -> int:
     """The middle of ``n`` frames (the later of the two middles for an even ``n``): the reference

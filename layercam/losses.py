@@ -5,23 +5,11 @@ from __future__ import annotations
 import torch
 
 
-def color_loss(pred: torch.Tensor, target: torch.Tensor, mode: str = "plain", lo: float = 1.0 / 255, hi: float | torch.Tensor = 254.0 / 255, robust: float = 0.0) -> torch.Tensor:
-    """Colour reconstruction (paper Eq. 9), ``(N, 3)`` each; ``hi`` a float or per channel ``(3,)``
-    (a camera that clips below 255: :func:`layercam.visibility.clip_levels`).
-
-    mode "plain": MSE. mode "one_sided": a target at or below ``lo`` only says "the value is at most
-    ``lo``", at or above ``hi`` only "at least ``hi``", so there the error is measured against the
-    threshold and counts only on the wrong side of it: ``max(pred - lo, 0)`` and ``min(pred - hi, 0)``.
-    (Measuring against the target itself would keep penalising a clipped pixel at 1.0 fully, since a
-    sigmoid tone curve never reaches 1.)
-    """
+def color_loss(pred: torch.Tensor, target: torch.Tensor, robust: float = 0.0) -> torch.Tensor:
+    """Colour reconstruction (paper Eq. 9), ``(N, 3)`` each: MSE, or with ``robust`` = c > 0 the
+    Cauchy loss ``c^2 ln(1 + (e / c)^2)`` (quadratic for errors well under c, growing as a log past
+    it)."""
     err = pred.float() - target.float()
-    if mode == "one_sided":
-        t = target.float()
-        err = torch.where(t <= lo, (pred.float() - lo).clamp_min(0.0), err)
-        err = torch.where(t >= hi, (pred.float() - hi).clamp_max(0.0), err)
-    elif mode != "plain":
-        raise ValueError(f"unknown colour loss mode {mode!r}")
     if robust > 0:  # Cauchy: quadratic for small errors, log-growing past c
         return (robust**2 * torch.log1p((err / robust) ** 2)).mean()
     return (err**2).mean()

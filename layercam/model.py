@@ -18,14 +18,24 @@ from torch import nn
 from layercam import losses
 from layercam.camera.exposure import ExposureField
 from layercam.camera.tone import FixedTone, ToneMapper
-from layercam.config import Config, unresolved
-from layercam.scene.layered import LayeredScene
+from layercam.resolve import Resolved, as_resolved
+from layercam.scene.layered import LayeredScene, derived_sizes
+
+# the loss weights no preset changes: the paper's (lambda_c, lambda_f, lambda_w, lambda_g) and the
+# layered atlases' (Kasten et al.: rigidity, sparsity, alpha flow)
+COLOR, FLOW, WHITE_BALANCE, GRADIENT = 1.0, 100.0, 1.0, 100.0
+FLOW_DECAY_END = 0.5         # the flow term decays linearly to 0 by this share of training
+RIGIDITY, SPARSITY, ALPHA_FLOW = 0.01, 0.001, 1.0
+MASK_GIVEN, MASK_MOTION = 1.0, 0.0  # share of the alpha-mask weight kept all through training: given masks | motion masks
+FG_FOLLOW = 1e-3             # two layers: the foreground's log2 irradiance pulled to the background's where alpha is low
+WHITE_POINT = 0.5            # the white-balance target T(0) (paper)
 
 
 @dataclass
 class LossWeights:
-    """The weight of each loss term (0: the term is not computed). Set from ``cfg.loss`` and the
-    model's components; changed during training by the schedules of ``training_callbacks``."""
+    """The weight of each loss term (0: the term is not computed). Set from the constants above,
+    ``loss`` settings and the model's components; changed during training by the schedules of
+    ``training_callbacks``."""
 
     color: float = 1.0
     flow: float = 0.0
@@ -37,75 +47,67 @@ class LossWeights:
     alpha_flow: float = 0.0
     alpha_mask: float = 0.0
     mask_balance: float = 1.0  # class balance of the alpha-mask term (1: balanced, 0: plain BCE)
-    alpha_anchor: float = 0.0  # alpha against motion masks where they are sure, all through training
-    bg_change: float = 0.0
     fg_follow: float = 0.0
 
 
 class ImplicitCameraModel(nn.Module):
-    """Scene + camera for one clip, built from a config whose ``auto`` settings are all decided
-    (:func:`layercam.analyse.decide` and :func:`layercam.analyse.resolve_auto`): the ``model``
-    section says which components exist, the others how they are built.
+    """Scene + camera for one clip, built from resolved settings (:class:`layercam.resolve.Resolved`;
+    a config with nothing left ``auto`` is taken as one): the ``model`` section says which components
+    exist, the others how they are built.
 
     ``h0 (L, T, 3, 3)``: each layer's bootstrap mapping; ``log2_dt (T,)`` the given exposures,
     ``exposure_learn``/``phase`` what of them is learned (``layercam.io.Exposures``);
-    ``init_log2`` the atlases' starting log2 irradiance; ``frame_hw`` the frames' ``(H, W)``.
+    ``init_log2`` the atlases' starting log2 irradiance; ``frame_hw`` the frames' ``(H, W)``;
+    ``sizes`` the sizes derived from the clip (:func:`layercam.scene.layered.derived_sizes`; derived
+    here when not given, given when a saved model is rebuilt).
     """
 
-    def __init__(self, cfg: Config, h0: torch.Tensor, log2_dt: np.ndarray, exposure_learn: str = "none", phase=None, init_log2: float = 0.0, frame_hw: tuple[int, int] = (1, 1), clip_levels=None):
+    def __init__(self, resolved: Resolved, h0: torch.Tensor, log2_dt: np.ndarray, exposure_learn: str = "none", phase=None, init_log2: float = 0.0, frame_hw: tuple[int, int] = (1, 1), sizes: dict | None = None):
         super().__init__()
-        todo = unresolved(cfg)
-        if todo:
-            raise ValueError(f"the model needs these settings decided first (layercam.analyse): {', '.join(todo)}")
+        r = as_resolved(resolved, h0.shape[1], frame_hw)
+        cfg = r.settings
         m = cfg.model
         if h0.shape[0] != m.layers:
             raise ValueError(f"model.layers = {m.layers} but h0 holds {h0.shape[0]} layer mappings")
-        self.cfg = cfg
+        self.resolved, self.cfg = r, cfg
         self.frame_hw = frame_hw
-        # the colour error's Cauchy scale; "auto" left (no analysis ran: tests, a run from before the
-        # setting) is the paper's MSE
-        self._robust = 0.0 if cfg.loss.robust == "auto" else float(cfg.loss.robust)
-        # per channel, the pixel value at which the clip clips (layercam.visibility.clip_levels):
-        # the one-sided colour loss reads a target there as "at least this"
-        self.clip_levels = torch.as_tensor(np.full(3, 254.0 / 255) if clip_levels is None else np.asarray(clip_levels), dtype=torch.float32)
-        self.scene = LayeredScene(cfg.scene, h0, init_log2)
+        self.sizes = dict(sizes) if sizes else derived_sizes(h0.numpy(), frame_hw, fine=m.blur == "on" or (r.static and m.layers == 1))
+        self._robust = float(cfg.loss.robust)  # the colour error's Cauchy scale (0: the paper's MSE)
+        self.scene = LayeredScene(cfg.scene, h0, self.sizes, init_log2, residual=r.residual, still_background=r.still_background, batch=cfg.train.batch)
         self.exposure = ExposureField(log2_dt, exposure_learn if m.exposures == "learned" else "none", phase)
         learned = m.tone_mapper == "learned"
-        self.tone = ToneMapper(cfg.tone.width, cfg.tone.depth, cfg.tone.monotone, lut=cfg.tone.lut, init_slope=cfg.tone.init_slope) if learned else FixedTone()
+        self.tone = ToneMapper(cfg.tone.width, cfg.tone.depth, lut=cfg.tone.lut) if learned else FixedTone()
         self.blur = None
         if m.blur == "on":
-            from layercam.camera.blur import BlurGenerator
+            from layercam.camera.blur import INIT_CENTRE_WEIGHT, BlurGenerator
 
-            b = cfg.blur
-            self.blur = BlurGenerator(b.n, b.max_offset, h0.shape[1], frame_hw, b.width, b.depth, init_centre_weight=b.init_centre_weight, zero_mean_offsets=b.zero_mean_offsets, centre_exact=b.centre == "on")
-        lc = cfg.loss
+            self.blur = BlurGenerator(cfg.blur.n, cfg.blur.max_offset, h0.shape[1], frame_hw, init_centre_weight=INIT_CENTRE_WEIGHT, zero_mean_offsets=True, centre_exact=r.blur_centre)
         self.loss_weights = LossWeights(
-            color=lc.color,
-            flow=lc.flow if m.flow_loss else 0.0,
-            white_balance=lc.white_balance if learned else 0.0,
-            gradient=lc.gradient if learned and not cfg.tone.monotone else 0.0,
+            color=COLOR,
+            flow=FLOW if m.flow_loss else 0.0,
+            white_balance=WHITE_BALANCE if learned else 0.0,
+            gradient=GRADIENT if learned else 0.0,
             bootstrap=1.0 if cfg.scene.deformation == "mlp" else 0.0,
-            rigidity=lc.rigidity,
-            sparsity=lc.sparsity if m.layers > 1 else 0.0,
-            alpha_flow=lc.alpha_flow if m.layers > 1 and m.flow_loss else 0.0,
-            bg_change=lc.bg_change if self.scene.bg_change is not None else 0.0,
-            fg_follow=lc.fg_follow if m.layers > 1 else 0.0,
+            rigidity=RIGIDITY,
+            sparsity=SPARSITY if m.layers > 1 else 0.0,
+            alpha_flow=ALPHA_FLOW if m.layers > 1 and m.flow_loss else 0.0,
+            fg_follow=FG_FOLLOW if m.layers > 1 else 0.0,
         )
 
     def training_callbacks(self, masks: bool = False, given: bool = False) -> list:
         """The schedules of this model's loss weights over ``cfg.train.steps``: the flow term decays
-        to 0 by ``loss.flow_decay_end``, the alpha flow term to the share ``loss.alpha_flow_keep`` of
+        to 0 by ``FLOW_DECAY_END``, the alpha flow term to the share ``loss.alpha_flow_keep`` of
         its weight (1: it keeps it all through training, as in Kasten et al.); the deformation is fitted to its bootstrap mapping for the
         first ``train.bootstrap_steps``; with ``masks`` (``given`` by the user, or from motion
         segmentation) and an alpha field, alpha is fitted to them at first, the weight tapering off
-        with the flow's to the share ``loss.mask_given`` or ``loss.mask_motion`` of it. The term is
+        with the flow's to the share ``MASK_GIVEN`` or ``MASK_MOTION`` of it. The term is
         class-balanced (a small object takes its shape fast); given masks only during the bootstrap
         steps, since balanced all through it keeps a halo around a thin object (DAVIS at 0.33, fast:
         libby alpha IoU 0.766 -> 0.853, parkour 0.905 -> 0.945). Motion masks stay balanced: they
         miss parts of the object, which the halo partly covers (plain after the bootstrap steps:
         libby 0.388 -> 0.352, cows 0.762 -> 0.756, car-roundabout 0.785 -> 0.789, parkour 0.702 -> 0.707).
         ``refined`` masks (``segment.refine``) come from the motion masks and miss parts as they do:
-        balanced all through like them, and tapered to ``loss.mask_motion`` (balanced during the
+        balanced all through like them, and tapered to ``MASK_MOTION`` (balanced during the
         bootstrap steps only, at ``balanced`` the plain term's pull to the background faded libby's
         alpha to nothing: IoU 0.051, against 0.526 balanced; docs/layers/ceiling/)."""
         from layercam.train import BootstrapPhase, FlowDecay, MaskTaper
@@ -113,9 +115,7 @@ class ImplicitCameraModel(nn.Module):
         c = self.cfg
         if masks and self.scene.alpha is not None:
             self.loss_weights.alpha_mask = 1.0
-            if not given:
-                self.loss_weights.alpha_anchor = c.loss.mask_anchor
-        return [FlowDecay(c.loss.flow_decay_end), FlowDecay(c.loss.flow_decay_end, keys=("alpha_flow",), floor=c.loss.alpha_flow_keep), BootstrapPhase(c.train.bootstrap_steps, keys=("bootstrap", "mask_balance") if given else ("bootstrap",)), MaskTaper(c.train.bootstrap_steps, c.loss.flow_decay_end, c.loss.mask_given if given else c.loss.mask_motion)]
+        return [FlowDecay(FLOW_DECAY_END), FlowDecay(FLOW_DECAY_END, keys=("alpha_flow",), floor=c.loss.alpha_flow_keep), BootstrapPhase(c.train.bootstrap_steps, keys=("bootstrap", "mask_balance") if given else ("bootstrap",)), MaskTaper(c.train.bootstrap_steps, FLOW_DECAY_END, MASK_GIVEN if given else MASK_MOTION)]
 
     # -- rendering ---------------------------------------------------------------------------
     def irradiance(self, xy: torch.Tensor, t: torch.Tensor) -> dict:
@@ -139,7 +139,7 @@ class ImplicitCameraModel(nn.Module):
     def loss_dict(self, batch: dict) -> dict:
         w = self.loss_weights
         out = self(batch["xy"], batch["t"])
-        terms = {"color": w.color * losses.color_loss(out["rgb"], batch["rgb"], self.cfg.loss.clipped, hi=self.clip_levels.to(out["rgb"].device), robust=self._robust)}
+        terms = {"color": w.color * losses.color_loss(out["rgb"], batch["rgb"], robust=self._robust)}
         if w.flow > 0 and "xy_match" in batch:
             m = self.scene.mappings(batch["xy_match"], batch["t_match"])
             terms["flow"] = w.flow * sum(
@@ -150,7 +150,7 @@ class ImplicitCameraModel(nn.Module):
             terms["alpha_flow"] = w.alpha_flow * losses.alpha_flow_loss(out["alpha"], match_alpha, batch["match_ok"])
         if w.white_balance > 0:
             zero = torch.zeros(1, 3, device=batch["xy"].device)
-            terms["white_balance"] = w.white_balance * losses.white_balance_loss(self.tone(zero), self.cfg.tone.c0)
+            terms["white_balance"] = w.white_balance * losses.white_balance_loss(self.tone(zero), WHITE_POINT)
         if w.gradient > 0:
             z = self._probe_z(batch)
             terms["gradient"] = w.gradient * losses.gradient_loss(self.tone, z)
@@ -159,8 +159,6 @@ class ImplicitCameraModel(nn.Module):
                 ((uv - d.bootstrap_target(batch["xy"], batch["t"])) ** 2).sum(1).mean()
                 for uv, d in zip(out["uv"], self.scene.deformations)
             )
-        if w.bg_change > 0 and out.get("bg_change") is not None:
-            terms["bg_change"] = w.bg_change * (out["bg_change"] ** 2).mean()
         if out["alpha"] is not None:
             if w.fg_follow > 0:  # on the first 1024 samples, the atlas alone (at its coordinates, held fixed)
                 n = 1024
@@ -170,8 +168,6 @@ class ImplicitCameraModel(nn.Module):
                 terms["sparsity"] = w.sparsity * losses.sparsity_loss(out["alpha"])
             if w.alpha_mask > 0 and "mask" in batch:
                 terms["alpha_mask"] = w.alpha_mask * losses.mask_loss(out["alpha"], batch["mask"], w.mask_balance)
-            if w.alpha_anchor > 0 and "mask_sure" in batch:
-                terms["alpha_anchor"] = w.alpha_anchor * losses.mask_loss(out["alpha"], batch["mask"], 1.0, keep=batch["mask_sure"])
         if w.rigidity > 0 and self.cfg.scene.deformation == "homography" and self.scene.n_layers > 1:
             xy, t = batch["xy"][:1024], batch["t"][:1024]
             terms["rigidity"] = w.rigidity * sum(
@@ -203,7 +199,7 @@ class ImplicitCameraModel(nn.Module):
         for name, p in self.named_parameters():
             if name.startswith("blur."):
                 blur.append(p)
-            elif ".enc.levels." in name or ".grid.grids." in name or name.startswith("scene.bg_change."):  # grid tables
+            elif ".enc.levels." in name or ".grid.grids." in name:  # grid tables
                 grid.append(p)
             elif name.endswith(".dh"):
                 dh.append(p)
@@ -218,6 +214,8 @@ class ImplicitCameraModel(nn.Module):
             groups.append({"params": dh, "lr": lr * 0.1, "name": "homography"})
         if expo:
             groups.append({"params": expo, "lr": max(lr, 1e-3) * 2, "name": "exposure"})
-        if blur:  # held at their start for the first cfg.blur.warmup of training (the trainer reads "start")
-            groups.append({"params": blur, "lr": lr, "name": "blur", "start": float(self.cfg.blur.warmup)})
+        if blur:  # held at their start for the first WARMUP of training (the trainer reads "start")
+            from layercam.camera.blur import WARMUP
+
+            groups.append({"params": blur, "lr": lr, "name": "blur", "start": WARMUP})
         return groups

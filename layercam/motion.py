@@ -38,8 +38,9 @@ __all__ = ["chained_displacements", "pair_residuals", "long_range_evidence", "fl
 
 
 def _grid(h: int, w: int) -> np.ndarray:
-    yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
-    return np.stack([xx, yy], -1)
+    from layercam.geometry import pixel_grid
+
+    return np.stack(pixel_grid(h, w), -1)
 
 
 def chained_displacements(fw: np.ndarray, bw: np.ndarray | None, fw_ok: np.ndarray, bw_ok: np.ndarray | None, t: int, kmax: int) -> dict:
@@ -148,7 +149,7 @@ def _ends(ev: np.ndarray, fw: np.ndarray, bw: np.ndarray, has: np.ndarray) -> np
     """A frame seen from one side only (the clip's first and last) cannot tell the object from the
     background it is about to cover or has just uncovered: there the evidence is also capped by its
     neighbour's, brought along the flow."""
-    from layercam.flow import warp
+    from layercam.geometry import warp
 
     T = len(ev)
     if T < 3:

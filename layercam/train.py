@@ -6,7 +6,7 @@ model's ``loss_weights``: :class:`FlowDecay` (the paper's flow weight decaying t
 :class:`BootstrapPhase` and :class:`MaskTaper`.
 Guards: a non-finite loss or gradient (or a gradient norm that overflows) skips the step, halves
 the learning rate and logs an event in the history (``report.json`` "train.events"); after
-``max_bad_steps`` in a row training stops with a clear error, keeping the last good checkpoint.
+``MAX_BAD_STEPS`` in a row training stops with a clear error, keeping the last good checkpoint.
 A periodic checkpoint is written only once the model it holds has produced a finite loss and
 gradient on the next batch, and only when every parameter and optimiser moment is finite, so a
 kept checkpoint is never a poisoned one.
@@ -27,6 +27,8 @@ import torch
 from layercam import distributed, interrupts, optim
 from layercam.config import TrainConfig
 from layercam.errors import LayercamError
+
+MAX_BAD_STEPS = 20  # non-finite steps in a row (each halving the learning rate) before training stops
 
 
 class Callback:
@@ -108,8 +110,9 @@ class TrainResult:
 
 
 class Trainer:
-    def __init__(self, model, sampler, cfg: TrainConfig, ckpt_path: Path | None = None, callbacks=(), progress: bool = True, desc: str = "train"):
+    def __init__(self, model, sampler, cfg: TrainConfig, ckpt_path: Path | None = None, callbacks=(), progress: bool = True, desc: str = "train", max_bad_steps: int | None = None):
         self.model, self.sampler, self.cfg = model, sampler, cfg
+        self.max_bad_steps = MAX_BAD_STEPS if max_bad_steps is None else max_bad_steps
         self.ckpt_path = Path(ckpt_path) if ckpt_path else None
         self.callbacks = list(callbacks)
         self.progress, self.desc = progress, desc
@@ -233,7 +236,7 @@ class Trainer:
                     self.bad_total += 1
                     self.lr_scale *= 0.5
                     self.history.append({"step": self.step, "event": f"{bad}: step skipped, lr halved (x{self.lr_scale:g})"})
-                    if bad_run >= self.cfg.max_bad_steps:
+                    if bad_run >= self.max_bad_steps:
                         err = LayercamError(
                             f"training diverged: {bad_run} non-finite steps in a row at step {self.step} ({bad}); "
                             + self._kept_message()

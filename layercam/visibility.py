@@ -12,8 +12,14 @@ import numpy as np
 
 from layercam.colour import REC601, luma
 
-CLIP_HI = 0.97          # a pixel with any channel at or above this is clipped
-FLOOR_LO = 4.0 / 255    # grey at or below this is at the 8-bit floor
+# the one definition of clipped and floor values (8-bit codes as values in [0, 1])
+CLIP_LEVEL = 254.5 / 255  # a channel at or above this is clipped (8-bit rounding keeps values below it; a camera
+                          # that clips lower: clip_levels)
+FLOOR_LEVEL = 0.5 / 255   # a channel at or below this is at the floor: the camera recorded nothing there
+# well exposed (flow and blur are evidence there): a margin inside those, where noise and a soft shoulder let
+# a pixel be read apart from its neighbours
+CLIP_HI = 0.97          # no channel at or above this
+FLOOR_LO = 4.0 / 255    # grey above this
 TEXTURE_SNR = 3.0       # local gradient (Gaussian sigma 1 px) at least this many times its noise response
 QUANT_SIGMA = 1.0 / 255 / np.sqrt(12.0)  # the noise of 8-bit quantisation: the least a frame has
 
@@ -70,7 +76,7 @@ def clip_levels(frames: np.ndarray, min_share: float = 0.002, spike: float = 3.0
     may clip below 255: the channel's largest value counts as its clipping level when it is at
     least ``lowest``, at least ``min_share`` of the pixels reach it and it is a spike of the
     histogram (``spike`` times as frequent as each of the four code values below it); otherwise
-    254.5 / 255 (what 8-bit rounding keeps)."""
+    :data:`CLIP_LEVEL` (what 8-bit rounding keeps)."""
     hists = np.zeros((3, 256), np.int64)  # histograms a frame (and a block of it) at a time: no copy of the clip
     count = 0
     for frame in (frames if np.ndim(frames) == 4 else [frames]):
@@ -80,13 +86,13 @@ def clip_levels(frames: np.ndarray, min_share: float = 0.002, spike: float = 3.0
             q = np.clip(np.round(flat[i : i + (1 << 20)].astype(np.float32) * 255), 0, 255).astype(np.uint8)
             for c in range(3):
                 hists[c] += np.bincount(q[:, c], minlength=256)
-    out = np.full(3, 254.5 / 255, np.float32)
+    out = np.full(3, CLIP_LEVEL, np.float32)
     for c in range(3):
         hist = hists[c]
         top = int(np.flatnonzero(hist).max())
         below = hist[max(top - 4, 0) : top]
         if top >= lowest * 255 and hist[top] >= min_share * count and (below.size == 0 or hist[top] >= spike * below.max()):
-            out[c] = min((top - 0.5) / 255, 254.5 / 255)
+            out[c] = min((top - 0.5) / 255, CLIP_LEVEL)
     return out
 
 
@@ -97,9 +103,18 @@ def unrecoverable(frames: np.ndarray, levels: np.ndarray | None = None) -> np.nd
     others apart)."""
     f = np.asarray(frames, np.float32)
     lv = clip_levels(f) if levels is None else np.asarray(levels, np.float32)
-    clipped = (f >= lv).all(0)
-    floor = (f <= 0.5 / 255).all(0)
-    return (clipped | floor).any(-1)
+    return (clipped(f, lv).all(0) | at_floor(f).all(0)).any(-1)
+
+
+def clipped(frames: np.ndarray, levels: np.ndarray | None = None) -> np.ndarray:
+    """``frames (..., 3) -> (..., 3)`` bool: the channels at or above their clipping level
+    (``levels (3,)``, default :data:`CLIP_LEVEL`)."""
+    return np.asarray(frames) >= (CLIP_LEVEL if levels is None else np.asarray(levels, np.float32))
+
+
+def at_floor(frames: np.ndarray) -> np.ndarray:
+    """``frames (..., 3) -> (..., 3)`` bool: the channels at or below :data:`FLOOR_LEVEL`."""
+    return np.asarray(frames) <= FLOOR_LEVEL
 
 
 def well_exposed(frame: np.ndarray) -> np.ndarray:
@@ -124,7 +139,7 @@ def visible(frame: np.ndarray) -> np.ndarray:
 def pair_visible(frames: np.ndarray, fw: np.ndarray) -> np.ndarray:
     """``(T-1, H, W)`` bool: pixels of frame ``t`` that frame ``t`` sees well and whose match in
     frame ``t+1`` (along the forward flow ``fw (T-1, H, W, 2)``) frame ``t+1`` sees well."""
-    from layercam.flow import warp
+    from layercam.geometry import warp
 
     vis = [visible(f) for f in frames]
     out = np.zeros(np.asarray(fw).shape[:3], bool)

@@ -54,7 +54,7 @@ import numpy as np
 import torch
 from IPython.display import Image, display
 
-from layercam import analyse, checkpoint, render, synth, viz
+from layercam import checkpoint, render, synth, viz
 from layercam.data import normalise_xy
 from layercam.geometry import middle_frame
 from layercam.pipelines.atlas_export import atlas_resolution
@@ -96,8 +96,8 @@ if RUN is None:
     exposures = parse_exposures("alt", scene.clip)  # ratio learned from a measured start
     tiny = [
         "train.steps=100", "train.batch=256", "train.lr=1e-2", "train.bootstrap_steps=50", "train.checkpoint_every=1000",
-        "scene.grid_levels=3", "scene.grid_max_res=32", "scene.atlas_width=16", "scene.deform_width=16",
-        "tone.width=16", "blur.width=16", "blur.depth=2", "flow.method=dis_fast",
+        "scene.grid_levels=3", "scene.atlas_width=16", "scene.deform_width=16",
+        "tone.width=16", "flow.method=dis_fast",
     ]
     RUN = Path(tempfile.mkdtemp(prefix="layercam_notebook_")) / "run"
     t0 = time.perf_counter()
@@ -111,9 +111,9 @@ model, meta = checkpoint.load_run_model(RUN)
 report = json.loads((RUN / "report.json").read_text()) if (RUN / "report.json").exists() else {}
 T, (H, W) = int(meta["n_frames"]), tuple(meta["frame_hw"])
 print(f"{RUN}: task {meta.get('task')}, {T} frames of {W}x{H} from {meta.get('source')}")
-chosen = analyse.model_summary(model.cfg)
-for key in analyse.MODEL_KEYS:
-    print(f"  {key:12s} {chosen[key]!s:10s} {meta.get('reasons', {}).get(key, '')}")
+from layercam.resolve import format_table
+
+print(format_table(model.resolved))  # what the analysis chose for the run, and why
 if report.get("metrics"):
     print("  metrics:", report["metrics"])
 

@@ -28,15 +28,23 @@ from layercam.errors import LayercamError
 from layercam.interrupts import reached
 from layercam.pipelines.runner import write_json
 
-def atlas_resolution(uv: np.ndarray, weight: np.ndarray, lo: int = 32, hi: int = 2048) -> int:
+ATLAS_RES = (32, 2048)  # an exported atlas's side, texels, at least / at most
+
+
+def atlas_resolution(uv: np.ndarray, weight: np.ndarray, lo: int = ATLAS_RES[0], hi: int = ATLAS_RES[1], pixels: int | None = None) -> int:
     """Atlas grid size at which one frame pixel is about one atlas pixel: from the median spacing of
-    neighbouring pixels' ``uv (H, W, 2)`` where the layer is seen (``weight (H, W)`` > 0.5)."""
+    neighbouring pixels' ``uv (H, W, 2)`` where the layer is seen (``weight (H, W)`` > 0.5), within
+    ``lo..hi`` and, given the clip's ``pixels`` (frames x H x W), at most as many texels as pixels
+    see them (more carry nothing: an untrained mapping that squeezes the frames into a corner would
+    otherwise ask for the largest atlas)."""
     dx = np.linalg.norm(uv[:, 1:] - uv[:, :-1], axis=-1)
     dy = np.linalg.norm(uv[1:] - uv[:-1], axis=-1)
     on_x = (weight[:, 1:] > 0.5) & (weight[:, :-1] > 0.5)
     on_y = (weight[1:] > 0.5) & (weight[:-1] > 0.5)
     d = np.concatenate([dx[on_x], dy[on_y]]) if (on_x.sum() + on_y.sum()) > 8 else np.concatenate([dx.ravel(), dy.ravel()])
     step = float(np.median(d)) if d.size else 2.0 / lo
+    if pixels:
+        hi = max(lo, min(hi, int(np.sqrt(pixels))))
     return int(np.clip(np.ceil(2.0 / max(step, 1e-6)), lo, hi))
 
 
@@ -57,10 +65,9 @@ def write_rgba_png(path: Path, rgb: np.ndarray, alpha: np.ndarray) -> None:
     atomic_write(Path(path), _write)
 
 
-def export_atlases(model, run_dir: Path, frames: np.ndarray, fps: float = 24.0, chunk: int = 65536, progress: bool = False, res_range: tuple[int, int] = (32, 2048)) -> dict:
+def export_atlases(model, run_dir: Path, frames: np.ndarray, fps: float = 24.0, chunk: int = 65536, progress: bool = False) -> dict:
     """Writes the files listed in this module's docstring into ``run_dir``, each atlas at
-    :func:`atlas_resolution` within ``res_range`` (``export.atlas_min_res``, ``atlas_max_res``);
-    returns a summary."""
+    :func:`atlas_resolution`; returns a summary."""
     from layercam.geometry import middle_frame
     from layercam.io import VideoWriter, write_exr, write_png
     from layercam.progress import bar as progress_bar
@@ -73,7 +80,7 @@ def export_atlases(model, run_dir: Path, frames: np.ndarray, fps: float = 24.0, 
     adir.mkdir(parents=True, exist_ok=True)
     m = render_frame(model, middle_frame(T), (H, W), ("uv", "alpha"), chunk=chunk)
     ws = layer_weights(m["alpha"], L, (H, W))
-    res = [atlas_resolution(m["uv"][k], ws[k], *res_range) for k in range(L)]
+    res = [atlas_resolution(m["uv"][k], ws[k], pixels=T * H * W) for k in range(L)]
     acc = [np.zeros(r * r, np.float64) for r in res]
     to8 = lambda x: np.round(np.clip(x, 0, 1) * 255).astype(np.uint8)  # noqa: E731 - videos kept as 8-bit
     two = m["alpha"] is not None

@@ -113,13 +113,12 @@ class EvaluateStage(Stage):
 
     name = "evaluate"
     deps = ("flow", "export")
-    version = 3  # 3: one stage for every task
 
     def __init__(self, scene, *, baselines=("debevec",), crop: int = 4, focus_index=None, times=None, full_stack=None):
         self.scene, self.baselines, self.crop = scene, tuple(baselines), crop
         self.focus_index, self.times, self.full_stack = focus_index, times, full_stack
 
-    def key_material(self, ctx):
+    def options(self, ctx):
         scorer = TASK_SCORERS[ctx.task]
         return {"scorer": scorer, **SCORERS[scorer][0](ctx, self)}
 

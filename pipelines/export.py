@@ -68,7 +68,7 @@ def _frames(ctx: Context, desc: str = "export"):
 
 
 def _fps(ctx: Context) -> float:
-    return ctx.cfg.export.preview_fps or float(ctx.clip.fps or 24.0)
+    return float(ctx.clip.fps or 24.0)
 
 
 def _bits(ctx: Context) -> int:
@@ -133,7 +133,7 @@ def first_pass(ctx: Context, model) -> tuple[dict, float]:
     hw = (max(1, round(H * s)), max(1, round(W * s)))
     lum, peak = [], 0.0
     for t in _frames(ctx, "export (first pass)"):
-        hdr = render.render_frame(model, t, hw, ("hdr",), chunk=ctx.cfg.export.chunk)["hdr"]
+        hdr = render.render_frame(model, t, hw, ("hdr",))["hdr"]
         if not np.isfinite(hdr).all():
             raise LayercamError(f"frame_{t:05d}.exr: the model rendered non-finite irradiance; not writing it")
         lum.append(luma(hdr, REC709).ravel())
@@ -149,31 +149,25 @@ def faithful_hdr(ctx: Context, model, ts) -> Iterator[tuple[int, np.ndarray, dic
     computed once and kept while a neighbour needs it."""
     from layercam import render
 
-    if not ctx.cfg.export.faithful:
+    if not ctx.resolved.settings.export.faithful:
         for t in ts:
             reached("export", t)
-            yield t, render.render_frame(model, t, (ctx.clip.H, ctx.clip.W), ("hdr",), chunk=ctx.cfg.export.chunk)["hdr"], {}
+            yield t, render.render_frame(model, t, (ctx.clip.H, ctx.clip.W), ("hdr",))["hdr"], {}
         return
     from layercam.faithful import correction, faithful_log2, merge_weight, neighbour_fill
     from layercam.pipelines.stages import ctx_clip_levels
 
     lv, frames, T = ctx_clip_levels(ctx), ctx.clip.frames, ctx.clip.T
-    static = bool(ctx.results.get("bootstrap", {}).get("static"))  # registered by the identity: every frame sees this view
+    static = ctx.resolved.static  # registered by the identity: every frame sees this view
     kept: dict[int, dict] = {}
     # auto: a video from a static camera. Moved along the flow, neighbours cost the panning composites
     # 0.5-1.3 dB; on a bracket's fused view, crops 000000 / 000003 gained 1.4-1.6 dB and 000002 lost
     # 1.6 (its short shot reads the pixels the reference clipped 0.3-0.5 stop under the truth)
-    mode = ctx.cfg.export.merge_neighbours
-    merging = mode == "on" or (mode == "auto" and static and ctx.task != "fuse-stack")
-    if merging and mode == "auto":
-        ctx.say("[export] static camera: each frame merged with its neighbours where they agree with it (export.merge_neighbours=off keeps each frame's own)")
+    merging = ctx.resolved.settings.export.merge_neighbours == "on"  # auto: a video from a static camera (layercam.resolve)
 
     # auto: a stack's fused view (NTIRE crops 000000 / 000003 +1.6-2.9 dB, taipei +0.2-0.4); not videos
     # (Basler `fast` flicker 0.86 -> 1.04: short and long frames filtered by their own, different noise)
-    dmode = ctx.cfg.export.denoise
-    denoise = dmode == "on" or (dmode == "auto" and ctx.task == "fuse-stack")
-    if denoise and dmode == "auto":
-        ctx.say("[export] the fused view filtered against the reference frame's own noise (export.denoise=off keeps it as fitted)")
+    denoise = ctx.resolved.settings.export.denoise == "on"  # auto: a stack's fused view (layercam.resolve)
 
     from layercam.faithful import stack_extremes
 
@@ -181,7 +175,7 @@ def faithful_hdr(ctx: Context, model, ts) -> Iterator[tuple[int, np.ndarray, dic
 
     def corr(t: int) -> dict:
         if t not in kept:
-            kept[t] = correction(model, frames[t], t, lv, ctx.cfg.export.chunk)
+            kept[t] = correction(model, frames[t], t, lv)
         return kept[t]
 
     for t in ts:
@@ -195,7 +189,7 @@ def faithful_hdr(ctx: Context, model, ts) -> Iterator[tuple[int, np.ndarray, dic
                 if merging:
                     still = np.zeros_like(fl) if static else fl  # a static camera: the same scene point, whatever the flow says
                     merge.append((c["model_log2_r"] + c["weight"] * c["delta"], merge_weight(c["exposed"], c["log2_dts"][n], c["log2_dts"]), still))
-        res = faithful_log2(model, frames[t], t, lv, extremes if static else None, corr=corr(t), fill=neighbour_fill(neighbours), merge=merge, clipped=ctx.cfg.export.clipped_everywhere, denoise=denoise)
+        res = faithful_log2(model, frames[t], t, lv, extremes if static else None, corr=corr(t), fill=neighbour_fill(neighbours), merge=merge, clipped=ctx.resolved.settings.export.clipped_everywhere, denoise=denoise)
         for k in [k for k in kept if k < t]:
             del kept[k]
         yield t, np.exp2(res["log2_r"]).astype(np.float32), res["info"]
@@ -217,7 +211,9 @@ def _flow_to(ctx: Context, t: int, n: int) -> np.ndarray | None:
     if not np.isfinite(hom).all() or abs(np.linalg.det(hom)) < 1e-12:  # no homography: the flow alone
         return np.where(np.asarray(ok, bool)[..., None], f, np.nan).astype(np.float32)
     hom = hom if n == t + 1 else np.linalg.inv(hom)
-    yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
+    from layercam.geometry import pixel_grid
+
+    xx, yy = (g.astype(np.float64) for g in pixel_grid(h, w))
     q = np.stack([xx, yy, np.ones_like(xx)], -1) @ hom.T
     by_hom = (q[..., :2] / q[..., 2:3] - np.stack([xx, yy], -1)).astype(np.float32)
     return np.where(np.asarray(ok, bool)[..., None], f, by_hom).astype(np.float32)
@@ -235,7 +231,7 @@ def hdr_writer(ctx: Context, model, dest: Path, cache: Path) -> dict:
     from layercam.io import VideoWriter
 
     stats, peak = first_pass(ctx, model)
-    exrs = HdrSet(ctx.cfg.export.half and peak <= HALF_MAX, ctx.say)
+    exrs = HdrSet(ctx.resolved.settings.export.half and peak <= HALF_MAX, ctx.say)
     (dest / "hdr").mkdir(exist_ok=True)
     infos = []
     with VideoWriter(dest / "preview.mp4", fps=_fps(ctx)) as preview:
@@ -252,7 +248,7 @@ def sharp_writer(ctx: Context, model, dest: Path, cache: Path) -> dict:
 
     T, hw = ctx.clip.T, (ctx.clip.H, ctx.clip.W)
     with_hdr = exposures_vary(ctx)
-    exrs = HdrSet(ctx.cfg.export.half, ctx.say)
+    exrs = HdrSet(ctx.resolved.settings.export.half, ctx.say)
     (dest / "frames").mkdir(exist_ok=True)
     if with_hdr:
         (dest / "hdr").mkdir(exist_ok=True)
@@ -260,7 +256,7 @@ def sharp_writer(ctx: Context, model, dest: Path, cache: Path) -> dict:
     with VideoWriter(dest / "deblurred.mp4", fps=_fps(ctx)) as video:
         for t in _frames(ctx):
             reached("export", t)
-            out = render.render_frame(model, t, hw, ("ldr", "hdr") if with_hdr else ("ldr",), chunk=ctx.cfg.export.chunk)
+            out = render.render_frame(model, t, hw, ("ldr", "hdr") if with_hdr else ("ldr",))
             ldr = out["ldr"]
             if not np.isfinite(ldr).all():
                 raise LayercamError(f"frame {t}: the model rendered non-finite values; not writing it")
@@ -279,12 +275,12 @@ def fused_writer(ctx: Context, model, dest: Path, cache: Path) -> dict:
     from layercam.io import write_png
 
     hw = (ctx.clip.H, ctx.clip.W)
-    ref = resolve_reference(ctx.cfg.export.reference, ctx.clip.T)
+    ref = resolve_reference(ctx.resolved.settings.export.reference, ctx.clip.T)
     _, hdr, info = next(faithful_hdr(ctx, model, [ref]))
-    write_hdr_set([dest / "fused.exr"], [hdr], ctx.cfg.export.half, ctx.say)
+    write_hdr_set([dest / "fused.exr"], [hdr], ctx.resolved.settings.export.half, ctx.say)
     np.save(cache / "fused.npy", hdr.astype(np.float32))
-    if ctx.cfg.model.tone_mapper == "fixed":  # one exposure: the sharp image as the camera would have recorded it
-        png = render.render_frame(model, ref, hw, ("ldr",), chunk=ctx.cfg.export.chunk)["ldr"]
+    if ctx.resolved.settings.model.tone_mapper == "fixed":  # one exposure: the sharp image as the camera would have recorded it
+        png = render.render_frame(model, ref, hw, ("ldr",))["ldr"]
         how, stats = "fixed sRGB tone curve at the stack's exposure (input tonality)", None
     else:
         png, stats = render.tonemap_display(hdr)
@@ -296,8 +292,7 @@ def fused_writer(ctx: Context, model, dest: Path, cache: Path) -> dict:
 def atlas_writer(ctx: Context, model, dest: Path, cache: Path) -> dict:
     from layercam.pipelines.atlas_export import export_atlases
 
-    e = ctx.cfg.export
-    return {"atlas": export_atlases(model, dest, ctx.clip.frames, fps=_fps(ctx), chunk=e.chunk, progress=ctx.progress, res_range=(e.atlas_min_res, e.atlas_max_res))}
+    return {"atlas": export_atlases(model, dest, ctx.clip.frames, fps=_fps(ctx), progress=ctx.progress)}
 
 
 def crf_writer(ctx: Context, model, dest: Path, cache: Path) -> dict:
@@ -331,7 +326,7 @@ def checkpoint_writer(ctx: Context, model, dest: Path, cache: Path) -> dict:
 
     meta = model_meta(ctx)
     if ctx.task == "fuse-stack":
-        meta["reference"] = resolve_reference(ctx.cfg.export.reference, ctx.clip.T)
+        meta["reference"] = resolve_reference(ctx.resolved.settings.export.reference, ctx.clip.T)
     save_run_model(dest / CHECKPOINT_NAME, model, meta)
     return {}
 
@@ -366,23 +361,15 @@ class ExportStage(Stage):
 
     name = "export"
     deps = ("train",)
-    version = 5  # 2: one stage for every task, atlases included; 3: HDR faithful to the frames (layercam.faithful); 4: merged with the neighbours; 5: noise at least 2 codes
-
-    def key_material(self, ctx):
-        d = ctx.cfg.section_dict("export")
-        if ctx.task != "fuse-stack":
-            d["export"].pop("reference")  # only a stack is fused into one view
-        return {**d, "writers": list(writers_for(ctx.task))}
+    reads = ("export", "task", "static")
 
     def output_names(self, ctx):
         return [n for n in outputs_for(ctx.task) if n != REPORT_NAME]
 
     def run(self, ctx, out):
-        from layercam.pipelines.stages import resolve_device
-
         dest = out  # published to the top of the run folder when the run ends
         model = ctx.model
-        model.to(resolve_device(ctx.cfg.train.device))  # render where it trained (GPU when there is one)
+        model.to(ctx.resolved.settings.train.device)  # render where it trained (GPU when there is one)
         summary: dict = {}
         for name in writers_for(ctx.task):
             if name == "crf":

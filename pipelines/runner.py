@@ -1,8 +1,9 @@
 """The stage runner and its cache.
 
 A stage's output lives in ``RUN/cache/<stage>-<key>/`` and is marked finished by ``done.json``.
-The key hashes the stage's name and version, the input (clip fingerprint and exposure spec), the
-settings the stage reads, and the keys of the stages it depends on. So the same command twice
+The key hashes :data:`CACHE_VERSION`, the stage's name, the input (clip fingerprint and exposure
+spec), the resolved settings the stage reads (``Stage.reads``: sections, ``section.field``s,
+``static``, ``task``; :func:`settings_read`), and the keys of the stages it depends on. So the same command twice
 skips finished stages; a changed setting redoes only the stages whose key it changes; and a stage
 interrupted half-way finds its own folder again: training its checkpoint, an export its partial
 outputs, which it removes and writes anew. Outputs for the top of the run folder are written here
@@ -26,6 +27,8 @@ from layercam.errors import LayercamError
 from layercam.io.atomic import atomic_write, ensure_writable_dir
 from layercam.io.clip import fingerprint
 
+CACHE_VERSION = 6  # bumped when what a cached stage holds, or how a key is made, changes; older caches are made anew
+
 
 @dataclass
 class Context:
@@ -34,13 +37,13 @@ class Context:
     run_dir: Path
     clip: Any                       # layercam.io.Clip
     exposures: Any                  # layercam.io.Exposures
-    cfg: Config                     # the model section and blur shape decided once the analysis has run
+    cfg: Config                     # the settings as the user gave them (preset, --set, flags)
     task: str
     masks: Any = None               # (T, H, W) foreground masks or None
     progress: bool = True
     train_callbacks: list = field(default_factory=list)  # model -> trainer callback, besides the model's own (the bench's probe)
     measures: dict | None = None    # what the analysis measured (layercam.analyse.measure)
-    reasons: dict = field(default_factory=dict)  # why the analysis decided each model setting
+    resolved: Any = None            # the run's settings, resolved once after the flow (layercam.resolve.Resolved)
     flow: dict | None = None        # the flow stage's arrays (fw, bw, fw_ok, bw_ok, vis: DiskArrays on disk; homs), opened once
     model: Any = None               # the trained model (layercam.model.ImplicitCameraModel), built once
     results: dict = field(default_factory=dict)
@@ -64,8 +67,8 @@ class Context:
 
 
 class Stage:
-    """A named, cached step. Subclasses set ``name``, ``deps``, ``version`` and implement
-    :meth:`key_material` (the settings it reads), :meth:`run` and optionally :meth:`load`.
+    """A named, cached step. Subclasses set ``name``, ``deps``, ``reads`` (what of the resolved
+    settings it reads, :func:`settings_read`) and implement :meth:`run` and optionally :meth:`load`.
 
     ``outputs``: the names this stage makes for the top of the run folder. It writes them into its
     own folder ``out``; what an interrupted attempt left there is removed before it runs again, and
@@ -73,14 +76,15 @@ class Stage:
 
     name = "stage"
     deps: tuple = ()
-    version = 1
+    reads: tuple = ()
     outputs: tuple = ()
 
     def output_names(self, ctx: "Context") -> list[str]:
         """``outputs`` (a stage whose outputs depend on the task says so here)."""
         return list(self.outputs)
 
-    def key_material(self, ctx: Context) -> dict:
+    def options(self, ctx: Context) -> dict:
+        """What besides the settings the result depends on (a benchmark scorer's options); keyed."""
         return {}
 
     def run(self, ctx: Context, out: Path) -> dict:
@@ -88,6 +92,26 @@ class Stage:
 
     def load(self, ctx: Context, out: Path, summary: dict) -> dict:
         return summary
+
+
+def settings_read(ctx: Context, reads: tuple) -> dict:
+    """The part of the run's settings ``reads`` names: a section (``"train"``: its keyed settings,
+    :meth:`layercam.config.Config.key_dict`), one setting (``"scene.bootstrap"``), ``"static"``
+    (:attr:`layercam.resolve.Resolved.static`) or ``"task"``. Read from the resolved settings once
+    the analysis has run, else (the flow) from those the user gave."""
+    src = ctx.resolved.settings if ctx.resolved is not None else ctx.cfg
+    out = {}
+    for r in reads:
+        if r == "static":
+            out[r] = bool(ctx.resolved.static)
+        elif r == "task":
+            out[r] = ctx.task
+        elif "." in r:
+            sec, name = r.split(".")
+            out[r] = getattr(getattr(src, sec), name)
+        else:
+            out[r] = src.key_dict(r)[r]
+    return out
 
 
 def input_key(ctx: Context) -> dict:
@@ -112,7 +136,7 @@ def run_stages(ctx: Context, stages: list[Stage]) -> Context:
         missing = [d for d in st.deps if d not in ctx.keys]
         if missing:
             raise RuntimeError(f"stage {st.name} needs {missing} first")
-        material = {"stage": st.name, "version": st.version, "input": inkey, "settings": st.key_material(ctx), "deps": {d: ctx.keys[d] for d in st.deps}}
+        material = {"cache": CACHE_VERSION, "stage": st.name, "input": inkey, "settings": settings_read(ctx, st.reads), "options": st.options(ctx), "deps": {d: ctx.keys[d] for d in st.deps}}
         key = config_hash(material)[:12]
         out = cache / f"{st.name}-{key}"
         ctx.keys[st.name], ctx.dirs[st.name] = key, out

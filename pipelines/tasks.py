@@ -10,6 +10,7 @@ import numpy as np
 
 from layercam import analyse, distributed
 from layercam.config import validate
+from layercam.resolve import format_table, resolve
 from layercam.errors import LayercamError
 from layercam.io.lock import run_lock
 from layercam.pipelines import publish
@@ -32,8 +33,9 @@ def stages_for(task: str) -> list:
 
 def run_task(task: str, clip, exposures, cfg, run_dir: Path, masks=None, progress: bool = True, extra_stages: list | None = None, train_callbacks: list | None = None) -> Context:
     """Analyse ``clip``, run the task's stages (and ``extra_stages``, e.g. an evaluate stage) into
-    ``run_dir`` and write ``report.json``. The analysis decides each ``auto`` of ``cfg.model``
-    (values set there are kept: ``--layers`` etc.). ``train_callbacks``: functions of the model
+    ``run_dir`` and write ``report.json``. After the flow, the settings are resolved once
+    (:func:`layercam.resolve.resolve`: each ``auto`` decided from what the analysis measured, values
+    set are kept: ``--layers`` etc.) into ``ctx.resolved``, which every later stage reads. ``train_callbacks``: functions of the model
     that return more trainer callbacks (the benchmark's quality probe)."""
     t0 = time.perf_counter()
     validate(cfg)
@@ -59,9 +61,9 @@ def _run(ctx: Context, stages: list, t0: float) -> None:
         runner.CURRENT[0] = "analysis"
         ctx.measures = analyse.measure(clip, exposures, ctx.flow)
         ctx.measures["masks_given"] = ctx.masks is not None and any(np.asarray(m).any() for m in ctx.masks)
-        ctx.cfg, ctx.reasons = analyse.decide(cfg, clip, exposures, task, ctx.measures)
-        ctx.say("model chosen:\n" + analyse.format_table(ctx.cfg, ctx.reasons))
-        ctx.estimate["after_analysis"] = _estimate(ctx, ctx.cfg, " (the model chosen)")
+        ctx.resolved = resolve(cfg, clip, exposures, task, ctx.measures)
+        ctx.say("model chosen:\n" + format_table(ctx.resolved))
+        ctx.estimate["after_analysis"] = _estimate(ctx, ctx.resolved, " (the model chosen)")
         run_stages(ctx, stages[1:2])  # the bootstrap: motion masks for two layers
         if refine_wanted(ctx):  # segment.refine: a first fit, and masks from its background residual
             run_stages(ctx, [PrefitStage(), RefineStage()])
@@ -116,7 +118,7 @@ def faded_foreground(ctx: Context) -> str | None:
     ref = float(mask_coverage(masks).mean())  # a frame at a time (a long clip's masks are on disk)
     if ref <= 0 or share >= FADED_SHARE * ref:
         return None
-    hint = "" if source == "given" else "; --set loss.mask_anchor=0.05 holds alpha to the masks where they are sure, --masks gives masks"
+    hint = "" if source == "given" else "; --masks gives masks"
     return (f"{FADED}: its alpha holds {share:.2%} of the frames, the {source} masks it started from "
             f"{ref:.2%}; alpha/, the atlases and `layercam edit` miss the object{hint}")
 
@@ -130,8 +132,8 @@ def write_report(ctx: Context, wall: float, name: str | None = "report.json", ex
         "task": ctx.task,
         "input": {"source": str(ctx.clip.source), "frames": ctx.clip.T, "width": ctx.clip.W, "height": ctx.clip.H, "fps": ctx.clip.fps, "bit_depth": ctx.clip.bit_depth},
         "exposures": {"spec": ctx.exposures.spec, "reason": ctx.exposures.reason, "log2_dt_given": ctx.exposures.log2_dt.tolist(), "learn": ctx.exposures.learn},
-        "analysis": {**(analyse.model_summary(ctx.cfg) if ctx.measures is not None else {}), "reasons": ctx.reasons, "measures": ctx.measures},
-        "settings": ctx.cfg.to_dict(),
+        "analysis": {**(analyse.model_summary(ctx.resolved.settings) if ctx.resolved is not None else {}), "reasons": dict(ctx.resolved.reasons) if ctx.resolved is not None else {}, "measures": ctx.measures},
+        "settings": ctx.resolved.to_dict() if ctx.resolved is not None else ctx.cfg.to_dict(),
         "stages": ctx.times,
         "wall_seconds": round(wall, 2),
         "train": train,

@@ -36,15 +36,13 @@ TINY = [
     "train.bootstrap_steps=10",
     "train.checkpoint_every=20",
     "scene.grid_levels=3",
-    "scene.grid_max_res=32",
-    "scene.grid_sparse_cells=512",  # levels 23 and 32 sparse (as the fine levels of a real clip), 16 dense
     "scene.atlas_width=16",
     "scene.deform_width=16",
     "tone.width=16",
     "flow.method=dis_fast",
 ]
 # ... and a small blur generator
-SMALL_BLUR = ["blur.width=16", "blur.depth=2"]
+SMALL_BLUR: list[str] = []  # the blur generator's nets have the paper's fixed size (camera.blur)
 
 
 @pytest.fixture(scope="session")
@@ -89,10 +87,13 @@ def two_layer_run(tmp_path_factory):
 
 def decided(cfg=None, h0=None, frame_hw=(16, 16), static: bool = False, *, layers=1, tone_mapper="learned", exposures="given", blur="off", max_offset=5.0, flow_loss=True):
     """``cfg`` (default: the fast preset) with the model chosen by hand, as the analysis would write
-    it, and the remaining ``auto`` settings resolved for the bootstrap mappings ``h0 (L, T, 3, 3)``
-    (default: identity, one per layer, 2 frames): ready for ``ImplicitCameraModel``."""
-    from layercam.analyse import resolve_auto
+    it, resolved (:func:`layercam.resolve.resolve`) for a clip of the bootstrap mappings' ``h0 (L, T,
+    3, 3)`` frames (default: identity, one per layer, 2 frames) of size ``frame_hw``, the camera
+    ``static`` or not: ready for ``ImplicitCameraModel``."""
+    import dataclasses
+
     from layercam.config import load_config, model_overrides
+    from layercam.resolve import resolve
 
     cfg = (load_config("fast") if cfg is None else cfg).copy()
     for item in model_overrides(layers, tone_mapper, blur, max_offset, flow_loss) + [f"model.exposures={exposures}"]:
@@ -100,7 +101,8 @@ def decided(cfg=None, h0=None, frame_hw=(16, 16), static: bool = False, *, layer
     if cfg.blur.n == "auto":
         cfg.blur.n = 3
     h0 = np.tile(np.eye(3)[None, None], (layers, 2, 1, 1)) if h0 is None else h0
-    return resolve_auto(cfg, static, h0, frame_hw)
+    r = resolve(cfg, frames=np.asarray(h0).shape[1], hw=frame_hw)
+    return dataclasses.replace(r, static=static) if static else r
 
 
 def scaled_h0(scale: float, frames: int = 2) -> np.ndarray:

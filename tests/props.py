@@ -41,7 +41,8 @@ EV = st.floats(-12.0, 12.0)  # log2 exposure: ratios 2^-12 .. 2^12
 SIZES = st.sampled_from([(1, 1), (2, 3), (3, 2), (5, 7), (7, 5)])
 
 
-SCENE = SceneConfig(grid_levels=2, grid_min_res=4, grid_max_res=8, atlas_width=8, deform_width=8, alpha_width=8, alpha_depth=2, alpha_grid_levels=2, alpha_grid_res=8)
+SCENE = SceneConfig(grid_levels=2, atlas_width=8, deform_width=8)
+SIZES_SMALL = {"grid_max_res": 8, "alpha_grid_res": 8}  # the derived sizes (layercam.scene.layered.derived_sizes) of a tiny scene
 
 
 Z = torch.linspace(-20.0, 20.0, 2001)  # stops, for monotonicity

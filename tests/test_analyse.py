@@ -10,7 +10,7 @@ import torch
 
 from layercam import analyse, flow
 from layercam.checkpoint import load_run_model
-from layercam.config import load_config, model_overrides, unresolved
+from layercam.config import AUTO, load_config, model_overrides
 from layercam.errors import LayercamError
 from layercam.geometry import atlas_pixels
 from layercam.io import Clip, Exposures
@@ -44,7 +44,7 @@ def _decide(frames, exposures=None, task="hdr-video", overrides=None, method="di
     ex = exposures or _single(len(frames))
     m = analyse.measure(clip, ex, _flow(clip.frames, method))
     cfg, reasons = analyse.decide(load_config("fast", model_overrides(**(overrides or {}))), clip, ex, task, m)
-    assert not [k for k in unresolved(cfg) if k.startswith("model.") or k in ("blur.n", "blur.max_offset")]
+    assert AUTO not in list(vars(cfg.model).values()) + [cfg.blur.n, cfg.blur.max_offset]
     return SimpleNamespace(**analyse.model_summary(cfg), reasons=reasons), m
 
 
@@ -131,66 +131,60 @@ def test_camera_shake_alone_keeps_one_layer():
     assert spec.blur != "off"
 
 
+def _grid(r, h0, hw):
+    return ImplicitCameraModel(r, torch.as_tensor(h0, dtype=torch.float32), np.zeros(h0.shape[1]), frame_hw=hw).sizes["grid_max_res"]
+
+
 def test_grid_no_finer_than_pixels_with_blur():
     cfg = load_config("fast")
     h0 = scaled_h0(0.9)
     px = atlas_pixels(h0, (64, 64))
     assert abs(px - 64 / 0.9) < 1e-6
-    sharp = decided(cfg, h0, (64, 64), blur="off").scene.grid_max_res
-    blurred = decided(cfg, h0, (64, 64), blur="3x3").scene.grid_max_res
-    assert sharp == 128  # power of two at or above 71.1 px: at least one cell per pixel
-    assert blurred == 71  # the extent itself: at most one cell per pixel
-    forced = load_config("fast", ["scene.grid_max_res=256"])
-    assert decided(forced, h0, (64, 64), blur="3x3").scene.grid_max_res == 256  # a set size wins
+    assert _grid(decided(cfg, h0, (64, 64), blur="off"), h0, (64, 64)) == 128  # power of two at or above 71.1 px: at least one cell per pixel
+    assert _grid(decided(cfg, h0, (64, 64), blur="3x3"), h0, (64, 64)) == 71  # the extent itself: at most one cell per pixel
+    assert _grid(decided(cfg, h0, (64, 64), static=True), h0, (64, 64)) == 71  # a static one-layer scene too
     m = ImplicitCameraModel(decided(cfg, h0, (64, 64), blur="3x3"), torch.as_tensor(h0, dtype=torch.float32), np.zeros(2), frame_hw=(64, 64))
     assert m.scene.atlases[0].enc.resolutions[-1] == 71
 
 
-@pytest.mark.parametrize("mode,expect_residual", [("auto", False), ("on", True)])
-def test_static_stack_drops_the_residual_warp(tmp_path, mode, expect_residual):
-    """A static one-layer stack (identity bootstrap): with scene.residual=auto the deformation is
-    the per-frame homographies only; =on keeps the residual MLP. blur.centre=auto centres its PSFs.
-    The saved run rebuilds the same."""
+def test_static_stack_drops_the_residual_warp(tmp_path):
+    """A static one-layer stack (the flow's homographies move no corner: ``Resolved.static``): the
+    deformation is the per-frame homographies only and the PSFs are centred; the saved run rebuilds
+    the same."""
     from layercam import synth
     from layercam.io import Exposures
     from layercam.pipelines.tasks import run_task
 
-    from conftest import SMALL_BLUR, TINY
+    from conftest import TINY
 
     # 96 px: at 64 px the DIS flow between the two focus settings is noisy enough that RANSAC fits a
     # 2.5 px zoom on some CPUs / OpenCV builds (seeds 2, 3 on an AMD EPYC with OpenCV 5.0 and 4.14)
     sc = synth.mfme_stack(size=(96, 96), focus_settings=2, exposures_ev=(0.0,), planes=2, seed=3)
     exp = Exposures(np.zeros(2), "none", None, "none", "single")
-    cfg = load_config("fast", TINY + SMALL_BLUR + ["train.steps=20", f"scene.residual={mode}", "model.layers=1", "model.blur=on"])
+    cfg = load_config("fast", TINY + ["train.steps=20", "model.layers=1", "model.blur=on"])
     ctx = run_task("fuse-stack", sc.clip, exp, cfg, tmp_path / "run", progress=False)
-    assert ctx.results["bootstrap"]["static"] is True
+    assert ctx.resolved.static is True and ctx.results["bootstrap"]["static"] is True
     model, ck = load_run_model(tmp_path / "run")
-    d = model.scene.deformations[0]
-    assert (d.residual_scale > 0) == expect_residual
-    assert (ck["cfg"]["scene"]["residual_scale"] > 0) == expect_residual
-    assert ck["cfg"]["blur"]["centre"] == "on" and model.blur.centre_exact
+    assert model.scene.deformations[0].residual is None and ck["settings"]["static"] is True
+    assert model.blur.centre_exact
     disp, w = model.blur.kernels(torch.rand(50, 2) * 2 - 1, torch.randint(0, 2, (50,)))
     assert torch.allclose((w[:, :, None] * disp).sum(1), torch.zeros(50, 2), atol=1e-4)
-    with pytest.raises(LayercamError, match="scene.residual"):
-        load_config("fast", ["scene.residual=maybe"])
-    with pytest.raises(LayercamError, match="blur.centre"):
-        load_config("fast", ["blur.centre=maybe"])
 
 
 def test_moving_clip_keeps_psf_shift_free(tmp_path):
-    """A clip whose camera moves (a pan, not static): blur.centre=auto resolves to off, residual kept."""
+    """A clip whose camera moves (a pan, not static): the PSFs' shift stays free, the residual kept."""
     from layercam import synth
     from layercam.io import Exposures
     from layercam.pipelines.tasks import run_task
 
-    from conftest import SMALL_BLUR, TINY
+    from conftest import TINY
 
     sc = synth.pan_hdr(frames=3, size=(48, 48), ev_step=0.0, seed=0)  # pans 1.5 to 3 px a frame
-    cfg = load_config("fast", TINY + SMALL_BLUR + ["train.steps=10", "model.layers=1", "model.blur=on", "blur.n=3"])
+    cfg = load_config("fast", TINY + ["train.steps=10", "model.layers=1", "model.blur=on", "blur.n=3"])
     ctx = run_task("deblur-video", sc.clip, Exposures(np.zeros(3), "none", None, "none", "single"), cfg, tmp_path / "run", progress=False)
-    assert ctx.results["bootstrap"]["static"] is False
+    assert ctx.resolved.static is False and ctx.results["bootstrap"]["static"] is False
     model, ck = load_run_model(tmp_path / "run")
-    assert ck["cfg"]["blur"]["centre"] == "off" and not model.blur.centre_exact
+    assert ck["settings"]["static"] is False and not model.blur.centre_exact
     assert model.scene.deformations[0].residual_scale > 0
 
 
@@ -337,45 +331,54 @@ def test_real_moving_person_keeps_two_layers(shared_data):
 
 
 def test_static_camera_holds_the_background_still():
-    """The bootstrap's static flag (the frames registered by the identity) holds the background
-    layer still when there are two layers; a moving camera leaves it free; a given value stays."""
-    h0 = np.broadcast_to(np.eye(3, dtype=np.float32), (2, 24, 3, 3))
+    """A static camera (``Resolved.static``) holds the background layer still when there are two
+    layers; a moving camera leaves it free; one layer keeps no residual warp instead."""
+    from layercam.resolve import resolve
+
     two = load_config("fast", ["model.layers=2"])
-    assert analyse.resolve_auto(two, True, h0, (64, 64)).scene.still_background == "on"
-    assert analyse.resolve_auto(two, False, h0, (64, 64)).scene.still_background == "off"
-    given = load_config("fast", ["model.layers=2", "scene.still_background=off"])
-    assert analyse.resolve_auto(given, True, h0, (64, 64)).scene.still_background == "off"
+    assert resolve(two, frames=24, hw=(64, 64), measures={"corner_shift_px": 0.2}).still_background
+    assert not resolve(two, frames=24, hw=(64, 64), measures={"corner_shift_px": 3.0}).still_background
+    one = resolve(load_config("fast", ["model.layers=1"]), frames=24, hw=(64, 64), measures={"corner_shift_px": 0.2})
+    assert not one.still_background and not one.residual and one.blur_centre
+    paper = resolve(load_config("paper", ["model.layers=1"]), frames=24, hw=(64, 64), measures={"corner_shift_px": 0.2})
+    assert not paper.static  # the paper's identity bootstrap: nothing registered by the flow
+
+
+def _cap(preset, sets, frames, hw):
+    from layercam.resolve import resolve
+
+    return resolve(load_config(preset, ["model.layers=1", "model.blur=off"] + list(sets)), frames=frames, hw=hw).settings
 
 
 def test_short_stack_trains_fewer_steps():
     """A 3-shot 256x256 stack: balanced's 2000 steps x 8192 capped to the floor (300 steps) and
     the floor's model (analyse.FLOOR) whatever the preset; a 48-frame clip keeps its steps;
-    train.passes_per_frame=0 turns the cap off; a larger stack is capped above the floor and keeps
-    the preset's batch."""
-    h0 = np.broadcast_to(np.eye(3, dtype=np.float32), (1, 3, 3, 3))
-    cfg = analyse.resolve_auto(load_config("balanced", ["model.layers=1"]), True, h0, (256, 256))
+    train.passes_per_frame=0 turns the cap off (paper's default); a larger stack is capped above
+    the floor and keeps the preset's batch."""
+    from layercam.resolve import resolve
+
+    cfg = _cap("balanced", [], 3, (256, 256))
     assert (cfg.train.steps, cfg.train.bootstrap_steps, cfg.train.batch) == (300, 150, 4096)
-    h48 = np.broadcast_to(np.eye(3, dtype=np.float32), (1, 48, 3, 3))
-    assert analyse.resolve_auto(load_config("balanced", ["model.layers=1"]), False, h48, (144, 256)).train.steps == 2000
-    off = load_config("balanced", ["model.layers=1", "train.passes_per_frame=0"])
-    assert analyse.resolve_auto(off, True, h0, (256, 256)).train.steps == 2000
+    assert _cap("balanced", [], 48, (144, 256)).train.steps == 2000
+    assert _cap("balanced", ["train.passes_per_frame=0"], 3, (256, 256)).train.steps == 2000
     # at the floor every preset trains the floor's model: quality's 8 levels and width 128, fast's 5 levels
-    floor = {p: analyse.resolve_auto(load_config(p, ["model.layers=1"]), True, h0, (256, 256)) for p in ("fast", "balanced", "quality")}
-    for c in floor.values():
+    for p in ("fast", "balanced", "quality"):
+        c = _cap(p, [], 3, (256, 256))
         assert (c.train.steps, c.train.batch, c.scene.grid_levels, c.scene.atlas_width) == (300, 4096, 6, 64)
     # above the floor the cap keeps the preset's batch and width, at most 6 grid levels
-    q = load_config("quality", ["model.layers=1"])
-    big = analyse.resolve_auto(q, True, h0, (510, 768))
+    big = _cap("quality", [], 3, (510, 768))
     assert (big.train.steps, big.train.batch, big.scene.grid_levels, big.scene.atlas_width) == (861, 8192, analyse.FLOOR_GRID_LEVELS, 128)
-    assert q.scene.grid_levels == 8 and analyse.resolve_auto(q, False, h48, (144, 256)).scene.grid_levels == 8
-    assert analyse.resolve_auto(load_config("fast", ["model.layers=1"]), True, h0, (510, 768)).scene.grid_levels == 5
-    # with a blur generator the floor is min_samples in the preset's own model and batch (as before the floor's model)
+    assert _cap("quality", [], 48, (144, 256)).scene.grid_levels == 8
+    assert _cap("fast", [], 3, (510, 768)).scene.grid_levels == 5
+    # with a blur generator the floor is MIN_SAMPLES in the preset's own model and batch
     for p, want in (("fast", (600, 4096, 5)), ("balanced", (300, 8192, 6)), ("quality", (300, 8192, 6))):
-        c = analyse.resolve_auto(load_config(p, ["model.layers=1", "model.blur=on"]), True, h0, (256, 256))
+        c = resolve(load_config(p, ["model.layers=1", "model.blur=on"]), frames=3, hw=(256, 256)).settings
         assert (c.train.steps, c.train.batch, c.scene.grid_levels) == want, p
-    # the paper's positional-encoding atlas keeps its own width and batch at the floor
-    paper = analyse.resolve_auto(load_config("paper", ["model.layers=1"]), True, h0, (256, 256))
+    # the paper trains the paper's steps (no cap) unless the user caps it; capped, its positional
+    # encoding keeps its own width and batch at the floor
+    r = resolve(load_config("paper", ["model.layers=1", "model.blur=off"]), frames=3, hw=(256, 256))
+    assert r.settings.train.steps == 150000 and "no cap" in r.reasons["train.steps"]
+    paper = _cap("paper", ["train.passes_per_frame=4"], 3, (256, 256))
     assert (paper.train.steps, paper.train.batch, paper.scene.atlas_width) == (300, 30000, 512)
     # a smaller batch asked for is kept at the floor
-    small = load_config("balanced", ["model.layers=1", "train.batch=1024"])
-    assert analyse.resolve_auto(small, True, h0, (64, 64)).train.batch == 1024
+    assert _cap("balanced", ["train.batch=1024"], 3, (64, 64)).train.batch == 1024

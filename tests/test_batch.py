@@ -59,7 +59,7 @@ def test_batch_runs_skips_and_restarts(clips, capsys, monkeypatch):
     assert {n: (clips / "runs" / n / "report.json").stat().st_mtime_ns for n in ("a", "b")} == stamp
 
     # job b's options change (an export setting): b runs again, from its cached training; a is skipped
-    _manifest(clips, "--set export.preview_fps=5")
+    _manifest(clips, "--set export.half=false")
     assert main(["batch", str(clips / "jobs.csv"), "--dry-run"]) == 0
     assert "2 would run, 1 would skip" in capsys.readouterr().out
     assert main(["batch", str(clips / "jobs.csv")]) == 1

@@ -52,7 +52,7 @@ def test_a_preset_file_runs_under_its_stem(tmp_path):
     """``--presets my.toml`` (an absolute path): its run folder and result are named by the file's
     stem (the path joined as a folder had made the run folder the preset file itself)."""
     preset = tmp_path / "mine.toml"
-    preset.write_text("[train]\nsteps = 600\n[tone]\ninit_slope = 0.8\n")
+    preset.write_text("[train]\nsteps = 600\n[tone]\nwidth = 48\n")
     out = tmp_path / "bench"
     assert main(["bench", "--quick", "--out", str(out), "--presets", str(preset), "--threads", "1"]) == 0
     assert (out / "pan" / "mine").is_dir() and preset.read_text().startswith("[train]")

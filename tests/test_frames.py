@@ -114,7 +114,7 @@ def test_initial_log2_is_the_median_of_every_pixel():
         dt = rng.normal(size=5).astype(np.float32)
         c = np.clip(f.mean(-1), 0.02, 0.98)
         z = np.log(c / (1 - c)) / math.log(2) - dt[:, None, None]
-        assert initial_log2(f, dt, 1.0, "learned") == float(np.median(z.astype(np.float32)))
+        assert initial_log2(f, dt, "learned", 1.0) == float(np.median(z.astype(np.float32)))
 
 
 def test_the_alpha_grid_of_a_long_clip_stops_growing_and_old_grids_load():
@@ -194,3 +194,15 @@ def test_the_estimate_grows_with_the_clip_on_disk_not_in_memory(tmp_path):
     with pytest.raises(LayercamError, match="--resize"):
         check(huge, tmp_path)
     check(short, tmp_path)  # fits this machine
+
+
+def test_a_flow_cached_before_is_moved_to_files(tmp_path):
+    """A flow stage's folder from before (one flow.npz) loads as the arrays it held."""
+    from layercam import flow_store
+
+    rng = np.random.default_rng(4)
+    old = {"fw": rng.normal(size=(2, 4, 5, 2)).astype(np.float16), "bw": rng.normal(size=(2, 4, 5, 2)).astype(np.float16),
+           "fw_ok": rng.random((2, 4, 5)) > 0.5, "bw_ok": rng.random((2, 4, 5)) > 0.5, "vis": rng.random((2, 4, 5)) > 0.5, "homs": np.stack([np.eye(3)] * 2)}
+    np.savez(tmp_path / "flow.npz", **old)
+    fl = flow_store.load(tmp_path)
+    assert all(np.array_equal(np.asarray(fl[k]), v) for k, v in old.items())

@@ -52,9 +52,9 @@ def test_a_foreground_that_faded_in_training_is_said(two_layer_run):
     def ctx(share, given=False, boot=masks):
         return SimpleNamespace(masks=masks if given else None, results={"bootstrap": {"masks": boot}, "export": {"atlas": {} if share is None else {"foreground_share": share}}})
     faded = faded_foreground(ctx(0.001))
-    assert "faded" in faded and "0.10%" in faded and "4.00%" in faded and "motion masks" in faded and "mask_anchor" in faded
+    assert "faded" in faded and "0.10%" in faded and "4.00%" in faded and "motion masks" in faded and "--masks" in faded
     given = faded_foreground(ctx(0.001, given=True))
-    assert "given masks" in given and "mask_anchor" not in given
+    assert "given masks" in given and "--masks gives" not in given
     assert faded_foreground(ctx(FADED_SHARE * 0.04 * 1.01)) is None and faded_foreground(ctx(0.05)) is None
     assert faded_foreground(ctx(None)) is None and faded_foreground(ctx(0.0, boot=None)) is None
     assert faded_foreground(ctx(0.0, boot=np.zeros_like(masks))) is None  # masks that found nothing: nothing to lose
@@ -107,7 +107,7 @@ def test_one_layer_atlas_export_has_no_alpha(tmp_path):
     from conftest import decided
 
     h0 = np.stack([np.stack([np.eye(3, dtype=np.float32) * [0.8, 0.8, 1]] * 3)])
-    cfg = decided(load_config("fast", ["scene.grid_levels=2", "scene.grid_max_res=16"]), h0, tone_mapper="fixed")
+    cfg = decided(load_config("fast", ["scene.grid_levels=2"]), h0, (16, 16), tone_mapper="fixed")
     model = build_model(cfg, {"h0": h0, "log2_dt": np.zeros(3, np.float32), "init_log2": -2.0, "frame_hw": (16, 16)})
     frames = np.random.default_rng(0).uniform(0, 1, (3, 16, 16, 3)).astype(np.float32)
     summary = export_atlases(model, tmp_path, frames, fps=10)
@@ -151,20 +151,17 @@ def test_refine_fits_twice_and_trains_on_the_refined_masks(two_layer_run, tmp_pa
     assert np.mean([metrics.iou(m > 0.5, scene.fg_mask[t]) for t, m in enumerate(refined)]) > 0.5
     # the final training is keyed on the refined masks: not the shared run's training
     assert ctx.keys["train"] != two_layer_run["ctx"].keys["train"]
-    assert ctx.keys["bootstrap"] == two_layer_run["ctx"].keys["bootstrap"]
     # the refined masks miss parts as the motion masks do: class-balanced all through (plain after the
     # bootstrap steps, DAVIS libby's alpha faded to nothing at balanced), and keyed apart from runs before it
     assert ctx.model.loss_weights.mask_balance == 1.0
-    assert json.loads((ctx.dirs["train"] / "settings.json").read_text())["settings"]["refined_balance"] == "all"
+    assert json.loads((ctx.dirs["train"] / "settings.json").read_text())["options"]["refined_masks"] == ctx.keys["refine"]
     again = run_task("hdr-video", scene.clip, exposures, cfg, run, progress=False)
     assert all(again.times[k]["cached"] for k in ("prefit", "refine", "train", "export"))
 
 
 def test_a_segment_setting_changed_makes_the_masks_again(two_layer_run, tmp_path):
-    """The bootstrap's key holds the segment settings that differ from their defaults: the same run
-    folder made again with another one computes its masks again (before, the stale masks were
-    reused); at the defaults the key is the one runs made before had (refine's own two settings
-    are the refine stage's)."""
+    """The bootstrap's key holds the segment settings: the same run folder made again with another
+    one computes its masks again (stale masks are never reused)."""
     from layercam.pipelines.tasks import run_task
 
     scene, exposures = two_layer_run["scene"], two_layer_run["exposures"]
@@ -175,25 +172,5 @@ def test_a_segment_setting_changed_makes_the_masks_again(two_layer_run, tmp_path
     ctx = run_task("hdr-video", scene.clip, exposures, cfg, run, progress=False)
     assert not ctx.times["bootstrap"]["cached"] and ctx.keys["bootstrap"] != two_layer_run["ctx"].keys["bootstrap"]
     assert ctx.keys["train"] != two_layer_run["ctx"].keys["train"]  # trained on the new masks
-    material = json.loads((ctx.dirs["bootstrap"] / "settings.json").read_text())["settings"]["foreground"]
-    assert material["settings"] == {"colour_clean": 1.0}
-    shared = json.loads((two_layer_run["ctx"].dirs["bootstrap"] / "settings.json").read_text())["settings"]["foreground"]
-    assert "settings" not in shared  # the defaults: keyed by SEGMENT_VERSION alone, as before
-
-
-def test_the_anchor_trains_on_the_sure_pixels_and_keys_its_own_run(two_layer_run, tmp_path):
-    """``loss.mask_anchor`` (opt-in): the final loss carries the anchor term, the training is keyed
-    apart from the shared (anchor-off) run, and the alpha still finds the object."""
-    from layercam.pipelines.tasks import run_task
-
-    assert "alpha_anchor" not in json.loads((two_layer_run["run"] / "report.json").read_text())["train"]["final_loss"]
-    scene, exposures = two_layer_run["scene"], two_layer_run["exposures"]
-    cfg = copy.deepcopy(two_layer_run["cfg"])
-    cfg.loss.mask_anchor = 0.05
-    run = tmp_path / "anchored"
-    ctx = run_task("hdr-video", scene.clip, exposures, cfg, run, progress=False)
-    fl = json.loads((run / "report.json").read_text())["train"]["final_loss"]
-    assert fl["alpha_anchor"] > 0 and np.isfinite(fl["alpha_anchor"])
-    assert ctx.keys["train"] != two_layer_run["ctx"].keys["train"] and ctx.keys["bootstrap"] == two_layer_run["ctx"].keys["bootstrap"]
-    ious = [metrics.iou(read_image(p)[..., 0] > 0.5, scene.fg_mask[t]) for t, p in enumerate(sorted((run / "alpha").glob("frame_*.png")))]
-    assert np.mean(ious) > 0.5, ious
+    material = json.loads((ctx.dirs["bootstrap"] / "settings.json").read_text())["settings"]
+    assert material["segment"]["colour_clean"] == 1.0

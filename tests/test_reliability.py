@@ -61,7 +61,7 @@ CORPUS = [
     ("grid-lr-negative", ["hdr-video", "{video}", "--set", "train.grid_lr=-0.1", "--out", "{fresh}"], "train.grid_lr"),
     ("set-bad-choice", ["hdr-video", "{video}", "--set", "train.autocast=bogus", "--out", "{fresh}"], "bogus"),
     ("set-offset-negative", ["deblur-video", "{video}", "--set", "blur.max_offset=-1", "--out", "{fresh}"], "blur.max_offset"),
-    ("set-preview-fps-negative", ["hdr-video", "{video}", "--set", "export.preview_fps=-5", "--out", "{fresh}"], "export.preview_fps"),
+    ("set-alpha-flow-keep-above-one", ["hdr-video", "{video}", "--set", "loss.alpha_flow_keep=5", "--out", "{fresh}"], "loss.alpha_flow_keep"),
     ("set-layers-3", ["hdr-video", "{video}", "--set", "model.layers=3", "--out", "{fresh}"], "model.layers"),
     ("preset-unknown", ["hdr-video", "{video}", "--preset", "ludicrous", "--out", "{fresh}"], "ludicrous"),
     ("preset-broken-toml", ["hdr-video", "{video}", "--preset", "{badtoml}", "--out", "{fresh}"], "preset"),

@@ -33,7 +33,7 @@ def _two_layer_blur_model():
 
     torch.manual_seed(0)
     h0 = torch.eye(3).expand(2, 3, 3, 3).clone()
-    cfg = decided(load_config("fast", TINY + ["blur.width=8", "blur.depth=1"]), h0, (6, 5), layers=2, blur="3x3", max_offset=2.0)
+    cfg = decided(load_config("fast", TINY), h0, (6, 5), layers=2, blur="3x3", max_offset=2.0)
     return ImplicitCameraModel(cfg, h0, np.array([0.0, 1.0, 2.0], np.float32), frame_hw=(6, 5)).eval()
 
 

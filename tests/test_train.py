@@ -94,8 +94,8 @@ class ToySampler:
 
 
 def _trainer(model, tmp_path, steps=20, every=5, max_bad=3):
-    cfg = TrainConfig(steps=steps, lr=0.05, lr_decay=1.0, checkpoint_every=every, max_bad_steps=max_bad)
-    return Trainer(model, ToySampler(), cfg, tmp_path / "ckpt.pt", progress=False)
+    cfg = TrainConfig(steps=steps, lr=0.05, lr_decay=1.0, checkpoint_every=every)
+    return Trainer(model, ToySampler(), cfg, tmp_path / "ckpt.pt", progress=False, max_bad_steps=max_bad)
 
 
 def test_non_finite_loss_skips_step_halves_lr_and_logs(tmp_path):
@@ -236,7 +236,8 @@ def test_pipeline_logs_skipped_steps_in_report(tiny_scene, tiny_exposures, tmp_p
 
 
 def test_pipeline_divergence_writes_failed_report_keeps_checkpoint_and_resumes(tiny_scene, tiny_exposures, tmp_path, monkeypatch):
-    cfg = load_config("fast", TINY + ["train.max_bad_steps=4", "train.steps=20", "train.checkpoint_every=5"])
+    cfg = load_config("fast", TINY + ["train.steps=20", "train.checkpoint_every=5"])
+    monkeypatch.setattr("layercam.train.MAX_BAD_STEPS", 4)
     _nan_loss_from(monkeypatch, lambda i: i >= 10)
     with pytest.raises(LayercamError, match="training diverged: 4 non-finite steps in a row at step 13"):
         run_task("hdr-video", tiny_scene.clip, tiny_exposures, cfg, tmp_path / "run", progress=False)

@@ -25,32 +25,13 @@ def srgb_tone(z: torch.Tensor) -> torch.Tensor:
 
 
 class ToneMapper(nn.Module):
-    """``z (N, 3) -> c (N, 3)`` in ``(0, 1)``; channel ``k`` of ``z`` goes through MLP ``k``.
+    """``z (N, 3) -> c (N, 3)`` in ``(0, 1)``; channel ``k`` of ``z`` goes through MLP ``k`` (its
+    slope is kept positive by the paper's gradient loss, :func:`layercam.losses.gradient_loss`).
+    ``lut`` > 0: evaluated on that many knots and interpolated (:meth:`_lut_logits`)."""
 
-    ``monotone=True`` makes each curve monotone by construction: the output is a sigmoid of a
-    cumulative sum of positive increments ``softplus(INC_GAIN * inc)`` on a knot grid over
-    ``[-z_max, z_max]``, linearly interpolated (the paper instead penalises negative slopes with its
-    gradient loss). It starts as :func:`init_curve` with ``init_slope``; ``INC_GAIN`` lets Adam move
-    a knot's slope as fast as the MLP moves its curve (with gain 1 a sharp knee is out of reach in a
-    few hundred steps). The increments are blurred (``SMOOTH`` knots): free knots let the curve wiggle
-    with the period of the exposure step, which the atlas then absorbs. How it compares with the MLP
-    and gradient loss, and what the smoothing gains: ``docs/measurements.md``.
-    """
-
-    INC_GAIN = 10.0
-    SMOOTH = 2.0  # Gaussian blur (sigma, knots) of the increments (docs/measurements.md)
-
-    def __init__(self, width: int = 64, depth: int = 2, monotone: bool = False, z_max: float = 24.0, knots: int = 97, lut: int = 0, init_slope: float = 1.0):
+    def __init__(self, width: int = 64, depth: int = 2, lut: int = 0):
         super().__init__()
-        self.monotone = monotone
-        self.lut = lut if not monotone else 0
-        if monotone:
-            self.z_max = z_max
-            self.register_buffer("knots", torch.linspace(-z_max, z_max, knots))
-            step = init_slope * math.log(2) * 2 * z_max / (knots - 1)  # logit rise per knot of init_curve
-            self.inc = nn.Parameter(torch.full((3, knots - 1), math.log(math.expm1(step)) / self.INC_GAIN))
-            self.offset = nn.Parameter(torch.zeros(3))
-            return
+        self.lut = lut
         dims = [1] + [width] * depth + [1]
         self.weights = nn.ParameterList()
         self.biases = nn.ParameterList()
@@ -67,8 +48,6 @@ class ToneMapper(nn.Module):
         if z.ndim != 2 or z.shape[1] != 3:
             raise ValueError(f"ToneMapper expects z of shape (N, 3), got {tuple(z.shape)}")
         z = z.float()
-        if self.monotone:
-            return self._monotone_logits(z)
         x = (z * Z_SCALE).t().unsqueeze(-1)  # (3, N, 1)
         n = len(self.weights)
         for i, (w, b) in enumerate(zip(self.weights, self.biases)):
@@ -76,27 +55,6 @@ class ToneMapper(nn.Module):
             if i < n - 1:
                 x = torch.relu(x)
         return x.squeeze(-1).t()
-
-    def _monotone_logits(self, z: torch.Tensor) -> torch.Tensor:
-        step = torch.nn.functional.softplus(self.inc * self.INC_GAIN)  # (3, K-1) >= 0
-        if self.SMOOTH > 0:  # a normalised Gaussian blur of positive increments stays positive
-            r = int(3 * self.SMOOTH + 0.5)
-            g = torch.exp(-0.5 * (torch.arange(-r, r + 1, device=step.device, dtype=step.dtype) / self.SMOOTH) ** 2)
-            sp = torch.nn.functional.pad(step[:, None], (r, r), mode="replicate")
-            step = torch.nn.functional.conv1d(sp, (g / g.sum()).view(1, 1, -1))[:, 0]
-        cum = torch.cat([torch.zeros_like(step[:, :1]), torch.cumsum(step, dim=1)], dim=1)  # (3, K)
-        cum = cum - cum[:, cum.shape[1] // 2 : cum.shape[1] // 2 + 1] + self.offset[:, None]
-        k = self.knots
-        zc = z.clamp(-self.z_max, self.z_max)
-        pos = (zc - k[0]) / (k[1] - k[0])
-        i0 = pos.floor().long().clamp(0, k.numel() - 2)
-        frac = pos - i0.float()
-        out = []
-        for c in range(3):
-            lo = gather_rows(cum[c], i0[:, c])  # (a deterministic backward, unlike cum[c][i]'s)
-            hi = gather_rows(cum[c], i0[:, c] + 1)
-            out.append(lo + frac[:, c] * (hi - lo))
-        return torch.stack(out, dim=1)
 
     def forward(self, z: torch.Tensor) -> torch.Tensor:
         # the curve runs in float32 even under autocast: bf16 would quantise it to ~2^-9
@@ -128,8 +86,6 @@ class ToneMapper(nn.Module):
 class FixedTone(nn.Module):
     """The fixed sRGB curve as a module (no parameters)."""
 
-    monotone = True
-
     def forward(self, z: torch.Tensor) -> torch.Tensor:
         return srgb_tone(z.float())
 
@@ -138,12 +94,16 @@ class FixedTone(nn.Module):
         return self(z[:, None].expand(-1, 3).contiguous())
 
 
-def init_curve(z: torch.Tensor, slope: float) -> torch.Tensor:
+INIT_SLOPE = 1.0  # the learned curve's start sigmoid(INIT_SLOPE * ln2 * z) = r / (1 + r): it spans 4.2 stops from
+                 # T = 0.5 to 0.95, where a real camera's shoulder is (a power 1/2.24 with a clip: 2.07)
+
+
+def init_curve(z: torch.Tensor, slope: float = INIT_SLOPE) -> torch.Tensor:
     """The tone mapper's starting curve: ``sigmoid(slope * ln2 * z)``; ``T(0) = 0.5``."""
     return torch.sigmoid(slope * math.log(2) * z)
 
 
-def initial_log2(frames: np.ndarray, log2_dt: np.ndarray, slope: float, tone: str) -> float:
+def initial_log2(frames: np.ndarray, log2_dt: np.ndarray, tone: str, slope: float = INIT_SLOPE) -> float:
     """The atlases' starting log2 irradiance: the median over the frames ``(T, H, W, 3)`` (grey,
     kept within 0.02..0.98) of their value through the inverse of the starting tone curve (the
     fixed sRGB curve, or :func:`init_curve` with ``slope``), less each frame's ``log2_dt (T,)``."""
@@ -176,7 +136,7 @@ def _weighted_median(v: np.ndarray, k: np.ndarray) -> np.float32:
     return np.mean(np.array([lo, hi], np.float32))
 
 
-def fit_init_curve(tone: ToneMapper, slope: float, steps: int = 300, seed: int = 0) -> float:
+def fit_init_curve(tone: ToneMapper, slope: float = INIT_SLOPE, steps: int = 300, seed: int = 0) -> float:
     """Fit ``tone`` to :func:`init_curve` over ``[-16, 16]`` stops; returns the final MSE."""
     g = torch.Generator().manual_seed(seed)
     opt = torch.optim.Adam(tone.parameters(), lr=1e-2)

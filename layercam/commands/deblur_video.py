@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from layercam.cli import EPILOG, before_stages, common_model_args, default_out, finish, input_args, load_cfg, load_masks, open_clip
+from layercam.cli import EPILOG, before_stages, common_model_args, default_out, finish, input_args, load_cfg, open_clip
 
 
 def register(sub) -> argparse.ArgumentParser:
@@ -29,6 +29,7 @@ def register(sub) -> argparse.ArgumentParser:
 def run(args) -> int:
     from layercam.errors import LayercamError
     from layercam.io import parse_exposures
+    from layercam.io.masks import load_masks
     from layercam.pipelines.tasks import run_task
 
     cfg = load_cfg(args)

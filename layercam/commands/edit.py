@@ -175,11 +175,11 @@ def _edit(args, run_dir: Path) -> int:
     from layercam.io import write_exr, write_video
     from layercam.io.atomic import commit_staged, ensure_writable_dir, staging_dir
     from layercam.pipelines.runner import write_json
-    from layercam.pipelines.stages import resolve_device
+    from layercam.pipelines.stages import device_of
     from layercam.progress import bar as progress_bar
     from layercam.render import tonemap_display
 
-    model, meta = load_run_model(run_dir, resolve_device(args.device))
+    model, meta = load_run_model(run_dir, device_of(args.device))
     L = model.scene.n_layers
     if not 0 <= args.layer < L:
         raise LayercamError(f"--layer {args.layer}: this run has {L} layer{'s' if L > 1 else ''} (0{'' if L == 1 else f'..{L - 1}'})")

@@ -6,7 +6,7 @@ import argparse
 from pathlib import Path
 
 from layercam import distributed
-from layercam.cli import EPILOG, before_stages, common_model_args, default_out, finish, input_args, load_cfg, load_masks, open_clip
+from layercam.cli import EPILOG, before_stages, common_model_args, default_out, finish, input_args, load_cfg, open_clip
 
 
 def register(sub) -> argparse.ArgumentParser:
@@ -19,11 +19,12 @@ def register(sub) -> argparse.ArgumentParser:
 
 def run(args) -> int:
     from layercam.io import parse_exposures
-    from layercam.pipelines.stages import resolve_device
+    from layercam.io.masks import load_masks
+    from layercam.pipelines.stages import device_of
     from layercam.pipelines.tasks import run_task
 
     cfg = load_cfg(args)
-    device = resolve_device(cfg.train.device)  # a missing GPU is said before any work
+    device = device_of(cfg.train.device)  # a missing GPU is said before any work
     if distributed.launch_requested(args):
         return distributed.launch(args, device)
     with distributed.session(device):  # joins the process group under torchrun, else nothing

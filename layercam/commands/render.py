@@ -159,9 +159,9 @@ def _render(args) -> int:
     from layercam.io import write_png, write_video
     from layercam.io.atomic import commit_staged, ensure_writable_dir, staging_dir
     from layercam.pipelines.runner import write_json
-    from layercam.pipelines.stages import resolve_device
+    from layercam.pipelines.stages import device_of
 
-    model, meta = load_run_model(Path(args.run), resolve_device(args.device))
+    model, meta = load_run_model(Path(args.run), device_of(args.device))
     T = int(meta["n_frames"])
     has_blur = model.blur is not None
     if (args.focus is not None or args.sweep == "focus") and not has_blur:

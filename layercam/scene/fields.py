@@ -10,21 +10,38 @@ import torch
 from torch import nn
 
 from layercam.config import SceneConfig
-from layercam.scene.encodings import DenseGrid2D, DenseGrid3D, PositionalEncoding, gather_rows
+from layercam.scene.encodings import SPARSE_CELLS, DenseGrid2D, DenseGrid3D, PositionalEncoding, gather_rows
 from layercam.scene.mlp import MLP
 
 LOG2_R_BOUND = 40.0  # guard: |log2 irradiance| never exceeds this (2^40 covers any sensor)
 
+# fixed sizes: no preset changes them (the paper's where it gives one); what a preset may change is
+# in layercam.config.SceneConfig, and the sizes that follow from the clip in layercam.scene.layered
+ATLAS_PE_FREQS = 7        # the atlas's positional encoding of (u, v) (paper: 7)
+GRID_MIN_RES = 16         # the coarsest atlas grid level, cells across
+GRID_FEATURES = 4         # features per grid cell
+DEFORM_PE_FREQS = 4       # the residual / MLP deformation's positional encoding of (x, y, t)
+RESIDUAL_SCALE = 0.05     # bound of the residual warp, atlas units
+ALPHA_WIDTH, ALPHA_DEPTH = 64, 3  # the alpha MLP
+ALPHA_PE_FREQS = 6        # alpha's positional encoding of (x, y, t)
+ALPHA_GRID_LEVELS = 4     # alpha's dense (x, y, t) grid levels
+ALPHA_GRID_FEATURES = 2
+
 
 class AtlasField(nn.Module):
-    """``uv (N, 2) -> log2 r (N, 3)``. Encoding "grid" (fast) or "pe" (paper: PE(7) -> 4x512)."""
+    """``uv (N, 2) -> log2 r (N, 3)``. Encoding "grid" (fast: ``cfg.grid_levels`` dense levels from
+    ``GRID_MIN_RES`` to ``max_res`` cells across) or "pe" (paper: PE(7) -> 4x512)."""
 
-    def __init__(self, cfg: SceneConfig, init_log2: float = 0.0):
+    def __init__(self, cfg: SceneConfig, max_res: int = 256, init_log2: float = 0.0, batch: int | None = None):
         super().__init__()
         if cfg.encoding == "grid":
-            self.enc = DenseGrid2D(cfg.grid_levels, cfg.grid_min_res, cfg.grid_max_res, cfg.grid_features, sparse_cells=cfg.grid_sparse_cells)
+            # a level is trained sparsely once it has more cells than a step of ``batch`` samples can
+            # touch (4 corners each), and always from SPARSE_CELLS on: a step's cost then grows with the
+            # batch, not the grid
+            sparse = SPARSE_CELLS if batch is None else min(SPARSE_CELLS, 4 * batch)
+            self.enc = DenseGrid2D(cfg.grid_levels, min(GRID_MIN_RES, max_res), max_res, GRID_FEATURES, sparse_cells=sparse)
         elif cfg.encoding == "pe":
-            self.enc = PositionalEncoding(2, cfg.pe_freqs)
+            self.enc = PositionalEncoding(2, ATLAS_PE_FREQS)
         else:
             raise ValueError(f"unknown atlas encoding {cfg.encoding!r} (grid | pe)")
         self.mlp = MLP(self.enc.out_dim, 3, cfg.atlas_width, cfg.atlas_depth)
@@ -56,13 +73,13 @@ class Deformation(nn.Module):
     """``(xy, t) -> uv``. Starts from a per-frame bootstrap mapping ``h0 (T, 3, 3)``.
 
     kind "homography": ``uv = (h0_t + dh_t)(xy) + s * tanh(residual(PE(x, y, t)))`` with the
-    per-frame correction ``dh`` and the residual MLP both starting at zero (fast, exact at start);
-    no residual MLP when ``s = 0``; ``still``: neither (``uv = h0_t(xy)``, ``dh`` held at zero), for
-    the background of a static camera.
+    per-frame correction ``dh`` and the residual MLP both starting at zero (fast, exact at start),
+    ``s = RESIDUAL_SCALE``; no residual MLP without ``residual``; ``still``: neither (``uv = h0_t(xy)``,
+    ``dh`` held at zero), for the background of a static camera.
     kind "mlp" (paper): ``uv = tanh(MLP(x, y, t))``, fitted to ``h0`` during the bootstrap steps.
     """
 
-    def __init__(self, cfg: SceneConfig, h0: torch.Tensor, still: bool = False):
+    def __init__(self, cfg: SceneConfig, h0: torch.Tensor, residual: bool = True, still: bool = False):
         super().__init__()
         if h0.ndim != 3 or h0.shape[1:] != (3, 3):
             raise ValueError(f"h0 must be (T, 3, 3), got {tuple(h0.shape)}")
@@ -71,10 +88,10 @@ class Deformation(nn.Module):
         self.register_buffer("h0", h0.float().clone())
         if self.kind == "homography":
             self.dh = nn.Parameter(torch.zeros(self.n_frames, 8), requires_grad=not still)  # still: h0 alone
-            self.residual_scale = 0.0 if still else cfg.residual_scale
+            self.residual_scale = RESIDUAL_SCALE if residual and not still else 0.0
             self.residual = None  # residual_scale = 0: the per-frame homographies only
             if self.residual_scale > 0:
-                self.pe = PositionalEncoding(3, cfg.deform_pe_freqs)
+                self.pe = PositionalEncoding(3, DEFORM_PE_FREQS)
                 self.residual = MLP(self.pe.out_dim, 2, cfg.deform_width, cfg.deform_depth, zero_last=True)
         elif self.kind == "mlp":
             self.net = MLP(3, 2, cfg.deform_width, cfg.deform_depth)
@@ -101,10 +118,10 @@ ALPHA_GRID_CELLS = 1 << 24  # cells of each alpha grid level at most (64 frames 
 
 def alpha_grid_capped(cfg: SceneConfig, n_frames: int, frame_hw: tuple[int, int]) -> bool:
     """Whether ``ALPHA_GRID_CELLS`` shapes the alpha grid of a clip of ``n_frames`` (its finest level,
-    ``alpha_grid_res`` or what :func:`layercam.analyse.resolve_auto` derives, over the frames)."""
-    from layercam.analyse import ALPHA_GRID_MAX
+    :func:`layercam.scene.layered.derived_sizes`, over the frames)."""
+    from layercam.scene.layered import ALPHA_GRID_MAX
 
-    r = cfg.alpha_grid_res or int(min(max(frame_hw), ALPHA_GRID_MAX))
+    r = int(min(max(frame_hw), ALPHA_GRID_MAX))
     return cfg.alpha_encoding == "grid" and n_frames * r * r > ALPHA_GRID_CELLS
 
 
@@ -112,26 +129,24 @@ class AlphaField(nn.Module):
     """``(xy, t) -> alpha (N, 1)`` in ``(0, 1)``: foreground opacity of a two-layer scene.
 
     ``alpha_encoding`` "pe": an MLP of the positional encoding of ``(x, y, t)`` (smooth: with 6
-    frequencies it cannot draw a dog's legs at 282x158, and with the true masks of DAVIS libby held
-    all through training its IoU stayed below 0.6). "grid": the same MLP also reads multi-resolution
-    dense ``(x, y, t)`` grids (:class:`DenseGrid3D`, ``alpha_grid_levels`` levels, the finest
-    ``alpha_grid_res`` cells across and one slice per frame, or per few frames in a clip long
-    enough that the level would hold more than ``ALPHA_GRID_CELLS``) that can follow the object's
-    outline.
+    frequencies it cannot draw thin legs). "grid": the same MLP also reads multi-resolution
+    dense ``(x, y, t)`` grids (:class:`DenseGrid3D`, ``ALPHA_GRID_LEVELS`` levels, the finest
+    ``res`` cells across and one slice per frame, or per few frames in a clip long enough that the
+    level would hold more than ``ALPHA_GRID_CELLS``) that can follow the object's outline.
     """
 
-    def __init__(self, cfg: SceneConfig, n_frames: int):
+    def __init__(self, cfg: SceneConfig, n_frames: int, res: int = 64):
         super().__init__()
         self.n_frames = n_frames
-        self.pe = PositionalEncoding(3, cfg.alpha_pe_freqs)
+        self.pe = PositionalEncoding(3, ALPHA_PE_FREQS)
         self.grid = None
         width = self.pe.out_dim
         if cfg.alpha_encoding == "grid":
-            if cfg.alpha_grid_res < 2:
-                raise ValueError("scene.alpha_grid_res must be resolved (analyse.resolve_auto) before the alpha grid is built")
-            self.grid = DenseGrid3D(cfg.alpha_grid_levels, cfg.alpha_grid_res, n_frames, cfg.alpha_grid_features, max_cells=ALPHA_GRID_CELLS)
+            if res < 2:
+                raise ValueError(f"the alpha grid needs at least 2 cells across, got {res}")
+            self.grid = DenseGrid3D(ALPHA_GRID_LEVELS, res, n_frames, ALPHA_GRID_FEATURES, max_cells=ALPHA_GRID_CELLS)
             width += self.grid.out_dim
-        self.net = MLP(width, 1, cfg.alpha_width, cfg.alpha_depth)
+        self.net = MLP(width, 1, ALPHA_WIDTH, ALPHA_DEPTH)
 
     def logits(self, xy: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
         xy = xy.float()
@@ -143,25 +158,3 @@ class AlphaField(nn.Module):
 
     def forward(self, xy: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
         return torch.sigmoid(self.logits(xy, t))
-
-
-class BackgroundChange(nn.Module):
-    """``(xy, t) -> (N, 3)``: a small per-frame change of the background's log2 irradiance, in frame
-    coordinates, so that what changes over time without moving with anything (rippling water,
-    reflections, shadows, flicker) can stay in the background instead of pulling the foreground's
-    alpha onto it. One coarse ``cells x cells`` grid per frame (bilinear, starting at 0); its size
-    is penalised (``loss.bg_change``), and being coarse it cannot draw an object.
-    """
-
-    def __init__(self, n_frames: int, cells: int):
-        super().__init__()
-        if cells < 1:
-            raise ValueError("BackgroundChange needs at least one cell")
-        self.n_frames = n_frames
-        self.grid = nn.Parameter(torch.zeros(1, 3, n_frames, cells, cells))
-
-    def forward(self, xy: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
-        tc = (2.0 * t.float() + 1.0) / self.n_frames - 1.0  # frame t's own slice
-        g = torch.cat([xy.float(), tc[:, None]], dim=1).view(1, -1, 1, 1, 3)
-        out = torch.nn.functional.grid_sample(self.grid, g, mode="bilinear", padding_mode="border", align_corners=False)
-        return out[0, :, :, 0, 0].t()

@@ -1,0 +1,211 @@
+"""Resolve once: every ``auto`` setting and every cap of one run, decided with its reason.
+
+:func:`resolve` takes the settings as the user gave them (a preset and ``--set``; :class:`Config`)
+and what the analysis measured of the clip (:func:`layercam.analyse.measure`) and returns a
+:class:`Resolved`: the only settings object the stages after the flow, the model and the trainer
+read. ``report.json`` stores it (``"settings"``), the analysis table prints from it, and each
+stage's cache key hashes the part of it that the stage reads.
+
+What it decides, each with a reason in ``Resolved.reasons`` (keyed ``section.field``):
+
+* the model's components (``model.*``) and the blur generator's shape (``blur.n``,
+  ``blur.max_offset``), the colour loss (``loss.robust``): :func:`layercam.analyse.decide`;
+* ``static``: the camera did not move (the flow's chained homographies move no frame corner by
+  :data:`layercam.geometry.STATIC_CORNER_PX`; with ``scene.bootstrap=flow``). A static one-layer
+  scene then has no residual warp and blur PSFs centred on their pixel, a static two-layer scene
+  a background held still (:attr:`Resolved.residual`, :attr:`still_background`, :attr:`blur_centre`);
+* the step cap (``train.steps``, and where it shortens training ``scene.grid_levels``, and at its
+  floor the floor's model, :data:`layercam.analyse.FLOOR`): only where the preset allows a cap
+  (``train.passes_per_frame`` > 0; `paper` trains the paper's steps);
+* the export's ``merge_neighbours`` and ``denoise`` from the task and ``static``;
+* ``train.device`` and ``train.autocast`` from what torch sees.
+
+>>> from layercam.config import load_config
+>>> r = resolve(load_config("fast", ["model.layers=1", "model.blur=off"]), frames=3, hw=(256, 256), task="fuse-stack")
+>>> r.settings.train.steps, r.reasons["train.steps"].split(":")[0]
+(300, '300 steps of 4096 pixels instead of 600')
+>>> r.settings.train.steps = 5
+Traceback (most recent call last):
+...
+dataclasses.FrozenInstanceError: settings are resolved once (layercam.resolve): cannot set train.steps
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from layercam.config import AUTO, Config, config_from_dict, freeze
+
+STATIC_KEY = "static"
+
+
+@dataclass(frozen=True)
+class Resolved:
+    """The run's settings, every ``auto`` decided and every cap applied (frozen), what was
+    measured to decide whether the camera is static, and why each setting has its value."""
+
+    settings: Config
+    static: bool = False
+    reasons: dict = field(default_factory=dict)
+
+    @property
+    def residual(self) -> bool:
+        """The homography deformation's residual warp: off for a static one-layer scene (nothing
+        for a free per-pixel warp to follow; it bent the frames to fit their blur instead)."""
+        return not (self.static and self.settings.model.layers == 1)
+
+    @property
+    def still_background(self) -> bool:
+        """Two layers from a static camera: the background maps every frame through its bootstrap
+        homography alone (a per-frame correction let it wander a pixel and flicker)."""
+        return self.static and self.settings.model.layers > 1
+
+    @property
+    def blur_centre(self) -> bool:
+        """The blur PSFs' weighted centre held on its pixel: a static one-layer scene (a shift has
+        nothing to follow there); free on moving footage."""
+        return self.static and self.settings.model.layers == 1
+
+    def section(self, *names: str) -> dict:
+        """``{name: {field: value}}`` of the settings' sections ``names`` (a stage's cache key)."""
+        return self.settings.section_dict(*names)
+
+    def to_dict(self) -> dict:
+        return {**self.settings.to_dict(), STATIC_KEY: self.static, "reasons": dict(self.reasons)}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "Resolved":
+        """Inverse of :meth:`to_dict` (a checkpoint's or a report's ``"settings"``)."""
+        return cls(freeze(config_from_dict(d)), bool(d.get(STATIC_KEY, False)), dict(d.get("reasons", {})))
+
+
+def resolve(cfg: Config, clip=None, exposures=None, task: str = "hdr-video", measures: dict | None = None, *, frames: int | None = None, hw: tuple[int, int] | None = None) -> Resolved:
+    """``cfg`` with every ``auto`` decided and every cap applied, for ``clip`` (or a clip of
+    ``frames`` frames of size ``hw``) with ``exposures`` and the analysis's ``measures``."""
+    from layercam import analyse
+    from layercam.geometry import STATIC_CORNER_PX
+
+    if clip is None:
+        clip = _Shape(frames or 1, *(hw or (1, 1)))
+    if exposures is None:
+        from layercam.io import Exposures
+
+        import numpy as np
+
+        exposures = Exposures(np.zeros(clip.T), "none", None, "none", "single")
+    cfg, why = analyse.decide(cfg, clip, exposures, task, measures)
+    reasons = {(k if "." in k else (f"blur.{k}" if k in ("n", "max_offset") else f"model.{k}")): v for k, v in why.items()}
+    mm = measures or {}
+
+    shift = mm.get("corner_shift_px")
+    static = cfg.scene.bootstrap == "flow" and shift is not None and clip.T > 1 and shift < STATIC_CORNER_PX
+    if cfg.scene.bootstrap != "flow":
+        reasons[STATIC_KEY] = "no: the mappings start from the identity (scene.bootstrap=identity)"
+    elif shift is None or clip.T < 2:
+        reasons[STATIC_KEY] = "no: no flow measured"
+    else:
+        reasons[STATIC_KEY] = f"{'yes' if static else 'no'}: the flow's chained homographies move a frame corner {shift:.2f} px ({'<' if static else '>='} {STATIC_CORNER_PX})"
+
+    _cap(cfg, clip, reasons)
+
+    e = cfg.export
+    if e.merge_neighbours == AUTO:
+        e.merge_neighbours = "on" if static and task != "fuse-stack" else "off"
+        reasons["export.merge_neighbours"] = ("a video from a static camera: each frame merged with its neighbours where they agree with it"
+                                              if e.merge_neighbours == "on" else "a moving camera or a stack's fused view: each frame its own")
+    if e.denoise == AUTO:
+        e.denoise = "on" if task == "fuse-stack" else "off"
+        reasons["export.denoise"] = ("a stack's fused view: filtered against the reference shot's own noise" if e.denoise == "on"
+                                     else "a video: each frame keeps its own noise (filtered by their different noise, short and long frames flickered)")
+    t = cfg.train
+    if t.device == AUTO:
+        t.device = _auto_device()
+        reasons["train.device"] = "torch sees a CUDA device" if t.device.startswith("cuda") else "torch sees no CUDA device"
+    if t.autocast == AUTO:
+        t.autocast = "bf16" if t.device.startswith("cuda") and _bf16() else "none"
+        reasons["train.autocast"] = "bf16 mixed precision on a GPU that has it" if t.autocast == "bf16" else "fp32 (no GPU with bf16)"
+    return Resolved(freeze(cfg), bool(static), reasons)
+
+
+def _cap(cfg: Config, clip, reasons: dict) -> None:
+    """The step cap (:func:`layercam.analyse.step_cap`), its grid levels and its floor's model,
+    written into ``cfg`` with their reasons; nothing where the preset asks for no cap."""
+    from layercam.analyse import FLOOR, FLOOR_GRID_LEVELS, MIN_STEPS, has_floor_model, step_cap
+
+    t, s = cfg.train, cfg.scene
+    if t.passes_per_frame <= 0:
+        reasons["train.steps"] = f"{t.steps}: the preset's steps (train.passes_per_frame=0: no cap)"
+        return
+    blur = cfg.model.blur == "on"
+    cap = step_cap(t, clip.T, clip.H * clip.W, blur)
+    if cap >= t.steps:
+        reasons["train.steps"] = f"{t.steps}: the preset's (under its cap of {t.passes_per_frame:g} x {clip.T} passes over the clip's pixels)"
+        return
+    asked = t.steps
+    t.steps = cap
+    t.bootstrap_steps = min(t.bootstrap_steps, cap // 2)
+    if s.grid_levels > FLOOR_GRID_LEVELS:
+        s.grid_levels = FLOOR_GRID_LEVELS
+        reasons["scene.grid_levels"] = f"{FLOOR_GRID_LEVELS}: a capped training fits the few looks' disagreements with more"
+    floor = cap == MIN_STEPS and has_floor_model(cfg)  # (a blur generator keeps its floor in pixels sampled)
+    if floor:
+        s.grid_levels, s.atlas_width = FLOOR["scene.grid_levels"], min(s.atlas_width, FLOOR["scene.atlas_width"])
+        t.batch = min(t.batch, FLOOR["train.batch"])
+        reasons["train.steps"] = (f"{t.steps} steps of {t.batch} pixels instead of {asked}: a clip this short trains at the step cap's floor, one model "
+                                  f"whatever the preset ({s.grid_levels} grid levels, atlas width {s.atlas_width}; more fit a short stack's noise; "
+                                  "train.passes_per_frame=0: no cap)")
+    else:
+        reasons["train.steps"] = (f"{t.steps} instead of {asked}: at most {t.passes_per_frame:g} x {clip.T} passes over the clip's "
+                                  f"{clip.T * clip.H * clip.W:,} pixels (more fit a short stack's noise; train.passes_per_frame=0: no cap)")
+
+
+TABLE_KEYS = ("static", "train.steps", "scene.grid_levels", "export.merge_neighbours", "export.denoise", "train.device", "train.autocast")
+
+
+def format_table(r: Resolved) -> str:
+    """The analysis table a run prints: the model's components, then every other resolved setting
+    that has a reason, one line each: name, value, why."""
+    from layercam.analyse import MODEL_KEYS, model_summary
+
+    summary = model_summary(r.settings)
+    keys = {"max_offset": "blur.max_offset"}
+    rows = [(k, str(summary[k]), r.reasons.get(keys.get(k, f"model.{k}"), "")) for k in MODEL_KEYS]
+    for k in TABLE_KEYS:
+        if k in r.reasons:
+            value = r.static if k == STATIC_KEY else getattr(getattr(r.settings, k.split(".")[0]), k.split(".")[1])
+            reason = r.reasons[k].split(": ", 1)[1] if k == STATIC_KEY else r.reasons[k]
+            rows.append((k, str(value), reason))
+    w0 = max(len(a) for a, _, _ in rows)
+    w1 = max(len(b) for _, b, _ in rows)
+    return "\n".join(f"  {a:<{w0}}  {b:<{w1}}  {c}" for a, b, c in rows)
+
+
+@dataclass
+class _Shape:
+    T: int
+    H: int
+    W: int
+
+
+def _auto_device() -> str:
+    import torch
+
+    return "cuda" if torch.cuda.is_available() else "cpu"
+
+
+def _bf16() -> bool:
+    import torch
+
+    return bool(torch.cuda.is_available() and torch.cuda.is_bf16_supported())
+
+
+def as_resolved(cfg, frames: int = 1, hw: tuple[int, int] = (1, 1)) -> Resolved:
+    """``cfg`` as a :class:`Resolved`: itself, or a :class:`Config` resolved with nothing measured
+    for a clip of ``frames`` frames of size ``hw`` (a model built in code: its forced settings kept,
+    the rest decided as for a clip whose flow says nothing)."""
+    if isinstance(cfg, Resolved):
+        return cfg
+    return resolve(cfg.copy(), frames=frames, hw=hw)
+
+
+__all__ = ["Resolved", "resolve", "as_resolved", "format_table"]

@@ -89,7 +89,9 @@ def run_layer_job(job: dict) -> dict:
     forced = ["model.layers=2"] if job.get("layers") == "2" else []
     cfg = load_config(job["preset"], forced + list(job.get("overrides", [])))
     t0 = time.perf_counter()
-    ctx = run_task("hdr-video", clip, exposures, cfg, run, masks=truth if job["variant"] == "masks" else None, progress=False)
+    # one model of the whole clip (window=0): the bench scores its checkpoint and its masks (at 854x480
+    # libby's camera needs more atlas than one model holds, and hdr-video would train it as windows)
+    ctx = run_task("hdr-video", clip, exposures, cfg, run, masks=truth if job["variant"] == "masks" else None, progress=False, window=0)
     total = time.perf_counter() - t0
     wall = sum((v.get("seconds") or v.get("original_seconds") or 0.0) for v in ctx.times.values())
     alpha = read_alpha(run, clip.T, (clip.H, clip.W))

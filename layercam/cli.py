@@ -84,6 +84,30 @@ def input_args(p: argparse.ArgumentParser, exposures_default: str | None) -> Non
                    "(--set segment.detector=PATH; nothing is downloaded)")
 
 
+def _window(text: str) -> int:
+    if text.strip().lower() in ("off", "0"):
+        return 0
+    return number(int, 3)(text)
+
+
+_window.__name__ = "window"
+
+
+def window_args(p: argparse.ArgumentParser) -> None:
+    """``--window`` and ``--ray``: a long clip as windows of frames (``pipelines/windows.py``)."""
+    g = p.add_argument_group("long clips")
+    g.add_argument("--window", type=_window, metavar="N|off", help=(
+        "train the clip as overlapping windows of N frames, each its own model sharing one camera (the response "
+        "curve and exposures learned on the first window), joined by a cross-fade over their overlap; off: one "
+        "model. Default: windows where the camera's motion spans more than the atlas holds at one cell per pixel "
+        "(the analysis says so); each window resumes on its own"))
+    g.add_argument("--ray", metavar="auto|ADDRESS", help=(
+        "train the windows as tasks on a Ray cluster (one GPU each when it has GPUs, else one CPU; the first window "
+        "first, then the others in parallel): auto = the cluster this machine belongs to, else one started here; "
+        "or HOST:PORT / ray://HOST:PORT. The run folder must be reachable at the same path from every node. "
+        "Needs pip install 'layercam[ray]'"))
+
+
 COMMAND_MODULES = ["hdr_video", "demo", "bench", "deblur_video", "fuse_stack", "render", "batch", "edit"]  # each layercam/commands/<name>.py has register(sub) and run(args)
 
 
@@ -116,9 +140,9 @@ def load_cfg(args):
 def open_clip(args, cfg, out: Path, task: str, resize=None, max_frames=None, stride: int = 1):
     """The command's clip, decoded into the run folder's cache (``RUN/cache/frames-<key>/``, reused
     when the same input is run again), once what can be checked without decoding it has been: the
-    run folder's ``outputs.json`` and foreign files (:mod:`layercam.pipelines.publish`) and what the
-    run will cost (:mod:`layercam.estimate`, from the input's header). One line and nothing written
-    when any of them refuses."""
+    run folder's ``outputs.json`` and foreign files (:mod:`layercam.pipelines.publish`), ``--ray``'s
+    package and what the run will cost (:mod:`layercam.estimate`, from the input's header). One line
+    and nothing written when any of them refuses."""
     from layercam.estimate import check, disk_used, estimate
     from layercam.io import load_clip, probe_clip
     from layercam.pipelines import publish
@@ -126,6 +150,10 @@ def open_clip(args, cfg, out: Path, task: str, resize=None, max_frames=None, str
 
     if out.exists() and not out.is_dir():
         raise LayercamError(f"output folder {out} is a file, not a folder")
+    if getattr(args, "ray", None):
+        from layercam import cluster
+
+        cluster.available()
     publish.check_folder(out, outputs_for(task))
     inputs = args.inputs if len(args.inputs) > 1 else args.inputs[0]
     info = probe_clip(inputs, max_frames=max_frames, stride=stride, resize=resize)
@@ -170,6 +198,10 @@ def finish(ctx) -> None:
     """One closing line: where the outputs are and how training ended."""
     if ctx.progress:
         tr = ctx.results.get("train", {})
+        if "windows" in tr:  # a long clip's windows (pipelines/windows.py)
+            losses = ", ".join(f"{(w.get('final_loss') or {}).get('total', float('nan')):.4g}" for w in tr["windows"])
+            print(f"done: {ctx.run_dir}  ({len(tr['windows'])} windows, train {tr.get('steps')} steps in all, final losses {losses})")
+            return
         fl = tr.get("final_loss") or {}
         print(f"done: {ctx.run_dir}  (train {tr.get('steps')} steps, final loss {fl.get('total', float('nan')):.4g})")
 

@@ -282,6 +282,10 @@ class ExportConfig(Section):
                                             # (the least the data says; right for a hard-clipping camera)
     denoise: Literal["auto", "on", "off"] = AUTO  # faithful: an adaptive Wiener filter against the frame's own noise read
                                             # through the camera: less noise, softer fine texture; auto: on for a stack's fused view
+    hdr_format: Literal["pq", "hlg", "none"] = "pq"  # hdr.mp4 (hdr-video): HDR10 (SMPTE ST 2084: HDR TVs, phones, YouTube),
+                                            # HLG (ARIB STD-B67: also right on SDR screens) or none (no file, no encode time)
+    nits_white: float = setting(203.0, above=0.0, hi=1000.0)  # hdr.mp4: cd/m2 of diffuse white (BT.2408's reference white):
+                                            # brighter pictures vs less room above white before the roll-off
 
 
 @dataclass

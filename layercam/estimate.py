@@ -51,14 +51,15 @@ def _fmt(b: float) -> str:
     return f"{b:.0f} B"
 
 
-def costliest(cfg, task: str, frames: int):
-    """A copy of ``cfg`` with each model ``auto`` at its costliest plausible choice (see the module)."""
+def costliest(cfg, task: str, frames: int, hw: tuple[int, int] = (2, 2)):
+    """A copy of ``cfg`` with each model ``auto`` at its costliest plausible choice (see the module;
+    two layers need frames of 2 pixels or more across: a 1x1 clip is one layer)."""
     from layercam.config import AUTO
 
     c = cfg.copy()
     m, b = c.model, c.blur
     if m.layers == AUTO:
-        m.layers = 2 if frames > 1 else 1
+        m.layers = 2 if frames > 1 and max(hw) > 1 else 1
     if m.tone_mapper == AUTO:
         m.tone_mapper = "learned"
     if m.exposures == AUTO:
@@ -82,7 +83,7 @@ def _resolved(cfg, task: str, frames: int, hw: tuple[int, int]):
 
     if isinstance(cfg, Resolved):
         return cfg
-    return resolve(costliest(cfg, task, frames), frames=frames, hw=hw, task=task)
+    return resolve(costliest(cfg, task, frames, hw), frames=frames, hw=hw, task=task)
 
 
 def _model_parts(r, frames: int, hw: tuple[int, int]) -> dict:
@@ -99,8 +100,11 @@ def _model_parts(r, frames: int, hw: tuple[int, int]) -> dict:
     m = r.settings.model
     sizes = derived_sizes(h0, hw, fine=m.blur == "on" or (r.static and m.layers == 1))  # on the host: the meta device holds no values
     meta = {"h0": h0, "log2_dt": np.zeros(T, np.float32), "init_log2": 0.0, "frame_hw": hw, "sizes": sizes}
-    with torch.device("meta"):
-        model = build_model(r, meta)
+    try:
+        with torch.device("meta"):
+            model = build_model(r, meta)
+    except ValueError as e:  # a model these frames cannot hold (two layers of 1x1 frames): said before the work
+        raise LayercamError(f"the model asked for does not fit {W}x{H} frames: {e}") from None
     parts: dict[str, int] = {}
     for name, p in model.named_parameters():
         parts[_part(name)] = parts.get(_part(name), 0) + p.numel()
@@ -160,13 +164,15 @@ def floats_per_sample(cfg) -> dict:
     return out
 
 
-def estimate(info: dict, cfg, task: str = "hdr-video") -> dict:
+def estimate(info: dict, cfg, task: str = "hdr-video", windows: list | None = None) -> dict:
     """Peak memory and disk of a run on a clip of ``info`` (:func:`layercam.io.probe_clip`:
     ``frames``, ``width``, ``height``, ``bit_depth``) with ``cfg`` (the settings as given, a
     :class:`~layercam.config.Config`, or as resolved after the analysis, a
     :class:`~layercam.resolve.Resolved`): ``{"memory": bytes, "disk": bytes, "stages": {stage:
     bytes}, "disk_parts": {...}, "params": {...}, "largest": str, "settings": str}``; ``largest``
-    names the costliest stage or part and ``settings`` what sizes it."""
+    names the costliest stage or part and ``settings`` what sizes it. ``windows``: a long clip's
+    windows ``[(a, b), ...]`` (``pipelines/windows.py``): one model of the longest window at a time
+    in memory; on disk each window's masks, checkpoints and outputs, besides the joined outputs."""
     from layercam.analyse import MOTION_PAIRS
     from layercam.flow import working_size
     from layercam.segment import SEG_FRAMES
@@ -174,9 +180,10 @@ def estimate(info: dict, cfg, task: str = "hdr-video") -> dict:
     T = max(int(info.get("frames") or 1), 1)
     H, W = int(info["height"]), int(info["width"])
     px = H * W
+    spans = [int(b) - int(a) for a, b in windows] if windows and len(windows) > 1 else [T]
     r = _resolved(cfg, task, T, (H, W))
     rc = r.settings
-    params = _model_parts(r, T, (H, W))
+    params = _model_parts(r, max(spans), (H, W))
     n_params = sum(params.values())
     h, w = working_size((H, W))
     wpx = h * w
@@ -194,9 +201,10 @@ def estimate(info: dict, cfg, task: str = "hdr-video") -> dict:
     disk = {
         "frames": float(T) * px * 3 * store,
         "flow": float(max(T - 1, 0)) * wpx * 11,
-        "masks": float(T) * px if rc.model.layers > 1 else 0.0,
-        "checkpoints": 16.0 * n_params,
-        "outputs": float(T) * px * (6 * 0.6 + (1 if rc.model.layers > 1 else 0)) + (float(T) * px * 3 * 5 if task == "deblur-video" else 0.0),
+        "masks": float(sum(spans)) * px if rc.model.layers > 1 else 0.0,
+        "checkpoints": 16.0 * n_params * len(spans),
+        "outputs": float(T + (sum(spans) if len(spans) > 1 else 0)) * px * (6 * 0.6 + (1 if rc.model.layers > 1 else 0))
+        + (float(T) * px * 3 * 5 if task == "deblur-video" else 0.0),
     }
     stage = max(stages, key=stages.get)
     if stage == "train" and PARAM_BYTES * n_params >= sample * batch:
@@ -212,7 +220,7 @@ def estimate(info: dict, cfg, task: str = "hdr-video") -> dict:
         settings = "--resize"
     return {"memory": BASE + max(stages.values()), "disk": sum(disk.values()), "stages": {k: round(v) for k, v in stages.items()},
             "disk_parts": {k: round(v) for k, v in disk.items()}, "params": params, "largest": largest, "settings": settings,
-            "frames": T, "size": [W, H], "assumed": {"layers": rc.model.layers, "blur": "off" if rc.model.blur == "off" else f"{rc.blur.n}x{rc.blur.n}"}}
+            "frames": T, "size": [W, H], "windows": len(spans), "assumed": {"layers": rc.model.layers, "blur": "off" if rc.model.blur == "off" else f"{rc.blur.n}x{rc.blur.n}"}}
 
 
 def available_memory() -> float:
@@ -257,7 +265,8 @@ def disk_used(folder: Path) -> float:
 def summary_line(est: dict) -> str:
     """One line for the run's printout: ``estimate: peak memory 2.1 GB (train), disk 1.3 GB``."""
     stage = max(est["stages"], key=est["stages"].get)
-    return f"estimate: peak memory {_fmt(est['memory'])} ({stage}), disk {_fmt(est['disk'])} for {est['frames']} frames {est['size'][0]}x{est['size'][1]}"
+    win = f" in {est['windows']} windows" if est.get("windows", 1) > 1 else ""
+    return f"estimate: peak memory {_fmt(est['memory'])} ({stage}), disk {_fmt(est['disk'])} for {est['frames']} frames {est['size'][0]}x{est['size'][1]}{win}"
 
 
 def check(est: dict, run_dir: Path, used_disk: float = 0.0) -> None:

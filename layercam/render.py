@@ -187,6 +187,23 @@ def tone_map_log2(model, log2_r: np.ndarray, log2_dt) -> np.ndarray:
 
 
 @torch.no_grad()
+def white_radiance(model, z_range: float = 24.0, knots: int = 4097) -> float:
+    """Diffuse white of a run's linear HDR, where its HDR video puts BT.2408's reference white: the
+    radiance an SDR camera at the run's reference exposure (``model.exposure.reference()``, the
+    median of the frames' log2 exposures) records as signal 1.0. The learned camera at that
+    exposure fixes the level of half signal (per channel, where its curve crosses 0.5; their mean
+    in stops); half signal is taken as sRGB's 0.5, ``srgb_decode(0.5)`` = 21.4% of white, how 8-bit
+    frames code light. With the fixed sRGB curve this is where it clips (``2^-reference``)."""
+    from layercam.colour import srgb_decode
+
+    z = torch.linspace(-z_range, z_range, knots)
+    curve = model.tone.curve(z.to(next(model.parameters()).device)).float().cpu().numpy()  # (K, 3)
+    zs = z.numpy()
+    half = [np.interp(0.5, np.maximum.accumulate(curve[:, c]) + np.arange(knots) * 1e-9, zs) for c in range(3)]
+    return float(2.0 ** (np.mean(half) - model.exposure.reference()) / srgb_decode(0.5))
+
+
+@torch.no_grad()
 def inverse_tone(model, rgb: np.ndarray, log2_dt: float, z_range: float = 24.0, knots: int = 4097) -> np.ndarray:
     """Invert the learned camera at one exposure: pixel values ``(..., 3)`` -> log2 irradiance that the
     tone mapper at ``log2_dt`` maps to them (per channel, by interpolating the monotone hull of the

@@ -159,12 +159,13 @@ def _cap(cfg: Config, clip, reasons: dict) -> None:
                                   f"{clip.T * clip.H * clip.W:,} pixels (more fit a short stack's noise; train.passes_per_frame=0: no cap)")
 
 
-TABLE_KEYS = ("static", "train.steps", "scene.grid_levels", "export.merge_neighbours", "export.denoise", "train.device", "train.autocast")
+TABLE_KEYS = ("window", "static", "train.steps", "scene.grid_levels", "export.merge_neighbours", "export.denoise", "train.device", "train.autocast")
 
 
-def format_table(r: Resolved) -> str:
+def format_table(r: Resolved, windows: int = 1) -> str:
     """The analysis table a run prints: the model's components, then every other resolved setting
-    that has a reason, one line each: name, value, why."""
+    that has a reason, one line each: name, value, why (``window``: a long clip's ``windows``,
+    ``pipelines/windows.py``)."""
     from layercam.analyse import MODEL_KEYS, model_summary
 
     summary = model_summary(r.settings)
@@ -172,7 +173,7 @@ def format_table(r: Resolved) -> str:
     rows = [(k, str(summary[k]), r.reasons.get(keys.get(k, f"model.{k}"), "")) for k in MODEL_KEYS]
     for k in TABLE_KEYS:
         if k in r.reasons:
-            value = r.static if k == STATIC_KEY else getattr(getattr(r.settings, k.split(".")[0]), k.split(".")[1])
+            value = r.static if k == STATIC_KEY else windows if k == "window" else getattr(getattr(r.settings, k.split(".")[0]), k.split(".")[1])
             reason = r.reasons[k].split(": ", 1)[1] if k == STATIC_KEY else r.reasons[k]
             rows.append((k, str(value), reason))
     w0 = max(len(a) for a, _, _ in rows)

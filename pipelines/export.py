@@ -5,8 +5,10 @@
 writer                writes
 ====================  ======================================================================
 ``hdr``               ``hdr/frame_00000.exr`` (linear, camera dropped; with ``export.faithful``
-                      corrected towards the frame where it saw well, :mod:`layercam.faithful`)
-                      and ``preview.mp4`` (global Reinhard over the whole clip)
+                      corrected towards the frame where it saw well, :mod:`layercam.faithful`),
+                      ``preview.mp4`` (global Reinhard over the whole clip) and ``hdr.mp4``
+                      (HDR10 or HLG from the EXRs, ``export.hdr_format``,
+                      :mod:`layercam.io.hdr_video`)
 ``sharp``             ``frames/frame_00000.png`` and ``deblurred.mp4``: the tone mapper at each
                       frame's own exposure, blur generator dropped; ``hdr/`` when exposures vary
 ``fused``             ``fused.exr`` (the scene for the reference view, camera dropped, faithful
@@ -18,7 +20,8 @@ writer                writes
 ``checkpoint``        ``checkpoint.pt``: what ``layercam render`` and ``edit`` read
 ====================  ======================================================================
 
-Every writer is ``writer(ctx, model, dest, cache) -> dict`` (its part of the export summary): it
+Every video keeps the input's frame rate and carries its sound over
+(:func:`audio`). Every writer is ``writer(ctx, model, dest, cache) -> dict`` (its part of the export summary): it
 writes its outputs into ``dest`` and what the evaluate stage reads into ``cache``. Both are the
 stage's cache folder: an interrupted export is redone there, and the finished outputs are published
 to the top of the run folder with the report, as one set, when the run ends
@@ -69,6 +72,23 @@ def _frames(ctx: Context, desc: str = "export"):
 
 def _fps(ctx: Context) -> float:
     return float(ctx.clip.fps or 24.0)
+
+
+def audio(ctx: Context) -> dict | None:
+    """The sound the run's videos carry over from the input (``clip.meta["audio"]``,
+    :func:`layercam.io.clip.audio_plan`); None without."""
+    return ctx.clip.meta.get("audio")
+
+
+def _sound(ctx: Context, video) -> dict:
+    """What became of the sound in ``video`` (a finished :class:`VideoWriter`), for the summary;
+    a sound that could not be kept is said."""
+    info = video.audio_info
+    if info and not info["kept"]:
+        ctx.warn(f"{video.path.name} is written without the input's sound: {info['why']}")
+    elif info and info["why"]:
+        ctx.say(f"[export] {video.path.name}: {info['why']}")
+    return {video.path.name: info}
 
 
 def _bits(ctx: Context) -> int:
@@ -234,12 +254,41 @@ def hdr_writer(ctx: Context, model, dest: Path, cache: Path) -> dict:
     exrs = HdrSet(ctx.resolved.settings.export.half and peak <= HALF_MAX, ctx.say)
     (dest / "hdr").mkdir(exist_ok=True)
     infos = []
-    with VideoWriter(dest / "preview.mp4", fps=_fps(ctx)) as preview:
+    with VideoWriter(dest / "preview.mp4", fps=_fps(ctx), audio=audio(ctx)) as preview:
         for t, hdr, info in faithful_hdr(ctx, model, _frames(ctx)):
             exrs.add(dest / "hdr" / f"frame_{t:05d}.exr", hdr)
             preview.add(render.tonemap_display(hdr, stats)[0])
             infos.append(info)
-    return {"frames": int(ctx.clip.T), "hdr_min": exrs.lo, "hdr_max": exrs.hi, "exr": "half" if exrs.half else "float32", "display": stats, **_faithful_summary(infos)}
+    return {"frames": int(ctx.clip.T), "hdr_min": exrs.lo, "hdr_max": exrs.hi, "exr": "half" if exrs.half else "float32", "display": stats, **_faithful_summary(infos),
+            "hdr_video": hdr_video(ctx, model, exrs.paths, dest), "fps": _fps(ctx), "sound": _sound(ctx, preview)}
+
+
+def hdr_video(ctx: Context, model, paths: list[Path], dest: Path) -> dict:
+    """``hdr.mp4`` from the EXRs at ``paths`` in ``export.hdr_format`` (:mod:`layercam.io.hdr_video`),
+    diffuse white (:func:`layercam.render.white_radiance`) at ``export.nits_white``; with an ffmpeg
+    that cannot write one, a warning naming what it lacks, and none (as ``hdr_format=none``)."""
+    from layercam.io import read_exr
+    from layercam.io.clip import primaries_of
+    from layercam.io.hdr_video import ANCHOR, MIN_SIDE, missing_for_hdr, write_hdr_video
+    from layercam.io.video import ffmpeg_exe
+    from layercam.render import white_radiance
+
+    fmt = ctx.resolved.settings.export.hdr_format
+    if fmt == "none":
+        return {"format": "none"}
+    missing = missing_for_hdr()
+    if missing:
+        ctx.warn(f"ffmpeg ({ffmpeg_exe()}) has no {missing}: hdr.mp4 is not written (as with --hdr-format none); imageio-ffmpeg >= 0.8 ships an ffmpeg with it")
+        return {"format": "none", "why": f"ffmpeg has no {missing}"}
+    if min(ctx.clip.H, ctx.clip.W) < MIN_SIDE:
+        ctx.warn(f"hdr.mp4 is not written: libx265 encodes frames of at least {MIN_SIDE} px a side, these are {ctx.clip.W}x{ctx.clip.H}")
+        return {"format": "none", "why": f"frames below {MIN_SIDE} px"}
+    prim = ctx.clip.meta.get("primaries") or primaries_of(None)
+    white = white_radiance(model)
+    info = write_hdr_video(dest / "hdr.mp4", lambda: (read_exr(p) for p in paths), _fps(ctx), fmt, white, ctx.resolved.settings.export.nits_white, prim["name"], audio=audio(ctx), progress=ctx.progress)
+    if info["audio"] and not info["audio"]["kept"]:
+        ctx.warn(f"hdr.mp4 is written without the input's sound: {info['audio']['why']}")
+    return {**info, "input_primaries": prim, "anchor": ANCHOR}
 
 
 def sharp_writer(ctx: Context, model, dest: Path, cache: Path) -> dict:
@@ -253,7 +302,7 @@ def sharp_writer(ctx: Context, model, dest: Path, cache: Path) -> dict:
     if with_hdr:
         (dest / "hdr").mkdir(exist_ok=True)
     kept = np.lib.format.open_memmap(cache / "deblurred.npy", mode="w+", dtype=np.float32, shape=(T, *hw, 3))  # for the evaluation, on disk
-    with VideoWriter(dest / "deblurred.mp4", fps=_fps(ctx)) as video:
+    with VideoWriter(dest / "deblurred.mp4", fps=_fps(ctx), audio=audio(ctx)) as video:
         for t in _frames(ctx):
             reached("export", t)
             out = render.render_frame(model, t, hw, ("ldr", "hdr") if with_hdr else ("ldr",))
@@ -267,7 +316,7 @@ def sharp_writer(ctx: Context, model, dest: Path, cache: Path) -> dict:
                 exrs.add(dest / "hdr" / f"frame_{t:05d}.exr", out["hdr"])
     kept.flush()
     del kept
-    return {"frames": int(T), "hdr": with_hdr, "hdr_max": exrs.hi if with_hdr else 0.0, "png_bits": _bits(ctx)}
+    return {"frames": int(T), "hdr": with_hdr, "hdr_max": exrs.hi if with_hdr else 0.0, "png_bits": _bits(ctx), "fps": _fps(ctx), "sound": _sound(ctx, video)}
 
 
 def fused_writer(ctx: Context, model, dest: Path, cache: Path) -> dict:
@@ -333,7 +382,7 @@ def checkpoint_writer(ctx: Context, model, dest: Path, cache: Path) -> dict:
 
 # writer name -> (function, what it may write at the top of the run folder)
 WRITERS = {
-    "hdr": (hdr_writer, ["hdr", "preview.mp4"]),
+    "hdr": (hdr_writer, ["hdr", "preview.mp4", "hdr.mp4"]),
     "sharp": (sharp_writer, ["frames", "deblurred.mp4", "hdr"]),
     "fused": (fused_writer, ["fused.exr", "fused.png"]),
     "atlases": (atlas_writer, ["atlases", "alpha"]),

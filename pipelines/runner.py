@@ -46,6 +46,7 @@ class Context:
     resolved: Any = None            # the run's settings, resolved once after the flow (layercam.resolve.Resolved)
     flow: dict | None = None        # the flow stage's arrays (fw, bw, fw_ok, bw_ok, vis: DiskArrays on disk; homs), opened once
     model: Any = None               # the trained model (layercam.model.ImplicitCameraModel), built once
+    camera: dict | None = None      # a long clip's window after the first: the camera it holds fixed (pipelines/windows.py)
     results: dict = field(default_factory=dict)
     dirs: dict = field(default_factory=dict)
     keys: dict = field(default_factory=dict)

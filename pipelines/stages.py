@@ -128,13 +128,16 @@ class TrainStage(Stage):
     def options(self, ctx):
         """Trained on the refine stage's masks, after its first fit: their key; a long clip's alpha
         grid with slices shared by neighbouring frames (:data:`layercam.scene.fields.ALPHA_GRID_CELLS`;
-        clips where it changes nothing keep their key)."""
+        clips where it changes nothing keep their key); a long clip's later window: the key of
+        window 0's camera, held fixed."""
         from layercam.scene.fields import ALPHA_GRID_CELLS, alpha_grid_capped
 
         out = {"refined_masks": ctx.keys["refine"]} if "refine" in ctx.keys else {}
         clip, cfg = getattr(ctx, "clip", None), ctx.resolved.settings
         if clip is not None and cfg.model.layers > 1 and alpha_grid_capped(cfg.scene, clip.T, (clip.H, clip.W)):
             out["alpha_grid_cells"] = ALPHA_GRID_CELLS
+        if getattr(ctx, "camera", None) is not None:
+            out["camera"] = ctx.camera["key"]
         return out
 
     @staticmethod
@@ -158,7 +161,11 @@ class TrainStage(Stage):
         cfg = r.settings
         torch.manual_seed(cfg.train.seed)
         model = self.build(ctx)
-        if cfg.model.tone_mapper == "learned":
+        if getattr(ctx, "camera", None) is not None:  # pipelines/windows.py: window 0's camera, held fixed
+            from layercam.pipelines.windows import hold_camera
+
+            hold_camera(model, ctx.camera)
+        elif cfg.model.tone_mapper == "learned":
             fit_init_curve(model.tone, seed=cfg.train.seed)
         masks, source = self.masks(ctx)
         fl = ctx.flow if cfg.model.flow_loss else None
@@ -329,6 +336,8 @@ def model_meta(ctx: Context) -> dict:
         "n_frames": ctx.clip.T,
         "names": list(ctx.clip.names),
         "fps": float(ctx.clip.fps or 24.0),
+        "audio": ctx.clip.meta.get("audio"),  # the sound `render` and `edit` carry over (layercam.io.clip.audio_plan)
+        "primaries": (ctx.clip.meta.get("primaries") or {}).get("name", "bt709"),
         "task": ctx.task,
         "source": str(ctx.clip.source),
     }

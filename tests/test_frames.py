@@ -27,6 +27,49 @@ def test_disk_array_reads_rows_and_gathers_without_keeping_pages(tmp_path):
         DiskArray(tmp_path / "a.raw", np.float16, (6, 4, 3, 2))  # a file shorter than the array
 
 
+def test_rows_of_a_disk_array_are_a_view_that_reads_and_travels(tmp_path):
+    """``rows(t0, t1)`` (a window of a long clip): the same values as a slice, gathered and
+    written through the same file, sent to another process by path; closing it leaves its owner
+    open. ``Frames.rows`` likewise, in memory or on disk."""
+    import pickle
+
+    a = np.arange(6 * 4 * 3, dtype=np.uint8).reshape(6, 4, 3)
+    d = DiskArray.create(tmp_path / "a.raw", np.uint8, a.shape)
+    d[0:6] = a
+    v = d.rows(2, 5)
+    assert v.shape == (3, 4, 3) and np.array_equal(np.asarray(v), a[2:5]) and np.array_equal(v[-1], a[4]) and np.array_equal(v[1:], a[3:5])
+    t, y = np.array([0, 2, 1]), np.array([3, 0, 2])
+    assert np.array_equal(v.gather(t, y), a[2:5][t, y]) and np.array_equal(v.rows(1, 2)[0], a[3])
+    v[0] = 7
+    assert np.all(d[2] == 7)
+    back = pickle.loads(pickle.dumps(v))
+    assert np.array_equal(np.asarray(back), np.asarray(v))
+    v.close()
+    assert np.array_equal(d[5], a[5])  # the owner's file is still open
+    with pytest.raises(TypeError, match="unlinked"):
+        pickle.dumps(TempArray(np.uint8, (3, 2), tmp_path).rows(0, 2))
+    f = Frames(DiskArray(tmp_path / "a.raw", np.uint8, (2, 4, 1, 3)))
+    assert f.rows(1, 2).on_disk and np.array_equal(f.rows(1, 2)[0], f[1])
+    m = Frames(np.ones((3, 2, 2, 3), np.float32))
+    assert np.shares_memory(m.rows(1, 3).raw, m.raw)
+
+
+def test_a_window_of_a_clip_on_disk_reads_nothing(tmp_path):
+    """A long clip's window (pipelines/windows.py) holds its frames, masks and flow as views of the
+    whole clip's files."""
+    from layercam.io import load_clip
+    from layercam.pipelines.windows import rows, sub_clip, sub_flow
+
+    v = _video(tmp_path / "v.mp4", n=5)
+    clip = load_clip(v, cache=tmp_path / "cache")
+    w = sub_clip(clip, 1, 4)
+    assert w.T == 3 and w.frames.on_disk and np.array_equal(w.frames[0], clip.frames[1]) and w.meta["window"] == [1, 4]
+    flow = {"fw": DiskArray(clip.frames.raw.path, np.uint8, (4, 2, 2, 2)), "n": 3}
+    sub = sub_flow(flow, 5, 1, 4)
+    assert isinstance(sub["fw"], DiskArray) and len(sub["fw"]) == 2 and sub["n"] == 3
+    assert np.array_equal(rows(np.arange(5), 1, 3), [1, 2])
+
+
 def test_temp_array_leaves_no_file(tmp_path):
     t = TempArray(np.bool_, (3, 2, 2), tmp_path)
     t[1] = True
@@ -190,6 +233,9 @@ def test_the_estimate_grows_with_the_clip_on_disk_not_in_memory(tmp_path):
     short, long = (estimate({"frames": n, "width": 854, "height": 480, "bit_depth": 8}, cfg) for n in (48, 768))
     assert long["memory"] < 1.3 * short["memory"] and long["disk"] > 6 * short["disk"]
     assert short["assumed"] == {"layers": 2, "blur": "off"}  # the analysis's costliest plausible choice
+    win = estimate({"frames": 768, "width": 854, "height": 480, "bit_depth": 8}, cfg, windows=[(0, 400), (368, 768)])
+    assert win["windows"] == 2 and win["memory"] <= long["memory"] and win["disk"] > long["disk"]  # one window's model at a time, each window's files
+    assert win["disk_parts"]["checkpoints"] > long["disk_parts"]["checkpoints"] and win["disk_parts"]["frames"] == long["disk_parts"]["frames"]
     huge = estimate({"frames": 4, "width": 100000, "height": 100000, "bit_depth": 8}, cfg)
     with pytest.raises(LayercamError, match="--resize"):
         check(huge, tmp_path)

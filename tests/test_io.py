@@ -412,3 +412,88 @@ def test_a_failed_command_gives_back_its_staging_folders(tmp_path):
     with partials_removed_on_error(tmp_path):
         (staging_dir(tmp_path, "c") / "c.png").write_bytes(b"c")
     assert (tmp_path / ".partial-c" / "c.png").exists()
+
+
+# -- timing and sound (issue 41) -----------------------------------------------------------------
+def _ffmpeg(*args: str) -> None:
+    import subprocess
+
+    from layercam.io.video import ffmpeg_exe
+
+    subprocess.run([ffmpeg_exe(), "-nostdin", "-hide_banner", "-loglevel", "error", "-y", *args], check=True)
+
+
+def _tone(path: Path) -> tuple[np.ndarray, int]:
+    """The first audio stream of ``path`` decoded to mono float32 at 48 kHz."""
+    import subprocess
+
+    from layercam.io.video import ffmpeg_exe
+
+    pcm = subprocess.run([ffmpeg_exe(), "-nostdin", "-hide_banner", "-loglevel", "error", "-i", str(path), "-map", "0:a:0", "-f", "f32le", "-ac", "1", "-ar", "48000", "-"],
+                         capture_output=True, check=True).stdout
+    return np.frombuffer(pcm, np.float32), 48000
+
+
+def test_rate_text_is_exact_for_ntsc_rates_and_read_video_keeps_them(tmp_path):
+    from layercam.io.video import rate_text
+
+    assert rate_text(24.0) == "24" and rate_text(12.5) == "25/2" and rate_text(30000 / 1001) == "30000/1001" and rate_text(24000 / 1001) == "24000/1001"
+    _ffmpeg("-f", "lavfi", "-i", "testsrc2=size=32x32:rate=30000/1001", "-frames:v", "5", "-pix_fmt", "yuv420p", str(tmp_path / "ntsc.mp4"))
+    frames, fps = read_video(tmp_path / "ntsc.mp4")
+    assert fps == pytest.approx(30000 / 1001, abs=1e-9)  # not ffmpeg's printed 29.97
+    write_video(tmp_path / "back.mp4", frames, fps=fps)
+    from layercam.io.hdr_video import probe_video
+
+    assert "30000/1001" == rate_text(read_video(tmp_path / "back.mp4")[1]) and probe_video(tmp_path / "back.mp4")["tbr"] == pytest.approx(29.97)
+
+
+def test_a_variable_rate_video_is_said_and_decoded_at_a_constant_rate(tmp_path):
+    # a phone's 30 fps that slows to 15 after a second (every other frame left out): 45 frames in 1.9 s
+    _ffmpeg("-f", "lavfi", "-i", "testsrc2=size=32x32:rate=30", "-t", "2", "-vf", "select='lt(t\\,1)+not(mod(n\\,2))'", "-fps_mode", "vfr", "-pix_fmt", "yuv420p", str(tmp_path / "vfr.mp4"))
+    clip = load_clip(tmp_path / "vfr.mp4")
+    info = clip.meta["video"]
+    assert info["variable"] and info["tbr"] == 30 and info["fps"] < 25
+    assert clip.fps == 30 and clip.T == pytest.approx(58, abs=2)  # frames at a constant 30 fps: the clip keeps its time
+    assert any("variable frame rate" in n and "30 fps" in n for n in clip.meta["notes"])
+    steady = tmp_path / "cfr.mp4"
+    write_video(steady, clip.frames[:4], fps=30)
+    assert not load_clip(steady).meta["video"]["variable"] and not load_clip(steady).meta["notes"]
+
+
+def test_the_clips_sound_is_planned_cut_with_max_frames_and_dropped_with_a_stride(tmp_path):
+    _ffmpeg("-f", "lavfi", "-i", "testsrc2=size=32x32:rate=8", "-f", "lavfi", "-i", "sine=frequency=440:sample_rate=48000", "-t", "2", "-pix_fmt", "yuv420p", "-c:a", "aac", "-shortest", str(tmp_path / "a.mp4"))
+    whole = load_clip(tmp_path / "a.mp4")
+    assert whole.meta["audio"] == {"path": str((tmp_path / "a.mp4").resolve()), "codec": "aac", "duration": None} and not whole.meta["notes"]
+    assert load_clip(tmp_path / "a.mp4", max_frames=16).meta["audio"]["duration"] is None  # all 16 frames: nothing cut
+    assert load_clip(tmp_path / "a.mp4", max_frames=6).meta["audio"]["duration"] == pytest.approx(6 / 8)
+    strided = load_clip(tmp_path / "a.mp4", stride=2)
+    assert strided.meta["audio"] is None and any("--stride 2" in n and "sound" in n for n in strided.meta["notes"])
+    assert load_clip(tmp_path / "a.mp4").meta["primaries"]["name"] == "bt709" and "assumed" in whole.meta["primaries"]["how"]
+    silent = tmp_path / "s.mp4"
+    write_video(silent, whole.frames[:3], fps=8)
+    assert load_clip(silent).meta["audio"] is None
+
+
+@pytest.mark.parametrize("codec", ["aac", "pcm_s16le"])
+def test_video_writer_carries_the_sound_over_unchanged_and_cut(tmp_path, codec):
+    from layercam.io import VideoWriter
+
+    src = tmp_path / ("in.mov" if codec.startswith("pcm") else "in.mp4")
+    _ffmpeg("-f", "lavfi", "-i", "testsrc2=size=32x32:rate=8", "-f", "lavfi", "-i", "sine=frequency=440:sample_rate=48000", "-t", "2", "-pix_fmt", "yuv420p", "-c:a", codec, "-shortest", str(src))
+    frames, fps = read_video(src)
+    for cut in (None, 0.75):
+        out = tmp_path / f"out_{cut}.mp4"
+        n = len(frames) if cut is None else 6
+        with VideoWriter(out, fps=fps, audio={"path": str(src), "codec": codec, "duration": cut}) as vw:
+            for f in frames[:n]:
+                vw.add(f)
+        assert vw.audio_info["kept"]
+        sound, rate = _tone(out)
+        assert abs(len(sound) / rate - n / fps) <= 1 / fps  # the same duration as the video, within one frame
+        spectrum = np.abs(np.fft.rfft(sound))
+        assert np.fft.rfftfreq(len(sound), 1 / rate)[np.argmax(spectrum)] == pytest.approx(440, abs=3)
+    assert not [p for p in tmp_path.iterdir() if ".tmp" in p.name]
+    gone = tmp_path / "gone.mp4"
+    with VideoWriter(gone, fps=fps, audio={"path": str(tmp_path / "moved.mp4"), "codec": "aac", "duration": None}) as vw:
+        vw.add(frames[0])
+    assert not vw.audio_info["kept"] and "no longer there" in vw.audio_info["why"] and read_video(gone)[0].shape[0] == 1

@@ -63,6 +63,13 @@ CORPUS = [
     ("set-offset-negative", ["deblur-video", "{video}", "--set", "blur.max_offset=-1", "--out", "{fresh}"], "blur.max_offset"),
     ("set-alpha-flow-keep-above-one", ["hdr-video", "{video}", "--set", "loss.alpha_flow_keep=5", "--out", "{fresh}"], "loss.alpha_flow_keep"),
     ("set-layers-3", ["hdr-video", "{video}", "--set", "model.layers=3", "--out", "{fresh}"], "model.layers"),
+    ("nits-white-0", ["hdr-video", "{video}", "--nits-white", "0", "--out", "{fresh}"], "--nits-white"),  # issue 41
+    ("nits-white-negative", ["hdr-video", "{video}", "--nits-white", "-5", "--out", "{fresh}"], "--nits-white"),
+    ("nits-white-nan", ["hdr-video", "{video}", "--nits-white", "nan", "--out", "{fresh}"], "--nits-white"),
+    ("nits-white-above-peak", ["hdr-video", "{video}", "--nits-white", "5000", "--out", "{fresh}"], "--nits-white"),
+    ("hdr-format-unknown", ["hdr-video", "{video}", "--hdr-format", "dolby", "--out", "{fresh}"], "--hdr-format"),
+    ("set-nits-white-0", ["hdr-video", "{video}", "--set", "export.nits_white=0", "--out", "{fresh}"], "export.nits_white"),
+    ("set-hdr-format-unknown", ["hdr-video", "{video}", "--set", "export.hdr_format=hdr10", "--out", "{fresh}"], "export.hdr_format"),
     ("preset-unknown", ["hdr-video", "{video}", "--preset", "ludicrous", "--out", "{fresh}"], "ludicrous"),
     ("preset-broken-toml", ["hdr-video", "{video}", "--preset", "{badtoml}", "--out", "{fresh}"], "preset"),
     ("steps-0", ["hdr-video", "{video}", "--steps", "0", "--out", "{fresh}"], "--steps"),
@@ -87,6 +94,9 @@ CORPUS = [
     ("render-range-text", ["render", "{run}", "--sweep", "exposure", "--range", "0,x"], "range"),
     ("render-not-a-run", ["render", "{tmp}", "--exposure", "1"], "checkpoint.pt"),
     ("render-exists", ["render", "{run}", "--exposure", "0"], "--overwrite"),
+    ("render-hdr-format-unknown", ["render", "{run}", "--hdr-format", "none"], "--hdr-format"),
+    ("render-nits-white-alone", ["render", "{run}", "--nits-white", "300"], "--hdr-format"),
+    ("render-nits-white-nan", ["render", "{run}", "--hdr-format", "hlg", "--nits-white", "nan"], "--nits-white"),
     # edit
     ("edit-fps-negative", ["edit", "{run}", "--layer", "0", "--atlas", "{atlas}", "--fps", "-5", "--out", "{fresh}"], "--fps"),  # item 10
     ("edit-out-is-a-file", ["edit", "{run}", "--layer", "0", "--atlas", "{atlas}", "--out", "{file}"], "is a file"),  # item 10

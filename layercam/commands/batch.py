@@ -46,6 +46,12 @@ in OUTPUT/batch_job.json) is skipped. A job that failed, was interrupted (its tr
 the checkpoint) or whose options changed runs again; the command's stage cache then redoes only what
 changed, and earlier outputs are moved to OUTPUT/previous/, never overwritten.
 
+With --ray auto|ADDRESS the jobs run as tasks on a Ray cluster (pip install 'layercam[ray]'), each
+asking for one GPU when the cluster has one, else one CPU, as many at once as it has room for;
+auto: the cluster this machine belongs to, else one started here. The manifest's folder must be
+reachable at the same path from every node (a shared file system; on one machine it is). Results
+are said as jobs finish; the batch's folders, logs, skipping and exit status are as without it.
+
 A line with an unclosed quote or options that do not parse fails (that line only). A failed job is
 reported and the batch goes on to the next one. Exit status: 0 when every job finished or was
 skipped, 1 when any job failed, 2 for an unreadable manifest or --summary path (checked before any
@@ -84,6 +90,7 @@ def register(sub) -> argparse.ArgumentParser:
     b.add_argument("--dry-run", action="store_true", help="list what would run and what would be skipped; run nothing")
     b.add_argument("--stop-on-error", action="store_true", help="stop at the first failed job (default: go on)")
     b.add_argument("--summary", metavar="FILE", help="also write the summary as JSON to FILE")
+    b.add_argument("--ray", metavar="auto|ADDRESS", help="run the jobs as tasks on a Ray cluster (one GPU each when it has GPUs, else one CPU; auto: this machine's cluster, else one started here); default: one after another")
     return b
 
 
@@ -94,6 +101,8 @@ def run(args) -> int:
         check_summary_path(Path(args.summary))  # a bad path is found before any job runs
     base = manifest.resolve().parent
     print(f"batch {manifest}: {len(jobs)} job(s)", flush=True)
+    if args.ray and not args.dry_run:
+        return _run_on_ray(jobs, base, args)
     try:
         for i, job in enumerate(jobs, 1):
             head = f"[{i}/{len(jobs)}] {job.command} {job.input or '-'} -> {job.output}"
@@ -119,6 +128,48 @@ def run(args) -> int:
         print("\ninterrupted: run the same batch again to go on (finished jobs are skipped)", file=sys.stderr)
         return 130
     return report(jobs, args.summary)
+
+
+def _head(i: int, n: int, job: Job) -> str:
+    return f"[{i}/{n}] {job.command} {job.input or '-'} -> {job.output}"
+
+
+def _run_on_ray(jobs: list[Job], base: Path, args) -> int:
+    """The jobs to run as Ray tasks (``layercam.cluster``), reported as they finish."""
+    from layercam import cluster
+
+    runner = cluster.Runner(args.ray)
+    todo = []
+    for i, job in enumerate(jobs, 1):
+        head = _head(i, len(jobs), job)
+        if job.status == "failed":
+            print(f"{head}: FAILED: {job.reason}", flush=True)
+        elif is_finished(job, base):
+            job.status = "skipped"
+            print(f"{head}: finished earlier, skipped", flush=True)
+        else:
+            todo.append((i, job))
+            print(f"{head}: queued (log: {job.output}/{LOG_FILE})", flush=True)
+    try:
+        for n, (status, reason, seconds) in runner.as_completed(job_task, [(job, str(base)) for _, job in todo]):
+            i, job = todo[n]
+            job.status, job.reason, job.seconds = status, reason, seconds
+            head = _head(i, len(jobs), job)
+            print(f"{head}: done in {job.seconds:.0f} s" if status == "done" else f"{head}: FAILED: {job.reason}", flush=True)
+            if status == "failed" and args.stop_on_error:
+                print("stopping at the first failure (--stop-on-error): the jobs still running are cancelled", flush=True)
+                break
+    except KeyboardInterrupt:
+        print("\ninterrupted: run the same batch again to go on (finished jobs are skipped)", file=sys.stderr)
+        return 130
+    return report(jobs, args.summary)
+
+
+def job_task(item: tuple[Job, str]) -> tuple[str, str, float]:
+    """A Ray task: one job, as :func:`run_job` runs it; ``(status, reason, seconds)``."""
+    job, base = item
+    run_job(job, Path(base))
+    return job.status, job.reason, job.seconds
 
 
 # -- the manifest ----------------------------------------------------------------------------------

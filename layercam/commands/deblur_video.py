@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from layercam.cli import EPILOG, before_stages, common_model_args, default_out, finish, input_args, load_cfg, open_clip
+from layercam.cli import EPILOG, before_stages, common_model_args, default_out, finish, input_args, load_cfg, open_clip, window_args
 
 
 def register(sub) -> argparse.ArgumentParser:
@@ -16,13 +16,15 @@ def register(sub) -> argparse.ArgumentParser:
             "Fits the scene with the blur generator explaining each frame's blur, then renders every frame "
             "through the learned tone mapper at the frame's own exposure with the blur generator dropped: "
             "frames/frame_00000.png, deblurred.mp4, hdr/frame_00000.exr (only when exposures vary), "
-            "crf.json/png, psf.json (learned blur per frame), report.json, checkpoint.pt."
+            "crf.json/png, psf.json (learned blur per frame), report.json, checkpoint.pt. The video keeps the input's "
+            "frame rate and sound."
         ),
         epilog=EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     input_args(d, "none")
     common_model_args(d)
+    window_args(d)
     return d
 
 
@@ -40,6 +42,6 @@ def run(args) -> int:
             raise LayercamError("deblur-video needs at least 2 frames (the blur of one frame is explained by the others)")
         exposures = parse_exposures(args.exposures, clip, args.ev_step, args.force_ev_step)
         masks = load_masks(args.masks, clip) if args.masks else None
-    ctx = run_task("deblur-video", clip, exposures, cfg, out, masks=masks, progress=not args.quiet)
+    ctx = run_task("deblur-video", clip, exposures, cfg, out, masks=masks, progress=not args.quiet, window=args.window, ray=args.ray)
     finish(ctx)
     return 0

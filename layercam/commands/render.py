@@ -7,8 +7,17 @@
   per-image embedding interpolated between the training images ``floor(F)`` and ``ceil(F)``), at
   the exposure interpolated the same way (or at ``--exposure EV``).
 * ``--sweep exposure|focus``: a video (and its frames) of one view sweeping over ``--range``.
+* ``--hdr-format pq|hlg``: the run's linear HDR frames (``RUN/hdr/``) as an HDR video
+  (:mod:`layercam.io.hdr_video`), ``--exposure EV`` stops brighter when given.
 
-Outputs go to ``RUN/render/`` (or ``--out``), each with a ``.json`` sidecar saying what it is.
+Outputs go to ``RUN/render/`` (or ``--out``), each with a ``.json`` sidecar saying what it is. The
+videos have the input's frame rate (unless ``--fps``), and those of the clip's frames carry its sound.
+
+A long clip's run (``windows.json``: windows of frames, each its own model sharing one camera):
+frame indices, ``--focus`` and ``--frame`` are the clip's; exposures count from the clip's reference
+(the median of every frame's exposure); ``--exposure`` renders each window's frames and joins them
+across the overlaps as the export did; a view (``--focus``, a sweep) comes from the window that
+holds its frame most, whose blur generator knows that window's images only.
 """
 
 from __future__ import annotations
@@ -25,7 +34,9 @@ EXAMPLES = """examples:
   layercam render runs/clip --exposure +2            # every frame two stops brighter, sharp
   layercam render runs/stack --focus 0.5             # focus half-way between images 0 and 1
   layercam render runs/stack --sweep focus --steps 30
-  layercam render runs/clip --sweep exposure --range -4,4 --frame 10"""
+  layercam render runs/clip --sweep exposure --range -4,4 --frame 10
+  layercam render runs/clip --hdr-format hlg           # the run's HDR frames as an HLG video
+  layercam render runs/clip --hdr-format pq --nits-white 300 --exposure -1"""
 
 
 def register(sub) -> argparse.ArgumentParser:
@@ -42,13 +53,16 @@ def register(sub) -> argparse.ArgumentParser:
     r.add_argument("--sweep", choices=["exposure", "focus"], help="a video sweeping over exposure or focus")
     r.add_argument("--range", dest="sweep_range", metavar="A,B", help="sweep range (default: -4,4 EV; focus: first,last image)")
     r.add_argument("--steps", type=number(int, 2, high=1000), default=25, help="sweep steps (default 25)")
-    r.add_argument("--frame", type=number(int, 0), help="the view for --focus and sweeps (default: the run's reference image, else the middle frame)")
+    r.add_argument("--frame", type=number(int, 0), help="the view for --focus and sweeps (default: the run's reference image, else the middle frame; a long clip's windows: rendered by the window that holds it)")
     r.add_argument("--keep-blur", action="store_true", help="exposure renders: keep each frame's learned blur")
-    r.add_argument("--fps", type=FPS, help="video frame rate (default: the input's for --exposure, 12 for sweeps)")
+    r.add_argument("--fps", type=FPS, help="video frame rate (default: the input's; the input's sound is kept only at its rate)")
     r.add_argument("--out", help="output folder (default: RUN/render)")
     r.add_argument("--overwrite", action="store_true", help="replace earlier renders of the same name")
     r.add_argument("--device", choices=["cpu", "cuda", "auto"], default="auto", help="auto (default: CUDA when present, else the CPU), cpu or cuda")
     r.add_argument("--quiet", action="store_true")
+    from layercam.commands.hdr_video import hdr_video_args
+
+    hdr_video_args(r, render=True)
     return r
 
 
@@ -61,31 +75,34 @@ def exposure_at(model, f: float) -> float:
     return float(np.interp(f, np.arange(len(v)), v))
 
 
-def exposure_frames(model, meta: dict, ev: float, keep_blur: bool = False, chunk: int = 65536):
-    """Every frame at ``ev`` stops from the reference exposure: ``(T, H, W, 3)``."""
+def exposure_frames(model, meta: dict, ev: float, keep_blur: bool = False, chunk: int = 65536, z0: float | None = None):
+    """Every frame at ``ev`` stops from the reference exposure (``z0``, default the model's):
+    ``(T, H, W, 3)``."""
     import numpy as np
 
     from layercam.render import render_frame
 
     hw = tuple(meta["frame_hw"])
-    z = model.exposure.reference() + ev
+    z = (model.exposure.reference() if z0 is None else z0) + ev
     return np.stack([render_frame(model, t, hw, "ldr", log2_dt=z, blur=keep_blur, chunk=chunk)["ldr"] for t in range(int(meta["n_frames"]))])
 
 
-def exposure_sweep(model, meta: dict, evs, frame: int, keep_blur: bool = False):
-    """One view at each of ``evs`` (stops from the reference exposure): ``(N, H, W, 3)``."""
+def exposure_sweep(model, meta: dict, evs, frame: int, keep_blur: bool = False, z0: float | None = None):
+    """One view at each of ``evs`` (stops from the reference exposure, ``z0`` or the model's):
+    ``(N, H, W, 3)``."""
     import numpy as np
 
     from layercam.render import render_frame
 
     hw = tuple(meta["frame_hw"])
-    z0 = model.exposure.reference()
+    z0 = model.exposure.reference() if z0 is None else z0
     return np.stack([render_frame(model, frame, hw, "ldr", log2_dt=z0 + float(e), blur=keep_blur)["ldr"] for e in evs])
 
 
-def focus_sweep(model, meta: dict, fs, frame: int, ev: float | None = None):
+def focus_sweep(model, meta: dict, fs, frame: int, ev: float | None = None, z0: float | None = None):
     """One view with the blur of each fractional image index in ``fs``: ``(N, H, W, 3)``; at the
-    exposure interpolated at each ``f``, or at ``ev`` stops from the reference when given."""
+    exposure interpolated at each ``f``, or at ``ev`` stops from the reference (``z0`` or the
+    model's) when given."""
     import numpy as np
 
     from layercam.render import render_frame
@@ -93,7 +110,7 @@ def focus_sweep(model, meta: dict, fs, frame: int, ev: float | None = None):
     hw = tuple(meta["frame_hw"])
     out = []
     for f in fs:
-        z = exposure_at(model, float(f)) if ev is None else model.exposure.reference() + ev
+        z = exposure_at(model, float(f)) if ev is None else (model.exposure.reference() if z0 is None else z0) + ev
         out.append(render_frame(model, frame, hw, "ldr", log2_dt=z, t_blur=float(f), blur=True)["ldr"])
     return np.stack(out)
 
@@ -116,6 +133,17 @@ def _check_ev(ev: float | None) -> None:
         raise LayercamError(f"--exposure must be within +-24 stops, got {ev}")
 
 
+def run_audio(meta: dict, fps: float) -> dict | None:
+    """The sound a video of the run's frames at ``fps`` carries over: the run's (its checkpoint's
+    ``audio``, :func:`layercam.io.clip.audio_plan`) when ``fps`` is the input's, else None."""
+    a = meta.get("audio")
+    return a if a and abs(float(fps) - float(meta.get("fps") or 24.0)) < 1e-6 else None
+
+
+def _hdr_name(args) -> str:
+    return f"hdr_{args.hdr_format}" + ("" if args.exposure is None else f"_ev{args.exposure:+.2f}")
+
+
 def _products(args, out: Path) -> dict:
     """What this command writes into ``out``: per product, its names there, the last one (a sidecar
     ``.json``) marking it finished. A finished product is kept unless ``--overwrite``; an unfinished
@@ -126,7 +154,9 @@ def _products(args, out: Path) -> dict:
     if args.focus is not None:
         name = f"focus_{args.focus:.2f}" + ("" if args.exposure is None else f"_ev{args.exposure:+.2f}")
         p["focus"] = [f"{name}.png", f"{name}.json"]
-    elif args.exposure is not None and args.sweep is None:
+    if args.hdr_format:
+        p["hdr"] = [f"{_hdr_name(args)}.mp4", f"{_hdr_name(args)}.json"]
+    elif args.exposure is not None and args.sweep is None and args.focus is None:
         p["exposure"] = [f"exposure_{args.exposure:+.2f}"]  # one folder, renamed into place when complete
     for names in p.values():
         marker = out / names[-1] / "render.json" if len(names) == 1 else out / names[-1]
@@ -137,12 +167,16 @@ def _products(args, out: Path) -> dict:
 
 def run(args) -> int:
     from layercam.io.lock import run_lock
+    from layercam.pipelines.windows import INDEX
 
-    if args.exposure is None and args.focus is None and args.sweep is None:
-        raise LayercamError("nothing to render: give --exposure EV, --focus F or --sweep exposure|focus")
+    if args.nits_white is not None and args.hdr_format is None:
+        raise LayercamError("--nits-white sets the HDR video's diffuse white: give --hdr-format pq|hlg with it")
+    if args.exposure is None and args.focus is None and args.sweep is None and args.hdr_format is None:
+        raise LayercamError("nothing to render: give --exposure EV, --focus F, --sweep exposure|focus or --hdr-format pq|hlg")
     from layercam.io.atomic import partials_removed_on_error
 
-    with run_lock(args.run) if Path(args.run, "checkpoint.pt").is_file() else contextlib.nullcontext():  # one writer per run folder
+    finished = Path(args.run, "checkpoint.pt").is_file() or Path(args.run, INDEX).is_file()
+    with run_lock(args.run) if finished else contextlib.nullcontext():  # one writer per run folder
         with partials_removed_on_error(_out_dir(args)):
             return _render(args)
 
@@ -151,80 +185,177 @@ def _out_dir(args) -> Path:
     return Path(args.out) if args.out else Path(args.run) / "render"
 
 
+class _Views:
+    """What a finished run renders from: one model, or a long clip's windows (``windows.json``:
+    each window's model renders its frames, joined across their overlaps as the export joined them;
+    one view, a focus or a sweep, comes from the window that holds its frame most). Frame indices
+    and ``--focus`` are the clip's; exposures count from the clip's reference (the median of every
+    frame's exposure)."""
+
+    def __init__(self, run: Path, device: str):
+        import numpy as np
+
+        from layercam.checkpoint import load_run_model
+        from layercam.pipelines import windows
+
+        index = windows.read_index(run)
+        if index is None:
+            model, meta = load_run_model(run, device)
+            self.models, self.metas, self.plan = [model], [meta], None
+            self.T = int(meta["n_frames"])
+            self.z0 = model.exposure.reference()
+            self.shift = [0.0]
+        else:
+            loaded = [load_run_model(f, device) for f in windows.window_folders(run, index)]
+            self.models, self.metas = [m for m, _ in loaded], [m for _, m in loaded]
+            self.plan = windows.index_plan(index)
+            self.T = int(index["frames"])
+            gains = windows.index_gains(index)
+            self.z0 = windows.clip_reference(self.models, gains)
+            self.shift = [-float(np.log2(g)) for g in gains]  # window k at z renders as window 0 at z + shift: its irradiance is gain x window 0's
+        self.has_blur = self.models[0].blur is not None
+        self.reference = self.metas[0].get("reference") if self.plan is None else None
+
+    def start(self, k: int) -> int:
+        return 0 if self.plan is None else self.plan.windows[k][0]
+
+    def window(self, frame: int) -> int:
+        return 0 if self.plan is None else self.plan.holding(frame)
+
+    def frame_exposures(self) -> list[float]:
+        import numpy as np
+
+        if self.plan is None:
+            return self.models[0].exposure.values().detach().cpu().tolist()
+        return [float(sum(w * (float(self.models[k].exposure.values().detach().cpu().numpy()[t - self.start(k)]) - self.shift[k]) for k, w in self.plan.weights(t))) for t in np.arange(self.T)]
+
+    def exposure_frames(self, ev: float, keep_blur: bool):
+        """Every frame at ``ev`` stops from the clip's reference, ``(T, H, W, 3)``; a window's frames
+        joined with its neighbour's by the export's cross-fade."""
+        import numpy as np
+
+        if self.plan is None:
+            return exposure_frames(self.models[0], self.metas[0], ev, keep_blur, z0=self.z0)
+        per = [exposure_frames(m, meta, ev, keep_blur, z0=self.z0 + d) for m, meta, d in zip(self.models, self.metas, self.shift)]
+        return np.stack([sum(w * per[k][t - self.start(k)] for k, w in self.plan.weights(t)) for t in range(self.T)]).astype(np.float32)
+
+
 def _render(args) -> int:
     import numpy as np
 
-    from layercam.checkpoint import load_run_model
     from layercam.geometry import middle_frame
     from layercam.io import write_png, write_video
     from layercam.io.atomic import commit_staged, ensure_writable_dir, staging_dir
     from layercam.pipelines.runner import write_json
     from layercam.pipelines.stages import device_of
 
-    model, meta = load_run_model(Path(args.run), device_of(args.device))
-    T = int(meta["n_frames"])
-    has_blur = model.blur is not None
-    if (args.focus is not None or args.sweep == "focus") and not has_blur:
+    v = _Views(Path(args.run), device_of(args.device))
+    T = v.T
+    if (args.focus is not None or args.sweep == "focus") and not v.has_blur:
         raise LayercamError(f"{args.run}: this run has no blur generator (blur was off), so there is no focus to change")
     if args.focus is not None and not (0 <= args.focus <= T - 1):
         raise LayercamError(f"--focus must lie between 0 and {T - 1} (the training images' indices), got {args.focus}")
     if args.frame is not None and not 0 <= args.frame < T:
         raise LayercamError(f"--frame must be between 0 and {T - 1}, got {args.frame}")
+    default_view = int(v.reference if v.reference is not None else middle_frame(T))
     sweep_range = None
     if args.sweep == "exposure":
         sweep_range = _range(args.sweep_range, (-4.0, 4.0))
         _check_ev(sweep_range[0]), _check_ev(sweep_range[1])
     elif args.sweep == "focus":
-        sweep_range = _range(args.sweep_range, (0.0, float(T - 1)))
-        if not (0 <= min(sweep_range) and max(sweep_range) <= T - 1):
-            raise LayercamError(f"focus --range must lie within 0..{T - 1}, got {args.sweep_range}")
-    default_view = int(meta.get("reference", middle_frame(T)))
+        view = default_view if args.frame is None else args.frame
+        k = v.window(view)
+        lo, hi = (0, T - 1) if v.plan is None else (v.plan.windows[k][0], v.plan.windows[k][1] - 1)
+        sweep_range = _range(args.sweep_range, (float(lo), float(hi)))
+        if not (lo <= min(sweep_range) and max(sweep_range) <= hi):
+            where = "" if v.plan is None else f" (the images of window {k}, which holds view {view}: each window's blur generator knows its own images)"
+            raise LayercamError(f"focus --range must lie within {lo}..{hi}{where}, got {args.sweep_range}")
     out = ensure_writable_dir(_out_dir(args))
     products = _products(args, out)
-    z0 = model.exposure.reference()
+    z0 = v.z0
     say = (lambda m: None) if args.quiet else print
-    base = {"run": str(args.run), "reference_log2_exposure": z0, "frame_log2_exposures": model.exposure.values().detach().cpu().tolist()}
+    base = {"run": str(args.run), "reference_log2_exposure": z0, "frame_log2_exposures": v.frame_exposures()}
+    meta0 = v.metas[0]
+    fps = float(meta0.get("fps") or 24.0)  # the input's
+    hdr_frames = None
+    if "hdr" in products:  # checked before any work
+        hdr_frames = sorted((Path(args.run) / "hdr").glob("frame_*.exr"))
+        if len(hdr_frames) != T:
+            raise LayercamError(f"{args.run}: --hdr-format needs the run's linear HDR frames, hdr/frame_*.exr ({T}); found {len(hdr_frames)} (hdr-video runs have them)")
+        from layercam.io.hdr_video import missing_for_hdr
+        from layercam.io.video import ffmpeg_exe
+
+        missing = missing_for_hdr()
+        if missing:
+            raise LayercamError(f"cannot write an HDR video: ffmpeg ({ffmpeg_exe()}) has no {missing}; imageio-ffmpeg >= 0.8 ships an ffmpeg with it")
+
+    def one(view: int):
+        """The model of the window holding ``view``, its meta, the window's first frame and the
+        reference exposure in its scale."""
+        k = v.window(view)
+        return v.models[k], v.metas[k], v.start(k), z0 + v.shift[k]
 
     if args.sweep:
         a, b = sweep_range
         view = default_view if args.frame is None else args.frame
+        model, meta, a0, zk = one(view)
         stage = staging_dir(out, products["sweep"][-1])
         if args.sweep == "exposure":
             evs = np.linspace(a, b, args.steps)
-            _write_sweep(stage, "exposure", exposure_sweep(model, meta, evs, view, args.keep_blur), args.fps, {**base, "what": "exposure sweep", "view": view, "ev": evs.tolist(), "blur": args.keep_blur})
+            _write_sweep(stage, "exposure", exposure_sweep(model, meta, evs, view - a0, args.keep_blur, z0=zk), args.fps or fps, {**base, "what": "exposure sweep", "view": view, "ev": evs.tolist(), "blur": args.keep_blur})
         else:
             fs = np.linspace(a, b, args.steps)
-            _write_sweep(stage, "focus", focus_sweep(model, meta, fs, view, args.exposure), args.fps, {**base, "what": "focus sweep", "view": view, "focus": fs.tolist(), "exposure_ev": args.exposure})
+            _write_sweep(stage, "focus", focus_sweep(model, meta, fs - a0, view - a0, args.exposure, z0=zk), args.fps or fps, {**base, "what": "focus sweep", "view": view, "focus": fs.tolist(), "exposure_ev": args.exposure})
         commit_staged(stage, out, products["sweep"])
         say(f"{args.sweep} sweep {a:+g}..{b:+g} of view {view}: {out / products['sweep'][1]}")
     if "focus" in products:
         png, side = products["focus"]
-        view = args.frame if args.frame is not None else (int(meta["reference"]) if "reference" in meta else int(round(args.focus)))
+        view = args.frame if args.frame is not None else (int(v.reference) if v.reference is not None else int(round(args.focus)))
+        model, meta, a0, zk = one(view)
+        if v.plan is not None and not 0 <= args.focus - a0 <= len(meta["names"]) - 1:
+            raise LayercamError(f"--focus {args.focus:g} and view {view} lie in different windows: each window's blur generator knows its own images ({a0}..{a0 + len(meta['names']) - 1} for view {view})")
         stage = staging_dir(out, side)
-        write_png(stage / png, focus_sweep(model, meta, [args.focus], view, args.exposure)[0])
+        write_png(stage / png, focus_sweep(model, meta, [args.focus - a0], view - a0, args.exposure, z0=zk)[0])
         write_json(stage / side, {**base, "what": "focus", "focus": args.focus, "view": view, "exposure_ev": args.exposure})
         commit_staged(stage, out, products["focus"])
         say(f"focus {args.focus:g} of view {view}: {out / png}")
     if "exposure" in products:
         (name,) = products["exposure"]
         stage = staging_dir(out, name)
-        frames = exposure_frames(model, meta, args.exposure, args.keep_blur)
+        frames = v.exposure_frames(args.exposure, args.keep_blur)
         _write_steps(stage / name, frames, write_png, prefix="frame_", width=5)
         if T > 1:
-            write_video(stage / name / "video.mp4", frames, fps=args.fps or float(meta.get("fps", 24.0)))
-        write_json(stage / name / "render.json", {**base, "what": "exposure", "ev": args.exposure, "log2_exposure": z0 + args.exposure, "blur": args.keep_blur})
+            write_video(stage / name / "video.mp4", frames, fps=args.fps or fps, audio=run_audio(meta0, args.fps or fps))
+        write_json(stage / name / "render.json", {**base, "what": "exposure", "ev": args.exposure, "log2_exposure": z0 + args.exposure, "blur": args.keep_blur,
+                                                  **({} if v.plan is None else {"windows": v.plan.to_dict()["windows"], "join": "each window's frames, cross-faded over the overlaps as in the export"})})
         commit_staged(stage, out, products["exposure"])
         say(f"{T} frames at {args.exposure:+g} EV: {out / name}")
+    if "hdr" in products:
+        from layercam.io import read_exr
+        from layercam.io.hdr_video import ANCHOR, write_hdr_video
+        from layercam.render import white_radiance
+
+        video, side = products["hdr"]
+        stage = staging_dir(out, side)
+        gain = 2.0 ** (args.exposure or 0.0)
+        nits = args.nits_white or 203.0
+        info = write_hdr_video(stage / video, lambda: (read_exr(p) * gain for p in hdr_frames), args.fps or fps, args.hdr_format, white_radiance(v.models[0]), nits,
+                               meta0.get("primaries", "bt709"), audio=run_audio(meta0, args.fps or fps), progress=not args.quiet)  # fmt: skip
+        write_json(stage / side, {**base, "what": "HDR video of the run's hdr/ frames", "exposure_ev": args.exposure, **info, "anchor": ANCHOR})
+        commit_staged(stage, out, products["hdr"])
+        if info["audio"] and not info["audio"]["kept"]:
+            print(f"warning: {video} is written without the input's sound: {info['audio']['why']}", flush=True)
+        say(f"{T} frames as {args.hdr_format.upper()} HDR video (diffuse white at {nits:g} cd/m2): {out / video}")
     return 0
 
 
-def _write_sweep(out: Path, kind: str, imgs, fps: float | None, info: dict) -> None:
+def _write_sweep(out: Path, kind: str, imgs, fps: float, info: dict) -> None:
     """``sweep_{kind}.mp4``, its steps as PNGs in ``sweep_{kind}/`` and ``sweep_{kind}.json``."""
     from layercam.io import write_png, write_video
     from layercam.pipelines.runner import write_json
 
     _write_steps(out / f"sweep_{kind}", imgs, write_png)
-    write_video(out / f"sweep_{kind}.mp4", imgs, fps=fps or 12.0)
+    write_video(out / f"sweep_{kind}.mp4", imgs, fps=fps)  # one view, not the clip's time: no sound
     write_json(out / f"sweep_{kind}.json", info)
 
 

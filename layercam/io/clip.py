@@ -25,7 +25,7 @@ from layercam.io.video import VIDEO_SUFFIXES, iter_video, probe_video
 
 __all__ = ["Clip", "load_clip", "probe_clip", "parse_resize", "natural_key"]
 
-FRAMES_VERSION = 1  # the layout of a decoded clip in the cache (frames-<key>/frames.raw + clip.json)
+FRAMES_VERSION = 2  # the layout of a decoded clip in the cache (frames-<key>/frames.raw + clip.json)
 
 _EXIF_SUFFIXES = (".jpg", ".jpeg", ".tif", ".tiff")
 _GLOB_CHARS = re.compile(r"[*?\[]")
@@ -49,8 +49,12 @@ class Clip:
         else None.
     meta: free-form; ``load_clip`` sets ``kind`` ("video"/"images"), ``frame_indices`` (index
         of each frame in the source before stride/max_frames), ``n_source_frames`` (None if
-        unknown), ``source_size`` (W,H before resizing), ``paths`` and ``notes`` (lines said once
-        when a run starts, e.g. a dropped alpha channel) for images.
+        unknown), ``source_size`` (W,H before resizing), ``primaries`` (``{"name", "how"}``: the
+        colour primaries of the frames' RGB, ffmpeg's name, and whether the input said so or it is
+        assumed), ``notes`` (lines said once when a run starts: a dropped alpha channel, a
+        variable frame rate, sound dropped), ``paths`` for images; for videos ``video`` (what the
+        input's header says, :func:`layercam.io.video.parse_header`) and ``audio`` (the sound the
+        videos written carry over, :func:`audio_plan`; None without).
     """
 
     frames: Frames
@@ -479,6 +483,8 @@ def _decode_video(path: Path, source: str, max_frames, stride: int, rs, folder: 
         sink.abandon()
         raise
     idx = [i * stride for i in range(sink.n)]
+    header = info["header"]
+    audio, notes = audio_plan(path, header, sink.n, info["fps"], stride, max_frames)
     return Clip(
         frames=Frames(sink.finish()),
         source=source,
@@ -486,7 +492,8 @@ def _decode_video(path: Path, source: str, max_frames, stride: int, rs, folder: 
         fps=info["fps"],
         bit_depth=8,
         exif_exposures=None,
-        meta={"kind": "video", "frame_indices": idx, "n_source_frames": None, "source_size": info["size"]},
+        meta={"kind": "video", "frame_indices": idx, "n_source_frames": None, "source_size": info["size"], "video": header,
+              "primaries": primaries_of(header.get("primaries")), "audio": audio, "notes": notes},
     )
 
 
@@ -536,9 +543,43 @@ def _decode_images(all_paths: list[Path], source: str, max_frames, stride: int, 
             "n_source_frames": len(all_paths),
             "source_size": size0,
             "paths": [str(p) for p in paths],
+            "primaries": primaries_of(None),
             "notes": [_alpha_note(alphas, len(paths))] if alphas else [],
         },
     )
+
+
+def primaries_of(tag: str | None) -> dict:
+    """The colour primaries of a clip's RGB: the input's tag where it names primaries
+    :mod:`layercam.bt2100` knows, else BT.709 / sRGB (what 8-bit video and images without tags
+    are), said as assumed."""
+    from layercam.bt2100 import PRIMARIES
+
+    if tag in PRIMARIES:
+        return {"name": tag, "how": "tagged in the input"}
+    said = f" (the input says {tag}, not known here)" if tag else ""
+    return {"name": "bt709", "how": f"assumed: BT.709 / sRGB, as untagged 8-bit video and images are{said}"}
+
+
+def audio_plan(path: Path, info: dict, n: int, fps: float, stride: int, max_frames: int | None) -> tuple[dict | None, list[str]]:
+    """The sound the videos written from a clip of ``n`` frames carry over from the input ``path``
+    (``{"path", "codec", "duration"}``: the input's first audio stream from its start, cut at
+    ``duration`` seconds when ``--max-frames`` ended the clip early; None without sound or with a
+    stride, whose frames no longer keep the input's time) and the lines a run says about timing
+    and sound (a variable frame rate, sound dropped)."""
+    notes = []
+    if info.get("variable"):
+        notes.append(f"{path.name} has a variable frame rate ({info['fps']:g} fps on average): its frames are taken at a constant "
+                     f"{fps:g} fps (ffmpeg repeats or drops a frame where the timing needs it, so the sound stays in step), and every video is written at {fps:g} fps")
+    if not info.get("audio"):
+        return None, notes
+    if stride > 1:
+        notes.append(f"--stride {stride}: the sound of {path.name} is dropped (every {stride}th frame played at {fps:g} fps no longer keeps the input's time)")
+        return None, notes
+    span = n / fps
+    dur = info.get("duration")
+    cut = max_frames is not None and n == max_frames and (dur is None or span < dur - 0.5 / fps)
+    return {"path": str(path.resolve()), "codec": info["audio"], "duration": span if cut else None}, notes
 
 
 def _alpha_note(transparent: list[float], n: int) -> str:

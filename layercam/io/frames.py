@@ -50,21 +50,31 @@ class DiskArray:
     ``a[t] = row`` or ``a[t0:t1] = rows`` (``pwrite``); ``DiskArray(path, dtype, shape)`` opens it
     for reading. Indexing by an int or a slice on the first axis reads only those rows (``pread``);
     other indices (index arrays) read through the memory map (:meth:`gather`). ``np.asarray(a)``
-    reads it whole. ``a.close()`` (or garbage collection) closes the file.
+    reads it whole. ``a.rows(t0, t1)`` is a view of rows ``t0:t1`` (the same file, nothing read).
+    ``a.close()`` (or garbage collection) closes the file. ``offset``: the byte where row 0 begins.
     """
 
-    def __init__(self, path: str | os.PathLike, dtype, shape: tuple, writable: bool = False, _fd: int | None = None):
+    def __init__(self, path: str | os.PathLike, dtype, shape: tuple, writable: bool = False, _fd: int | None = None, offset: int = 0):
         self.path, self.dtype, self.shape = Path(path), np.dtype(dtype), tuple(int(s) for s in shape)
         self.row_shape = self.shape[1:]
         self.row_bytes = int(np.prod(self.row_shape, dtype=np.int64)) * self.dtype.itemsize
-        self.writable = writable
+        self.writable, self._offset, self._owner = writable, int(offset), None
         self._fd = _fd if _fd is not None else os.open(self.path, os.O_RDWR if writable else os.O_RDONLY)
         size = os.fstat(self._fd).st_size
-        if size < self.nbytes:
+        if size < self._offset + self.nbytes:
             os.close(self._fd)
             self._fd = None
             raise ValueError(f"{self.path} holds {size} bytes, not the {self.nbytes} of a {self.dtype} array {self.shape}")
         self._map = None
+
+    def rows(self, t0: int, t1: int) -> "DiskArray":
+        """Rows ``t0:t1`` as a DiskArray on the same open file (nothing is read; it stays valid while
+        this one is open)."""
+        t0, t1 = max(int(t0), 0), max(min(int(t1), len(self)), max(int(t0), 0))
+        v = object.__new__(type(self))
+        v.__dict__.update(self.__dict__)
+        v.shape, v._offset, v._map, v._owner = (t1 - t0, *self.row_shape), self._offset + t0 * self.row_bytes, None, self
+        return v
 
     @classmethod
     def create(cls, path: str | os.PathLike, dtype, shape: tuple) -> "DiskArray":
@@ -110,7 +120,7 @@ class DiskArray:
         """Rows ``t0:t1`` as a new array (one ``pread`` of their bytes)."""
         t0, t1 = max(int(t0), 0), min(int(t1), len(self))
         out = np.empty((max(t1 - t0, 0), *self.row_shape), self.dtype)
-        view, off, done = memoryview(out.reshape(-1).view(np.uint8)), t0 * self.row_bytes, 0
+        view, off, done = memoryview(out.reshape(-1).view(np.uint8)), self._offset + t0 * self.row_bytes, 0
         while done < len(view):
             got = os.preadv(self._fd, [view[done:]], off + done)
             if got <= 0:
@@ -150,8 +160,8 @@ class DiskArray:
         if self._map is None:
             if self.nbytes == 0:
                 return np.empty(self.shape, self.dtype)
-            self._map = mmap.mmap(self._fd, self.nbytes, prot=mmap.PROT_READ)
-        return np.frombuffer(self._map, self.dtype, count=self.size).reshape(self.shape)
+            self._map = mmap.mmap(self._fd, self._offset + self.nbytes, prot=mmap.PROT_READ)
+        return np.frombuffer(self._map, self.dtype, count=self.size, offset=self._offset).reshape(self.shape)
 
     def release(self) -> None:
         """Gives the memory map's resident pages back (they stay in the page cache)."""
@@ -165,7 +175,7 @@ class DiskArray:
             raise TypeError("a DiskArray is written whole rows at a time: a[t] = row or a[t0:t1] = rows, opened with DiskArray.create")
         a, b = rows[0], rows[1]
         v = np.ascontiguousarray(np.broadcast_to(np.asarray(value, self.dtype), (b - a, *self.row_shape)))
-        buf, off, done = memoryview(v.reshape(-1).view(np.uint8)), a * self.row_bytes, 0
+        buf, off, done = memoryview(v.reshape(-1).view(np.uint8)), self._offset + a * self.row_bytes, 0
         while done < len(buf):
             done += os.pwritev(self._fd, [buf[done:]], off + done)
 
@@ -177,9 +187,9 @@ class DiskArray:
         if self._map is not None:
             self._map.close()
             self._map = None
-        if self._fd is not None:
+        if self._fd is not None and self._owner is None:  # a view (rows) leaves its owner's file open
             os.close(self._fd)
-            self._fd = None
+        self._fd = None
 
     def __del__(self):
         try:
@@ -188,10 +198,10 @@ class DiskArray:
             pass
 
     def __getstate__(self):  # to another process (torch.distributed, Ray): the path, reopened there
-        return {"path": str(self.path), "dtype": self.dtype.str, "shape": self.shape}
+        return {"path": str(self.path), "dtype": self.dtype.str, "shape": self.shape, "offset": self._offset}
 
     def __setstate__(self, s):
-        self.__init__(s["path"], s["dtype"], s["shape"])
+        self.__init__(s["path"], s["dtype"], s["shape"], offset=s.get("offset", 0))
 
 
 class TempArray(DiskArray):
@@ -268,6 +278,10 @@ class Frames:
 
     def __getitem__(self, key):
         return self._float(self.raw[key])
+
+    def rows(self, t0: int, t1: int) -> "Frames":
+        """Frames ``t0:t1`` as Frames of their own, nothing read (a view of the same storage)."""
+        return Frames(self.raw.rows(t0, t1) if self.on_disk else self.raw[t0:t1])
 
     def __iter__(self):
         for t in range(len(self)):

@@ -1,5 +1,10 @@
 """Video files: decode to uint8 frames ``(T,H,W,3)`` and encode H.264 mp4, through the ffmpeg
 binary bundled with imageio-ffmpeg (works offline). Imported lazily inside the functions.
+
+What the input's header says (frame rate, variable rate, duration, sound, colour primaries) comes
+with the frames (``read_video(..., with_info=True)``, :func:`parse_header`); the videos written keep
+the input's frame rate as a fraction (:func:`rate_text`: 30000/1001, not 29.97) and carry its sound
+over (:func:`mux_audio`, ``VideoWriter(audio=...)``).
 """
 
 from __future__ import annotations
@@ -16,7 +21,7 @@ import numpy as np
 
 from layercam.errors import LayercamError
 
-__all__ = ["VideoWriter", "VIDEO_SUFFIXES", "iter_video", "probe_video", "read_video", "write_video"]
+__all__ = ["VideoWriter", "VIDEO_SUFFIXES", "iter_video", "probe_video", "read_video", "write_video", "mux_audio", "parse_header", "rate_text", "ffmpeg_exe"]
 
 VIDEO_SUFFIXES: tuple[str, ...] = (".mp4", ".mov", ".avi", ".mkv", ".m4v", ".webm", ".gif")
 
@@ -34,6 +39,66 @@ _OUT_STREAM = re.compile(r"Output #0.*?Stream #0:0.*?: Video: rawvideo[^\n]*?, (
 _DURATION = re.compile(r"Duration: (\d+):(\d+):([\d.]+)")
 
 
+def ffmpeg_exe() -> str:
+    """The ffmpeg binary every video goes through: imageio-ffmpeg's (``IMAGEIO_FFMPEG_EXE`` names
+    another)."""
+    import imageio_ffmpeg
+
+    return imageio_ffmpeg.get_ffmpeg_exe()
+
+
+def _ntsc(fps: float) -> float:
+    """``fps`` as printed by ffmpeg (two decimals: 29.97) -> the NTSC rate it stands for
+    (30000/1001) when it is one, else ``fps``."""
+    n = round(fps * 1.001)
+    if n >= 10 and abs(fps - n / 1.001) < 0.006 and abs(fps - round(fps)) > 0.006:
+        return n * 1000 / 1001
+    return fps
+
+
+def rate_text(fps: float) -> str:
+    """A frame rate as ffmpeg reads it exactly: ``"30000/1001"`` for NTSC rates, ``"25/2"``, ``"24"``."""
+    from fractions import Fraction
+
+    n = round(fps * 1.001)
+    if abs(fps - n * 1000 / 1001) < 1e-9 * fps and abs(fps - round(fps)) > 1e-6:
+        return f"{n * 1000}/1001"
+    return str(Fraction(fps).limit_denominator(1001))
+
+
+_STREAM = re.compile(r"Stream #0:\d+[^:]*: (Video|Audio): ([^\n]*)")
+_TAGGED = ("bt709", "bt2020", "bt470bg", "smpte170m", "smpte240m", "smpte432", "smpte431", "bt470m", "film", "smpte428", "jedec-p22")
+
+
+def parse_header(text: str) -> dict:
+    """What ffmpeg's log says about its input file (the part before ``Output #0``): ``fps`` (the
+    average rate, None when not said), ``tbr`` (the rate ffmpeg guesses, that a constant-rate
+    decode uses), ``variable`` (the two differ by more than 0.1%), ``duration`` (seconds or None),
+    ``video`` (its codec line), ``audio`` (the first audio stream's codec, or None) and
+    ``primaries`` (the colour primaries the video is tagged with, or None)."""
+    head = text.split("Output #0", 1)[0]
+    out: dict = {"fps": None, "tbr": None, "variable": False, "duration": None, "video": None, "audio": None, "primaries": None}
+    m = re.search(r"Duration: (\d+):(\d+):(\d+(?:\.\d+)?)", head)
+    if m:
+        out["duration"] = int(m.group(1)) * 3600 + int(m.group(2)) * 60 + float(m.group(3))
+    for kind, line in _STREAM.findall(head):
+        if kind == "Audio" and out["audio"] is None:
+            out["audio"] = line.split()[0].rstrip(",")
+        elif kind == "Video" and out["video"] is None:
+            out["video"] = line
+            rates = {k: float(v) * (1000 if k_ else 1) for v, k_, k in re.findall(r"([\d.]+)(k?) (fps|tbr)\b", line)}
+            out["fps"], out["tbr"] = rates.get("fps"), rates.get("tbr")
+            if out["fps"] and out["tbr"]:
+                out["variable"] = abs(out["fps"] - out["tbr"]) > 1e-3 * out["tbr"]
+            colour = re.search(r", \w+\(([^)]*)\)", line)
+            for tok in (colour.group(1).split(", ") if colour else []):
+                parts = tok.split("/")
+                name = parts[1] if len(parts) == 3 else parts[0]
+                if name in _TAGGED:
+                    out["primaries"] = name
+    return out
+
+
 def _last_line(text: str) -> str:
     lines = [ln.strip() for ln in text.splitlines() if ln.strip()]
     return lines[-1][:160] if lines else "no output from ffmpeg"
@@ -44,9 +109,11 @@ def iter_video(path: str | os.PathLike, max_frames: int | None = None, stride: i
     a time. ``stride`` keeps every K-th frame (0, K, 2K, ...), then ``max_frames`` keeps the first
     N of those; decoding stops as soon as N are given. ``info``, when given, is filled before the
     first frame with ``size`` ``(W, H)``, ``fps`` and ``frames`` (the stream's frame count from its
-    duration and rate, None when ffmpeg does not say). Raises ``LayercamError`` for a missing,
-    corrupt or non-video file, or one with no frames. Runs imageio-ffmpeg's bundled ffmpeg binary
-    directly (all pipes are closed when the generator ends or is closed)."""
+    duration and rate, None when ffmpeg does not say) and ``header`` (:func:`parse_header` of the
+    input). The frames come at a constant rate ``fps``: a variable-rate input is decoded at the rate
+    ffmpeg guesses for it (its ``tbr``), repeating or dropping a frame where the timing needs it.
+    Raises ``LayercamError`` for a missing, corrupt or non-video file, or one with no frames. Runs
+    imageio-ffmpeg's bundled ffmpeg binary directly (all pipes are closed when the generator ends or is closed)."""
     if not isinstance(path, (str, os.PathLike)):
         raise TypeError(f"read_video expects a path, got {type(path).__name__}")
     _check_int("stride", stride, 1)
@@ -58,10 +125,8 @@ def iter_video(path: str | os.PathLike, max_frames: int | None = None, stride: i
     if p.is_dir():
         raise LayercamError(f"expected a video file, got a folder: {p}")
 
-    import imageio_ffmpeg
-
     cmd = [
-        imageio_ffmpeg.get_ffmpeg_exe(), "-nostdin", "-hide_banner", "-nostats",
+        ffmpeg_exe(), "-nostdin", "-hide_banner", "-nostats",
         "-i", str(p), "-map", "0:v:0", "-f", "rawvideo", "-pix_fmt", "rgb24", "-",
     ]  # fmt: skip
     given = 0
@@ -90,13 +155,13 @@ def iter_video(path: str | os.PathLike, max_frames: int | None = None, stride: i
                 )
             w, h = int(m.group(1)), int(m.group(2))
             rate = re.search(r"([\d.]+) (?:fps|tbr)", m.group(3))
-            fps = float(rate.group(1)) if rate else 24.0
+            fps = _ntsc(float(rate.group(1))) if rate else 24.0
             if not np.isfinite(fps) or fps <= 0:
                 fps = 24.0
             if info is not None:
                 dur = _DURATION.search(text)
                 secs = int(dur.group(1)) * 3600 + int(dur.group(2)) * 60 + float(dur.group(3)) if dur else None
-                info.update(size=(w, h), fps=fps, frames=int(round(secs * fps)) if secs else None)
+                info.update(size=(w, h), fps=fps, frames=int(round(secs * fps)) if secs else None, header=parse_header(text))
             nbytes = w * h * 3
             assert proc.stdout is not None
             i = 0
@@ -122,7 +187,7 @@ def iter_video(path: str | os.PathLike, max_frames: int | None = None, stride: i
 
 def probe_video(path: str | os.PathLike) -> dict:
     """What :func:`iter_video` learns before the first frame, without decoding the clip:
-    ``{"size": (W, H), "fps": float, "frames": int | None}``."""
+    ``{"size": (W, H), "fps": float, "frames": int | None, "header": dict}``."""
     info: dict = {}
     gen = iter_video(path, max_frames=1, info=info)
     try:
@@ -132,16 +197,17 @@ def probe_video(path: str | os.PathLike) -> dict:
     return info
 
 
-def read_video(
-    path: str | os.PathLike, max_frames: int | None = None, stride: int = 1
-) -> tuple[np.ndarray, float]:
-    """Decode a video file into ``(frames, fps)``: ``frames`` uint8 RGB ``(T, H, W, 3)``, the whole
-    clip in memory (:func:`iter_video` gives one frame at a time). ``stride`` and ``max_frames``
-    as there. Raises ``LayercamError`` for a missing, corrupt or non-video file, or one with no frames.
-    """
+def read_video(path: str | os.PathLike, max_frames: int | None = None, stride: int = 1, with_info: bool = False):
+    """Decode a video file into ``(frames, fps)`` (``(frames, fps, info)`` with ``with_info``):
+    ``frames`` uint8 RGB ``(T, H, W, 3)``, the whole clip in memory (:func:`iter_video` gives one
+    frame at a time), at a constant rate ``fps``; ``info``: :func:`parse_header` of the input.
+    ``stride`` and ``max_frames`` as there. Raises ``LayercamError`` for a missing, corrupt or
+    non-video file, or one with no frames."""
     info: dict = {}
-    frames = list(iter_video(path, max_frames, stride, info))
-    return np.stack(frames, axis=0), info["fps"]
+    frames = np.stack(list(iter_video(path, max_frames, stride, info)), axis=0)
+    if with_info:
+        return frames, info["fps"], info["header"]
+    return frames, info["fps"]
 
 
 def _to_uint8(frames: np.ndarray) -> np.ndarray:
@@ -164,14 +230,17 @@ class VideoWriter:
 
     Frames are ``(H,W,3)`` RGB (float in [0,1], clipped, or uint8) or ``(H,W)`` grey, all of one
     size; odd sizes are padded to even by repeating the last row/column. ``crf`` is x264's quality.
+    ``audio`` (``{"path", "duration"}``, :func:`mux_audio`): sound carried over from that file when
+    the video is complete; ``audio_info`` then says what became of it.
     """
 
-    def __init__(self, path: str | os.PathLike, fps: float = 24.0, crf: int = 18):
+    def __init__(self, path: str | os.PathLike, fps: float = 24.0, crf: int = 18, audio: dict | None = None):
         fps = float(fps)
         if not np.isfinite(fps) or fps <= 0:
             raise ValueError(f"fps must be positive, got {fps}")
-        self.path, self.fps, self.crf = Path(path), fps, int(crf)
+        self.path, self.fps, self.crf, self.audio = Path(path), fps, int(crf), audio
         self._gen, self._tmp, self._size, self.frames = None, None, None, 0
+        self.audio_info: dict | None = None
 
     def __enter__(self) -> "VideoWriter":
         return self
@@ -203,8 +272,10 @@ class VideoWriter:
 
         ensure_writable_dir(self.path.parent)
         self._size, self._tmp = (h, w), temp_name(self.path)
+        from fractions import Fraction
+
         self._gen = imageio_ffmpeg.write_frames(
-            str(self._tmp), (w + w % 2, h + h % 2), fps=self.fps, codec="libx264", quality=None, macro_block_size=2,
+            str(self._tmp), (w + w % 2, h + h % 2), fps=Fraction(rate_text(self.fps)), codec="libx264", quality=None, macro_block_size=2,
             pix_fmt_out="yuv420p", ffmpeg_log_level="error",
             output_params=["-crf", str(self.crf), "-preset", "medium", "-movflags", "+faststart"],
         )
@@ -229,7 +300,54 @@ class VideoWriter:
         if not mp4_complete(tmp):  # ffmpeg's failure (a full disk) is not raised by imageio-ffmpeg
             tmp.unlink(missing_ok=True)
             raise LayercamError(f"cannot write video {self.path}: ffmpeg left an incomplete file (is the disk full?)")
-        os.replace(tmp, self.path)
+        self.audio_info = finish_with_audio(tmp, self.path, self.audio)
+
+
+def finish_with_audio(tmp: Path, path: Path, audio: dict | None) -> dict | None:
+    """The complete video ``tmp`` becomes ``path`` (a rename), with ``audio``'s sound carried over
+    first when given (:func:`mux_audio`). Returns what became of the sound (None without)."""
+    from layercam.io.atomic import temp_name
+
+    info = None
+    if audio:
+        out = temp_name(path)
+        try:
+            info = mux_audio(tmp, audio, out)
+        except BaseException:
+            out.unlink(missing_ok=True)
+            tmp.unlink(missing_ok=True)
+            raise
+        if info["kept"]:
+            tmp.unlink(missing_ok=True)
+            tmp = out
+        else:
+            out.unlink(missing_ok=True)
+    os.replace(tmp, path)
+    return info
+
+
+def mux_audio(video: Path, audio: dict, out: Path) -> dict:
+    """Writes ``out``: the mp4 ``video`` with the first audio stream of ``audio["path"]`` carried
+    over unchanged (stream copy), cut at ``audio["duration"]`` seconds when that is given (packet
+    by packet: within one audio frame). A stream an mp4 cannot hold as it is (PCM with an older
+    ffmpeg, ...) is encoded as AAC instead. Returns ``{"kept", "codec", "copied", "why"}``; when
+    the sound cannot be kept (its file is gone, ffmpeg fails) ``kept`` is False and ``why`` says
+    why, and ``out`` is not written."""
+    src = Path(audio["path"])
+    if not src.is_file():
+        return {"kept": False, "codec": audio.get("codec"), "copied": False, "why": f"the input {src} is no longer there"}
+    cut = ["-t", f"{float(audio['duration']):.6f}"] if audio.get("duration") else []
+    base = [ffmpeg_exe(), "-nostdin", "-hide_banner", "-loglevel", "error", "-y", "-i", str(video), *cut, "-i", str(src), "-map", "0:v:0", "-map", "1:a:0", "-c:v", "copy"]
+    why = ""
+    for copied, codec in ((True, ["-c:a", "copy"]), (False, ["-c:a", "aac", "-b:a", "256k"])):
+        res = subprocess.run([*base, *codec, "-movflags", "+faststart", str(out)], stdin=subprocess.DEVNULL, capture_output=True, text=True)
+        if res.returncode == 0 and out.is_file() and mp4_complete(out):
+            return {"kept": True, "codec": audio.get("codec"), "copied": copied, "why": "" if copied else f"{audio.get('codec')} cannot be copied into mp4 ({why}): encoded as AAC"}
+        why = _last_line(res.stderr)
+        out.unlink(missing_ok=True)
+        if "No space left" in res.stderr:
+            raise LayercamError(f"cannot write {out.with_name(video.name)} (the disk is full): {why}")
+    return {"kept": False, "codec": audio.get("codec"), "copied": False, "why": f"ffmpeg could not carry it over ({why})"}
 
 
 def mp4_complete(path: str | os.PathLike) -> bool:
@@ -261,17 +379,17 @@ def mp4_complete(path: str | os.PathLike) -> bool:
     return {b"moov", b"mdat"} <= kinds
 
 
-def write_video(path: str | os.PathLike, frames, fps: float = 24.0, crf: int = 18) -> Path:
+def write_video(path: str | os.PathLike, frames, fps: float = 24.0, crf: int = 18, audio: dict | None = None) -> Path:
     """Encode ``frames`` to an H.264 (libx264, yuv420p) mp4 at ``path``, atomically.
 
     ``frames``: ``(T,H,W,3)`` RGB, float in [0,1] (clipped) or uint8, ``(T,H,W)`` grey (replicated),
     or any iterable of such frames (encoded as they come: one frame in memory at a time). Odd
     widths/heights are padded to even by repeating the last row/column. ``crf`` is the x264 quality
-    (lower is better, 18 is visually lossless). See :class:`VideoWriter`.
+    (lower is better, 18 is visually lossless); ``audio``: sound to carry over (:class:`VideoWriter`).
     """
     if isinstance(frames, np.ndarray) and frames.ndim not in (3, 4):
         raise ValueError(f"write_video expects (T,H,W,3) frames, got shape {frames.shape}")
-    with VideoWriter(path, fps, crf) as vw:
+    with VideoWriter(path, fps, crf, audio) as vw:
         for f in frames:
             vw.add(f)
     return Path(path)

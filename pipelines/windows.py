@@ -1,0 +1,568 @@
+"""Long clips as overlapping windows, each its own model, sharing one camera.
+
+A clip longer than one model holds (:func:`plan`: the analysis's rule, or ``--window N``) is cut
+into overlapping windows of frames. Each window is a run of the ordinary stages (bootstrap,
+train, export; the refine option's too) in its own folder ``RUN/cache/windows/<first>-<end>/``
+(its own stage cache: each window resumes on its own), on its slice of the clip and of the whole
+clip's flow, with the model the analysis decided once for the whole clip. The camera is learned
+once: window 0 trains as a single model would, and the others start from its tone mapper (and
+its learned exposure ratios, ``--exposures alt`` without ``--ev-step``) and hold them fixed, so
+that every window renders through the same response curve and exposures (the train stage's key
+names window 0's training, :func:`hold_camera`). Window 0 runs first; the others do not depend on
+one another (``--ray``: tasks on a Ray cluster, ``layercam.cluster``).
+
+The windows' outputs are then joined by the ``windows`` stage (:class:`WindowsStage`): in the
+overlap of windows ``k`` and ``k + 1`` (frames ``a_(k+1) .. b_k - 1``) each frame is the linear
+cross-fade ``(1 - w) X_k + w X_(k+1)`` with ``w = (t - a_(k+1) + 1) / (overlap + 1)`` of the
+linear HDR (``hdr/``), the sharp frames (``frames/``, as floats before they are quantised) and the
+foreground's alpha mattes (``alpha/``); the preview is tonemapped once over the joined clip. Each
+window's own outputs for ``layercam render`` and ``edit`` (``checkpoint.pt``, ``atlases/``,
+``psf.json``) are published under ``windows/w00/``, ... and ``windows.json`` says which frames
+each window holds and how they are joined. The top of the run folder stays one set (the blend
+stage's folder, published as every run's).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import shutil
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from layercam.config import config_hash
+from layercam.errors import LayercamError
+from layercam.interrupts import reached
+from layercam.pipelines.runner import Context, Stage, run_stages, write_json
+
+# Frames that two neighbouring windows share and cross-fade over (fewer for windows under three
+# times this long: a third of the window). A join that moves each frame 1/(OVERLAP + 1) of the
+# way from one window's estimate to the other's changes a static pixel by an eighth of their
+# difference per frame, under the frame-to-frame flicker the clips measure (docs/notes/windows.md).
+# Rounded down to whole exposure cycles, so that both windows see each exposure of the overlap.
+OVERLAP = 8
+INDEX = "windows.json"
+FOLDER = "windows"  # RUN/windows/w00/: each window's checkpoint.pt, atlases/, psf.json
+PER_WINDOW = ("checkpoint.pt", "atlases", "psf.json")
+
+
+@dataclass
+class Plan:
+    """Frame ranges ``[a, b)`` of the windows (one range: a single model) and why."""
+
+    windows: list[tuple[int, int]]
+    reason: str
+    forced: bool = False
+    atlas_px: list[float] = field(default_factory=list)  # each window's atlas extent (px), when measured
+
+    @property
+    def count(self) -> int:
+        return len(self.windows)
+
+    def overlaps(self) -> list[int]:
+        return [self.windows[k][1] - self.windows[k + 1][0] for k in range(self.count - 1)]
+
+    def weights(self, t: int) -> list[tuple[int, float]]:
+        """``[(window, weight), ...]`` of frame ``t`` (one or two windows; weights sum to 1)."""
+        out = []
+        for k, (a, b) in enumerate(self.windows):
+            if not a <= t < b:
+                continue
+            w = 1.0
+            if k + 1 < self.count and t >= self.windows[k + 1][0]:  # fading out into the next
+                a2 = self.windows[k + 1][0]
+                w = 1.0 - (t - a2 + 1) / (b - a2 + 1)
+            if k > 0 and t < self.windows[k - 1][1]:  # fading in from the previous
+                b0 = self.windows[k - 1][1]
+                w = (t - a + 1) / (b0 - a + 1)
+            out.append((k, w))
+        return out
+
+    def holding(self, t: int) -> int:
+        """The window that holds frame ``t`` most (the later one at an even split)."""
+        return max(self.weights(t), key=lambda kw: (kw[1], kw[0]))[0]
+
+    def to_dict(self) -> dict:
+        return {"windows": [list(w) for w in self.windows], "overlaps": self.overlaps(), "reason": self.reason, "forced": self.forced}
+
+
+def overlap_for(length: int, cycle: int) -> int:
+    """The overlap of windows ``length`` frames long on a clip whose exposures repeat every
+    ``cycle`` frames: :data:`OVERLAP`, at most a third of the window, whole cycles where it can."""
+    v = min(OVERLAP, length // 3)
+    if v >= cycle:
+        v -= v % cycle
+    return max(v, 1)
+
+
+def exposure_cycle(exposures) -> int:
+    return int(len(np.unique(exposures.phase))) if exposures.phase is not None else 1
+
+
+def split(T: int, length: int, cycle: int = 1) -> list[tuple[int, int]]:
+    """``T`` frames as the fewest windows of at most ``length`` frames overlapping by
+    :func:`overlap_for`, their lengths within one frame of each other.
+
+    >>> split(96, 48)
+    [(0, 52), (44, 96)]
+    >>> split(14, 6, 2)
+    [(0, 6), (4, 10), (8, 14)]
+    >>> split(40, 48)
+    [(0, 40)]
+    """
+    if length >= T:
+        return [(0, T)]
+    v = overlap_for(length, cycle)
+    n = math.ceil((T - v) / (length - v))
+    total = T + (n - 1) * v
+    lengths = [total // n + (1 if k < total % n else 0) for k in range(n)]
+    out, a = [], 0
+    for k, n_k in enumerate(lengths):
+        out.append((a, a + n_k))
+        a += n_k - v
+    return out
+
+
+def atlas_px(homs: np.ndarray, a: int, b: int, hw: tuple[int, int]) -> float:
+    """How many frame pixels a model of frames ``a .. b - 1`` needs across its atlas for one cell
+    per pixel (what :func:`layercam.scene.layered.derived_sizes` sizes the atlas grid by): the frames mapped as the
+    bootstrap maps them (the pair homographies ``homs`` in frame pixels, ``t -> t + 1``, chained to
+    the middle frame; the identity where they move no corner by ``STATIC_CORNER_PX``), fitted into
+    the atlas (:func:`layercam.geometry.atlas_mappings`), measured by
+    :func:`layercam.geometry.atlas_pixels`; inf where the chain degenerates."""
+    from layercam.geometry import STATIC_CORNER_PX, atlas_mappings, atlas_pixels, chain_homographies, max_corner_shift, middle_frame
+
+    h, w = hw
+    with np.errstate(all="ignore"):
+        try:
+            maps = chain_homographies(np.asarray(homs[a:b - 1], np.float64), middle_frame(b - a))
+        except np.linalg.LinAlgError:
+            return float("inf")
+        if not np.isfinite(maps).all():
+            return float("inf")
+        c = np.array([[0, 0, 1], [w, 0, 1], [0, h, 1], [w, h, 1]], np.float64).T
+        if ((maps @ c)[:, 2] <= 1e-9).any():  # a corner behind the reference view: no plane holds the frames
+            return float("inf")
+        if max_corner_shift(maps, h, w) < STATIC_CORNER_PX:
+            maps = np.stack([np.eye(3)] * (b - a))
+        px = atlas_pixels(atlas_mappings(h, w, maps)[None], hw)
+    return px if np.isfinite(px) else float("inf")
+
+
+def plan(clip, exposures, flow: dict | None, task: str, window=None) -> Plan:
+    """The windows of a clip: ``window`` None (auto), 0 (off) or a length in frames.
+
+    Auto: a model holds the clip as long as its atlas does. The atlas grid's finest level has at
+    most ``GRID_RES_RANGE[1]`` cells across (:func:`layercam.scene.layered.derived_sizes` sizes it at one cell per frame
+    pixel over the frames' extent in the atlas, :func:`atlas_px`: the camera's motion). A clip
+    that needs more (a long pan) is cut into the longest windows that need no more, overlapping by
+    :func:`overlap_for` (a frame larger than the grid alone: as much as one frame needs; a window
+    never shorter than three overlaps). A static camera's clip fits at any length.
+    """
+    from layercam.flow import rescale_homographies
+    from layercam.scene.layered import GRID_RES_RANGE
+
+    GRID_MAX_RES = GRID_RES_RANGE[1]
+
+    T = clip.T
+    cycle = exposure_cycle(exposures)
+    if window is not None and int(window) == 0:
+        return Plan([(0, T)], "off (--window 0)", forced=True)
+    if task == "fuse-stack" or T < 2:
+        return Plan([(0, T)], "one model (a photo stack is one view)" if task == "fuse-stack" else "one model (one frame)")
+    if window is not None:
+        n = int(window)
+        if n < 3:
+            raise LayercamError(f"--window {n}: a window needs at least 3 frames (two windows share some of theirs)")
+        if n >= T:
+            return Plan([(0, T)], f"one model (--window {n} covers the clip's {T} frames)", forced=True)
+        w = split(T, n, cycle)
+        return Plan(w, f"forced (--window {n}): {len(w)} windows of {w[0][1] - w[0][0]} frames or fewer, overlapping by {overlap_for(n, cycle)}", forced=True)
+    if flow is None or "homs" not in flow or len(flow["homs"]) != T - 1:
+        return Plan([(0, T)], "one model (no flow measured)")
+    hw = (clip.H, clip.W)
+    work = tuple(flow["fw"].shape[1:3]) if "fw" in flow else hw
+    homs = rescale_homographies(flow["homs"], work, hw) if work != hw else np.asarray(flow["homs"], np.float64)
+    cap = max(float(GRID_MAX_RES), max(hw) / 0.9)  # geometry.atlas_mappings: a frame fills 0.9 of the atlas
+    whole = atlas_px(homs, 0, T, hw)
+    floor = 3 * OVERLAP
+    if whole <= cap or T < 2 * floor:
+        why = f"needs {whole:.0f} px across the atlas at one cell per pixel, within the {cap:.0f} it holds" if whole <= cap else \
+              f"needs {whole:.0f} px across the atlas, more than the {cap:.0f} it holds, but is shorter than two windows of {floor} frames"
+        return Plan([(0, T)], f"one model: the camera's motion over the {T} frames {why} (--window N cuts it)", atlas_px=[whole])
+    out, sizes, a = [], [], 0
+    while True:
+        b = a + 2
+        while b < T and atlas_px(homs, a, b + 1, hw) <= cap:
+            b += 1
+        b = min(max(b, a + floor), T)  # a camera too fast for the atlas: windows of the shortest length
+        if T - b < floor // 2 and b < T:  # what is left would be a sliver: this window takes it
+            b = T
+        out.append((a, b))
+        sizes.append(atlas_px(homs, a, b, hw))
+        if b >= T:
+            break
+        a = b - overlap_for(b - a, cycle)
+    if len(out) == 1:
+        return Plan(out, f"one model: the camera's motion over the {T} frames needs {whole:.0f} px across the atlas, more than the {cap:.0f} it holds, but less than two windows' worth (--window N cuts it)", atlas_px=sizes)
+    longest = max(b - a for a, b in out)
+    return Plan(out, f"{len(out)} windows of up to {longest} frames: the camera's motion over the {T} frames needs {whole:.0f} px across the atlas at one cell per pixel, "
+                f"more than the {cap:.0f} it holds ({GRID_MAX_RES} cells); each window's frames fit it (--window N or off overrides)", atlas_px=sizes)
+
+
+# -- one window --------------------------------------------------------------------------------------
+def sub_clip(clip, a: int, b: int):
+    from layercam.io.clip import Clip
+
+    meta = {k: (list(v)[a:b] if isinstance(v, (list, tuple)) and len(v) == clip.T else v) for k, v in clip.meta.items()}  # per frame: its slice
+    meta["notes"] = []  # said once, by the whole clip's run
+    meta["window"] = [a, b]
+    exif = None if clip.exif_exposures is None else list(clip.exif_exposures)[a:b]
+    frames = clip.frames.rows(a, b) if hasattr(clip.frames, "rows") else clip.frames[a:b]  # frames on disk: a view, nothing read
+    return Clip(frames, clip.source, list(clip.names)[a:b], clip.fps, clip.bit_depth, exif, meta)
+
+
+def sub_exposures(e, a: int, b: int):
+    from layercam.io import Exposures
+
+    return Exposures(e.log2_dt[a:b], e.learn, None if e.phase is None else e.phase[a:b], e.spec, e.reason, None if e.dt_seconds is None else e.dt_seconds[a:b])
+
+
+def sub_flow(flow: dict | None, T: int, a: int, b: int) -> dict | None:
+    """The whole clip's flow arrays for the pairs inside frames ``a .. b - 1``."""
+    if flow is None:
+        return None
+    return {k: (rows(v, a, b - 1) if hasattr(v, "__len__") and len(v) == T - 1 else v) for k, v in flow.items()}
+
+
+def rows(x, a: int, b: int):
+    """Rows ``a:b`` of an array: a view (of a :class:`~layercam.io.frames.DiskArray`: nothing read)."""
+    return x.rows(a, b) if hasattr(x, "rows") else np.asarray(x)[a:b]
+
+
+@dataclass
+class WindowSpec:
+    """What one window's run needs (picklable: a Ray task receives it)."""
+
+    index: int
+    a: int
+    b: int
+    run_dir: str
+    task: str
+    clip: object
+    exposures: object
+    cfg: object
+    resolved: object
+    masks: object
+    flow: dict | None
+    flow_key: str
+    flow_summary: dict
+    measures: dict
+    clip_levels: object
+    camera: dict | None = None
+    progress: bool = False
+    threads: int = 0  # torch threads in a task of its own (0: as the process has them)
+
+
+def window_dir(run_dir: Path, a: int, b: int) -> Path:
+    return Path(run_dir) / "cache" / "windows" / f"{a:05d}-{b:05d}"
+
+
+def specs(ctx: Context, p: Plan) -> list[WindowSpec]:
+    from layercam.pipelines.stages import ctx_clip_levels
+
+    T, lv = ctx.clip.T, ctx_clip_levels(ctx)
+    out = []
+    for k, (a, b) in enumerate(p.windows):
+        out.append(WindowSpec(
+            k, a, b, str(window_dir(ctx.run_dir, a, b)), ctx.task, sub_clip(ctx.clip, a, b), sub_exposures(ctx.exposures, a, b), ctx.cfg, ctx.resolved,
+            None if ctx.masks is None else rows(ctx.masks, a, b), sub_flow(ctx.flow, T, a, b),
+            config_hash({"flow": ctx.keys["flow"], "window": [a, b]})[:12], dict(ctx.results.get("flow", {})),
+            ctx.measures, lv, progress=ctx.progress,
+        ))
+    return out
+
+
+def run_window(spec: WindowSpec) -> dict:
+    """One window's stages (bootstrap, the refine option's, train, export) in its own folder;
+    returns what the joining stage and the report need (JSON-able)."""
+    from layercam.pipelines.export import ExportStage
+    from layercam.pipelines.stages import BootstrapStage, PrefitStage, RefineStage, TrainStage, refine_wanted
+    from layercam.pipelines.tasks import faded_foreground
+
+    if spec.threads:
+        import torch
+
+        torch.set_num_threads(spec.threads)
+    ctx = Context(run_dir=Path(spec.run_dir), clip=spec.clip, exposures=spec.exposures, cfg=spec.cfg, task=spec.task, masks=spec.masks,
+                  progress=spec.progress, measures=spec.measures, resolved=spec.resolved, flow=spec.flow)
+    ctx.camera = spec.camera
+    ctx.keys["flow"] = spec.flow_key
+    ctx.results["flow"] = dict(spec.flow_summary)
+    ctx.results["clip_levels"] = spec.clip_levels
+    ctx.say(f"[window {spec.index}] frames {spec.a}..{spec.b - 1} in {ctx.run_dir}")
+    run_stages(ctx, [BootstrapStage()])
+    if refine_wanted(ctx):
+        run_stages(ctx, [PrefitStage(), RefineStage()])
+    run_stages(ctx, [TrainStage(), ExportStage()])
+    faded = faded_foreground(ctx)
+    return {
+        "index": spec.index, "frames": [spec.a, spec.b], "folder": spec.run_dir,
+        "keys": dict(ctx.keys), "dirs": {k: str(v) for k, v in ctx.dirs.items()}, "times": ctx.times,
+        "train": ctx.results.get("train", {}), "export": {k: v for k, v in ctx.results.get("export", {}).items() if not k.endswith("_path")},
+        "warnings": list(ctx.warnings) + ([faded] if faded else []), "static": bool(ctx.results["bootstrap"].get("static")),
+    }
+
+
+# -- the shared camera ---------------------------------------------------------------------------------
+def camera_from(result: dict, learn: str) -> dict:
+    """Window 0's camera from its training's final checkpoint: the tone mapper's parameters and,
+    where the exposures are learned per phase, their offsets. ``key``: window 0's training."""
+    import torch
+
+    state = torch.load(Path(result["dirs"]["train"]) / "ckpt.pt", map_location="cpu", weights_only=False)["model"]
+    keep = {k: v for k, v in state.items() if k.startswith("tone.") or (learn == "ratio" and k == "exposure.delta")}
+    return {"state": keep, "key": result["keys"]["train"]}
+
+
+def hold_camera(model, camera: dict) -> None:
+    """``model``'s tone mapper (and learned exposure offsets) set to ``camera``'s and held fixed:
+    no gradient, and the terms that only shape the tone curve (white balance, monotonicity) off."""
+    missing = [k for k in camera["state"] if k not in model.state_dict()]
+    if missing:
+        raise LayercamError(f"the shared camera does not fit this window's model ({', '.join(missing[:3])})")
+    model.load_state_dict(camera["state"], strict=False)
+    for name, p in model.named_parameters():
+        if name in camera["state"]:
+            p.requires_grad_(False)
+    model.loss_weights.white_balance = 0.0
+    model.loss_weights.gradient = 0.0
+
+
+# -- all windows ----------------------------------------------------------------------------------------
+def run_all(ctx: Context, p: Plan, ray: str | None = None) -> list[dict]:
+    """Window 0, then the others (in sequence, or as Ray tasks with ``ray``), each with window 0's
+    camera. Returns each window's :func:`run_window` summary, in order."""
+    todo = specs(ctx, p)
+    runner = None
+    if ray:
+        from layercam import cluster
+
+        runner = cluster.Runner(ray, ctx.say)
+        ctx.results["ray"] = runner.describe
+        from layercam.io.frames import TempArray
+
+        for s in todo:
+            s.progress, s.threads = False, runner.threads
+            if isinstance(s.masks, TempArray):  # an unlinked file no other process can open: the window's masks sent as they are
+                s.masks = np.asarray(s.masks)
+    first = runner.map(run_window, todo[:1])[0] if runner else run_window(todo[0])
+    camera = camera_from(first, ctx.exposures.learn) if ctx.resolved.settings.model.tone_mapper == "learned" else None
+    for s in todo[1:]:
+        s.camera = camera
+    rest = runner.map(run_window, todo[1:]) if runner else [run_window(s) for s in todo[1:]]
+    return [first, *rest]
+
+
+def train_summary(results: list[dict]) -> dict:
+    """The report's ``train``: each window's, and their steps together."""
+    tr = [r["train"] for r in results]
+    return {"steps": int(sum(t.get("steps", 0) for t in tr)), "windows": tr, "final_loss": None, "resumed_from": [t.get("resumed_from") for t in tr]}
+
+
+# -- joining --------------------------------------------------------------------------------------------
+class WindowsStage(Stage):
+    """Joins the windows' outputs into the clip's (this module's docstring)."""
+
+    name = "windows"
+    deps = ("flow",)
+    version = 1
+
+    def __init__(self, plan: Plan | None = None, results: list[dict] | None = None):
+        self.plan, self.results = plan, results or []
+
+    def output_names(self, ctx):
+        from layercam.pipelines.export import TASK_WRITERS, WRITERS
+
+        names = [n for w in TASK_WRITERS.get(ctx.task, TASK_WRITERS["hdr-video"]) for n in WRITERS[w][1]]
+        return list(dict.fromkeys(names + ["alpha", "crf.json", "crf.png", FOLDER, INDEX]))
+
+    reads = ("export.half", "task")
+
+    def options(self, ctx):
+        return {"plan": self.plan.to_dict()["windows"], "exports": [r["keys"]["export"] for r in self.results]}
+
+    def run(self, ctx, out):
+        from layercam.pipelines.export import exposures_vary
+
+        p, res = self.plan, self.results
+        dirs = [Path(r["dirs"]["export"]) for r in res]
+        summary: dict = {"windows": p.count}
+        gains = self._gains(ctx, dirs)
+        if (dirs[0] / "hdr").is_dir() and ctx.task != "deblur-video":
+            summary.update(self._hdr(ctx, out, dirs, gains))
+        if ctx.task == "deblur-video":
+            summary.update(self._sharp(ctx, out, dirs, gains, exposures_vary(ctx)))
+        if (dirs[0] / "alpha").is_dir():
+            self._alpha(ctx, out, dirs)
+        for n in ("crf.json", "crf.png"):
+            if (dirs[0] / n).exists():
+                _link(dirs[0] / n, out / n)
+        for k, d in enumerate(dirs):
+            sub = out / FOLDER / f"w{k:02d}"
+            sub.mkdir(parents=True, exist_ok=True)
+            for n in PER_WINDOW:
+                if (d / n).exists():
+                    _link(d / n, sub / n)
+        write_json(out / INDEX, {
+            "frames": ctx.clip.T,
+            "windows": [{"index": k, "frames": list(p.windows[k]), "folder": f"{FOLDER}/w{k:02d}", "hdr_gain": gains[k]} for k in range(p.count)],
+            "overlaps": p.overlaps(), "reason": p.reason,
+            "camera": "learned by window 0, held fixed in the others" if ctx.resolved.settings.model.tone_mapper == "learned" else "the fixed sRGB curve",
+            "join": "linear cross-fade over each overlap: frame t of the overlap [a, b) of windows k and k+1 is (1 - w) x_k + w x_(k+1), w = (t - a + 1) / (b - a + 1), in linear HDR (hdr/), sharp frames (frames/) and alpha (alpha/)",
+        })
+        summary["hdr_gains"] = gains
+        return summary
+
+    def _gains(self, ctx, dirs: list[Path]) -> list[float]:
+        """Window ``k``'s HDR scale relative to window 0's. 1 where the camera is shared (given
+        exposures, or learned per phase: window 0's held in the others). Exposures learned per frame
+        fix each window's first frame instead, so a window's irradiance may differ from its
+        neighbour's by one factor: the median ratio over their overlap (chained from window 0)."""
+        gains = [1.0] * self.plan.count
+        if ctx.exposures.learn != "all" or not (dirs[0] / "hdr").is_dir():
+            return gains
+        from layercam.io import read_exr
+
+        for k in range(1, self.plan.count):
+            a, b = self.plan.windows[k][0], self.plan.windows[k - 1][1]
+            pa, pb = self.plan.windows[k - 1][0], a
+            r = []
+            for t in range(a, b):
+                x = read_exr(dirs[k - 1] / "hdr" / f"frame_{t - pa:05d}.exr")
+                y = read_exr(dirs[k] / "hdr" / f"frame_{t - pb:05d}.exr")
+                ok = (x > 0) & (y > 0)
+                r.append(np.log(x[ok] / y[ok]))
+            gains[k] = float(gains[k - 1] * np.exp(np.median(np.concatenate(r)))) if r else gains[k - 1]
+        return gains
+
+    def _frames(self, ctx, dirs, gains, read):
+        """Each frame of the clip joined: ``(t, sum_k w_k * gain_k * read(dir_k, t - a_k))``."""
+        for t in range(ctx.clip.T):
+            reached("windows", t)
+            acc = None
+            for k, w in self.plan.weights(t):
+                x = read(dirs[k], t - self.plan.windows[k][0]) * np.float32(w * gains[k])
+                acc = x if acc is None else acc + x
+            yield t, acc
+
+    def _hdr(self, ctx, out, dirs, gains) -> dict:
+        from layercam import render
+        from layercam.colour import REC709, luma
+        from layercam.io import VideoWriter, read_exr
+        from layercam.pipelines.export import FIRST_PASS_PIXELS, HALF_MAX, HdrSet, _fps
+
+        def read(d, i):
+            return read_exr(d / "hdr" / f"frame_{i:05d}.exr")
+
+        H, W = ctx.clip.H, ctx.clip.W
+        step = max(1, int(math.ceil(math.sqrt(H * W / FIRST_PASS_PIXELS))))
+        lum, peak = [], 0.0
+        for _, hdr in self._frames(ctx, dirs, gains, read):  # the preview's statistics over the joined clip
+            lum.append(luma(hdr[::step, ::step], REC709).ravel())
+            peak = max(peak, float(hdr.max()))
+        stats = render.display_stats(np.concatenate(lum))
+        exrs = HdrSet(ctx.resolved.settings.export.half and peak <= HALF_MAX, ctx.say)
+        (out / "hdr").mkdir(exist_ok=True)
+        with VideoWriter(out / "preview.mp4", fps=_fps(ctx)) as preview:
+            for t, hdr in self._frames(ctx, dirs, gains, read):
+                exrs.add(out / "hdr" / f"frame_{t:05d}.exr", hdr)
+                preview.add(render.tonemap_display(hdr, stats)[0])
+        return {"frames": ctx.clip.T, "hdr_min": exrs.lo, "hdr_max": exrs.hi, "exr": "half" if exrs.half else "float32", "display": stats}
+
+    def _sharp(self, ctx, out, dirs, gains, with_hdr: bool) -> dict:
+        from layercam.io import VideoWriter, read_exr, write_png
+        from layercam.pipelines.export import HdrSet, _bits, _fps
+
+        sharp = [np.load(d / "deblurred.npy", mmap_mode="r") for d in dirs]
+        T, hw = ctx.clip.T, (ctx.clip.H, ctx.clip.W)
+        (out / "frames").mkdir(exist_ok=True)
+        kept = np.lib.format.open_memmap(out / "deblurred.npy", mode="w+", dtype=np.float32, shape=(T, *hw, 3))
+        index = {d: k for k, d in enumerate(dirs)}
+        with VideoWriter(out / "deblurred.mp4", fps=_fps(ctx)) as video:
+            for t, ldr in self._frames(ctx, dirs, [1.0] * len(dirs), lambda d, i: np.asarray(sharp[index[d]][i], np.float32)):
+                ldr = np.clip(ldr, 0.0, 1.0)
+                write_png(out / "frames" / f"frame_{t:05d}.png", ldr, bit_depth=_bits(ctx))
+                kept[t] = ldr
+                video.add(ldr)
+        kept.flush()
+        del kept, sharp
+        res = {"frames": int(T), "hdr": with_hdr, "png_bits": _bits(ctx)}
+        if with_hdr:
+            exrs = HdrSet(ctx.resolved.settings.export.half, ctx.say)
+            (out / "hdr").mkdir(exist_ok=True)
+            for t, hdr in self._frames(ctx, dirs, gains, lambda d, i: read_exr(d / "hdr" / f"frame_{i:05d}.exr")):
+                exrs.add(out / "hdr" / f"frame_{t:05d}.exr", hdr)
+            res["hdr_max"] = exrs.hi
+        return res
+
+    def _alpha(self, ctx, out, dirs) -> None:
+        from layercam.io import read_image, write_png
+
+        (out / "alpha").mkdir(exist_ok=True)
+        for t, a in self._frames(ctx, dirs, [1.0] * len(dirs), lambda d, i: read_image(d / "alpha" / f"frame_{i:05d}.png")[..., 0]):
+            write_png(out / "alpha" / f"frame_{t:05d}.png", np.clip(a, 0.0, 1.0))
+
+    def load(self, ctx, out, summary):
+        p = out / "deblurred.npy"
+        return {**summary, **({"frames_path": str(p)} if p.exists() else {})}
+
+
+def _link(src: Path, dst: Path) -> None:
+    """``dst`` a hard-linked copy of ``src`` (file or folder; copies where links fail)."""
+    from layercam.pipelines.publish import _link_or_copy
+
+    if dst.is_dir():
+        shutil.rmtree(dst)
+    elif dst.exists():
+        dst.unlink()
+    if src.is_dir():
+        shutil.copytree(src, dst, copy_function=_link_or_copy)
+    else:
+        _link_or_copy(str(src), str(dst))
+
+
+# -- reading a windowed run (render, edit) -------------------------------------------------------------
+def read_index(run: Path) -> dict | None:
+    """A published run's ``windows.json`` (None for a run of one model)."""
+    p = Path(run) / INDEX
+    if not p.is_file():
+        return None
+    try:
+        return json.loads(p.read_text())
+    except (OSError, ValueError):
+        raise LayercamError(f"{p} is unreadable") from None
+
+
+def index_plan(index: dict) -> Plan:
+    return Plan([tuple(w["frames"]) for w in index["windows"]], index.get("reason", ""))
+
+
+def window_folders(run: Path, index: dict) -> list[Path]:
+    return [Path(run) / w["folder"] for w in index["windows"]]
+
+
+def index_gains(index: dict) -> list[float]:
+    """Each window's HDR scale relative to window 0's (``hdr_gain``: 1 where the camera is shared)."""
+    return [float(w.get("hdr_gain", 1.0)) for w in index["windows"]]
+
+
+def clip_reference(models, gains: list[float] | None = None) -> float:
+    """The clip's reference exposure over windows (each frame once), in window 0's scale: the
+    median of every frame's log2 exposure, as ``ExposureField.reference`` is for a single model.
+    A window whose irradiance is ``gain`` times window 0's sees its frames at ``log2 gain`` more."""
+    gains = gains or [1.0] * len(models)
+    vals = [m.exposure.values().detach().float().cpu().numpy() + np.log2(g) for m, g in zip(models, gains)]
+    return float(np.median(np.concatenate(vals)))

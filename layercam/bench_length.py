@@ -48,7 +48,7 @@ class MemorySampler:
 
     >>> with MemorySampler() as m:       # doctest: +SKIP
     ...     work()
-    >>> m.peak, m.peak_anon
+    >>> m.peak, m.peak_anon             # doctest: +SKIP
     """
 
     def __init__(self, every: float = 0.05):

@@ -137,6 +137,58 @@ def load_cfg(args):
     return load_config(args.preset, overrides + list(args.overrides))
 
 
+def open_clip(args, cfg, out: Path, task: str, resize=None, max_frames=None, stride: int = 1):
+    """The command's clip, decoded into the run folder's cache (``RUN/cache/frames-<key>/``, reused
+    when the same input is run again), once what can be checked without decoding it has been: the
+    run folder's ``outputs.json`` and foreign files (:mod:`layercam.pipelines.publish`), ``--ray``'s
+    package and what the run will cost (:mod:`layercam.engine.estimate`, from the input's header). One line
+    and nothing written when any of them refuses."""
+    from layercam.engine.estimate import check, disk_used, estimate
+    from layercam.io import load_clip, probe_clip
+    from layercam.pipelines import publish
+    from layercam.pipelines.export import outputs_for
+
+    if out.exists() and not out.is_dir():
+        raise LayercamError(f"output folder {out} is a file, not a folder")
+    if getattr(args, "ray", None):
+        from layercam.engine import cluster
+
+        cluster.available()
+    publish.check_folder(out, outputs_for(task))
+    inputs = args.inputs if len(args.inputs) > 1 else args.inputs[0]
+    info = probe_clip(inputs, max_frames=max_frames, stride=stride, resize=resize)
+    check(estimate(info, cfg, task), out, disk_used(out / "cache"))
+    return load_clip(inputs, max_frames=max_frames, stride=stride, resize=resize, cache=out / "cache")
+
+
+@contextlib.contextmanager
+def before_stages(out: Path):
+    """What a command does before its stages run (load the clip, read its exposures and masks):
+    when it fails, what it wrote is removed again: the frames it decoded into the cache, and the
+    run folder itself when it made it and nothing else is in it."""
+    import shutil
+
+    existed = out.exists()
+    try:
+        yield
+    except BaseException:
+        cache = out / "cache"
+        if cache.is_dir():
+            for p in cache.iterdir():
+                if p.name.startswith("frames-") and (p / ".made").exists():
+                    shutil.rmtree(p, ignore_errors=True)
+        if not existed:
+            for p in (cache, out):
+                with contextlib.suppress(OSError):
+                    p.rmdir()
+        raise
+    else:
+        cache = out / "cache"
+        if cache.is_dir():
+            for p in cache.glob("frames-*/.made"):
+                p.unlink(missing_ok=True)
+
+
 def default_out(inputs: list[str]) -> Path:
     first = Path(inputs[0])
     return Path("runs") / (first.stem if first.suffix else first.name or "run")

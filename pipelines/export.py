@@ -41,61 +41,9 @@ from layercam.core.interrupts import reached
 from layercam.pipelines.runner import Context, Stage, write_json
 from layercam.io.hdr_set import HALF_MAX, HdrSet, write_hdr_set
 from layercam.pipelines.view import VIEW_MIN_DB, view_check, view_sigma
+from layercam.pipelines.export_context import _bits, _fps, _frames, _sound, audio, exposures_vary, resolve_reference
 
 CHECKPOINT_NAME = "checkpoint.pt"
-
-
-def exposures_vary(ctx: Context) -> bool:
-    return ctx.exposures.count_distinct > 1 or ctx.exposures.learn != "none"
-
-
-def resolve_reference(ref, n: int) -> int:
-    """The image a stack is fused into (``export.reference``): "middle" (default,
-    :func:`layercam.core.geometry.middle_frame`), "first", "last" or an index (negative counts from the
-    end) among ``n`` images."""
-    from layercam.core.geometry import middle_frame
-
-    named = {"middle": middle_frame(n), "first": 0, "last": n - 1}
-    if isinstance(ref, str) and ref.strip().lower() in named:
-        return named[ref.strip().lower()]
-    try:
-        i = int(ref)
-    except (TypeError, ValueError):
-        raise LayercamError(f"reference must be middle, first, last or an image index, got {ref!r}") from None
-    if not -n <= i < n:
-        raise LayercamError(f"reference image {i} is out of range for {n} images")
-    return i % n
-
-
-def _frames(ctx: Context, desc: str = "export"):
-    from layercam.core.progress import bar
-
-    return bar(range(ctx.clip.T), desc=desc, unit="frame", enabled=ctx.progress)
-
-
-def _fps(ctx: Context) -> float:
-    return float(ctx.clip.fps or 24.0)
-
-
-def audio(ctx: Context) -> dict | None:
-    """The sound the run's videos carry over from the input (``clip.meta["audio"]``,
-    :func:`layercam.io.clip.audio_plan`); None without."""
-    return ctx.clip.meta.get("audio")
-
-
-def _sound(ctx: Context, video) -> dict:
-    """What became of the sound in ``video`` (a finished :class:`VideoWriter`), for the summary;
-    a sound that could not be kept is said."""
-    info = video.audio_info
-    if info and not info["kept"]:
-        ctx.warn(f"{video.path.name} is written without the input's sound: {info['why']}")
-    elif info and info["why"]:
-        ctx.say(f"[export] {video.path.name}: {info['why']}")
-    return {video.path.name: info}
-
-
-def _bits(ctx: Context) -> int:
-    return 16 if ctx.clip.bit_depth > 8 else 8
 
 
 # The preview's clip-wide tonemap statistics and the EXRs' type come from a first pass over every
@@ -103,6 +51,7 @@ def _bits(ctx: Context) -> int:
 # frame): the export then renders each frame once, writes it and lets it go, so that its memory
 # does not grow with the clip.
 FIRST_PASS_PIXELS = 65536
+FIRST_PASS_TOTAL = 64 * FIRST_PASS_PIXELS  # ... and at most this many over the clip (a longer clip: fewer a frame)
 
 
 def first_pass(ctx: Context, model) -> tuple[dict, float]:
@@ -113,7 +62,7 @@ def first_pass(ctx: Context, model) -> tuple[dict, float]:
     from layercam.core.colour import REC709, luma
 
     H, W = ctx.clip.H, ctx.clip.W
-    s = min(1.0, (FIRST_PASS_PIXELS / (H * W)) ** 0.5)
+    s = min(1.0, (min(FIRST_PASS_PIXELS, FIRST_PASS_TOTAL // ctx.clip.T) / (H * W)) ** 0.5)
     hw = (max(1, round(H * s)), max(1, round(W * s)))
     lum, peak = [], 0.0
     for t in _frames(ctx, "export (first pass)"):
@@ -152,6 +101,10 @@ def faithful_hdr(ctx: Context, model, ts) -> Iterator[tuple[int, np.ndarray, dic
     # different noise, flicker (docs/measurements.md)
     denoise = ctx.resolved.settings.export.denoise == "on"  # auto: a stack's fused view (layercam.engine.resolve)
 
+    from layercam.camera.faithful import stack_extremes
+
+    extremes = stack_extremes(frames, lv) if static else None  # once, a frame at a time (it was the whole clip, per frame)
+
     def corr(t: int) -> dict:
         if t not in kept:
             kept[t] = correction(model, frames[t], t, lv)
@@ -168,7 +121,7 @@ def faithful_hdr(ctx: Context, model, ts) -> Iterator[tuple[int, np.ndarray, dic
                 if merging:
                     still = np.zeros_like(fl) if static else fl  # a static camera: the same scene point, whatever the flow says
                     merge.append((c["model_log2_r"] + c["weight"] * c["delta"], merge_weight(c["exposed"], c["log2_dts"][n], c["log2_dts"]), still))
-        res = faithful_log2(model, frames[t], t, lv, frames if static else None, corr=corr(t), fill=neighbour_fill(neighbours), merge=merge, clipped=ctx.resolved.settings.export.clipped_everywhere, denoise=denoise)
+        res = faithful_log2(model, frames[t], t, lv, extremes if static else None, corr=corr(t), fill=neighbour_fill(neighbours), merge=merge, clipped=ctx.resolved.settings.export.clipped_everywhere, denoise=denoise)
         for k in [k for k in kept if k < t]:
             del kept[k]
         yield t, np.exp2(res["log2_r"]).astype(np.float32), res["info"]

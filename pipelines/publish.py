@@ -46,11 +46,15 @@ def read_manifest(run: Path) -> dict | None:
     """What the top of ``run`` holds: ``{"key", "names", "complete", ...}``; for a run folder of an
     earlier version (marked by ``export_key.txt``) its outputs as a complete set; None for none."""
     try:
-        return json.loads((run / MANIFEST).read_text())
+        m = json.loads((run / MANIFEST).read_text())
     except FileNotFoundError:
-        pass
+        m = None
     except (OSError, ValueError):
         raise LayercamError(f"{run / MANIFEST} is unreadable; move it away (the outputs it describes stay)") from None
+    else:
+        if not _manifest_ok(m):
+            raise LayercamError(f"{run / MANIFEST} is not a layercam outputs list (corrupt?); move it away (the outputs it describes stay)")
+        return m
     from layercam.pipelines.tasks import all_output_names
 
     names = [n for n in all_output_names() + [REPORT, LEGACY_KEY] if (run / n).exists()]
@@ -60,6 +64,17 @@ def read_manifest(run: Path) -> dict | None:
     if names and (run / "cache").is_dir():  # an earlier version's run, interrupted while exporting
         return {"key": "unmarked-" + time.strftime("%Y%m%d-%H%M%S"), "names": names, "complete": True}
     return None
+
+
+def _manifest_ok(m) -> bool:
+    """``m`` has the shape :func:`publish` writes: a dict with a text ``key``, a list of plain
+    names (no path separators, not ``..``) and, when present, a bool ``complete``."""
+    def plain(n) -> bool:
+        return isinstance(n, str) and n not in ("", ".", "..") and "/" not in n and "\\" not in n
+
+    if not isinstance(m, dict) or not plain(m.get("key")) or not isinstance(m.get("names"), list) or not all(plain(n) for n in m["names"]):
+        return False
+    return isinstance(m.get("complete", False), bool) and isinstance(m.get("stages", {}), dict)
 
 
 def check_folder(run: Path, names: list[str]) -> None:

@@ -44,7 +44,7 @@ class Context:
     train_callbacks: list = field(default_factory=list)  # model -> trainer callback, besides the model's own (the bench's probe)
     measures: dict | None = None    # what the analysis measured (layercam.vision.analyse.measure)
     resolved: Any = None            # the run's settings, resolved once after the flow (layercam.engine.resolve.Resolved)
-    flow: dict | None = None        # the flow stage's arrays (fw, bw, fw_ok, bw_ok, homs), read once
+    flow: dict | None = None        # the flow stage's arrays (fw, bw, fw_ok, bw_ok, vis: DiskArrays on disk; homs), opened once
     model: Any = None               # the trained model (layercam.scene.model.ImplicitCameraModel), built once
     camera: dict | None = None      # a long clip's window after the first: the camera it holds fixed (pipelines/windows.py)
     results: dict = field(default_factory=dict)
@@ -53,6 +53,7 @@ class Context:
     times: dict = field(default_factory=dict)
     log: list = field(default_factory=list)
     warnings: list = field(default_factory=list)
+    estimate: dict = field(default_factory=dict)  # what the run was estimated to cost (layercam.engine.estimate), before and after the analysis
 
     def say(self, msg: str) -> None:
         self.log.append(msg)
@@ -124,6 +125,9 @@ def input_key(ctx: Context) -> dict:
     }
 
 
+CURRENT = ["start"]  # the stage (or "analysis") running now: what a memory sampler files its readings under
+
+
 def run_stages(ctx: Context, stages: list[Stage]) -> Context:
     ensure_writable_dir(ctx.run_dir)
     cache = ensure_writable_dir(ctx.run_dir / "cache")
@@ -154,6 +158,7 @@ def run_stages(ctx: Context, stages: list[Stage]) -> Context:
                 distributed.barrier()
             continue
         t0 = time.perf_counter()
+        CURRENT[0] = st.name
         try:
             out.mkdir(parents=True, exist_ok=True)
             if main:

@@ -13,35 +13,25 @@ from layercam.pipelines.runner import Context, Stage
 
 class FlowStage(Stage):
     """Optical flow between neighbours, forward and backward, with consistency masks and the
-    per-pair global homography fitted to each forward flow (RANSAC)."""
+    per-pair global homography fitted to each forward flow (RANSAC). Computed a pair at a time and
+    kept on disk (:mod:`layercam.vision.flow_store`): memory is that of a pair, whatever the clip's length."""
 
     name = "flow"
     reads = ("flow",)
 
     def run(self, ctx, out):
-        from layercam.vision import flow, scale
+        from layercam.vision import flow_store
 
-        if ctx.clip.T < 2:
-            np.savez(out / "flow.npz", fw=np.zeros((0, ctx.clip.H, ctx.clip.W, 2), np.float16))
-            ctx.flow = None
-            return {"pairs": 0}
-        hw = (ctx.clip.H, ctx.clip.W)
-        work = scale.working_size(hw)
-        frames = ctx.clip.frames if work == hw else scale.resize_frames(ctx.clip.frames, work)
-        fw, bw = flow.compute_flow(frames, method=ctx.cfg.flow.method, progress=ctx.progress, weights_path=ctx.cfg.flow.raft_weights)
-        arrays = flow.pair_arrays(frames, fw, bw)  # homographies fitted only where both frames see well
-        fw_ok = arrays["fw_ok"]
-        # as cached: every array on the working grid (flows in its pixels); scale.at_frame_size scales them up
-        ctx.flow = {"fw": fw.astype(np.float16), "bw": bw.astype(np.float16), **arrays}
-        np.savez(out / "flow.npz", **ctx.flow)
-        mag = np.sqrt((fw.astype(np.float32) ** 2).sum(-1)) * (hw[1] / work[1])
-        return {"pairs": int(len(fw)), "working_size": list(work), "mean_flow_px": float(mag.mean()), "consistent_fraction": float(fw_ok.mean())}
+        summary = flow_store.compute(ctx.clip.frames, out, ctx.cfg.flow, progress=ctx.progress)
+        ctx.flow = flow_store.load(out)
+        return summary
 
     def load(self, ctx, out, summary):
-        """The cached arrays, read once into ``ctx.flow`` (None for a single frame)."""
+        """The cached arrays, opened once into ``ctx.flow`` (None for a single frame)."""
+        from layercam.vision import flow_store
+
         if ctx.flow is None and summary.get("pairs"):
-            with np.load(out / "flow.npz") as z:
-                ctx.flow = {k: z[k] for k in z.files}
+            ctx.flow = flow_store.load(out)
         return summary
 
 
@@ -56,16 +46,28 @@ class BootstrapStage(Stage):
     deps = ("flow",)
     reads = ("scene.bootstrap", "model.layers", "model.tone_mapper", "segment", "static")
 
+    def options(self, ctx):
+        """A long clip, or one larger than the flow's grid, is segmented in windows on that grid
+        (:func:`layercam.vision.segment.foreground_bootstrap_long`): their size (other clips keep their key)."""
+        from layercam.vision import segment
+
+        if ctx.resolved.settings.model.layers > 1 and ctx.flow is not None and segment.windowed(ctx.clip.T, (ctx.clip.H, ctx.clip.W), ctx.flow["fw"].shape[1:3]):
+            return {"windows": [segment.SEG_FRAMES, segment.SEG_MARGIN]}
+        return {}
+
     def run(self, ctx, out):
         from layercam.camera.tone import initial_log2
         from layercam.core.geometry import atlas_mappings, chain_homographies, middle_frame
 
         from layercam.vision.scale import at_frame_size
 
+        from layercam.vision import segment
+
         clip = ctx.clip
         T, H, W = clip.T, clip.H, clip.W
         r = ctx.resolved
-        fl = at_frame_size(ctx.flow, (H, W), None if r.settings.model.layers > 1 else ("homs",))  # the motion segmentation reads the flows too
+        long = r.settings.model.layers > 1 and ctx.flow is not None and segment.windowed(T, (H, W), ctx.flow["fw"].shape[1:3])  # on the flow's grid, in windows
+        fl = at_frame_size(ctx.flow, (H, W), None if r.settings.model.layers > 1 and not long else ("homs",))  # the motion segmentation reads the flows too
         ref = middle_frame(T)
         static = r.static  # the flow's chained homographies move no corner by STATIC_CORNER_PX (layercam.engine.resolve)
         if static:
@@ -83,13 +85,17 @@ class BootstrapStage(Stage):
         if cfg.segment.detector and (cfg.model.layers == 1 or ctx.masks is not None):
             ctx.say(f"[bootstrap] segment.detector unused: {'one layer, no foreground' if cfg.model.layers == 1 else '--masks given'}")
         if cfg.model.layers > 1:  # foreground: user masks, else motion segmentation of the flow
-            from layercam.vision import segment
-
-            fg = segment.foreground_bootstrap(clip.frames, fl, ctx.masks, cfg.segment, progress=ctx.progress)
+            if long:
+                fg = segment.foreground_bootstrap_long(clip.frames, ctx.flow, out, ctx.masks, cfg.segment, progress=ctx.progress)
+                if fg["computed"]:
+                    g = fg["info"]["grid"]
+                    ctx.say(f"[bootstrap] motion segmentation on the flow's {g[1]}x{g[0]} grid, in {fg['info']['windows']} window(s) of at most {segment.SEG_FRAMES} frames overlapping by {segment.SEG_MARGIN}")
+            else:
+                fg = segment.foreground_bootstrap(clip.frames, fl, ctx.masks, cfg.segment, progress=ctx.progress)
             h0.append(fg["h0"])
             if fg["computed"]:
                 segment.save_masks(out, fg["masks"])
-                ctx.say(f"[bootstrap] motion masks (no --masks given): mean coverage {fg['masks'].mean():.3f}, saved in {out / 'masks'}")
+                ctx.say(f"[bootstrap] motion masks (no --masks given): mean coverage {segment.mask_coverage(fg['masks']).mean():.3f}, saved in {out / 'masks'}")
                 if "detector_frames" in fg["info"]:
                     ctx.say(f"[bootstrap] the detector's instances replaced the motion masks in {fg['info']['detector_frames']} of {T} frames")
         h0 = np.stack(h0)
@@ -120,12 +126,19 @@ class TrainStage(Stage):
     final = True      # the run's model (ctx.model), probed by the benchmark's callbacks; not the refine option's first fit
 
     def options(self, ctx):
-        """Trained on the refine stage's masks, after its first fit: their key; a long clip's later
-        window: the key of window 0's camera, held fixed."""
-        d = {"refined_masks": ctx.keys["refine"]} if "refine" in ctx.keys else {}
+        """Trained on the refine stage's masks, after its first fit: their key; a long clip's alpha
+        grid with slices shared by neighbouring frames (:data:`layercam.scene.fields.ALPHA_GRID_CELLS`;
+        clips where it changes nothing keep their key); a long clip's later window: the key of
+        window 0's camera, held fixed."""
+        from layercam.scene.fields import ALPHA_GRID_CELLS, alpha_grid_capped
+
+        out = {"refined_masks": ctx.keys["refine"]} if "refine" in ctx.keys else {}
+        clip, cfg = getattr(ctx, "clip", None), ctx.resolved.settings
+        if clip is not None and cfg.model.layers > 1 and alpha_grid_capped(cfg.scene, clip.T, (clip.H, clip.W)):
+            out["alpha_grid_cells"] = ALPHA_GRID_CELLS
         if getattr(ctx, "camera", None) is not None:
-            d["camera"] = ctx.camera["key"]
-        return d
+            out["camera"] = ctx.camera["key"]
+        return out
 
     @staticmethod
     def masks(ctx):
@@ -260,7 +273,7 @@ class RefineStage(Stage):
         segment.save_masks(out, masks)
         boot = ctx.results["bootstrap"].get("masks")
         agree = float(np.mean([iou(a, b > 0.5) for a, b in zip(masks, boot)]))  # refine_wanted: the bootstrap made masks
-        ctx.say(f"[refine] masks from the first fit's background residual: mean coverage {masks.mean():.3f} (motion masks {boot.mean():.3f}, IoU with them {agree:.3f}), saved in {out / 'masks'}")
+        ctx.say(f"[refine] masks from the first fit's background residual: mean coverage {masks.mean():.3f} (motion masks {segment.mask_coverage(boot).mean():.3f}, IoU with them {agree:.3f}), saved in {out / 'masks'}")
         return {"coverage": float(masks.mean()), "iou_with_motion_masks": agree}
 
     def load(self, ctx, out, summary):

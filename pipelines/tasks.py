@@ -50,6 +50,7 @@ def run_task(task: str, clip, exposures, cfg, run_dir: Path, masks=None, progres
     ctx.say(f"layercam {task}: {clip.T} frames {clip.W}x{clip.H} from {clip.source}; preset {cfg.preset}")
     for w in list(getattr(exposures, "warnings", [])) + list(clip.meta.get("notes", [])):
         ctx.warn(w)
+    ctx.estimate["before"] = _estimate(ctx, cfg, "")  # refused here, before any stage, when it cannot fit
     stages = stages_for(task) + list(extra_stages or [])
     if ray:
         from layercam.engine import cluster
@@ -72,8 +73,11 @@ def _run(ctx: Context, stages: list, t0: float, window=None, ray: str | None = N
     try:
         # flow first: the analysis reads it to decide what the model needs
         run_stages(ctx, stages[:1])
+        from layercam.pipelines import runner
+
+        runner.CURRENT[0] = "analysis"
         ctx.measures = analyse.measure(clip, exposures, ctx.flow)
-        ctx.measures["masks_given"] = ctx.masks is not None and bool(np.asarray(ctx.masks).any())
+        ctx.measures["masks_given"] = ctx.masks is not None and any(np.asarray(m).any() for m in ctx.masks)
         ctx.resolved = resolve(cfg, clip, exposures, task, ctx.measures)
         plan = window_plan.plan(clip, exposures, ctx.flow, task, window)
         if task != "fuse-stack" and len(stages) == 4 and not ctx.train_callbacks:  # not for a stack, nor a scored run (demo, bench)
@@ -81,6 +85,7 @@ def _run(ctx: Context, stages: list, t0: float, window=None, ray: str | None = N
         if ray and plan.count == 1:
             ctx.say("[ray] one model for the whole clip: it trains here (--ray distributes a long clip's windows)")
         ctx.say("model chosen:\n" + format_table(ctx.resolved, plan.count))
+        ctx.estimate["after_analysis"] = _estimate(ctx, ctx.resolved, " (the model chosen)", plan)
         if plan.count > 1:  # a long clip: windows of the stages below, then joined
             results = windows.run_all(ctx, plan, ray)
             for r in results:
@@ -117,6 +122,22 @@ def _run(ctx: Context, stages: list, t0: float, window=None, ray: str | None = N
         (ctx.run_dir / "report_failed.json").unlink(missing_ok=True)
 
 
+def _estimate(ctx: Context, cfg, what: str, plan=None) -> dict:
+    """:func:`layercam.engine.estimate.estimate` of this run with ``cfg`` (and the windows of ``plan``), said
+    in one line and checked against the memory available and the disk free (less what the run
+    folder's cache holds)."""
+    from layercam.engine import estimate as cost
+    from layercam.pipelines import runner
+
+    runner.CURRENT[0] = "estimate"
+    clip = ctx.clip
+    est = cost.estimate({"frames": clip.T, "width": clip.W, "height": clip.H, "bit_depth": clip.bit_depth}, cfg, ctx.task,
+                        windows=None if plan is None else plan.windows)
+    ctx.say(cost.summary_line(est) + what)
+    cost.check(est, ctx.run_dir, cost.disk_used(ctx.run_dir / "cache"))
+    return {k: est[k] for k in ("memory", "disk", "stages", "disk_parts", "assumed", "windows")} | {"params": int(sum(est["params"].values()))}
+
+
 FADED_SHARE = 0.25  # the foreground's alpha over less than this share of its masks' area: it lost the object
 FADED = "the foreground layer faded in training"  # how the warning begins (layercam edit repeats it)
 
@@ -134,7 +155,9 @@ def faded_foreground(ctx: Context) -> str | None:
     masks, source = TrainStage.masks(ctx)
     if share is None or masks is None:
         return None
-    ref = float(np.mean(np.asarray(masks) > 0.5))
+    from layercam.vision.segment import mask_coverage
+
+    ref = float(mask_coverage(masks).mean())  # a frame at a time (a long clip's masks are on disk)
     if ref <= 0 or share >= FADED_SHARE * ref:
         return None
     hint = "" if source == "given" else "; --masks gives masks"
@@ -164,9 +187,20 @@ def write_report(ctx: Context, wall: float, name: str | None = "report.json", ex
         "baselines": ctx.results.get("evaluate", {}).get("baselines"),
         "machine": {"python": platform.python_version(), "torch": torch.__version__, "threads": torch.get_num_threads(), "cpu": platform.processor() or platform.machine()},
         "cache_keys": ctx.keys,
+        "memory": {"estimate": ctx.estimate, "peak_rss_bytes": _peak_rss()},
         "warnings": ctx.warnings,
         **(extra or {}),
     }
     if name and distributed.is_main():  # with torch.distributed, rank 0 reports
         write_json(ctx.run_dir / name, rep)
     return rep
+
+
+def _peak_rss() -> int | None:
+    """This process's peak resident memory so far (bytes; ``ru_maxrss``), None where unknown."""
+    try:
+        import resource
+
+        return int(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss) * 1024
+    except (ImportError, OSError):
+        return None

@@ -1,5 +1,6 @@
 """Where a long clip is cut: the plan (how many windows, how long, how much overlap, and why), the
-window bounds, and a window's slice of the clip, its exposures and its flow."""
+window bounds, and a window's slice of the clip, its exposures and its flow (views of the files
+on disk, nothing read)."""
 
 from __future__ import annotations
 
@@ -191,7 +192,8 @@ def sub_clip(clip, a: int, b: int):
     meta["notes"] = []  # said once, by the whole clip's run
     meta["window"] = [a, b]
     exif = None if clip.exif_exposures is None else list(clip.exif_exposures)[a:b]
-    return Clip(clip.frames[a:b], clip.source, list(clip.names)[a:b], clip.fps, clip.bit_depth, exif, meta)
+    frames = clip.frames.rows(a, b) if hasattr(clip.frames, "rows") else clip.frames[a:b]  # frames on disk: a view, nothing read
+    return Clip(frames, clip.source, list(clip.names)[a:b], clip.fps, clip.bit_depth, exif, meta)
 
 
 def sub_exposures(e, a: int, b: int):
@@ -204,4 +206,9 @@ def sub_flow(flow: dict | None, T: int, a: int, b: int) -> dict | None:
     """The whole clip's flow arrays for the pairs inside frames ``a .. b - 1``."""
     if flow is None:
         return None
-    return {k: (v[a:b - 1] if hasattr(v, "__len__") and len(v) == T - 1 else v) for k, v in flow.items()}
+    return {k: (rows(v, a, b - 1) if hasattr(v, "__len__") and len(v) == T - 1 else v) for k, v in flow.items()}
+
+
+def rows(x, a: int, b: int):
+    """Rows ``a:b`` of an array: a view (of a :class:`~layercam.io.frames.DiskArray`: nothing read)."""
+    return x.rows(a, b) if hasattr(x, "rows") else np.asarray(x)[a:b]

@@ -36,7 +36,7 @@ from layercam.core.config import config_hash
 from layercam.core.errors import LayercamError
 from layercam.core.interrupts import reached
 from layercam.pipelines.runner import Context, Stage, run_stages, write_json
-from layercam.pipelines.window_plan import Plan, sub_clip, sub_exposures, sub_flow
+from layercam.pipelines.window_plan import Plan, rows, sub_clip, sub_exposures, sub_flow
 
 INDEX = "windows.json"
 FOLDER = "windows"  # RUN/windows/w00/: each window's checkpoint.pt, atlases/, psf.json
@@ -79,7 +79,7 @@ def specs(ctx: Context, p: Plan) -> list[WindowSpec]:
     for k, (a, b) in enumerate(p.windows):
         out.append(WindowSpec(
             k, a, b, str(window_dir(ctx.run_dir, a, b)), ctx.task, sub_clip(ctx.clip, a, b), sub_exposures(ctx.exposures, a, b), ctx.cfg, ctx.resolved,
-            None if ctx.masks is None else np.asarray(ctx.masks)[a:b], sub_flow(ctx.flow, T, a, b),
+            None if ctx.masks is None else rows(ctx.masks, a, b), sub_flow(ctx.flow, T, a, b),
             config_hash({"flow": ctx.keys["flow"], "window": [a, b]})[:12], dict(ctx.results.get("flow", {})),
             ctx.measures, lv, progress=ctx.progress,
         ))
@@ -153,8 +153,12 @@ def run_all(ctx: Context, p: Plan, ray: str | None = None) -> list[dict]:
 
         runner = cluster.Runner(ray, ctx.say)
         ctx.results["ray"] = runner.describe
+        from layercam.io.frames import TempArray
+
         for s in todo:
             s.progress, s.threads = False, runner.threads
+            if isinstance(s.masks, TempArray):  # an unlinked file no other process can open: the window's masks sent as they are
+                s.masks = np.asarray(s.masks)
     first = runner.map(run_window, todo[:1])[0] if runner else run_window(todo[0])
     camera = camera_from(first, ctx.exposures.learn) if ctx.resolved.settings.model.tone_mapper == "learned" else None
     for s in todo[1:]:
@@ -192,7 +196,7 @@ class WindowsStage(Stage):
         return {"plan": self.plan.to_dict()["windows"], "exports": [r["keys"]["export"] for r in self.results]}
 
     def run(self, ctx, out):
-        from layercam.pipelines.export import exposures_vary
+        from layercam.pipelines.export_context import exposures_vary
 
         p, res = self.plan, self.results
         dirs = [Path(r["dirs"]["export"]) for r in res]
@@ -259,7 +263,8 @@ class WindowsStage(Stage):
         from layercam.scene import render
         from layercam.core.colour import REC709, luma
         from layercam.io import VideoWriter, read_exr
-        from layercam.pipelines.export import FIRST_PASS_PIXELS, _fps
+        from layercam.pipelines.export import FIRST_PASS_PIXELS
+        from layercam.pipelines.export_context import _fps
         from layercam.io.hdr_set import HALF_MAX, HdrSet
 
         def read(d, i):
@@ -282,7 +287,7 @@ class WindowsStage(Stage):
 
     def _sharp(self, ctx, out, dirs, gains, with_hdr: bool) -> dict:
         from layercam.io import VideoWriter, read_exr, write_png
-        from layercam.pipelines.export import _bits, _fps
+        from layercam.pipelines.export_context import _bits, _fps
         from layercam.io.hdr_set import HdrSet
 
         sharp = [np.load(d / "deblurred.npy", mmap_mode="r") for d in dirs]

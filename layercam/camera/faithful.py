@@ -151,8 +151,8 @@ def unseen(model, z: np.ndarray, log2_dts, levels: np.ndarray, stack: np.ndarray
     point of the shortest of the exposures ``log2_dts`` or below the floor of the longest (no frame
     of the clip can have seen it), and ``bound (H, W, 3)``, what each side must keep to (the clip
     level of the shortest exposure above, the floor of the longest below). With ``stack (N, H, W,
-    3)``, the clip's frames registered into this view (a static scene), the test is on the data
-    instead: clipped, or at the floor, in every frame (a model that fits its floors loosely can
+    3)``, the clip's frames registered into this view (a static scene; or :func:`stack_extremes` of
+    them, computed once), the test is on the data instead: clipped, or at the floor, in every frame (a model that fits its floors loosely can
     stay above the longest exposure's floor where every frame is black)."""
     lo_dt, hi_dt = float(np.min(log2_dts)), float(np.max(log2_dts))
     z_clip = _levels(model, lo_dt, levels)[1]
@@ -160,9 +160,21 @@ def unseen(model, z: np.ndarray, log2_dts, levels: np.ndarray, stack: np.ndarray
     if stack is None:
         above, below = z >= z_clip, z <= z_floor
     else:
-        above, below = (stack >= levels).all(0), (stack <= FLOOR).all(0)
+        above, below = stack if isinstance(stack, tuple) else stack_extremes(stack, levels)
     bound = np.where(above, z_clip, np.where(below, z_floor, 0.0)).astype(np.float32)
     return above, below, bound
+
+
+def stack_extremes(stack, levels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(above, below)`` ``(H, W, 3)`` bool: where every frame of ``stack (N, H, W, 3)`` (read a
+    frame at a time) is clipped (at ``levels``), and where every one is at the floor. What
+    :func:`unseen` tests on a static scene; computed once, it may be passed as ``stack``."""
+    above = below = None
+    for f in stack:
+        f = np.asarray(f)
+        a, b = f >= levels, f <= FLOOR
+        above, below = (a, b) if above is None else (above & a, below & b)
+    return above, below
 
 
 def smooth_within(z: np.ndarray, mask: np.ndarray, sigma: float = UNSEEN_SIGMA) -> np.ndarray:

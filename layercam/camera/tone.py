@@ -108,12 +108,32 @@ def initial_log2(frames: np.ndarray, log2_dt: np.ndarray, tone: str, slope: floa
     kept within 0.02..0.98) of their value through the inverse of the starting tone curve (the
     fixed sRGB curve, or :func:`init_curve` with ``slope``), less each frame's ``log2_dt (T,)``."""
     dt = np.asarray(log2_dt, dtype=np.float32)
-    z = np.empty(frames.shape[:3], np.float32)
-    for t, f in enumerate(frames):  # a frame at a time: the temporaries of one frame, not of the clip
+    values, counts = [], []
+    for t, f in enumerate(frames):  # a frame at a time: its distinct values and their counts, not the clip's pixels
         c = np.clip(f.mean(-1), 0.02, 0.98)
         zt = np.log2(np.maximum(srgb_decode(c), 1e-6)) if tone == "fixed" else np.log(c / (1 - c)) / (slope * math.log(2))
-        z[t] = zt - dt[t]
-    return float(np.median(z))
+        v, k = np.unique((zt - dt[t]).astype(np.float32), return_counts=True)
+        values.append(v)
+        counts.append(k)
+        if len(values) > 64:  # merged now and then: an 8-bit frame has at most 766 distinct values
+            v, k = _merge(values, counts)
+            values, counts = [v], [k]
+    v, k = _merge(values, counts)
+    return float(_weighted_median(v, k))
+
+
+def _merge(values: list, counts: list) -> tuple[np.ndarray, np.ndarray]:
+    v, inv = np.unique(np.concatenate(values), return_inverse=True)
+    return v, np.bincount(inv, weights=np.concatenate(counts)).astype(np.int64)
+
+
+def _weighted_median(v: np.ndarray, k: np.ndarray) -> np.float32:
+    """``np.median`` of the float32 values ``v`` (sorted, distinct) each repeated ``k`` times."""
+    n = int(k.sum())
+    cum = np.cumsum(k)
+    lo = v[np.searchsorted(cum, (n - 1) // 2, side="right")]
+    hi = v[np.searchsorted(cum, n // 2, side="right")]
+    return np.mean(np.array([lo, hi], np.float32))
 
 
 def fit_init_curve(tone: ToneMapper, slope: float = INIT_SLOPE, steps: int = 300, seed: int = 0) -> float:

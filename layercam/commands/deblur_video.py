@@ -6,7 +6,7 @@ import argparse
 from pathlib import Path
 
 from layercam.core.presets import settings_help
-from layercam.cli import EPILOG, common_model_args, default_out, finish, input_args, load_cfg, window_args
+from layercam.cli import EPILOG, before_stages, common_model_args, default_out, finish, input_args, load_cfg, open_clip, window_args
 
 
 def register(sub) -> argparse.ArgumentParser:
@@ -31,17 +31,18 @@ def register(sub) -> argparse.ArgumentParser:
 
 def run(args) -> int:
     from layercam.core.errors import LayercamError
-    from layercam.io import load_clip, parse_exposures
+    from layercam.io import parse_exposures
     from layercam.io.masks import load_masks
     from layercam.pipelines.tasks import run_task
 
     cfg = load_cfg(args)
-    clip = load_clip(args.inputs if len(args.inputs) > 1 else args.inputs[0], max_frames=args.max_frames, stride=args.stride, resize=args.resize)
-    if clip.T < 2:
-        raise LayercamError("deblur-video needs at least 2 frames (the blur of one frame is explained by the others)")
-    exposures = parse_exposures(args.exposures, clip, args.ev_step, args.force_ev_step)
-    masks = load_masks(args.masks, clip) if args.masks else None
     out = Path(args.out) if args.out else default_out(args.inputs)
+    with before_stages(out):
+        clip = open_clip(args, cfg, out, "deblur-video", args.resize, args.max_frames, args.stride)
+        if clip.T < 2:
+            raise LayercamError("deblur-video needs at least 2 frames (the blur of one frame is explained by the others)")
+        exposures = parse_exposures(args.exposures, clip, args.ev_step, args.force_ev_step)
+        masks = load_masks(args.masks, clip) if args.masks else None
     ctx = run_task("deblur-video", clip, exposures, cfg, out, masks=masks, progress=not args.quiet, window=args.window, ray=args.ray)
     finish(ctx)
     return 0

@@ -58,19 +58,20 @@ def pick_exposures(spec: str, clip):
 
 def run(args) -> int:
     from layercam.core.errors import LayercamError
-    from layercam.io import load_clip
-    from layercam.pipelines.export import resolve_reference
+    from layercam.cli import before_stages, open_clip
+    from layercam.pipelines.export_context import resolve_reference
     from layercam.pipelines.tasks import run_task
 
     if args.reference is not None:
         args.overrides = [f"export.reference={args.reference}", *args.overrides]
     cfg = load_cfg(args)
-    clip = load_clip(args.inputs if len(args.inputs) > 1 else args.inputs[0], resize=args.resize)
-    if clip.T < 2:
-        raise LayercamError(f"fuse-stack needs at least 2 images, got {clip.T}")
-    resolve_reference(cfg.export.reference, clip.T)  # a bad --reference fails now, not after training
-    exposures = pick_exposures(args.exposures, clip)
     out = Path(args.out) if args.out else default_out(args.inputs)
+    with before_stages(out):
+        clip = open_clip(args, cfg, out, "fuse-stack", args.resize)
+        if clip.T < 2:
+            raise LayercamError(f"fuse-stack needs at least 2 images, got {clip.T}")
+        resolve_reference(cfg.export.reference, clip.T)  # a bad --reference fails now, not after training
+        exposures = pick_exposures(args.exposures, clip)
     ctx = run_task("fuse-stack", clip, exposures, cfg, out, progress=not args.quiet)
     finish(ctx)
     if not args.quiet:

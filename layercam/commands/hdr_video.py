@@ -5,9 +5,9 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from layercam.engine import distributed
 from layercam.core.presets import settings_help
-from layercam.cli import EPILOG, common_model_args, default_out, finish, input_args, load_cfg, number, window_args
+from layercam.engine import distributed
+from layercam.cli import EPILOG, before_stages, common_model_args, default_out, finish, input_args, load_cfg, number, open_clip, window_args
 
 
 def register(sub) -> argparse.ArgumentParser:
@@ -39,7 +39,7 @@ def hdr_overrides(args) -> list[str]:
 
 
 def run(args) -> int:
-    from layercam.io import load_clip, parse_exposures
+    from layercam.io import parse_exposures
     from layercam.io.masks import load_masks
     from layercam.pipelines.stages import device_of
     from layercam.pipelines.tasks import run_task
@@ -54,10 +54,11 @@ def run(args) -> int:
     if distributed.launch_requested(args):
         return distributed.launch(args, device)
     with distributed.session(device):  # joins the process group under torchrun, else nothing
-        clip = load_clip(args.inputs if len(args.inputs) > 1 else args.inputs[0], max_frames=args.max_frames, stride=args.stride, resize=args.resize)
-        exposures = parse_exposures(args.exposures, clip, args.ev_step, args.force_ev_step)
-        masks = load_masks(args.masks, clip) if args.masks else None
         out = Path(args.out) if args.out else default_out(args.inputs)
+        with before_stages(out):
+            clip = open_clip(args, cfg, out, "hdr-video", args.resize, args.max_frames, args.stride)
+            exposures = parse_exposures(args.exposures, clip, args.ev_step, args.force_ev_step)
+            masks = load_masks(args.masks, clip) if args.masks else None
         ctx = run_task("hdr-video", clip, exposures, cfg, out, masks=masks, progress=not args.quiet and distributed.is_main(), window=args.window, ray=args.ray)
         finish(ctx)
     return 0

@@ -53,7 +53,14 @@ def preset_names() -> list[str]:
 def _read_preset(name: str) -> dict:
     path = Path(name)
     if path.suffix == ".toml" and path.exists():
-        text = path.read_text()
+        if not path.is_file():
+            raise LayercamError(f"preset {name}: not a file (a preset is a name or a .toml file)")
+        try:
+            text = path.read_text(encoding="utf-8")
+        except UnicodeDecodeError:
+            raise LayercamError(f"preset {name}: not a text file (a preset is TOML)") from None
+        except OSError as e:
+            raise LayercamError(f"preset {name}: cannot read it ({e.strerror or e})") from None
     else:
         res = resources.files("layercam.configs").joinpath(f"{name}.toml")
         if not res.is_file():

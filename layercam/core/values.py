@@ -11,6 +11,8 @@ from typing import Any, Literal
 from layercam.core.errors import LayercamError
 
 
+INT_MAX = 2**31 - 1  # every integer setting fits a C int (OpenCV, torch's sizes and seeds): a larger one is refused
+
 def _alternatives(hint) -> list:
     """``int | Literal["auto"]`` -> ``[int, Literal["auto"]]``; a plain type -> ``[type]``."""
     if typing.get_origin(hint) in (typing.Union, types.UnionType):
@@ -89,6 +91,8 @@ def check_value(key: str, value: Any, hint, meta: dict | None = None) -> Any:
         raise LayercamError(f"{key}: expected {_describe(hint)}, got {value!r}")
     if isinstance(v, float) and not math.isfinite(v):
         raise LayercamError(f"{key}: must be a finite number, got {value!r}")
+    if isinstance(v, int) and not isinstance(v, bool) and abs(v) > INT_MAX:
+        raise LayercamError(f"{key}: must be an integer of at most {INT_MAX}, got {value!r}")
     if isinstance(v, (int, float)) and not isinstance(v, bool):
         lo, hi, above, below = meta.get("lo"), meta.get("hi"), meta.get("above"), meta.get("below")
         if lo is not None and v < lo:

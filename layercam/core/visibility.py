@@ -77,18 +77,21 @@ def clip_levels(frames: np.ndarray, min_share: float = 0.002, spike: float = 3.0
     least ``lowest``, at least ``min_share`` of the pixels reach it and it is a spike of the
     histogram (``spike`` times as frequent as each of the four code values below it); otherwise
     :data:`CLIP_LEVEL` (what 8-bit rounding keeps)."""
-    flat = np.asarray(frames).reshape(-1, 3)  # a view of a contiguous clip; histograms a block at a time, so that
-    hists = np.zeros((3, 256), np.int64)     # a 1080p clip's copies (once 5.6 GB for 48 frames) are never made whole
-    for i in range(0, len(flat), 1 << 20):
-        q = np.clip(np.round(flat[i : i + (1 << 20)].astype(np.float32) * 255), 0, 255).astype(np.uint8)
-        for c in range(3):
-            hists[c] += np.bincount(q[:, c], minlength=256)
+    hists = np.zeros((3, 256), np.int64)  # histograms a frame (and a block of it) at a time: no copy of the clip
+    count = 0
+    for frame in (frames if np.ndim(frames) == 4 else [frames]):
+        flat = np.asarray(frame).reshape(-1, 3)
+        count += len(flat)
+        for i in range(0, len(flat), 1 << 20):
+            q = np.clip(np.round(flat[i : i + (1 << 20)].astype(np.float32) * 255), 0, 255).astype(np.uint8)
+            for c in range(3):
+                hists[c] += np.bincount(q[:, c], minlength=256)
     out = np.full(3, CLIP_LEVEL, np.float32)
     for c in range(3):
         hist = hists[c]
         top = int(np.flatnonzero(hist).max())
         below = hist[max(top - 4, 0) : top]
-        if top >= lowest * 255 and hist[top] >= min_share * len(flat) and (below.size == 0 or hist[top] >= spike * below.max()):
+        if top >= lowest * 255 and hist[top] >= min_share * count and (below.size == 0 or hist[top] >= spike * below.max()):
             out[c] = min((top - 0.5) / 255, CLIP_LEVEL)
     return out
 

@@ -1,4 +1,5 @@
-"""Pixel sampling: random ``(x, y, t)`` with target colours and flow correspondences, all tensors."""
+"""Pixel sampling: random ``(x, y, t)`` with target colours and flow correspondences, all tensors,
+read pixel by pixel from where the clip is kept (memory or disk)."""
 
 from __future__ import annotations
 
@@ -17,57 +18,65 @@ def pixel_grid(h: int, w: int, device="cpu") -> torch.Tensor:
     return normalise_xy(xs.flatten(), ys.flatten(), w, h)
 
 
-def compact_frames(frames: np.ndarray) -> np.ndarray:
-    """Frames ``(T, H, W, 3)`` in ``[0, 1]`` as the sampler holds them: ``uint8`` when every value is
-    an 8-bit level (``k / 255`` to within float32 rounding), else ``float16`` (a quarter or half of
-    float32; converted one frame at a time, so no float32 copy of the clip is made)."""
-    if frames.dtype == np.uint8:
-        return frames
-    out = np.empty(frames.shape, np.uint8)
-    for t in range(frames.shape[0]):
-        q = np.rint(frames[t] * 255.0)
-        if np.abs(q / np.float32(255.0) - frames[t]).max(initial=0.0) > 1e-6:
-            return np.stack([f.astype(np.float16) for f in frames])
-        out[t] = q
-    return out
-
-
 PROBES = 256  # rows of a batch's "probe" draws
 PROBE_SEED = 104729  # their stream's seed, from the sampler's
 
 
-class PixelSampler:
-    """Holds a clip compactly and draws batches.
+def _host(a, kind: str):
+    """An array the sampler gathers from: a :class:`~layercam.io.frames.DiskArray` or an ndarray as
+    it is (no copy), anything else (a tensor, a list) as an ndarray."""
+    from layercam.io.frames import DiskArray
 
-    ``frames (T, H, W, 3)`` in ``[0, 1]`` (kept as uint8 or float16, :func:`compact_frames`);
-    ``fw``/``bw`` ``(T-1, h, w, 2)`` flows (pixels of their own grid, x-y order) and ``fw_ok``/
-    ``bw_ok`` ``(T-1, h, w)`` consistency masks, or None: ``h x w`` may be a working resolution
-    below the frames' (the flow is then read at the nearest flow pixel and scaled to frame pixels),
-    kept in float16. ``masks (T, H, W)`` optional foreground masks for alpha bootstrapping;
-    Every random number a training step uses comes from this sampler's two generators (pixels, and
-    a batch's ``probe`` draws for the model's regularisers), so their state is all a resume needs.
-    A batch is converted to float32; memory is that of the compact arrays, whatever the batch.
+    if a is None or isinstance(a, DiskArray) or isinstance(a, np.ndarray):
+        return a
+    if isinstance(a, torch.Tensor):
+        return a.detach().cpu().numpy()
+    arr = np.asarray(a)
+    if arr.dtype == object:
+        raise ValueError(f"{kind}: expected an array")
+    return arr
+
+
+class PixelSampler:
+    """Draws batches of pixels of a clip, reading only those pixels from where the clip is kept.
+
+    ``frames (T, H, W, 3)`` in ``[0, 1]``: a :class:`~layercam.io.frames.Frames` (a clip's frames,
+    in memory or on disk) or an ndarray; ``fw``/``bw`` ``(T-1, h, w, 2)`` flows (pixels of their
+    own grid, x-y order) and ``fw_ok``/``bw_ok`` ``(T-1, h, w)`` consistency masks, or None
+    (ndarrays or the flow stage's :class:`~layercam.io.frames.DiskArray`): ``h x w`` may be a
+    working resolution below the frames' (the flow is then read at the nearest flow pixel and
+    scaled to frame pixels). ``masks (T, H, W)`` optional foreground masks for alpha bootstrapping.
+    Pixels are drawn on ``device`` and read on the host (a gather through each file's memory map,
+    whose pages are given back at once), then moved to ``device`` as float32: memory is the batch's,
+    whatever the clip's length. Every random number a training step uses comes from this sampler's
+    two generators (pixels, and a batch's ``probe`` draws for the model's regularisers), so their
+    state is all a resume needs.
     """
 
-    def __init__(self, frames: np.ndarray, fw=None, bw=None, fw_ok=None, bw_ok=None, masks=None, device="cpu", seed: int = 0):
-        if frames.ndim != 4 or frames.shape[-1] != 3:
-            raise ValueError(f"frames must be (T, H, W, 3), got {frames.shape}")
+    def __init__(self, frames, fw=None, bw=None, fw_ok=None, bw_ok=None, masks=None, device="cpu", seed: int = 0):
+        from layercam.io.frames import Frames
+
+        if len(frames.shape) != 4 or frames.shape[-1] != 3:
+            raise ValueError(f"frames must be (T, H, W, 3), got {tuple(frames.shape)}")
         self.device = torch.device(device)
-        to = lambda a, dt: torch.as_tensor(np.ascontiguousarray(a), dtype=dt, device=self.device)  # noqa: E731
-        packed = compact_frames(frames)
-        self.frames = to(packed, torch.uint8 if packed.dtype == np.uint8 else torch.float16)
-        self.T, self.H, self.W = frames.shape[:3]
+        self.frames = frames if isinstance(frames, Frames) else Frames(_host(frames, "frames"))
+        self.T, self.H, self.W = (int(v) for v in frames.shape[:3])
         self.has_flow = fw is not None and self.T > 1 and len(fw) == self.T - 1
         if self.has_flow:
-            self.fw, self.bw = to(fw, torch.float16), to(bw, torch.float16)
-            self.fh, self.fwid = self.fw.shape[1:3]
-            self.fw_ok = to(fw_ok, torch.bool) if fw_ok is not None else torch.ones(self.fw.shape[:3], dtype=torch.bool, device=self.device)
-            self.bw_ok = to(bw_ok, torch.bool) if bw_ok is not None else torch.ones(self.bw.shape[:3], dtype=torch.bool, device=self.device)
-        self.masks = to(masks, torch.float16) if masks is not None else None
+            self.fw, self.bw = _host(fw, "fw"), _host(bw, "bw")
+            self.fh, self.fwid = (int(v) for v in self.fw.shape[1:3])
+            self.fw_ok, self.bw_ok = _host(fw_ok, "fw_ok"), _host(bw_ok, "bw_ok")
+        self.masks = _host(masks, "masks")
         # the generator lives where the data does, so that a batch is drawn without host transfers
         self.seed, self.draws = int(seed), 0
         self.gen = torch.Generator(device=self.device).manual_seed(self.seed)
         self.probe_gen = torch.Generator(device=self.device).manual_seed(self.seed + PROBE_SEED)
+
+    def _gather(self, a, *idx: torch.Tensor, dtype=torch.float32) -> torch.Tensor:
+        from layercam.io.frames import gather
+
+        host = [i.cpu().numpy() for i in idx]
+        return torch.from_numpy(np.ascontiguousarray(gather(a, *host))).to(device=self.device, dtype=dtype)
 
     def state_dict(self) -> dict:
         return {"gen": self.gen.get_state(), "probe_gen": self.probe_gen.get_state(), "seed": self.seed, "draws": self.draws}
@@ -88,8 +97,8 @@ class PixelSampler:
 
     def colours(self, t: torch.Tensor, y: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
         """Frame values at integer pixels -> ``(N, 3)`` float32 in ``[0, 1]``."""
-        v = self.frames[t, y, x]
-        return v.float() / 255.0 if v.dtype == torch.uint8 else v.float()
+        host = [i.cpu().numpy() for i in (t, y, x)]
+        return torch.from_numpy(np.ascontiguousarray(self.frames.gather(*host))).to(self.device)
 
     def flow_at(self, ti: torch.Tensor, y: torch.Tensor, x: torch.Tensor, forward: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Flow of pair ``ti`` at frame pixels ``(x, y)``, forward or backward: ``(N, 2)`` in frame
@@ -99,10 +108,12 @@ class PixelSampler:
         else:
             fy = ((y.float() + 0.5) * (self.fh / self.H)).long().clamp_(0, self.fh - 1)
             fx = ((x.float() + 0.5) * (self.fwid / self.W)).long().clamp_(0, self.fwid - 1)
-        f = torch.where(forward[:, None], self.fw[ti, fy, fx], self.bw[ti, fy, fx]).float()
+        f = torch.where(forward[:, None], self._gather(self.fw, ti, fy, fx), self._gather(self.bw, ti, fy, fx))
         if (self.fh, self.fwid) != (self.H, self.W):
             f = f * torch.tensor([self.W / self.fwid, self.H / self.fh], device=f.device)
-        return f, torch.where(forward, self.fw_ok[ti, fy, fx], self.bw_ok[ti, fy, fx])
+        if self.fw_ok is None:
+            return f, torch.ones(len(ti), dtype=torch.bool, device=f.device)
+        return f, torch.where(forward, self._gather(self.fw_ok, ti, fy, fx, dtype=torch.bool), self._gather(self.bw_ok, ti, fy, fx, dtype=torch.bool))
 
     def sample(self, n: int) -> dict:
         g = self.gen
@@ -117,7 +128,7 @@ class PixelSampler:
             "rgb": self.colours(t, y, x),
         }
         if self.masks is not None:
-            batch["mask"] = self.masks[t, y, x].float()
+            batch["mask"] = self._gather(self.masks, t, y, x)
         # uniform draws for the model's own regularisers (the tone mapper's monotonicity probe),
         # from a second stream saved with the first (a resumed run draws what an uninterrupted one
         # would); a stream of their own leaves the pixels drawn as they were before they existed

@@ -5,7 +5,8 @@ that need them, so importing this package costs only numpy.
 """
 
 from layercam.io.atomic import atomic_write, ensure_writable_dir
-from layercam.io.clip import Clip, load_clip
+from layercam.io.clip import Clip
+from layercam.io.decode import load_clip, probe_clip
 from layercam.io.exposure import Exposures, parse_exposures
 from layercam.io.exr import read_exr, write_exr
 from layercam.io.images import IMAGE_SUFFIXES, read_exif_exposure, read_image, write_png
@@ -14,6 +15,7 @@ from layercam.io.video import VIDEO_SUFFIXES, VideoWriter, read_video, write_vid
 __all__ = [
     "Clip",
     "load_clip",
+    "probe_clip",
     "Exposures",
     "parse_exposures",
     "read_image",

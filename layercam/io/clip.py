@@ -1,5 +1,8 @@
 """A clip: the frames of one input (video file, folder of images, list of images) as
-``(T,H,W,3)`` float32 RGB in [0,1], with per-frame names, fps, bit depth and EXIF exposures.
+``(T,H,W,3)`` RGB in [0,1] (:class:`layercam.io.frames.Frames`: stored compactly, in memory or in a
+file on disk, read as float32 a frame or a window at a time), with per-frame names, fps, bit depth
+and EXIF exposures. ``load_clip`` decodes frame by frame into a file (the run's cache, or an
+unlinked temporary file), so that no stage ever holds the whole clip.
 """
 
 from __future__ import annotations
@@ -14,10 +17,13 @@ from pathlib import Path
 import numpy as np
 
 from layercam.core.errors import LayercamError
-from layercam.io.images import IMAGE_SUFFIXES, read_exif_exposure, read_image
-from layercam.io.video import VIDEO_SUFFIXES, read_video
+from layercam.io.frames import Frames
+from layercam.io.images import IMAGE_SUFFIXES
+from layercam.io.video import VIDEO_SUFFIXES
 
-__all__ = ["Clip", "load_clip", "parse_resize", "natural_key"]
+__all__ = ["Clip", "parse_resize", "natural_key"]
+
+FRAMES_VERSION = 2  # the layout of a decoded clip in the cache (frames-<key>/frames.raw + clip.json)
 
 _EXIF_SUFFIXES = (".jpg", ".jpeg", ".tif", ".tiff")
 _GLOB_CHARS = re.compile(r"[*?\[]")
@@ -27,7 +33,12 @@ _GLOB_CHARS = re.compile(r"[*?\[]")
 class Clip:
     """Frames of one input and what is known about them.
 
-    frames: ``(T,H,W,3)`` float32 RGB in [0,1].
+    frames: ``(T,H,W,3)`` RGB in [0,1], a :class:`~layercam.io.frames.Frames`: ``frames[t]``
+        ``(H,W,3)`` and ``frames[t0:t1]`` ``(n,H,W,3)`` are float32 copies of those frames only,
+        ``for f in frames`` gives one frame at a time, ``frames.shape`` is ``(T,H,W,3)`` and
+        ``np.asarray(frames)`` is the whole clip in float32 (only for clips known to be short).
+        An ndarray given here is kept in memory as float32; ``load_clip`` stores the frames on
+        disk as uint8 (uint16 for 16-bit sources, float32 for float images).
     source: what the user passed (a path, or e.g. ``"synthetic:..."``).
     names: ``T`` per-frame stems (``"00000"`` for video frame 0, ``"IMG_2600"`` for images).
     fps: frames per second (24 when unknown, e.g. for image folders).
@@ -44,7 +55,7 @@ class Clip:
         videos written carry over, :func:`audio_plan`; None without).
     """
 
-    frames: np.ndarray
+    frames: Frames
     source: str
     names: list[str]
     fps: float = 24.0
@@ -53,14 +64,15 @@ class Clip:
     meta: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        f = np.asarray(self.frames)
-        if f.ndim != 4 or f.shape[3] != 3:
-            raise ValueError(f"Clip.frames must be (T,H,W,3), got shape {f.shape}")
+        if not isinstance(self.frames, Frames):
+            f = np.asarray(self.frames)
+            if f.ndim != 4 or f.shape[3] != 3:
+                raise ValueError(f"Clip.frames must be (T,H,W,3), got shape {f.shape}")
+            self.frames = Frames(f.astype(np.float32, copy=False))
+        f = self.frames
         if f.shape[0] < 1:
             raise ValueError("Clip needs at least one frame")
-        if f.dtype != np.float32:
-            f = f.astype(np.float32)
-        self.frames = f
+        self._fingerprint = self.meta.pop("_fingerprint", None) if isinstance(self.meta, dict) else None
         self.names = [str(n) for n in self.names]
         if len(self.names) != f.shape[0]:
             raise ValueError(f"Clip has {f.shape[0]} frames but {len(self.names)} names")
@@ -83,8 +95,11 @@ class Clip:
         return int(self.frames.shape[2])
 
     def fingerprint(self) -> str:
-        """SHA-1 hex of the shape and the float16-quantised frames: a cache key for this content."""
-        return fingerprint(self.frames)
+        """SHA-1 hex of the shape and the float16-quantised frames: a cache key for this content
+        (computed once: the frames do not change)."""
+        if self._fingerprint is None:
+            self._fingerprint = fingerprint(self.frames)
+        return self._fingerprint
 
     def __repr__(self) -> str:
         return (
@@ -246,102 +261,16 @@ def _unique_names(paths: list[Path]) -> list[str]:
     return names
 
 
-def load_clip(
-    inputs: str | os.PathLike | list,
-    max_frames: int | None = None,
-    stride: int = 1,
-    resize: str | float | None = None,
-) -> Clip:
-    """Load a video file, a folder of images or a list of image files as a ``Clip``.
-
-    inputs: video (mp4/mov/avi/mkv/...), folder (image files sorted naturally by name; other
-        files ignored), list of image paths (kept in the given order) or an unexpanded glob.
-    stride: keep every K-th frame; then max_frames keeps the first N of those.
-    resize: None, a factor (``0.5`` or ``"0.5"``) or ``"WxH"``; INTER_AREA when shrinking.
-    Images of differing sizes raise ``LayercamError`` naming the file unless resize is "WxH".
-    Every user-input problem raises ``LayercamError`` with a one-line message.
-    """
-    _check_count("stride", stride, 1)
-    _check_count("max_frames", max_frames, 1)
-    rs = parse_resize(resize)
-    kind, what = _expand_inputs(inputs)
-    source = os.fspath(inputs) if isinstance(inputs, (str, os.PathLike)) else ",".join(
-        os.fspath(p) for p in inputs
-    )
-
-    if kind == "video":
-        assert isinstance(what, Path)
-        u8, fps, info = read_video(what, max_frames=max_frames, stride=stride, with_info=True)
-        t, h, w, _ = u8.shape
-        tw, th = _target_size(rs, w, h)
-        frames = np.empty((t, th, tw, 3), np.float32)
-        for i in range(t):
-            frames[i] = _resize(u8[i].astype(np.float32) / 255.0, (tw, th))
-        idx = [i * stride for i in range(t)]
-        audio, notes = audio_plan(what, info, t, fps, stride, max_frames)
-        return Clip(
-            frames=frames,
-            source=source,
-            names=[f"{i:05d}" for i in idx],
-            fps=fps,
-            bit_depth=8,
-            exif_exposures=None,
-            meta={
-                "kind": "video",
-                "frame_indices": idx,
-                "n_source_frames": None,
-                "source_size": (w, h),
-                "video": info,
-                "primaries": primaries_of(info.get("primaries")),
-                "audio": audio,
-                "notes": notes,
-            },
-        )
-
-    assert isinstance(what, list)
-    all_paths = what
-    idx = list(range(0, len(all_paths), stride))
-    if max_frames is not None:
-        idx = idx[:max_frames]
-    paths = [all_paths[i] for i in idx]
-    frames, depths, alphas = None, [], []
-    size0 = None
-    target = None
-    for i, p in enumerate(paths):
-        img, depth, alpha = read_image(p, return_bit_depth=True, return_alpha=True)
-        if alpha is not None:
-            alphas.append(alpha)
-        h, w = img.shape[:2]
-        if size0 is None:
-            size0 = (w, h)
-            target = _target_size(rs, w, h)
-        elif (w, h) != size0 and not (rs is not None and rs[0] == "size"):
-            raise LayercamError(
-                f"{p.name} is {w}x{h} but {paths[0].name} is {size0[0]}x{size0[1]}; "
-                "give --resize WxH to bring all frames to one size"
-            )
-        if frames is None:  # filled frame by frame: no second copy of the clip (1080p x 48: 1.2 GB)
-            frames = np.empty((len(paths), target[1], target[0], 3), np.float32)
-        frames[i] = _resize(img, target)
-        depths.append(depth)
-    exif = [read_exif_exposure(p) if p.suffix.lower() in _EXIF_SUFFIXES else None for p in paths]
-    return Clip(
-        frames=frames,
-        source=source,
-        names=_unique_names(paths),
-        fps=24.0,
-        bit_depth=max(depths),
-        exif_exposures=exif,
-        meta={
-            "kind": "images",
-            "frame_indices": idx,
-            "n_source_frames": len(all_paths),
-            "source_size": size0,
-            "paths": [str(p) for p in paths],
-            "primaries": primaries_of(None),
-            "notes": [_alpha_note(alphas, len(paths))] if alphas else [],
-        },
-    )
+def _source_key(kind: str, what, stride: int, max_frames: int | None, rs) -> str:
+    """What names a decoded clip in the cache: the files (path, size, modification time), the
+    frames taken and the resize."""
+    files = [what] if kind == "video" else list(what)
+    ident = []
+    for p in files:
+        st = Path(p).stat()
+        ident.append([str(Path(p).resolve()), st.st_size, st.st_mtime_ns])
+    blob = repr((FRAMES_VERSION, kind, ident, stride, max_frames, rs)).encode()
+    return hashlib.sha1(blob).hexdigest()[:12]
 
 
 def primaries_of(tag: str | None) -> dict:

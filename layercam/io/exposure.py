@@ -25,6 +25,7 @@ from layercam.io.ev import _measure_phase_ev, _pair_diffs, _pairs_measured_per_p
 __all__ = ["Exposures", "parse_exposures", "measure_pair_ev", "parse_time"]
 
 _EV_MIN, _EV_MAX = 0.5, 12.0
+MAX_SPAN_EV = 120.0  # exposures of one clip at most this many stops apart: 2^120 and the scene's own range within float32 (2^128)
 
 
 @dataclass
@@ -57,6 +58,10 @@ class Exposures:
             self.phase = np.asarray(self.phase, dtype=np.int64).reshape(-1)
             if self.phase.shape != self.log2_dt.shape:
                 raise ValueError("phase and log2_dt must have the same length")
+        if self.log2_dt.size and not np.isfinite(self.log2_dt).all():
+            raise LayercamError(f"exposures ({self.spec}): an exposure is beyond the range of numbers (check the times or EVs given)")
+        if self.log2_dt.size and float(np.ptp(self.log2_dt)) > MAX_SPAN_EV:
+            raise LayercamError(f"exposures ({self.spec}) span {float(np.ptp(self.log2_dt)):.3g} stops; at most {MAX_SPAN_EV:g} are supported (check the times or EVs given)")
 
     @property
     def T(self) -> int:  # noqa: N802
@@ -81,11 +86,17 @@ class Exposures:
 
 
 def parse_time(tok: str) -> float:
-    """Parse an exposure time in seconds: ``0.01``, ``1/125``, ``2.5``. Raises ValueError."""
+    """Parse an exposure time in seconds: ``0.01``, ``1/125``, ``2.5``. Raises ValueError for
+    what is not a number; a time beyond float range reads as ``inf`` (``1e400/1``) or ``0.0``
+    (``1/1e400``), which the callers refuse as not a positive finite time."""
     tok = tok.strip().rstrip("s")
     if "/" in tok:
         num, den = tok.split("/", 1)
-        return float(Fraction(num.strip())) / float(Fraction(den.strip()))
+        q = Fraction(num.strip()) / Fraction(den.strip())  # exact: no overflow on the way
+        try:
+            return float(q)
+        except OverflowError:
+            return float("inf") if q > 0 else float("-inf")
     return float(tok)
 
 
@@ -259,7 +270,7 @@ def _read_time_file(path: Path, clip: Clip, spec: str) -> Exposures:
                 ) from None
             named.append((name, val))
         if not (np.isfinite(val) and val > 0):
-            raise LayercamError(f"{path.name} line {lineno}: exposure time must be positive, got {toks[0 if name is None else 1]}")
+            raise LayercamError(f"{path.name} line {lineno}: an exposure time must be a positive finite number of seconds, got {toks[0 if name is None else 1]}")
     if named and plain:
         raise LayercamError(f"{path.name} mixes lines with and without file names")
     if not named and not plain:

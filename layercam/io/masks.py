@@ -78,17 +78,31 @@ def load_masks(folder: str | os.PathLike, clip: Clip) -> np.ndarray:
     nearest neighbour; colour channels are combined (any non-zero channel); a pixel is foreground
     when its level is > 0.5 x the largest level over all the selected masks (0/1 and 0/255 masks
     alike; all-zero masks stay empty). Problems raise ``LayercamError`` with a one-line message.
+    For a clip kept on disk (``load_clip(..., cache=...)``: ``clip.meta["frames_cache"]``) the masks
+    are a uint8 :class:`~layercam.io.frames.DiskArray` of 0 and 1 in an unlinked file beside its
+    frames, read as needed: their memory does not grow with the clip.
     """
     import cv2
 
     paths = _select(list_masks(folder), clip, Path(folder).expanduser())
     h, w = clip.H, clip.W
+
+    def read(p):
+        m = _read_mask(p)
+        return cv2.resize(m, (w, h), interpolation=cv2.INTER_NEAREST) if m.shape != (h, w) else m
+
+    cache = (clip.meta or {}).get("frames_cache")
+    if cache:  # a clip kept on disk: its masks too, a mask read at a time (twice: the largest level first)
+        from layercam.io.frames import TempArray
+
+        peak = max(float(read(p).max()) for p in paths)
+        out = TempArray(np.uint8, (clip.T, h, w), cache)
+        for i, p in enumerate(paths):
+            out[i] = read(p) > 0.5 * peak if peak > 0 else 0
+        return out
     raw = np.empty((clip.T, h, w), np.float32)
     for i, p in enumerate(paths):
-        m = _read_mask(p)
-        if m.shape != (h, w):
-            m = cv2.resize(m, (w, h), interpolation=cv2.INTER_NEAREST)
-        raw[i] = m
+        raw[i] = read(p)
     peak = float(raw.max())
     if peak <= 0:
         return np.zeros_like(raw)

@@ -14,13 +14,14 @@ import re
 import subprocess
 import tempfile
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
 
 from layercam.core.errors import LayercamError
 
-__all__ = ["VideoWriter", "VIDEO_SUFFIXES", "read_video", "write_video", "mux_audio", "parse_header", "rate_text", "ffmpeg_exe"]
+__all__ = ["VideoWriter", "VIDEO_SUFFIXES", "iter_video", "probe_video", "read_video", "write_video", "mux_audio", "parse_header", "rate_text", "ffmpeg_exe"]
 
 VIDEO_SUFFIXES: tuple[str, ...] = (".mp4", ".mov", ".avi", ".mkv", ".m4v", ".webm", ".gif")
 
@@ -33,6 +34,9 @@ def _check_int(name: str, value, minimum: int) -> None:
 
 
 _OUT_STREAM = re.compile(r"Output #0.*?Stream #0:0.*?: Video: rawvideo[^\n]*?, (\d+)x(\d+)([^\n]*)", re.S)
+
+
+_DURATION = re.compile(r"Duration: (\d+):(\d+):([\d.]+)")
 
 
 def ffmpeg_exe() -> str:
@@ -100,19 +104,16 @@ def _last_line(text: str) -> str:
     return lines[-1][:160] if lines else "no output from ffmpeg"
 
 
-def read_video(
-    path: str | os.PathLike, max_frames: int | None = None, stride: int = 1, with_info: bool = False
-):
-    """Decode a video file into ``(frames, fps)`` (``(frames, fps, info)`` with ``with_info``).
-
-    ``frames`` is uint8 RGB ``(T, H, W, 3)``, at a constant rate ``fps``: a variable-rate input is
-    decoded at the rate ffmpeg guesses for it (its ``tbr``), repeating or dropping a frame where
-    the timing needs it, so that frame ``t`` is at ``t / fps`` seconds. ``stride`` keeps every K-th
-    frame (0, K, 2K, ...), then ``max_frames`` keeps the first N of those; decoding stops as soon
-    as N are collected. ``info``: :func:`parse_header` of the input. Raises ``LayercamError`` for a
-    missing, corrupt or non-video file, or one with no frames. Runs imageio-ffmpeg's bundled ffmpeg
-    binary directly (all pipes are closed on return).
-    """
+def iter_video(path: str | os.PathLike, max_frames: int | None = None, stride: int = 1, info: dict | None = None) -> Iterator[np.ndarray]:
+    """Decode a video file frame by frame: yields uint8 RGB ``(H, W, 3)`` frames, one in memory at
+    a time. ``stride`` keeps every K-th frame (0, K, 2K, ...), then ``max_frames`` keeps the first
+    N of those; decoding stops as soon as N are given. ``info``, when given, is filled before the
+    first frame with ``size`` ``(W, H)``, ``fps`` and ``frames`` (the stream's frame count from its
+    duration and rate, None when ffmpeg does not say) and ``header`` (:func:`parse_header` of the
+    input). The frames come at a constant rate ``fps``: a variable-rate input is decoded at the rate
+    ffmpeg guesses for it (its ``tbr``), repeating or dropping a frame where the timing needs it.
+    Raises ``LayercamError`` for a missing, corrupt or non-video file, or one with no frames. Runs
+    imageio-ffmpeg's bundled ffmpeg binary directly (all pipes are closed when the generator ends or is closed)."""
     if not isinstance(path, (str, os.PathLike)):
         raise TypeError(f"read_video expects a path, got {type(path).__name__}")
     _check_int("stride", stride, 1)
@@ -128,7 +129,7 @@ def read_video(
         ffmpeg_exe(), "-nostdin", "-hide_banner", "-nostats",
         "-i", str(p), "-map", "0:v:0", "-f", "rawvideo", "-pix_fmt", "rgb24", "-",
     ]  # fmt: skip
-    frames: list[np.ndarray] = []
+    given = 0
     # ffmpeg writes its log through the file description it inherits, whose offset it shares with
     # ours: seeking it to read would make ffmpeg overwrite the header we wait for (seen as a flaky
     # "not a video" on a loaded machine). So the log is written in append mode and read apart.
@@ -157,16 +158,20 @@ def read_video(
             fps = _ntsc(float(rate.group(1))) if rate else 24.0
             if not np.isfinite(fps) or fps <= 0:
                 fps = 24.0
-            info = parse_header(text)
+            if info is not None:
+                dur = _DURATION.search(text)
+                secs = int(dur.group(1)) * 3600 + int(dur.group(2)) * 60 + float(dur.group(3)) if dur else None
+                info.update(size=(w, h), fps=fps, frames=int(round(secs * fps)) if secs else None, header=parse_header(text))
             nbytes = w * h * 3
             assert proc.stdout is not None
             i = 0
-            while max_frames is None or len(frames) < max_frames:
+            while max_frames is None or given < max_frames:
                 buf = proc.stdout.read(nbytes)
                 if len(buf) < nbytes:
                     break  # end of stream (or a truncated last frame)
                 if i % stride == 0:
-                    frames.append(np.frombuffer(buf, dtype=np.uint8).reshape(h, w, 3))
+                    given += 1
+                    yield np.frombuffer(buf, dtype=np.uint8).reshape(h, w, 3)
                 i += 1
         finally:
             if proc.stdout is not None:
@@ -174,13 +179,35 @@ def read_video(
             if proc.poll() is None:
                 proc.kill()
             proc.wait()
-        if not frames:
+        if not given:
             log.seek(0)
             text = log.read().decode("utf-8", "replace")
             raise LayercamError(f"video {p} has no decodable frames ({_last_line(text)})")
+
+
+def probe_video(path: str | os.PathLike) -> dict:
+    """What :func:`iter_video` learns before the first frame, without decoding the clip:
+    ``{"size": (W, H), "fps": float, "frames": int | None, "header": dict}``."""
+    info: dict = {}
+    gen = iter_video(path, max_frames=1, info=info)
+    try:
+        next(gen)
+    finally:
+        gen.close()
+    return info
+
+
+def read_video(path: str | os.PathLike, max_frames: int | None = None, stride: int = 1, with_info: bool = False):
+    """Decode a video file into ``(frames, fps)`` (``(frames, fps, info)`` with ``with_info``):
+    ``frames`` uint8 RGB ``(T, H, W, 3)``, the whole clip in memory (:func:`iter_video` gives one
+    frame at a time), at a constant rate ``fps``; ``info``: :func:`parse_header` of the input.
+    ``stride`` and ``max_frames`` as there. Raises ``LayercamError`` for a missing, corrupt or
+    non-video file, or one with no frames."""
+    info: dict = {}
+    frames = np.stack(list(iter_video(path, max_frames, stride, info)), axis=0)
     if with_info:
-        return np.stack(frames, axis=0), fps, info
-    return np.stack(frames, axis=0), fps
+        return frames, info["fps"], info["header"]
+    return frames, info["fps"]
 
 
 def _to_uint8(frames: np.ndarray) -> np.ndarray:

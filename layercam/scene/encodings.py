@@ -172,17 +172,31 @@ class DenseGrid3D(nn.Module):
     Level ``l`` has ``res_l`` cells along x and y (geometric from ``max_res / 2^(levels-1)``, at
     least 4, to ``max_res``) and ``frames_l`` along t (from ``frames / 2^(levels-1)``, at least 2,
     to ``frames``): the coarse levels are shared by neighbouring frames, the finest holds one slice
-    per frame. Trilinear sampling (``align_corners=False``: frame ``t``'s slice of the finest level
-    sits at ``(2t + 1) / frames - 1``), borders clamp.
+    per frame. With ``max_cells``, the finest level holds at most that many cells: a long clip's
+    levels then have the slices of a clip of ``max_cells / max_res^2`` frames, each shared by
+    neighbouring frames (the parameters do not grow with the clip). Trilinear sampling (``align_corners=False``: frame ``t``'s slice of the
+    finest level sits at ``(2t + 1) / frames - 1``), borders clamp.
     """
 
-    def __init__(self, levels: int, max_res: int, frames: int, features: int = 2, init_std: float = 1e-2):
+    def __init__(self, levels: int, max_res: int, frames: int, features: int = 2, init_std: float = 1e-2, max_cells: int = 0):
         super().__init__()
         if levels < 1 or max_res < 2 or frames < 1:
             raise ValueError("DenseGrid3D: need levels >= 1, max_res >= 2 and frames >= 1")
+        if max_cells:  # a long clip: neighbouring frames share slices, the finest level holding at most max_cells cells
+            frames = min(frames, max(max_cells // max(max_res, 4) ** 2, 2))
         self.shapes = [(max(frames // 2 ** (levels - 1 - l), min(frames, 2)), max(max_res // 2 ** (levels - 1 - l), 4)) for l in range(levels)]
         self.grids = nn.ParameterList([nn.Parameter(torch.randn(1, features, d, r, r) * init_std) for d, r in self.shapes])
         self.out_dim = levels * features
+
+    def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs):
+        """A saved grid's slices are the ones it was trained with (a model saved before ``max_cells``
+        kept one slice per frame however long the clip): levels take the saved shapes."""
+        for i, g in enumerate(self.grids):
+            saved = state_dict.get(f"{prefix}grids.{i}")
+            if saved is not None and saved.shape != g.shape and saved.shape[:2] == g.shape[:2] and saved.shape[3:] == g.shape[3:]:
+                self.grids[i] = nn.Parameter(torch.empty_like(saved, device=g.device))
+                self.shapes[i] = (int(saved.shape[2]), int(saved.shape[3]))
+        super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
 
     def forward(self, xyt: torch.Tensor) -> torch.Tensor:
         if xyt.ndim != 2 or xyt.shape[1] != 3:

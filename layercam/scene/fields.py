@@ -113,13 +113,26 @@ class Deformation(nn.Module):
         return uv + self.residual_scale * torch.tanh(res)
 
 
+ALPHA_GRID_CELLS = 1 << 24  # cells of each alpha grid level at most (64 frames at 512 x 512; a longer clip's frames share slices)
+
+
+def alpha_grid_capped(cfg: SceneConfig, n_frames: int, frame_hw: tuple[int, int]) -> bool:
+    """Whether ``ALPHA_GRID_CELLS`` shapes the alpha grid of a clip of ``n_frames`` (its finest level,
+    :func:`layercam.scene.layered.derived_sizes`, over the frames)."""
+    from layercam.scene.layered import ALPHA_GRID_MAX
+
+    r = int(min(max(frame_hw), ALPHA_GRID_MAX))
+    return cfg.alpha_encoding == "grid" and n_frames * r * r > ALPHA_GRID_CELLS
+
+
 class AlphaField(nn.Module):
     """``(xy, t) -> alpha (N, 1)`` in ``(0, 1)``: foreground opacity of a two-layer scene.
 
     ``alpha_encoding`` "pe": an MLP of the positional encoding of ``(x, y, t)`` (smooth: with 6
     frequencies it cannot draw thin legs). "grid": the same MLP also reads multi-resolution
     dense ``(x, y, t)`` grids (:class:`DenseGrid3D`, ``ALPHA_GRID_LEVELS`` levels, the finest
-    ``res`` cells across and one slice per frame) that can follow the object's outline.
+    ``res`` cells across and one slice per frame, or per few frames in a clip long enough that the
+    level would hold more than ``ALPHA_GRID_CELLS``) that can follow the object's outline.
     """
 
     def __init__(self, cfg: SceneConfig, n_frames: int, res: int = 64):
@@ -131,7 +144,7 @@ class AlphaField(nn.Module):
         if cfg.alpha_encoding == "grid":
             if res < 2:
                 raise ValueError(f"the alpha grid needs at least 2 cells across, got {res}")
-            self.grid = DenseGrid3D(ALPHA_GRID_LEVELS, res, n_frames, ALPHA_GRID_FEATURES)
+            self.grid = DenseGrid3D(ALPHA_GRID_LEVELS, res, n_frames, ALPHA_GRID_FEATURES, max_cells=ALPHA_GRID_CELLS)
             width += self.grid.out_dim
         self.net = MLP(width, 1, ALPHA_WIDTH, ALPHA_DEPTH)
 

@@ -20,6 +20,7 @@ import numpy as np
 from layercam.core.config import AUTO, Config
 from layercam.core.geometry import STATIC_CORNER_PX
 from layercam.core.visibility import at_floor, clipped
+from layercam.vision.scale import ResizedFrames
 
 # thresholds of the rules (each documented where it is used)
 IND_MOTION_PX = 1.5          # residual flow (px) beyond which a pixel moves on its own
@@ -71,40 +72,76 @@ OFFSET_PER_SIGMA = 5.0       # max offset (px) per px of relative blur: the ener
 def _motion(frames: np.ndarray, flow: dict, frame_hw: tuple[int, int]) -> tuple[dict, np.ndarray]:
     """Global and independent motion from the flow stage's arrays, on what both frames see well;
     also the pixels that move on their own ``(T-1, H, W)`` bool."""
+    part, moving = _motion_part(frames, flow)
+    return _motion_summary([part], flow["homs"], tuple(np.shape(flow["fw"])[1:3]), frame_hw), moving
+
+
+def _motion_part(frames, flow: dict) -> tuple[dict, np.ndarray]:
+    """What :func:`_motion_summary` needs of the consecutive pairs of ``flow`` (``fw``, ``fw_ok``,
+    ``vis``, ``homs`` of these pairs; ``frames`` only without ``vis``)."""
     from layercam.vision.flow import residual_motion
     from layercam.core.visibility import pair_visible
 
-    fw = flow["fw"].astype(np.float32)
-    ok = flow["fw_ok"]
-    vis = flow["vis"] if "vis" in flow else pair_visible(frames, fw)
+    fw = np.asarray(flow["fw"]).astype(np.float32)
+    ok = np.asarray(flow["fw_ok"])
+    vis = np.asarray(flow["vis"]) if "vis" in flow else pair_visible(frames, fw)
     seen = vis & ok
     mag = np.sqrt((fw**2).sum(-1))
     share = seen.mean(axis=(1, 2))
-    m = {
-        "flow_consistent": float(ok.mean()),
-        "seen_well": float(share.mean()),
-        "global_motion_px": float(np.median(mag[seen])) if seen.any() else 0.0,  # nothing seen: no evidence of motion
-        "corner_shift_px": _corner_shift(flow["homs"], frames.shape[1:3], frame_hw),
-    }
-    res = residual_motion(fw, flow["homs"])
+    res = residual_motion(fw, np.asarray(flow["homs"])[: len(fw)])
     means = np.array([mag[t][seen[t]].mean() if seen[t].any() else 0.0 for t in range(len(fw))])
     moving = (res > IND_MOTION_PX + 0.05 * means[:, None, None]) & seen
+    from layercam.vision.motion import long_range_moving_share
+
+    return {"ok": float(ok.sum()), "pixels": ok.size, "share": share, "mag_seen": mag[seen], "frac": moving.mean(axis=(1, 2)),  # a share of the whole pair, as IND_MOTION_FRAC was measured
+            "long": long_range_moving_share(fw, seen, LONG_REACH, IND_MOTION_PX)}, moving  # followed through what both frames see well
+
+
+def _motion_summary(parts: list[dict], homs: np.ndarray, hw: tuple[int, int], frame_hw: tuple[int, int]) -> dict:
+    """The motion measures over the pairs of ``parts`` (:func:`_motion_part` of one or more runs of
+    consecutive pairs); the corner shift (frame pixels) from every pair's homography ``homs`` (on
+    the flow's grid ``hw``)."""
+    share = np.concatenate([p["share"] for p in parts])
+    mag_seen = np.concatenate([p["mag_seen"] for p in parts])
+    frac = np.concatenate([p["frac"] for p in parts])
+    long_share = np.concatenate([p["long"] for p in parts])
+    m = {
+        "flow_consistent": float(sum(p["ok"] for p in parts) / max(sum(p["pixels"] for p in parts), 1)),
+        "seen_well": float(share.mean()),
+        "global_motion_px": float(np.median(mag_seen)) if mag_seen.size else 0.0,  # nothing seen: no evidence of motion
+        "corner_shift_px": _corner_shift(homs, hw, frame_hw),
+    }
     evidence = share >= MIN_EVIDENCE
-    frac = moving.mean(axis=(1, 2))  # a share of the whole pair, as IND_MOTION_FRAC was measured
     lo, hi = IND_MOTION_FRAC
     m["motion_pairs_measured"] = int(evidence.sum())
     m["independent_motion_frac"] = float(np.median(frac[evidence])) if evidence.any() else 0.0
     fg = ((frac > lo) & (frac < hi))[evidence]
     m["independent_pairs"] = float(fg.mean()) if evidence.any() else 0.0
     m["moving_pairs"] = int(fg.sum())
-    from layercam.vision.motion import long_range_moving_share
-
-    share = long_range_moving_share(fw, seen, LONG_REACH, IND_MOTION_PX)  # followed through what both frames see well
-    fg_long = (share > lo) & (share < hi)
-    m["independent_frac_long"] = float(np.median(share)) if len(share) else 0.0
-    m["independent_pairs_long"] = float(fg_long.mean()) if len(share) else 0.0
+    fg_long = (long_share > lo) & (long_share < hi)
+    m["independent_frac_long"] = float(np.median(long_share)) if len(long_share) else 0.0
+    m["independent_pairs_long"] = float(fg_long.mean()) if len(long_share) else 0.0
     m["moving_pairs_long"] = int(fg_long.sum())
-    return m, moving
+    return m
+
+
+MOTION_PAIRS = 48   # a clip with more pairs than this has its motion measured on MOTION_WINDOWS runs of
+MOTION_WINDOWS = 3  # consecutive pairs spread evenly over it (as many pairs in all): the analysis's memory
+                    # and time are those of a 49-frame clip, whatever the clip's length
+
+
+def motion_windows(pairs: int) -> list[tuple[int, int]]:
+    """The runs ``[a, b)`` of consecutive pairs the motion is measured on: all of them for a clip of
+    at most ``MOTION_PAIRS`` pairs, else ``MOTION_WINDOWS`` runs of ``MOTION_PAIRS // MOTION_WINDOWS``
+    spread evenly from the first pair to the last.
+
+    >>> motion_windows(47), motion_windows(767)
+    ([(0, 47)], [(0, 16), (376, 392), (751, 767)])
+    """
+    if pairs <= MOTION_PAIRS:
+        return [(0, pairs)]
+    k = MOTION_PAIRS // MOTION_WINDOWS
+    return [(int(a), int(a) + k) for a in np.linspace(0, pairs - k, MOTION_WINDOWS).round()]
 
 
 def _corner_shift(homs: np.ndarray, hw: tuple[int, int], frame_hw: tuple[int, int]) -> float:
@@ -117,16 +154,21 @@ def _corner_shift(homs: np.ndarray, hw: tuple[int, int], frame_hw: tuple[int, in
     return round(max_corner_shift(chain_homographies(homs, middle_frame(len(homs) + 1)), *hw) * frame_hw[0] / hw[0], 3)
 
 
-def _blur(frames: np.ndarray, homs: np.ndarray | None, moving: np.ndarray | None) -> dict:
+def _blur(frames: np.ndarray, homs: np.ndarray | None, moving: np.ndarray | None, pairs=None) -> dict:
     """Relative blur between neighbours (:func:`layercam.vision.sharpness.pair_relative_blur`, leaving
     out the pixels that move on their own, ``moving (T-1, H, W)``: there the homography pairs
     different content): per pair the share of comparable tiles at least ``BLUR_SIGMA`` apart (a pair
     with fewer than ``MIN_TILES``, or than ``MIN_TILE_FRACTION`` of the median pair's, is not
-    measured); the largest share, and the 90th percentile of the tiles' relative blur in that pair."""
+    measured); the largest share, and the 90th percentile of the tiles' relative blur in that pair.
+    ``pairs``: the pairs that may be compared (those ``moving`` holds; default all), at most
+    ``MAX_BLUR_PAIRS`` of them evenly spread are."""
     from layercam.vision.sharpness import pair_relative_blur
 
-    n = len(frames) - 1
-    pairs = np.unique(np.linspace(0, n - 1, min(n, MAX_BLUR_PAIRS)).round().astype(int)) if n > 0 else []
+    if pairs is None:
+        pairs = np.arange(max(len(frames) - 1, 0))
+    pairs = np.asarray(pairs, int)
+    n = len(pairs)
+    pairs = pairs[np.unique(np.linspace(0, n - 1, min(n, MAX_BLUR_PAIRS)).round().astype(int))] if n > 0 else []
     per_pair = [np.abs(pair_relative_blur(frames[t], frames[t + 1], None if homs is None else homs[t], None if moving is None else moving[t])) for t in pairs]
     counts = [len(x) for x in per_pair if len(x) >= MIN_TILES]
     enough = max(MIN_TILES, MIN_TILE_FRACTION * float(np.median(counts))) if counts else MIN_TILES
@@ -145,9 +187,11 @@ def _blur(frames: np.ndarray, homs: np.ndarray | None, moving: np.ndarray | None
 def measure(clip, exposures, flow: dict | None) -> dict:
     """The numbers the decisions are made from. ``flow`` is the flow stage's arrays or None; the
     motion and blur are measured on the flow's grid (a working size for large frames,
-    :data:`layercam.vision.scale.WORKING_SHORT_SIDE`: there distances are in its pixels; the corner shift is in frame pixels)."""
+    :data:`layercam.vision.scale.WORKING_SHORT_SIDE`: there distances are in its pixels; the corner shift is in frame
+    pixels), on at most ``MOTION_PAIRS`` pairs (:func:`motion_windows`). Frames and flows are read a frame or
+    a window at a time."""
     frames = clip.frames
-    n = frames[..., 0].size
+    n = clip.T * clip.H * clip.W
     m: dict = {
         "frames": clip.T,
         "distinct_exposures": exposures.count_distinct,
@@ -155,17 +199,22 @@ def measure(clip, exposures, flow: dict | None) -> dict:
         "clipped_high": sum(int(clipped(f).any(-1).sum()) for f in frames) / n,  # a frame at a time
         "clipped_low": sum(int(at_floor(f).all(-1).sum()) for f in frames) / n,
     }
-    if flow is not None and len(flow.get("fw", ())) and tuple(flow["fw"].shape[1:3]) != frames.shape[1:3]:
-        from layercam.vision.scale import resize_frames
-
-        frames = resize_frames(frames, flow["fw"].shape[1:3])
     if flow is None or "fw" not in flow or len(flow["fw"]) == 0:
         m.update(global_motion_px=0.0, independent_motion_frac=0.0, independent_pairs=0.0, moving_pairs=0, flow_consistent=1.0, motion_pairs_measured=0)
         m.update(_blur(frames, None, None))
         return m
-    motion, moving = _motion(frames, flow, (clip.H, clip.W))
-    m.update(motion)
-    m.update(_blur(frames, flow["homs"], moving))
+    work = tuple(flow["fw"].shape[1:3])
+    small = ResizedFrames(frames, work)
+    parts, moving = [], {}
+    for a, b in motion_windows(len(flow["fw"])):
+        win = {k: flow[k][a:b] for k in ("fw", "fw_ok", "vis") if k in flow}
+        win["homs"] = np.asarray(flow["homs"])[a:b]
+        fr = np.stack([small[t] for t in range(a, b + 1)]) if "vis" not in flow else None
+        part, mov = _motion_part(fr, win)
+        parts.append(part)
+        moving.update({a + i: mov[i] for i in range(b - a)})
+    m.update(_motion_summary(parts, flow["homs"], work, (clip.H, clip.W)))
+    m.update(_blur(small, flow["homs"], moving, sorted(moving)))
     return m
 
 

@@ -169,19 +169,33 @@ def compute_flow(
         )
     fw = np.zeros((max(t - 1, 0), h, w, 2), np.float32)
     bw = np.zeros_like(fw)
-    if t < 2:
-        return fw, bw
+    for i, (a, b) in enumerate(_progress(dis_pairs(iter(f), method, normaliser), t - 1, progress, f"flow ({method})")):
+        fw[i], bw[i] = a, b
+    return fw, bw
+
+
+def dis_pairs(frames, method: str = "dis_medium", normaliser: str = "rank"):
+    """Forward and backward DIS flow of each pair of consecutive frames of the iterable ``frames``
+    (``(H,W,3)`` float in [0,1], read one at a time): yields ``(fw, bw)``, each ``(H,W,2)`` float32,
+    for pairs 0, 1, ... (what :func:`compute_flow` stacks; a stage that keeps them on disk
+    streams them)."""
+    if method not in FLOW_METHODS:
+        raise LayercamError(f"unknown flow method {method!r}; choose one of {', '.join(FLOW_METHODS)}")
+    it = iter(frames)
+    first = next(it, None)
+    if first is None:
+        return
+    f0 = _check_frame(first)
+    h, w = f0.shape[:2]
     dis = _dis(method, (h, w))
     # DIS refuses frames smaller than its patches: edge-pad tiny frames to _DIS_MIN, crop the flow
     ph, pw = max(_DIS_MIN - h, 0), max(_DIS_MIN - w, 0)
     pad = lambda g: np.pad(g, ((0, ph), (0, pw)), mode="edge") if ph or pw else g  # noqa: E731
-    prev = pad(normalise_for_flow(f[0], normaliser))
-    for i in _progress(range(t - 1), t - 1, progress, f"flow ({method})"):
-        nxt = pad(normalise_for_flow(f[i + 1], normaliser))
-        fw[i] = dis.calc(prev, nxt, None)[:h, :w]
-        bw[i] = dis.calc(nxt, prev, None)[:h, :w]
+    prev = pad(normalise_for_flow(f0, normaliser))
+    for frame in it:
+        nxt = pad(normalise_for_flow(frame, normaliser))
+        yield dis.calc(prev, nxt, None)[:h, :w], dis.calc(nxt, prev, None)[:h, :w]
         prev = nxt
-    return fw, bw
 
 
 # --------------------------------------------------------------------------------------------
@@ -241,47 +255,57 @@ def global_homographies(fw, grid: int = 32, thresh: float = 1.0, seed: int = 0, 
     """
     import cv2
 
-    f, _ = _check_pair(fw)
-    n, h, w = f.shape[:3]
+    if np.ndim(fw) != 4 or np.shape(fw)[3] != 2:
+        raise LayercamError(f"expected flows (T-1,H,W,2), got shape {np.shape(fw)}")
+    n = np.shape(fw)[0]
+    out = np.repeat(np.eye(3)[None], n, 0)
+    cv2.setRNGSeed(seed)
+    for i in range(n):  # a pair at a time (flows kept on disk are read pair by pair)
+        out[i] = pair_homography(np.asarray(fw[i], np.float32), None if mask is None else np.asarray(mask[i]), grid, thresh, min_points)
+    return out.astype(np.float64)
+
+
+def pair_homography(f: np.ndarray, mask: np.ndarray | None = None, grid: int = 32, thresh: float = 1.0, min_points: int = 24) -> np.ndarray:
+    """One pair's homography ``(3,3)`` for :func:`global_homographies` (which seeds OpenCV's RNG
+    once for all pairs: a caller fitting pairs as they come seeds it once too)."""
+    import cv2
+
+    h, w = f.shape[:2]
     lattice = []
     for g in (grid, 2 * grid):
         ys = np.linspace(0, h - 1, min(g, h)).round().astype(int)
         xs = np.linspace(0, w - 1, min(g, w)).round().astype(int)
         gy, gx = np.meshgrid(ys, xs, indexing="ij")
         lattice.append((gy.ravel(), gx.ravel()))
-    out = np.repeat(np.eye(3)[None], n, 0)
-    cv2.setRNGSeed(seed)
-    for i in range(n):
-        gy, gx = lattice[0]
-        if mask is not None:
-            my, mx = lattice[1]
-            keep = np.asarray(mask[i])[my, mx]
-            if keep.sum() < min_points:
-                continue  # identity
-            gy, gx = my[keep], mx[keep]
-        src = np.stack([gx, gy], -1).astype(np.float32)
-        d = f[i][gy, gx]
-        hm = None
-        if mask is not None and len(src) < 8 * min_points:
-            pass  # too few points to pin a homography down: identity or translation below
-        elif len(src) >= 4:
-            hm, _ = cv2.findHomography(src, src + d, cv2.RANSAC, thresh, maxIters=2000,
-                                       confidence=0.995)
-        shift = np.median(d, axis=0)
-        # the simplest model that explains nearly as many points (Occam): identity, translation,
-        # homography (RANSAC fits a zoom to the flow noise between two differently focused images)
-        explained = {"identity": int((np.linalg.norm(d, axis=1) < thresh).sum()), "translation": int((np.linalg.norm(d - shift, axis=1) < thresh).sum())}
-        if hm is not None and np.all(np.isfinite(hm)):
-            pts = np.concatenate([src, np.ones((len(src), 1), np.float32)], 1) @ hm.T
-            explained["homography"] = int((np.linalg.norm(pts[:, :2] / pts[:, 2:] - (src + d), axis=1) < thresh).sum())
-        best = max(explained.values())
-        kind = next(k for k in ("identity", "translation", "homography") if k in explained and explained[k] >= SIMPLER_SHARE * best) if best else "translation"
-        if kind != "homography":
-            hm = np.eye(3)
-            if kind == "translation":
-                hm[:2, 2] = shift
-        out[i] = hm / hm[2, 2]
-    return out.astype(np.float64)
+    gy, gx = lattice[0]
+    if mask is not None:
+        my, mx = lattice[1]
+        keep = np.asarray(mask)[my, mx]
+        if keep.sum() < min_points:
+            return np.eye(3)  # identity
+        gy, gx = my[keep], mx[keep]
+    src = np.stack([gx, gy], -1).astype(np.float32)
+    d = f[gy, gx]
+    hm = None
+    if mask is not None and len(src) < 8 * min_points:
+        pass  # too few points to pin a homography down: identity or translation below
+    elif len(src) >= 4:
+        hm, _ = cv2.findHomography(src, src + d, cv2.RANSAC, thresh, maxIters=2000,
+                                   confidence=0.995)
+    shift = np.median(d, axis=0)
+    # the simplest model that explains nearly as many points (Occam): identity, translation,
+    # homography (RANSAC fits a zoom to the flow noise between two differently focused images)
+    explained = {"identity": int((np.linalg.norm(d, axis=1) < thresh).sum()), "translation": int((np.linalg.norm(d - shift, axis=1) < thresh).sum())}
+    if hm is not None and np.all(np.isfinite(hm)):
+        pts = np.concatenate([src, np.ones((len(src), 1), np.float32)], 1) @ hm.T
+        explained["homography"] = int((np.linalg.norm(pts[:, :2] / pts[:, 2:] - (src + d), axis=1) < thresh).sum())
+    best = max(explained.values())
+    kind = next(k for k in ("identity", "translation", "homography") if k in explained and explained[k] >= SIMPLER_SHARE * best) if best else "translation"
+    if kind != "homography":
+        hm = np.eye(3)
+        if kind == "translation":
+            hm[:2, 2] = shift
+    return hm / hm[2, 2]
 
 
 def pair_arrays(frames, fw, bw) -> dict:
@@ -326,6 +350,9 @@ def residual_motion(fw, homographies) -> np.ndarray:
 # --------------------------------------------------------------------------------------------
 # Working resolution: flow of large frames is computed on smaller copies
 # --------------------------------------------------------------------------------------------
+
+
+                          # back scaled up: DIS's cost and memory grow with the pixels, its accuracy barely
 
 
                           # back scaled up: DIS's cost and memory grow with the pixels, its accuracy barely

@@ -25,16 +25,24 @@ def raft_flow(
     downloaded. Frames are normalised with ``normalise_for_flow`` (rank) and replicated to RGB,
     padded (replicate) to multiples of 8, at least 128.
     """
-    if not weights_path or not os.path.isfile(weights_path):
-        raise LayercamError(f"RAFT weights file not found: {weights_path!r}")
-    if variant not in (None, "small", "large"):
-        raise LayercamError(f"RAFT variant must be 'small' or 'large', got {variant!r}")
     f = _check_frames(frames)
     t, h, w = f.shape[:3]
     fw = np.zeros((max(t - 1, 0), h, w, 2), np.float32)
     bw = np.zeros_like(fw)
+    model = raft_model(weights_path, variant, device)
+    for i, (a, b) in enumerate(_progress(raft_pairs(iter(f), model, iters), t - 1, progress, "flow (raft)")):
+        fw[i], bw[i] = a, b
+    return fw, bw
+
+
+def raft_model(weights_path: str, variant: str | None = None, device: str | None = None):
+    """A torchvision RAFT (eval mode, on ``device``: CUDA when torch sees one by default) from a
+    local state dict (see :func:`raft_flow`); one-line ``LayercamError`` for a missing or wrong file."""
+    if not weights_path or not os.path.isfile(weights_path):
+        raise LayercamError(f"RAFT weights file not found: {weights_path!r}")
+    if variant not in (None, "small", "large"):
+        raise LayercamError(f"RAFT variant must be 'small' or 'large', got {variant!r}")
     import torch
-    import torch.nn.functional as F
     from torchvision.models.optical_flow import raft_large, raft_small
 
     try:
@@ -56,9 +64,21 @@ def raft_flow(
         raise LayercamError(f"{weights_path!r} is not a torchvision RAFT "
                             f"{variant or 'large/small'} state dict")
     dev = torch.device(device or ("cuda" if torch.cuda.is_available() else "cpu"))
-    model = model.eval().to(dev)
-    if t < 2:
-        return fw, bw
+    return model.eval().to(dev)
+
+
+def raft_pairs(frames, model, iters: int = 12):
+    """RAFT flow of each pair of consecutive frames of the iterable ``frames`` (read one at a
+    time): yields ``(fw, bw)`` ``(H,W,2)`` float32, as :func:`dis_pairs` does."""
+    import torch
+    import torch.nn.functional as F
+
+    it = iter(frames)
+    first = next(it, None)
+    if first is None:
+        return
+    h, w = np.asarray(first).shape[:2]
+    dev = next(model.parameters()).device
     # RAFT needs sides that are multiples of 8 and at least 128 (its correlation pyramid)
     ph, pw = max(128, h + (-h) % 8) - h, max(128, w + (-w) % 8) - w
 
@@ -68,11 +88,10 @@ def raft_flow(
         return F.pad(x, (0, pw, 0, ph), mode="replicate").to(dev)
 
     with torch.no_grad():
-        prev = prep(f[0])
-        for i in _progress(range(t - 1), t - 1, progress, "flow (raft)"):
-            nxt = prep(f[i + 1])
+        prev = prep(first)
+        for frame in it:
+            nxt = prep(frame)
             both = model(torch.cat([prev, nxt]), torch.cat([nxt, prev]), num_flow_updates=iters)[-1]
             both = both[:, :, :h, :w].permute(0, 2, 3, 1).cpu().numpy()
-            fw[i], bw[i] = both[0], both[1]
+            yield both[0], both[1]
             prev = nxt
-    return fw, bw

@@ -1,5 +1,6 @@
 """Flow at a working size: frames whose short side is longer than ``WORKING_SHORT_SIDE`` are flowed on
-scaled copies; flows, masks and homographies are carried back to the frame's size."""
+scaled copies; flows, masks and homographies are carried back to the frame's size (``at_frame_size``,
+or ``AtFrameSize``, read a pair at a time)."""
 
 from __future__ import annotations
 
@@ -92,3 +93,40 @@ def at_frame_size(fl: dict | None, hw: tuple[int, int], keys: tuple | None = Non
         elif k == "homs":
             out[k] = rescale_homographies(fl[k], work, hw)
     return out
+
+
+class AtFrameSize:
+    """The flow stage's flows ``(N, h, w, 2)`` or masks ``(N, h, w)`` (possibly on disk, at a
+    working size) read one pair at a time at the frames' size ``hw``: ``a[i]`` is
+    :func:`upsample_flow` (or :func:`upsample_mask`) of pair ``i``; ``shape`` and ``len`` as the
+    full-size array's."""
+
+    def __init__(self, a, hw: tuple[int, int]):
+        self.a, self.hw = a, (int(hw[0]), int(hw[1]))
+        self.flow = len(a.shape) == 4
+        self.shape = (len(a), *self.hw, *((2,) if self.flow else ()))
+
+    def __len__(self) -> int:
+        return self.shape[0]
+
+    def __getitem__(self, i: int) -> np.ndarray:
+        one = np.asarray(self.a[i : i + 1]) if isinstance(i, (int, np.integer)) else None
+        if one is None:
+            raise TypeError("AtFrameSize is read a pair at a time: a[i]")
+        return (upsample_flow(one, self.hw) if self.flow else upsample_mask(one, self.hw))[0]
+
+
+class ResizedFrames:
+    """Frames read one at a time at ``hw`` (area averaging, as :func:`resize_frames`)."""
+
+    def __init__(self, frames, hw: tuple[int, int]):
+        self.frames, self.hw, self.shape = frames, tuple(hw), (len(frames), *hw, 3)
+
+    def __len__(self) -> int:
+        return len(self.frames)
+
+    def __getitem__(self, t: int) -> np.ndarray:
+        import cv2
+
+        f = np.asarray(self.frames[t], np.float32)
+        return f if f.shape[:2] == self.hw else cv2.resize(f, (self.hw[1], self.hw[0]), interpolation=cv2.INTER_AREA)

@@ -108,6 +108,19 @@ CORPUS = [
     ("batch-missing-manifest", ["batch", "{tmp}/jobs.csv"], "jobs.csv"),
     ("batch-summary-is-a-folder", ["batch", "{manifest}", "--summary", "{tmp}"], "--summary"),  # item 11
     ("batch-summary-under-proc", ["batch", "{manifest}", "--summary", "/proc/layercam/summary.json"], "/proc/layercam"),  # item 11
+    # numbers out of range, sizes that cannot fit (issue 42): refused before any work
+    ("resize-huge", ["hdr-video", "{video}", "--resize", "100000x100000", "--out", "{fresh}"], "--resize"),
+    ("batch-huge", ["hdr-video", "{video}", "--set", "train.batch=1e12", "--out", "{fresh}"], "train.batch"),
+    ("atlas-width-huge", ["hdr-video", "{video}", "--set", "scene.atlas_width=1000000000", "--out", "{fresh}"], "scene.atlas_width"),
+    ("grid-features-huge", ["hdr-video", "{video}", "--set", "scene.grid_features=1000000000", "--out", "{fresh}"], "scene.grid_features"),
+    ("deblur-resize-huge", ["deblur-video", "{video}", "--resize", "100000x100000", "--out", "{fresh}"], "--resize"),
+    ("fuse-resize-huge", ["fuse-stack", "{frames}", "--resize", "100000x100000", "--out", "{fresh}"], "--resize"),
+    ("seed-huge", ["hdr-video", "{video}", "--set", "train.seed=1e30", "--out", "{fresh}"], "train.seed"),
+    ("exposure-time-huge", ["hdr-video", "{video}", "--exposures", "{times_huge}", "--out", "{fresh}"], "1e400/1"),
+    ("exposure-time-tiny", ["hdr-video", "{video}", "--exposures", "{times_tiny}", "--out", "{fresh}"], "1/1e400"),
+    ("exposure-cycle-huge", ["hdr-video", "{video}", "--exposures", "0,1e300", "--out", "{fresh}"], "1e300"),
+    ("preset-binary", ["hdr-video", "{video}", "--preset", "{binary_toml}", "--out", "{fresh}"], "preset"),
+    ("preset-folder", ["hdr-video", "{video}", "--preset", "{folder_toml}", "--out", "{fresh}"], "preset"),
     # demo
     ("demo-frames-0", ["demo", "--frames", "0", "--out", "{fresh}"], "--frames"),
     ("demo-ev-step-inf", ["demo", "--ev-step", "inf", "--out", "{fresh}"], "--ev-step"),
@@ -149,13 +162,18 @@ def corpus(tmp_path_factory, tiny_frames):
     (tmp / "garbage.txt").write_text("garbage\n1/x\n")
     (tmp / "broken.toml").write_text("[train\nsteps = 3\n")
     (tmp / "file").write_text("a regular file\n")
+    (tmp / "times_huge.txt").write_text("1e400/1\n1/100\n1/100\n1/100\n")
+    (tmp / "times_tiny.txt").write_text("1/100\n1/1e400\n1/100\n1/100\n")
+    (tmp / "binary.toml").write_bytes(bytes(range(256)) * 8)
+    (tmp / "folder.toml").mkdir()
     (tmp / "same.png").write_bytes((run / "atlases" / "layer0.png").read_bytes())
     painted = cv2.imread(str(run / "atlases" / "layer0.png"), cv2.IMREAD_UNCHANGED)
     painted[:8, :8] = (255, 0, 0, 255)
     cv2.imwrite(str(tmp / "atlas.png"), painted)
     (tmp / "manifest.csv").write_text(f"hdr-video,{video},{tmp / 'batch_out'},--preset fast\n")
     paths.update(video=video, corrupt=tmp / "corrupt.mp4", empty=tmp / "empty", mixed=tmp / "mixed", times3=tmp / "times3.txt",
-                 garbage=tmp / "garbage.txt", badtoml=tmp / "broken.toml", file=tmp / "file", atlas=tmp / "atlas.png", same=tmp / "same.png", manifest=tmp / "manifest.csv")
+                 garbage=tmp / "garbage.txt", badtoml=tmp / "broken.toml", times_huge=tmp / "times_huge.txt", times_tiny=tmp / "times_tiny.txt",
+                 binary_toml=tmp / "binary.toml", folder_toml=tmp / "folder.toml", file=tmp / "file", atlas=tmp / "atlas.png", same=tmp / "same.png", manifest=tmp / "manifest.csv")
     return paths
 
 
@@ -168,7 +186,8 @@ def test_bad_input_is_one_line_and_changes_nothing(corpus, tmp_path, capsys, cas
     fresh = tmp_path / "fresh"
     argv = [a.format(fresh=fresh, **corpus) for a in argv]
     if argv[0] in ("hdr-video", "deblur-video", "fuse-stack", "demo"):
-        argv += ["--quiet", *(["--preset", "fast"] if "--preset" not in argv else []), *SETTINGS]
+        own = {a.split("=")[0] for a in argv if "=" in a}  # a setting the case sets is not overridden by the tiny ones
+        argv += ["--quiet", *(["--preset", "fast"] if "--preset" not in argv else []), *[a for s in TINY if s.split("=")[0] not in own for a in ("--set", s)]]
     before = _snapshot(corpus["run"])
     code = main(argv)
     out, err = capsys.readouterr()
@@ -210,3 +229,19 @@ def test_ev_step_against_the_frames(tiny_frames):
             parse_exposures("alt", clip, bad)
     forced = parse_exposures("alt", clip, 100, force_ev_step=True)
     assert forced.warnings and np.ptp(forced.log2_dt) == 100
+
+
+@pytest.mark.parametrize("text", ['{"key": "x"', "[]", "{}", "null", '{"key": 5, "names": 3}', '"abc"', '{"key": "../x", "names": []}'])
+def test_a_corrupt_outputs_json_is_refused_before_any_stage(corpus, tmp_path, capsys, text):
+    """A run folder whose outputs.json is not what layercam writes: one line, exit 2, before any
+    stage runs (once it was found only when publishing, after training), and nothing written."""
+    import shutil
+
+    run = tmp_path / "run"
+    shutil.copytree(corpus["run"], run)
+    (run / "outputs.json").write_text(text)
+    before = _snapshot(run)
+    code = main(["hdr-video", str(corpus["frames"]), "--ev-step", "3", "--out", str(run), "--quiet", "--preset", "fast", *SETTINGS, "--set", "train.seed=7"])
+    err = [ln for ln in capsys.readouterr().err.strip().splitlines() if not ln.startswith("warning: ")]  # the RGBA frames' note
+    assert code == 2 and len(err) == 1 and err[0].startswith("error: ") and "outputs.json" in err[0], err
+    assert _snapshot(run) == before

@@ -1,30 +1,43 @@
-"""The pixel sampler holds a clip compactly (8-bit frames as uint8, others as float16; flows in
-float16, possibly at a working resolution below the frames') and gives the values a float32 copy
-of everything would."""
+"""The pixel sampler reads a batch's pixels from where the clip is kept (frames in memory or on
+disk; flows in float16, possibly at a working resolution below the frames') and gives the values a
+float32 copy of everything would."""
 
 from __future__ import annotations
 
 import numpy as np
 import torch
 
-from layercam.engine.sampler import PixelSampler, compact_frames
+from layercam.engine.sampler import PixelSampler
 
 
-def test_8bit_frames_are_held_as_uint8_and_read_back_exactly():
+def test_8bit_frames_read_back_exactly():
     levels = (np.arange(256, dtype=np.float64) / 255.0).astype(np.float32)  # as the clip loaders make them
     frames = np.broadcast_to(levels[None, :, None, None], (2, 256, 4, 3)).copy()
     s = PixelSampler(frames)
-    assert s.frames.dtype == torch.uint8
     t = torch.zeros(256, dtype=torch.long)
     y = torch.arange(256)
     assert torch.equal(s.colours(t, y, torch.zeros_like(y)), torch.from_numpy(frames[0, :, 0]))
 
 
-def test_other_frames_are_held_as_float16():
-    frames = np.random.default_rng(0).random((2, 5, 6, 3), dtype=np.float32)
-    packed = compact_frames(frames)
-    assert packed.dtype == np.float16 and np.abs(packed - frames).max() < 1e-3
-    assert PixelSampler(frames).frames.dtype == torch.float16
+def test_frames_and_flow_on_disk_are_gathered_not_loaded(tmp_path):
+    """A clip kept on disk (uint8 frames, float16 flows) gives the values of its float32 copy, and
+    the sampler holds no copy of it."""
+    from layercam.io.frames import DiskArray, Frames
+
+    rng = np.random.default_rng(0)
+    u8 = rng.integers(0, 256, (3, 5, 6, 3), dtype=np.uint8)
+    raw = DiskArray.create(tmp_path / "f.raw", np.uint8, u8.shape)
+    raw[0:3] = u8
+    fw = DiskArray.create(tmp_path / "fw.raw", np.float16, (2, 5, 6, 2))
+    fw[0:2] = rng.normal(size=(2, 5, 6, 2))
+    frames = Frames(raw)
+    s = PixelSampler(frames, fw, fw)
+    assert s.frames is frames and s.fw is fw
+    t, y, x = torch.tensor([0, 2, 1]), torch.tensor([4, 0, 2]), torch.tensor([5, 1, 3])
+    assert torch.equal(s.colours(t, y, x), torch.from_numpy(u8[t, y, x].astype(np.float32) / np.float32(255)))
+    f, ok = s.flow_at(torch.tensor([0, 1, 1]), y, x, torch.ones(3, dtype=torch.bool))
+    assert torch.equal(f, torch.from_numpy(np.asarray(fw)[[0, 1, 1], y, x].astype(np.float32))) and ok.all()
+    assert s.sample(16)["rgb"].shape == (16, 3)
 
 
 def test_flow_at_a_working_resolution_is_read_in_frame_pixels():
@@ -35,7 +48,6 @@ def test_flow_at_a_working_resolution_is_read_in_frame_pixels():
     half = np.stack([0.25 * xx + 1.0, np.full_like(xx, -0.5)], -1)  # half-size pixels
     fw = np.stack([half] * (T - 1)).astype(np.float16)
     s = PixelSampler(frames, fw, -fw)
-    assert s.fw.dtype == torch.float16
     y = torch.tensor([0, 3, 7])
     x = torch.tensor([0, 5, 11])
     f, ok = s.flow_at(torch.zeros(3, dtype=torch.long), y, x, torch.ones(3, dtype=torch.bool))

@@ -78,7 +78,7 @@ def reference(tmp_path_factory, tiny_frames):
     return ref
 
 
-@pytest.mark.parametrize("where", ["train:30", "export:2", "atlas:1", "publish:2"])
+@pytest.mark.parametrize("where", ["decode:2", "flow:1", "train:30", "export:2", "atlas:1", "publish:2"])
 def test_sigkill_then_the_same_command_matches_an_uninterrupted_run(reference, tiny_frames, tmp_path, where):
     run = tmp_path / "run"
     _killed(tiny_frames, run, where)
@@ -86,6 +86,8 @@ def test_sigkill_then_the_same_command_matches_an_uninterrupted_run(reference, t
     if where == "publish:2":  # two names placed: the folder says which set and that it is not whole
         m = json.loads((run / "outputs.json").read_text())
         assert not m["complete"] and top.count("hdr") == 1
+    elif where == "decode:2":  # killed while decoding the frames: before the lock, a partial decode in the cache
+        assert top == ["cache"] and [p.name.startswith(".frames-") for p in (run / "cache").iterdir()] == [True], top
     else:  # nothing at the top but the cache and the lock the killed command held
         assert top == ["cache", "layercam.lock"], top
     if where == "train:30":
@@ -95,18 +97,22 @@ def test_sigkill_then_the_same_command_matches_an_uninterrupted_run(reference, t
         assert torch.load(ck, weights_only=False)["step"] == 20  # the last periodic checkpoint
     assert main(_argv(tiny_frames, run)) == 0
     _assert_same_outputs(run, reference)
+    assert not list((run / "cache").glob(".frames-*")), "the killed decode's partial folder was left"
     rep = json.loads((run / "report.json").read_text())
     if where == "train:30":
         assert rep["train"]["resumed_from"] == 20
     assert not list(run.glob(".publishing-*")) and not (run / "layercam.lock").exists()
 
 
-@pytest.mark.parametrize("where", ["train:30", "export:2"])
+@pytest.mark.parametrize("where", ["decode:2", "flow:1", "train:30", "export:2"])
 def test_ctrl_c_then_the_same_command_matches_an_uninterrupted_run(reference, tiny_frames, tmp_path, monkeypatch, capsys, where):
     run = tmp_path / "run"
     _ctrl_c(tiny_frames, run, where, monkeypatch)
     assert "interrupted: run the same command again" in capsys.readouterr().err
-    assert _top(run) == ["cache"]  # the lock is released, nothing half-written at the top
+    if where == "decode:2":  # before any stage: the folder it made is gone again
+        assert not run.exists()
+    else:
+        assert _top(run) == ["cache"]  # the lock is released, nothing half-written at the top
     assert main(_argv(tiny_frames, run)) == 0
     _assert_same_outputs(run, reference)
     if where == "train:30":  # Ctrl-C saved a checkpoint at the step it stopped at

@@ -20,13 +20,14 @@ def object_motion(fw, masks, fw_ok=None, min_points: int = 12, seed: int = 0) ->
     pair's motion is the centroid shift instead."""
     import cv2
 
-    f = np.asarray(fw, dtype=np.float32)
-    n, h, w = f.shape[:3]
+    n, h, w = np.shape(fw)[:3]  # flows and masks read a pair at a time (they may be on disk)
     out = np.repeat(np.eye(3)[None], n, 0)
     cv2.setRNGSeed(seed)
     step = max(1, int(np.sqrt(h * w / 4000)))
+    nxt = np.asarray(masks[0]) if n else None
     for i in range(n):
-        sel = masks[i] > 0.5
+        cur, nxt = nxt, np.asarray(masks[i + 1])
+        sel = cur > 0.5
         if fw_ok is not None:
             ok = sel & np.asarray(fw_ok[i], bool)
             sel = ok if ok.sum() >= min_points else sel
@@ -34,7 +35,7 @@ def object_motion(fw, masks, fw_ok=None, min_points: int = 12, seed: int = 0) ->
         ys, xs = ys * step, xs * step
         if len(xs) < 3:
             continue
-        d = f[i][ys, xs]
+        d = np.asarray(fw[i], np.float32)[ys, xs]
         a = None
         if len(xs) >= min_points:
             src = np.stack([xs, ys], -1).astype(np.float32)
@@ -43,16 +44,18 @@ def object_motion(fw, masks, fw_ok=None, min_points: int = 12, seed: int = 0) ->
             out[i][:2, 2] = np.median(d, axis=0)
         else:
             out[i][:2] = a
-        nxt = masks[i + 1] > 0.5
-        if masks[i].sum() >= min_points and nxt.sum() >= min_points:
-            y0, x0 = np.nonzero(masks[i] > 0.5)
-            y1, x1 = np.nonzero(nxt)
+        if cur.sum() >= min_points and (nxt > 0.5).sum() >= min_points:
+            y0, x0 = np.nonzero(cur > 0.5)
+            y1, x1 = np.nonzero(nxt > 0.5)
             c0, c1 = np.array([x0.mean(), y0.mean()]), np.array([x1.mean(), y1.mean()])
             pred = out[i][:2, :2] @ c0 + out[i][:2, 2]
             if np.linalg.norm(pred - c1) > max(1.5, 0.15 * np.sqrt(len(x0))):
                 out[i] = np.eye(3)
                 out[i][:2, 2] = c1 - c0
     return out
+
+
+MAX_MAPPED_POINTS = 1 << 23  # foreground_mappings: mask pixels mapped into the atlas for its extent (every k-th beyond)
 
 
 def foreground_mappings(h: int, w: int, masks: np.ndarray, fw=None, fw_ok=None, margin: float = 0.6, how: str = "object") -> tuple[np.ndarray, str]:
@@ -66,15 +69,20 @@ def foreground_mappings(h: int, w: int, masks: np.ndarray, fw=None, fw_ok=None, 
     from layercam.core.geometry import atlas_mappings, chain_homographies, fit_into_atlas
 
     T = masks.shape[0]
-    if how == "identity" or fw is None or T < 2 or masks.sum() == 0:
+    if how == "identity" or fw is None or T < 2:
+        return atlas_mappings(h, w, np.stack([np.eye(3)] * T)), "identity"
+    area = np.array([np.count_nonzero(np.asarray(masks[t]) > 0.5) for t in range(T)])  # a frame at a time (masks may be on disk)
+    if area.sum() == 0:
         return atlas_mappings(h, w, np.stack([np.eye(3)] * T)), "identity"
     if how != "object":
         raise LayercamError(f"unknown foreground bootstrap {how!r} (object | identity)")
-    ref = int(np.argmax(masks.reshape(T, -1).sum(1)))
+    ref = int(np.argmax(area))
     pix = chain_homographies(object_motion(fw, masks, fw_ok), ref)
     pts = []
+    every = max(1, -(-int(area.sum()) // MAX_MAPPED_POINTS))  # the percentiles from at most this many points
     for t in range(T):
-        ys, xs = np.nonzero(masks[t] > 0.5)
+        ys, xs = np.nonzero(np.asarray(masks[t]) > 0.5)
+        ys, xs = ys[::every], xs[::every]
         if len(xs) == 0:
             continue
         p = pix[t] @ np.stack([xs + 0.5, ys + 0.5, np.ones_like(xs, dtype=np.float64)])

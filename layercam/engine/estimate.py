@@ -1,0 +1,283 @@
+"""What a run will cost, known before the work: peak memory and disk from the clip's size, the
+preset and the settings, and a one-line refusal of what cannot fit.
+
+:func:`estimate` takes the clip's size (``layercam.io.probe_clip``: a video's header, the first
+image) and a config; the model's ``auto`` choices not yet made by the analysis are taken at their
+costliest plausible value (two layers for a clip of more than one frame, the blur generator for
+deblur-video and fuse-stack, or the ``n`` given), so that what is said before the work is an upper
+bound of what the analysis can choose; the run says it again once the analysis has chosen
+(:func:`layercam.pipelines.tasks.run_task`). The model's parameters are counted exactly (the model is
+built on PyTorch's meta device: no memory); the working sets of the stages are per-pixel and
+per-sample costs measured on this project's runs (``docs/notes/longmem.md``), scaled by what each
+stage holds at once: a pair of frames (flow), at most ``analyse.MOTION_PAIRS`` pairs (analysis), a
+window of at most ``segment.SEG_FRAMES`` frames (two-layer bootstrap), the model, its optimiser and
+a batch (training), a frame and a render chunk (export). None of them grows with the clip's length
+except the alpha grid's slices up to ``scene.fields.ALPHA_GRID_CELLS``; the disk does.
+
+:func:`check` refuses (``LayercamError``, one line) an estimate above the memory available
+(``MemAvailable``) or the free disk of the run folder, naming the estimate, its largest part and
+what to change.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import shutil
+from pathlib import Path
+
+import numpy as np
+
+from layercam.core.errors import LayercamError
+
+# measured costs (bytes), see docs/notes/longmem.md: this process after its imports, and per pixel /
+# per sample of what each stage holds at once
+BASE = 700e6             # python, torch, OpenCV and layercam imported, a clip opened (VmRSS 680-700 MB on this machine)
+FLOW_PER_PX = 180.0      # per working-grid pixel of a pair: the two frames, flows, checks, DIS
+ANALYSIS_PER_PX = 28.0   # per working-grid pixel of each pair measured (flow in float32, residuals, chains)
+SEG_PER_PX = 72.0        # two layers: per pixel of the flow's grid of each frame of a segmentation window
+BOOT_PER_PX = 24.0       # one layer: per frame pixel (a frame and its temporaries)
+EXPORT_PER_PX = 1300.0   # per frame pixel: the faithful export's arrays for a frame and its two neighbours
+RENDER_PER_PX = 1600.0   # per pixel of a render chunk: the networks' layers, one at a time
+RENDER_CHUNK = 65536     # pixels rendered at once (layercam.scene.render)
+PARAM_BYTES = 24.0       # per model parameter in training: value, gradient, Adam's two moments, and a copy when saved
+ACT_PER_FLOAT = 21.0     # bytes of activations per float a sample carries through a network (autograd)
+
+
+def _fmt(b: float) -> str:
+    for unit, scale in (("TB", 1e12), ("GB", 1e9), ("MB", 1e6)):
+        if b >= scale or unit == "MB":
+            return f"{b / scale:.3g} {unit}"
+    return f"{b:.0f} B"
+
+
+def costliest(cfg, task: str, frames: int, hw: tuple[int, int] = (2, 2)):
+    """A copy of ``cfg`` with each model ``auto`` at its costliest plausible choice (see the module;
+    two layers need frames of 2 pixels or more across: a 1x1 clip is one layer)."""
+    from layercam.core.config import AUTO
+
+    c = cfg.copy()
+    m, b = c.model, c.blur
+    if m.layers == AUTO:
+        m.layers = 2 if frames > 1 and max(hw) > 1 else 1
+    if m.tone_mapper == AUTO:
+        m.tone_mapper = "learned"
+    if m.exposures == AUTO:
+        m.exposures = "learned"
+    if m.blur == AUTO:
+        m.blur = "on" if task in ("deblur-video", "fuse-stack") else "off"
+    if m.flow_loss == AUTO:
+        m.flow_loss = frames > 1
+    if b.n == AUTO:
+        b.n = 5 if m.blur == "on" else 3
+    if b.max_offset == AUTO:
+        b.max_offset = 5.0
+    return c
+
+
+def _resolved(cfg, task: str, frames: int, hw: tuple[int, int]):
+    """``cfg`` as the run's :class:`~layercam.engine.resolve.Resolved`: itself when resolved already (after
+    the analysis), else with its ``auto`` at their costliest (:func:`costliest`) and resolved for a
+    clip of ``frames`` frames of ``hw`` with nothing measured."""
+    from layercam.engine.resolve import Resolved, resolve
+
+    if isinstance(cfg, Resolved):
+        return cfg
+    return resolve(costliest(cfg, task, frames, hw), frames=frames, hw=hw, task=task)
+
+
+def _model_parts(r, frames: int, hw: tuple[int, int]) -> dict:
+    """Parameters by part of the model ``r`` (resolved) builds for ``frames`` frames of ``hw``,
+    counted on the meta device (its sizes derived from the identity mappings)."""
+    import torch
+
+    from layercam.engine.checkpoint import build_model
+    from layercam.core.geometry import atlas_mappings
+    from layercam.scene.layered import derived_sizes
+
+    T, (H, W) = frames, hw
+    h0 = np.stack([atlas_mappings(H, W, np.repeat(np.eye(3)[None], T, 0))] * int(r.settings.model.layers))
+    m = r.settings.model
+    sizes = derived_sizes(h0, hw, fine=m.blur == "on" or (r.static and m.layers == 1))  # on the host: the meta device holds no values
+    meta = {"h0": h0, "log2_dt": np.zeros(T, np.float32), "init_log2": 0.0, "frame_hw": hw, "sizes": sizes}
+    try:
+        with torch.device("meta"):
+            model = build_model(r, meta)
+    except ValueError as e:  # a model these frames cannot hold (two layers of 1x1 frames): said before the work
+        raise LayercamError(f"the model asked for does not fit {W}x{H} frames: {e}") from None
+    parts: dict[str, int] = {}
+    for name, p in model.named_parameters():
+        parts[_part(name)] = parts.get(_part(name), 0) + p.numel()
+    return parts
+
+
+def _part(name: str) -> str:
+    if ".alpha.grid" in name:
+        return "alpha grid"
+    if ".alpha." in name:
+        return "alpha MLP"
+    if ".enc" in name:
+        return "atlas grids"
+    if ".atlases." in name:
+        return "atlas MLP"
+    if ".deformations." in name:
+        return "deformation"
+    if name.startswith("blur"):
+        return "blur generator"
+    return "tone mapper and exposures"
+
+
+SETTINGS = {  # the settings that size each part, named in a refusal (the alpha grid follows the frame: --resize)
+    "alpha grid": (),
+    "alpha MLP": (),
+    "atlas grids": ("scene.grid_levels",),
+    "atlas MLP": ("scene.atlas_width", "scene.atlas_depth"),
+    "deformation": ("scene.deform_width", "scene.deform_depth"),
+    "blur generator": ("blur.n",),
+    "tone mapper and exposures": ("tone.width", "tone.depth"),
+}
+
+
+def _settings(cfg, keys) -> str:
+    return ", ".join(f"{k}={getattr(getattr(cfg, k.split('.')[0]), k.split('.')[1])}" for k in keys)
+
+
+def floats_per_sample(cfg) -> dict:
+    """Floats one training sample carries through each part's networks (their inputs and each
+    layer's output), by part (as :data:`SETTINGS` names them), for the resolved settings ``cfg``:
+    times ``ACT_PER_FLOAT`` the activations autograd keeps and the backward pass makes."""
+    from layercam.scene import fields as f
+
+    s, L = cfg.scene, int(cfg.model.layers)
+    mlp = lambda i, w, d, o=1: i + w * (d + 1) * 2 + o  # noqa: E731 - pre- and post-activation per hidden layer
+    n = int(cfg.blur.n) if cfg.model.blur == "on" else 1
+    k = n * n * (2 if cfg.model.flow_loss else 1)  # each sample's n x n PSF taps, and its match for the flow loss
+    out = {"deformation": k * L * mlp(3 * (1 + 2 * f.DEFORM_PE_FREQS), s.deform_width, s.deform_depth, 2),
+           "atlas grids": k * L * (s.grid_levels * f.GRID_FEATURES * 4 if s.encoding == "grid" else 2 * (1 + 2 * f.ATLAS_PE_FREQS)),
+           "atlas MLP": k * L * mlp(0, s.atlas_width, s.atlas_depth, 3),
+           "tone mapper and exposures": k * 3 * mlp(1, cfg.tone.width, cfg.tone.depth)}
+    if L > 1:
+        out["alpha grid"] = k * (f.ALPHA_GRID_LEVELS * f.ALPHA_GRID_FEATURES * 8 if s.alpha_encoding == "grid" else 0)
+        out["alpha MLP"] = k * mlp(3 * (1 + 2 * f.ALPHA_PE_FREQS), f.ALPHA_WIDTH, f.ALPHA_DEPTH)
+    if n > 1:
+        out["blur generator"] = (2 if cfg.model.flow_loss else 1) * 2 * mlp(16, 64, 4, n * n)
+    return out
+
+
+def estimate(info: dict, cfg, task: str = "hdr-video", windows: list | None = None) -> dict:
+    """Peak memory and disk of a run on a clip of ``info`` (:func:`layercam.io.probe_clip`:
+    ``frames``, ``width``, ``height``, ``bit_depth``) with ``cfg`` (the settings as given, a
+    :class:`~layercam.core.config.Config`, or as resolved after the analysis, a
+    :class:`~layercam.engine.resolve.Resolved`): ``{"memory": bytes, "disk": bytes, "stages": {stage:
+    bytes}, "disk_parts": {...}, "params": {...}, "largest": str, "settings": str}``; ``largest``
+    names the costliest stage or part and ``settings`` what sizes it. ``windows``: a long clip's
+    windows ``[(a, b), ...]`` (``pipelines/windows.py``): one model of the longest window at a time
+    in memory; on disk each window's masks, checkpoints and outputs, besides the joined outputs."""
+    from layercam.vision.analyse import MOTION_PAIRS
+    from layercam.vision.scale import working_size
+    from layercam.vision.segment import SEG_FRAMES
+
+    T = max(int(info.get("frames") or 1), 1)
+    H, W = int(info["height"]), int(info["width"])
+    px = H * W
+    spans = [int(b) - int(a) for a, b in windows] if windows and len(windows) > 1 else [T]
+    r = _resolved(cfg, task, T, (H, W))
+    rc = r.settings
+    params = _model_parts(r, max(spans), (H, W))
+    n_params = sum(params.values())
+    h, w = working_size((H, W))
+    wpx = h * w
+    batch = int(rc.train.batch)
+    per_part = floats_per_sample(rc)
+    sample = sum(per_part.values()) * ACT_PER_FLOAT
+    stages = {
+        "flow": FLOW_PER_PX * wpx + 24.0 * px if T > 1 else 0.0,
+        "analysis": ANALYSIS_PER_PX * min(T - 1, MOTION_PAIRS) * wpx,
+        "bootstrap": SEG_PER_PX * min(T, SEG_FRAMES) * wpx + 16.0 * px if rc.model.layers > 1 else BOOT_PER_PX * px,  # segmented on the flow's grid
+        "train": PARAM_BYTES * n_params + sample * batch,
+        "export": 4.0 * n_params + EXPORT_PER_PX * px + RENDER_PER_PX * min(RENDER_CHUNK, px),  # no autograd: a render chunk's layers one at a time
+    }
+    store = 1 if int(info.get("bit_depth") or 8) <= 8 else (2 if int(info.get("bit_depth")) <= 16 else 4)
+    disk = {
+        "frames": float(T) * px * 3 * store,
+        "flow": float(max(T - 1, 0)) * wpx * 11,
+        "masks": float(sum(spans)) * px if rc.model.layers > 1 else 0.0,
+        "checkpoints": 16.0 * n_params * len(spans),
+        "outputs": float(T + (sum(spans) if len(spans) > 1 else 0)) * px * (6 * 0.6 + (1 if rc.model.layers > 1 else 0))
+        + (float(T) * px * 3 * 5 if task == "deblur-video" else 0.0),
+    }
+    stage = max(stages, key=stages.get)
+    if stage == "train" and PARAM_BYTES * n_params >= sample * batch:
+        part = max(params, key=params.get)
+        largest = f"training the model's {n_params:,} parameters ({params[part]:,} in the {part})"
+        settings = _settings(rc, SETTINGS[part]) or "--resize"
+    elif stage == "train":
+        part = max(per_part, key=per_part.get)
+        largest = f"training on batches of {batch:,} samples ({_fmt(sample * batch)}, most through the {part})"
+        settings = ", ".join(filter(None, [f"train.batch={rc.train.batch}", _settings(rc, SETTINGS[part])]))
+    else:
+        largest = f"the {stage} stage on {W}x{H} frames"
+        settings = "--resize"
+    return {"memory": BASE + max(stages.values()), "disk": sum(disk.values()), "stages": {k: round(v) for k, v in stages.items()},
+            "disk_parts": {k: round(v) for k, v in disk.items()}, "params": params, "largest": largest, "settings": settings,
+            "frames": T, "size": [W, H], "windows": len(spans), "assumed": {"layers": rc.model.layers, "blur": "off" if rc.model.blur == "off" else f"{rc.blur.n}x{rc.blur.n}"}}
+
+
+def available_memory() -> float:
+    """``MemAvailable`` (bytes; Linux), else the physical memory, else infinity."""
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return float(line.split()[1]) * 1024
+    except OSError:
+        pass
+    try:
+        return float(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES"))
+    except (ValueError, OSError, AttributeError):
+        return math.inf
+
+
+def free_disk(folder: Path) -> float:
+    """Free bytes where ``folder`` is (or would be made: its nearest existing parent)."""
+    p = Path(folder).absolute()
+    while not p.exists() and p != p.parent:
+        p = p.parent
+    try:
+        return float(shutil.disk_usage(p).free)
+    except OSError:
+        return math.inf
+
+
+def disk_used(folder: Path) -> float:
+    """Bytes the files under ``folder`` occupy on disk (allocated blocks: a sparse file counts what
+    it holds), 0 when it does not exist."""
+    total = 0
+    for root, _, files in os.walk(folder):
+        for f in files:
+            try:
+                total += os.lstat(os.path.join(root, f)).st_blocks * 512
+            except OSError:
+                pass
+    return float(total)
+
+
+def summary_line(est: dict) -> str:
+    """One line for the run's printout: ``estimate: peak memory 2.1 GB (train), disk 1.3 GB``."""
+    stage = max(est["stages"], key=est["stages"].get)
+    win = f" in {est['windows']} windows" if est.get("windows", 1) > 1 else ""
+    return f"estimate: peak memory {_fmt(est['memory'])} ({stage}), disk {_fmt(est['disk'])} for {est['frames']} frames {est['size'][0]}x{est['size'][1]}{win}"
+
+
+def check(est: dict, run_dir: Path, used_disk: float = 0.0) -> None:
+    """Refuses (one line) an estimate that does not fit: memory above what is available, disk above
+    what is free where the run folder is (less ``used_disk``, what the run already holds there)."""
+    mem, have = est["memory"], available_memory()
+    if mem > have:
+        raise LayercamError(f"this run needs about {_fmt(mem)} of memory, {_fmt(have)} is available: most for {est['largest']}; "
+                            f"lower {est['settings']}{' or --resize' if est['settings'] != '--resize' else ''}")
+    need, free = est["disk"] - used_disk, free_disk(run_dir)
+    if need > free:
+        big = max(est["disk_parts"], key=est["disk_parts"].get)
+        raise LayercamError(f"this run needs about {_fmt(est['disk'])} of disk in {run_dir}, {_fmt(free)} is free (most for the {big}); "
+                            f"free some space, or use --resize, --max-frames or --stride")

@@ -147,9 +147,7 @@ def faded_foreground(ctx: Context) -> str | None:
     alpha (> 0.5, ``export["atlas"]["foreground_share"]``) covers less than ``FADED_SHARE`` of the
     area the masks it was fitted to cover (given, refined or motion masks; a share of the frames,
     over the clip). Alpha that is 0 everywhere satisfies the flow terms, and the plain mask term
-    pulls a small object towards the background: DAVIS libby's dog faded so with ``--preset fast
-    --set loss.alpha_flow_keep=0.25`` (alpha IoU 0.000) and with ``segment.refine`` at ``balanced``
-    before its masks were class-balanced (0.051). None when it did not, or without masks or
+    pulls a small object towards the background (docs/measurements.md). None when it did not, or without masks or
     the atlas export (one layer, a run exported before the share was kept)."""
     share = (ctx.results.get("export", {}).get("atlas") or {}).get("foreground_share")
     masks, source = TrainStage.masks(ctx)

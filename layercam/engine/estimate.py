@@ -8,7 +8,7 @@ deblur-video and fuse-stack, or the ``n`` given), so that what is said before th
 bound of what the analysis can choose; the run says it again once the analysis has chosen
 (:func:`layercam.pipelines.tasks.run_task`). The model's parameters are counted exactly (the model is
 built on PyTorch's meta device: no memory); the working sets of the stages are per-pixel and
-per-sample costs measured on this project's runs (``docs/notes/longmem.md``), scaled by what each
+per-sample costs measured on this project's runs (``docs/measurements.md``), scaled by what each
 stage holds at once: a pair of frames (flow), at most ``analyse.MOTION_PAIRS`` pairs (analysis), a
 window of at most ``segment.SEG_FRAMES`` frames (two-layer bootstrap), the model, its optimiser and
 a batch (training), a frame and a render chunk (export). None of them grows with the clip's length
@@ -30,7 +30,7 @@ import numpy as np
 
 from layercam.core.errors import LayercamError
 
-# measured costs (bytes), see docs/notes/longmem.md: this process after its imports, and per pixel /
+# measured costs (bytes), see docs/measurements.md: this process after its imports, and per pixel /
 # per sample of what each stage holds at once
 BASE = 700e6             # python, torch, OpenCV and layercam imported, a clip opened (VmRSS 680-700 MB on this machine)
 FLOW_PER_PX = 180.0      # per working-grid pixel of a pair: the two frames, flows, checks, DIS

@@ -2,7 +2,7 @@
 
 The motion bootstrap (:func:`layercam.vision.segment.foreground_bootstrap`) finds what moves against the
 background; where the flow loses thin or fast parts, or a trunk cuts the object in two, its masks
-do too (docs/layers/ceiling/). A detector sees the whole object in each frame but not which object
+do too. A detector sees the whole object in each frame but not which object
 is the one that moves. So the two are joined: the detector's instances in each frame that lie
 mostly in that frame's motion masks replace them (:func:`pick_instances`), and frames where no
 instance does keep their motion masks. The layered-atlas papers train on Mask R-CNN masks.

@@ -18,9 +18,8 @@ def refine_masks(frames: np.ndarray, background: np.ndarray, alpha: np.ndarray, 
     frame: alpha > 0.5 eroded by 2% of the short side is kept (an object's inside can match a
     background the object always hid); the ring out to 5% of the short side around it is
     foreground where the residual exceeds ``threshold``; nothing farther (the near background's
-    parallax differs from the atlas too); then :func:`clean_mask`. Returns ``(T, H, W)`` bool.
-    DAVIS at 282x158 (fast; alpha IoU against the true masks): parkour 0.70 -> 0.75 after the
-    second fit, docs/measurements.md."""
+    parallax differs from the atlas too); then :func:`clean_mask`. Returns ``(T, H, W)`` bool
+    (what the second fit gains: docs/measurements.md)."""
     import cv2
 
     T, h, w = alpha.shape

@@ -134,3 +134,14 @@ def atlas_pixels(h0: np.ndarray, frame_hw: tuple[int, int]) -> float:
     uv0, uvx, uvy = (p[:, :2] / p[:, 2:] for p in (p0, px, py))
     step = np.minimum(np.linalg.norm(uvx - uv0, axis=1), np.linalg.norm(uvy - uv0, axis=1))
     return float(2.0 / max(step.min(), 1e-6))
+
+
+def sampson_distance(f: np.ndarray, x1: np.ndarray, x2: np.ndarray) -> np.ndarray:
+    """Sampson distance (px) of correspondences ``x1 -> x2`` ``(..., 2)`` to the epipolar geometry
+    ``f`` ``(3, 3)``: the first-order distance of each pair to satisfying ``x2^T f x1 = 0``."""
+    p1 = np.concatenate([x1, np.ones_like(x1[..., :1])], -1)
+    p2 = np.concatenate([x2, np.ones_like(x2[..., :1])], -1)
+    fx1, ftx2 = p1 @ f.T, p2 @ f
+    num = (p2 * fx1).sum(-1) ** 2
+    den = fx1[..., 0] ** 2 + fx1[..., 1] ** 2 + ftx2[..., 0] ** 2 + ftx2[..., 1] ** 2
+    return np.sqrt(num / np.maximum(den, 1e-12))

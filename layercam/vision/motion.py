@@ -17,6 +17,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from layercam.core.geometry import sampson_distance
+
 __all__ = ["chained_displacements", "pair_residuals", "long_range_moving_share"]
 
 
@@ -53,16 +55,6 @@ def chained_displacements(fw: np.ndarray, bw: np.ndarray | None, fw_ok: np.ndarr
             j += sgn
             out[sgn * k] = (d.copy(), v.copy())
     return out
-
-
-def _sampson(f: np.ndarray, x1: np.ndarray, x2: np.ndarray) -> np.ndarray:
-    """Sampson distance (px) of correspondences ``x1 -> x2`` ``(..., 2)`` to the epipolar geometry ``f``."""
-    p1 = np.concatenate([x1, np.ones_like(x1[..., :1])], -1)
-    p2 = np.concatenate([x2, np.ones_like(x2[..., :1])], -1)
-    fx1, ftx2 = p1 @ f.T, p2 @ f
-    num = (p2 * fx1).sum(-1) ** 2
-    den = fx1[..., 0] ** 2 + fx1[..., 1] ** 2 + ftx2[..., 0] ** 2 + ftx2[..., 1] ** 2
-    return np.sqrt(num / np.maximum(den, 1e-12))
 
 
 def _edge_fraction(sel: np.ndarray, x2: np.ndarray) -> float:
@@ -116,7 +108,7 @@ def pair_residuals(d: np.ndarray, valid: np.ndarray, step: int = 4, ransac_px: f
     fm, finl = cv2.findFundamentalMat(s1, s2, cv2.FM_RANSAC, ransac_px, 0.999)
     if fm is None or fm.shape != (3, 3) or float(finl.mean()) < frac_h + f_gain:
         return res_h, None, False
-    res_f = np.minimum(res_h, _sampson(fm, x1, x2)).astype(np.float32)
+    res_f = np.minimum(res_h, sampson_distance(fm, x1, x2)).astype(np.float32)
     vote = _edge_fraction(valid & (res_h > 2 * ransac_px) & (res_f <= ransac_px), x2) >= edge
     return res_h, res_f, vote
 

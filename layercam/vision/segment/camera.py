@@ -16,6 +16,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from layercam.core.geometry import sampson_distance
+
 BORDER = 0.15      # the ring along the frame's edge that shows the camera's motion, a share of the short side
 RANSAC_PX = 1.0    # a flow vector within this many pixels of the model is explained by it
 H_INLIERS = 0.8    # a homography explaining this share of the ring's points is the camera's whole motion ...
@@ -34,16 +36,6 @@ def _grid(h: int, w: int) -> np.ndarray:
     from layercam.core.geometry import pixel_grid
 
     return np.stack(pixel_grid(h, w), -1)
-
-
-def _sampson(f: np.ndarray, x1: np.ndarray, x2: np.ndarray) -> np.ndarray:
-    """Sampson distance (px) of correspondences ``x1 -> x2`` ``(..., 2)`` to the epipolar geometry ``f``."""
-    p1 = np.concatenate([x1, np.ones_like(x1[..., :1])], -1)
-    p2 = np.concatenate([x2, np.ones_like(x2[..., :1])], -1)
-    fx1, ftx2 = p1 @ f.T, p2 @ f
-    num = (p2 * fx1).sum(-1) ** 2
-    den = fx1[..., 0] ** 2 + fx1[..., 1] ** 2 + ftx2[..., 0] ** 2 + ftx2[..., 1] ** 2
-    return np.sqrt(num / np.maximum(den, 1e-12))
 
 
 def _ring_sample(valid: np.ndarray) -> np.ndarray:
@@ -84,7 +76,7 @@ def pair_residuals(d: np.ndarray, valid: np.ndarray, seed: int = 0) -> tuple[np.
     fm, finl = cv2.findFundamentalMat(s1, s2, cv2.FM_RANSAC, RANSAC_PX, 0.999)
     if fm is None or fm.shape != (3, 3) or float(finl.mean()) < frac + F_GAIN:
         return res, False
-    return np.minimum(res, _sampson(fm, x1, x2)).astype(np.float32), True
+    return np.minimum(res, sampson_distance(fm, x1, x2)).astype(np.float32), True
 
 
 def border_homographies(fw, seed: int = 0) -> np.ndarray:

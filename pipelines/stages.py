@@ -52,7 +52,7 @@ class BootstrapStage(Stage):
         from layercam.vision import segment
 
         if ctx.resolved.settings.model.layers > 1 and ctx.flow is not None and segment.windowed(ctx.clip.T, (ctx.clip.H, ctx.clip.W), ctx.flow["fw"].shape[1:3]):
-            return {"windows": [segment.SEG_FRAMES, segment.SEG_MARGIN]}
+            return {"windows": [segment.long.SEG_FRAMES, segment.long.SEG_MARGIN]}
         return {}
 
     def run(self, ctx, out):
@@ -89,7 +89,7 @@ class BootstrapStage(Stage):
                 fg = segment.foreground_bootstrap_long(clip.frames, ctx.flow, out, ctx.masks, cfg.segment, progress=ctx.progress)
                 if fg["computed"]:
                     g = fg["info"]["grid"]
-                    ctx.say(f"[bootstrap] motion segmentation on the flow's {g[1]}x{g[0]} grid, in {fg['info']['windows']} window(s) of at most {segment.SEG_FRAMES} frames overlapping by {segment.SEG_MARGIN}")
+                    ctx.say(f"[bootstrap] motion segmentation on the flow's {g[1]}x{g[0]} grid, in {fg['info']['windows']} window(s) of at most {segment.long.SEG_FRAMES} frames overlapping by {segment.long.SEG_MARGIN}")
             else:
                 fg = segment.foreground_bootstrap(clip.frames, fl, ctx.masks, cfg.segment, progress=ctx.progress)
             h0.append(fg["h0"])

@@ -214,7 +214,7 @@ def run_length(out: Path, data: Path, clip: str = "cows", lengths: list[int] | N
 
 
 def write_length(out: Path, rows: list[dict]) -> None:
-    from layercam.bench import write_csv
+    from layercam.bench.synthetic import write_csv
     from layercam.io.atomic import atomic_write
 
     write_csv(out / "length.csv", rows, FIELDS)

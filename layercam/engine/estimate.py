@@ -10,7 +10,7 @@ bound of what the analysis can choose; the run says it again once the analysis h
 built on PyTorch's meta device: no memory); the working sets of the stages are per-pixel and
 per-sample costs measured on this project's runs (``docs/measurements.md``), scaled by what each
 stage holds at once: a pair of frames (flow), at most ``analyse.MOTION_PAIRS`` pairs (analysis), a
-window of at most ``segment.SEG_FRAMES`` frames (two-layer bootstrap), the model, its optimiser and
+window of at most ``segment.long.SEG_FRAMES`` frames (two-layer bootstrap), the model, its optimiser and
 a batch (training), a frame and a render chunk (export). None of them grows with the clip's length
 except the alpha grid's slices up to ``scene.fields.ALPHA_GRID_CELLS``; the disk does.
 
@@ -175,7 +175,7 @@ def estimate(info: dict, cfg, task: str = "hdr-video", windows: list | None = No
     in memory; on disk each window's masks, checkpoints and outputs, besides the joined outputs."""
     from layercam.vision.analyse import MOTION_PAIRS
     from layercam.vision.scale import working_size
-    from layercam.vision.segment import SEG_FRAMES
+    from layercam.vision.segment.long import SEG_FRAMES
 
     T = max(int(info.get("frames") or 1), 1)
     H, W = int(info["height"]), int(info["width"])

@@ -53,7 +53,7 @@ def foreground_bootstrap_long(frames, flows: dict, out, masks=None, cfg: Segment
 
     import cv2
 
-    from layercam.vision.flow import AtFrameSize
+    from layercam.vision.scale import AtFrameSize
     from layercam.core.interrupts import reached
     from layercam.io.frames import DiskArray
     from layercam.vision.segment import foreground_bootstrap

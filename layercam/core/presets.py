@@ -98,24 +98,24 @@ def load_config(preset: str = "balanced", overrides: list[str] | None = None) ->
 
 
 def describe_settings() -> list[tuple[str, Any, str]]:
-    """Every setting as ``(section.field, default, comment)``: the comment beside its field in this
-    module (what it trades), continued on the comment-only lines under it."""
+    """Every setting as ``(section.field, default, comment)``: the comment beside its field in
+    :mod:`layercam.core.config` (what it trades), continued on the comment-only lines under it."""
     import ast
-    import dataclasses
     import inspect
 
-    out = []
+    out, defaults = [], Config()
     for sec in SECTIONS:
-        cls = type(getattr(Config(), sec))
-        src = inspect.getsource(cls).splitlines()
-        fields = {n.target.id: n.lineno - 1 for n in ast.parse("\n".join(src)).body[0].body if isinstance(n, ast.AnnAssign)}
-        defaults = {f.name: getattr(Config(), sec).__dict__[f.name] for f in dataclasses.fields(cls)}
-        for name, i in fields.items():
+        section = getattr(defaults, sec)
+        src = inspect.getsource(type(section)).splitlines()
+        for n in ast.parse("\n".join(src)).body[0].body:
+            if not isinstance(n, ast.AnnAssign):
+                continue
+            i = n.lineno - 1
             words = [src[i].split("#", 1)[1].strip()] if "#" in src[i] else []
             while i + 1 < len(src) and src[i + 1].strip().startswith("#"):
                 i += 1
                 words.append(src[i].strip()[1:].strip())
-            out.append((f"{sec}.{name}", defaults[name], " ".join(words)))
+            out.append((f"{sec}.{n.target.id}", getattr(section, n.target.id), " ".join(words)))
     return out
 
 

@@ -23,13 +23,6 @@ from layercam.io.frames import DiskArray
 ARRAYS = {"fw": (np.float16, 2), "bw": (np.float16, 2), "fw_ok": (np.bool_, 0), "bw_ok": (np.bool_, 0), "vis": (np.bool_, 0)}
 
 
-def _working(frames, work: tuple[int, int]):
-    """The frames one at a time at the working size (area averaging, as ``scale.resize_frames``)."""
-    import cv2
-
-    for f in frames:
-        yield f if f.shape[:2] == tuple(work) else cv2.resize(np.asarray(f, np.float32), (work[1], work[0]), interpolation=cv2.INTER_AREA)
-
 
 def compute(frames, out: Path, cfg, progress: bool = False) -> dict:
     """Flow of the clip ``frames`` (``(T,H,W,3)``, read a frame at a time) with the ``flow``
@@ -52,7 +45,9 @@ def compute(frames, out: Path, cfg, progress: bool = False) -> dict:
     last2: list = []  # the pair's two frames, as the flow read them
 
     def feed():
-        for f in _working(frames, work):
+        small = scale.ResizedFrames(frames, work)
+        for t in range(len(small)):
+            f = small[t]
             last2[:] = last2[-1:] + [f]
             yield f
 
@@ -62,7 +57,7 @@ def compute(frames, out: Path, cfg, progress: bool = False) -> dict:
     else:
         pairs = flow.dis_pairs(feed(), cfg.method)
     mag_sum, ok_sum = 0.0, 0
-    scale = W / w
+    px = W / w  # working-grid pixels in frame pixels
     cv2.setRNGSeed(0)  # once, as global_homographies seeds it for all pairs
     vis_next = None
     for i, (fw, bw) in enumerate(bar(pairs, total=n, desc=f"flow ({cfg.method})", unit="pair", enabled=progress)):
@@ -76,7 +71,7 @@ def compute(frames, out: Path, cfg, progress: bool = False) -> dict:
         homs[i] = flow.pair_homography(fw, vis & fw_ok)
         for k, v in (("fw", fw), ("bw", bw), ("fw_ok", fw_ok), ("bw_ok", bw_ok), ("vis", vis)):
             arrays[k][i] = v
-        mag_sum += float(np.sqrt((fw**2).sum(-1)).sum(dtype=np.float64)) * scale
+        mag_sum += float(np.sqrt((fw**2).sum(-1)).sum(dtype=np.float64)) * px
         ok_sum += int(fw_ok.sum())
     for a in arrays.values():
         a.flush()

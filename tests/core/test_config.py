@@ -4,7 +4,6 @@ before any stage runs; the analysis's "auto" choices are kept apart from what is
 from __future__ import annotations
 
 import math
-import re
 
 import numpy as np
 import pytest
@@ -106,30 +105,14 @@ SEGMENT_BUDGET = 10  # issue 39: the segment section's share
 def test_the_settings_stay_within_their_budget_and_each_says_what_it_trades():
     """Every setting a user can change (the preset, ``--set section.key``) counts; each carries a
     comment in layercam/core/config.py saying what it trades."""
-    import dataclasses
-    import inspect
+    from layercam.core.presets import describe_settings
 
-    from layercam.core import config
-
-    fields = [(sec, f.name) for sec in SECTIONS if sec != "segment" for f in dataclasses.fields(getattr(Config(), sec))]
-    assert len(fields) + 1 + SEGMENT_BUDGET <= SETTINGS_BUDGET, len(fields) + 1  # + the preset; the segment section's own budget: issue 39
-    src = inspect.getsource(config)
-    lines = src.splitlines()
-    for sec, name in fields:
-        if sec == "segment":
-            continue  # the segment section documents its settings in its docstring
-        line = next(i for i, l in enumerate(lines) if re.match(rf"\s+{name}: ", l) and _section_of(lines, i) == sec)
-        assert "#" in lines[line], f"{sec}.{name} has no comment saying what it trades"
-
-
-def _section_of(lines, i):
-    import re as _re
-
-    for j in range(i, -1, -1):
-        m = _re.match(r"class (\w+)Config\(", lines[j])
-        if m:
-            return m.group(1).lower()
-    return None
+    rows = describe_settings()
+    segment = [k for k, _, _ in rows if k.startswith("segment.")]
+    assert len(segment) <= SEGMENT_BUDGET, segment  # the segment section's own budget: issue 39
+    assert len(rows) + 1 <= SETTINGS_BUDGET, len(rows) + 1  # + the preset
+    for key, _, comment in rows:
+        assert comment, f"{key} has no comment saying what it trades"
 
 
 @pytest.mark.parametrize("name", preset_names())

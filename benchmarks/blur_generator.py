@@ -46,7 +46,7 @@ def shake(a) -> dict:
         t0 = time.time()
         ctx = run_task("deblur-video", scene.clip, exp, cfg, a.out / f"shake_{v}", progress=False,
                        extra_stages=[EvaluateStage(scene)])
-        ev = ctx.results["evaluate"]
+        ev = ctx.results["evaluate"].summary
         pf, pa = ev["raw"]["per_frame"], ev["aligned"]["per_frame"]
         print(f"{v}: {time.time() - t0:.0f} s  raw: deblurred {ev['raw']['deblurred']} input {ev['raw']['input']}")
         print(f"    aligned: deblurred {ev['aligned']['deblurred']} input {ev['aligned']['input']}")
@@ -72,7 +72,7 @@ def mfme(a) -> dict:
                 t0 = time.time()
                 ctx = run_task("fuse-stack", clip, e, cfg, a.out / f"mfme_{key[seed]}", progress=False,
                                extra_stages=[EvaluateStage(scene, **truth)])
-                r = ctx.results["evaluate"]
+                r = ctx.results["evaluate"].summary
                 print(f"{sub} images, {v}, seed {seed}: {time.time() - t0:.0f} s  layercam {r['metrics']}", flush=True)
                 for k, b in r["baselines"].items():
                     print(f"    {k}: {b}")

@@ -197,13 +197,13 @@ def default_out(inputs: list[str]) -> Path:
 def finish(ctx) -> None:
     """One closing line: where the outputs are and how training ended."""
     if ctx.progress:
-        tr = ctx.results.get("train", {})
-        if "windows" in tr:  # a long clip's windows (pipelines/windows.py)
-            losses = ", ".join(f"{(w.get('final_loss') or {}).get('total', float('nan')):.4g}" for w in tr["windows"])
-            print(f"done: {ctx.run_dir}  ({len(tr['windows'])} windows, train {tr.get('steps')} steps in all, final losses {losses})")
+        tr = ctx.results["train"]
+        if tr.windows is not None:  # a long clip's windows (pipelines/windows.py)
+            losses = ", ".join(f"{(w.get('final_loss') or {}).get('total', float('nan')):.4g}" for w in tr.windows)
+            print(f"done: {ctx.run_dir}  ({len(tr.windows)} windows, train {tr.steps} steps in all, final losses {losses})")
             return
-        fl = tr.get("final_loss") or {}
-        print(f"done: {ctx.run_dir}  (train {tr.get('steps')} steps, final loss {fl.get('total', float('nan')):.4g})")
+        fl = tr.final_loss or {}
+        print(f"done: {ctx.run_dir}  (train {tr.steps} steps, final loss {fl.get('total', float('nan')):.4g})")
 
 
 def main(argv: list[str] | None = None) -> int:

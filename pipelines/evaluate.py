@@ -49,7 +49,7 @@ def score_hdr(ctx: Context, ev: "EvaluateStage") -> dict:
 
         fl = at_frame_size(ctx.flow, (ctx.clip.H, ctx.clip.W), ("fw", "bw"))
         t0 = time.perf_counter()
-        base = debevec_video(ctx.clip.frames, np.exp2(ctx.exposures.log2_dt), fl["fw"].astype(np.float32), fl["bw"].astype(np.float32))
+        base = debevec_video(ctx.clip.frames, np.exp2(ctx.exposures.log2_dt), np.asarray(fl.fw, np.float32), np.asarray(fl.bw, np.float32))
         secs = time.perf_counter() - t0 + ctx.times.get("flow", {}).get("seconds", 0.0)
         res["baselines"]["debevec"] = {**metrics.hdr_metrics(base, gt), "wall_s": round(secs, 2)}
     return res
@@ -63,7 +63,7 @@ def score_deblur(ctx: Context, ev: "EvaluateStage") -> dict:
     from layercam.core.frame_metrics import score_frames
 
     scene, crop = ev.scene, int(ev.crop)
-    pred = np.load(ctx.results["export"]["frames_path"])
+    pred = np.load(ctx.results["export"].frames)
     gt, blurry = scene.sharp_ldr, ctx.clip.frames
     res = {"crop": crop}
     for align in (False, True):
@@ -86,7 +86,7 @@ def score_fused(ctx: Context, ev: "EvaluateStage") -> dict:
     from layercam.bench.baselines import two_stage_mfme
 
     gt = ev.scene.allfocus_hdr
-    pred = np.load(ctx.results["export"]["fused_path"])
+    pred = np.load(ctx.results["export"].fused)
     res = {"metrics": {**metrics.hdr_metrics(pred, gt), "wall_s": model_wall_s(ctx)}, "baselines": {}}
     sets = {}
     if ev.focus_index is not None:
@@ -124,3 +124,8 @@ class EvaluateStage(Stage):
 
     def run(self, ctx, out):
         return SCORERS[TASK_SCORERS[ctx.task]][1](ctx, self)
+
+    def load(self, ctx, out, summary):
+        from layercam.pipelines.results import EvaluateResult
+
+        return EvaluateResult(summary)

@@ -132,14 +132,14 @@ def _flow_to(ctx: Context, t: int, n: int) -> np.ndarray | None:
     forward-backward check holds, elsewhere the pair's global homography's (a clipped or flat
     region gives the flow nothing to hold on to); None without flow."""
     fl = ctx.flow
-    if not fl or "fw" not in fl or len(fl["fw"]) != ctx.clip.T - 1:
+    if fl is None or fl.pairs != ctx.clip.T - 1:
         return None
-    f, ok = (fl["fw"][t], fl["fw_ok"][t]) if n == t + 1 else (fl["bw"][n], fl["bw_ok"][n])
+    f, ok = (fl.fw[t], fl.fw_ok[t]) if n == t + 1 else (fl.bw[n], fl.bw_ok[n])
     f = np.asarray(f, np.float32)
     h, w = ctx.clip.H, ctx.clip.W
     if f.shape[:2] != (h, w):
         return None
-    hom = np.asarray(fl["homs"][min(t, n)], np.float64)
+    hom = np.asarray(fl.homs[min(t, n)], np.float64)
     if not np.isfinite(hom).all() or abs(np.linalg.det(hom)) < 1e-12:  # no homography: the flow alone
         return np.where(np.asarray(ok, bool)[..., None], f, np.nan).astype(np.float32)
     hom = hom if n == t + 1 else np.linalg.inv(hom)
@@ -349,5 +349,11 @@ class ExportStage(Stage):
         return summary
 
     def load(self, ctx, out, summary):
-        paths = {"frames_path": out / "deblurred.npy", "fused_path": out / "fused.npy"}
-        return {**summary, **{k: str(p) for k, p in paths.items() if p.exists()}}
+        from layercam.pipelines.results import ExportResult
+
+        return ExportResult(summary, **kept_arrays(out))
+
+
+def kept_arrays(out: Path) -> dict:
+    """The arrays an export keeps in ``out`` for a scorer (:class:`~layercam.pipelines.results.ExportResult`)."""
+    return {k: (out / f"{n}.npy" if (out / f"{n}.npy").exists() else None) for k, n in (("frames", "deblurred"), ("fused", "fused"))}

@@ -32,7 +32,8 @@ CACHE_VERSION = 7  # bumped when what a cached stage holds, or how a key is made
 
 @dataclass
 class Context:
-    """Everything a stage may read. ``results[name]`` holds each finished stage's summary dict."""
+    """Everything a stage may read. ``results[name]``: each finished stage's typed result
+    (:mod:`layercam.pipelines.results`: its summary and what later stages read)."""
 
     run_dir: Path
     clip: Any                       # layercam.io.Clip
@@ -44,10 +45,12 @@ class Context:
     train_callbacks: list = field(default_factory=list)  # model -> trainer callback, besides the model's own (the bench's probe)
     measures: dict | None = None    # what the analysis measured (layercam.vision.analyse.measure)
     resolved: Any = None            # the run's settings, resolved once after the flow (layercam.engine.resolve.Resolved)
-    flow: dict | None = None        # the flow stage's arrays (fw, bw, fw_ok, bw_ok, vis: DiskArrays on disk; homs), opened once
+    flow: Any = None                # the flow stage's arrays (layercam.vision.flow_store.FlowArrays: on disk), opened once; None for one frame
     model: Any = None               # the trained model (layercam.scene.model.ImplicitCameraModel), built once
     camera: dict | None = None      # a long clip's window after the first: the camera it holds fixed (pipelines/windows.py)
-    results: dict = field(default_factory=dict)
+    results: dict = field(default_factory=dict)   # stage name -> layercam.pipelines.results.StageResult (or its subclass)
+    clip_levels: Any = None         # the clip's clipping levels (pipelines.stages.ctx_clip_levels), measured once
+    ray: dict | None = None         # the Ray cluster a long clip's windows ran on (pipelines/windows.py), None without --ray
     dirs: dict = field(default_factory=dict)
     keys: dict = field(default_factory=dict)
     times: dict = field(default_factory=dict)
@@ -89,10 +92,14 @@ class Stage:
         return {}
 
     def run(self, ctx: Context, out: Path) -> dict:
+        """Does the work into ``out``; returns the summary (JSON) its ``done.json`` keeps."""
         raise NotImplementedError
 
-    def load(self, ctx: Context, out: Path, summary: dict) -> dict:
-        return summary
+    def load(self, ctx: Context, out: Path, summary: dict):
+        """The stage's typed result from its summary and folder (:mod:`layercam.pipelines.results`)."""
+        from layercam.pipelines.results import StageResult
+
+        return StageResult(summary)
 
 
 def settings_read(ctx: Context, reads: tuple) -> dict:

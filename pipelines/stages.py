@@ -8,6 +8,7 @@ import dataclasses
 import numpy as np
 
 from layercam.core.errors import LayercamError
+from layercam.pipelines.results import BootstrapResult, FlowResult, RefineResult, TrainResult
 from layercam.pipelines.runner import Context, Stage
 
 
@@ -22,20 +23,15 @@ class FlowStage(Stage):
     def run(self, ctx, out):
         from layercam.vision import flow_store
 
-        summary = flow_store.compute(ctx.clip.frames, out, ctx.cfg.flow, progress=ctx.progress)
-        ctx.flow = flow_store.load(out)
-        return summary
+        return flow_store.compute(ctx.clip.frames, out, ctx.cfg.flow, progress=ctx.progress)
 
     def load(self, ctx, out, summary):
-        """The cached arrays, opened once into ``ctx.flow`` (None for a single frame)."""
+        """The summary; the arrays opened once into ``ctx.flow`` (None for a single frame)."""
         from layercam.vision import flow_store
 
         if ctx.flow is None and summary.get("pairs"):
             ctx.flow = flow_store.load(out)
-        return summary
-
-
-
+        return FlowResult(summary)
 
 class BootstrapStage(Stage):
     """Starting point of the scene: each layer's mapping into its atlas (chained flow homographies,
@@ -51,7 +47,7 @@ class BootstrapStage(Stage):
         (:func:`layercam.vision.segment.foreground_bootstrap_long`): their size (other clips keep their key)."""
         from layercam.vision import segment
 
-        if ctx.resolved.settings.model.layers > 1 and ctx.flow is not None and segment.windowed(ctx.clip.T, (ctx.clip.H, ctx.clip.W), ctx.flow["fw"].shape[1:3]):
+        if ctx.resolved.settings.model.layers > 1 and ctx.flow is not None and segment.windowed(ctx.clip.T, (ctx.clip.H, ctx.clip.W), ctx.flow.grid):
             return {"windows": [segment.long.SEG_FRAMES, segment.long.SEG_MARGIN]}
         return {}
 
@@ -66,7 +62,7 @@ class BootstrapStage(Stage):
         clip = ctx.clip
         T, H, W = clip.T, clip.H, clip.W
         r = ctx.resolved
-        long = r.settings.model.layers > 1 and ctx.flow is not None and segment.windowed(T, (H, W), ctx.flow["fw"].shape[1:3])  # on the flow's grid, in windows
+        long = r.settings.model.layers > 1 and ctx.flow is not None and segment.windowed(T, (H, W), ctx.flow.grid)  # on the flow's grid, in windows
         fl = at_frame_size(ctx.flow, (H, W), None if r.settings.model.layers > 1 and not long else ("homs",))  # the motion segmentation reads the flows too
         ref = middle_frame(T)
         static = r.static  # the flow's chained homographies move no corner by STATIC_CORNER_PX (layercam.engine.resolve)
@@ -74,7 +70,7 @@ class BootstrapStage(Stage):
             bg = np.stack([np.eye(3)] * T)
             how = f"identity: {r.reasons.get('static', 'a static camera')}"
         elif r.settings.scene.bootstrap == "flow" and fl is not None:
-            bg = chain_homographies(fl["homs"].astype(np.float64), ref)
+            bg = chain_homographies(fl.homs.astype(np.float64), ref)
             how = f"chained flow homographies to frame {ref}"
         else:
             bg = np.stack([np.eye(3)] * T)
@@ -109,11 +105,8 @@ class BootstrapStage(Stage):
     def load(self, ctx, out, summary):
         from layercam.vision.segment import load_masks
 
-        res = {**summary, "h0": np.load(out / "h0.npy")}
-        masks = load_masks(out)
-        if masks is not None:
-            res["masks"] = masks
-        return res
+        return BootstrapResult(summary, h0=np.load(out / "h0.npy"), init_log2=summary["init_log2"], static=bool(summary["static"]),
+                               masks=load_masks(out), foreground=summary.get("foreground"))
 
 
 class TrainStage(Stage):
@@ -146,8 +139,8 @@ class TrainStage(Stage):
         if ctx.masks is not None:
             return ctx.masks, "given"
         if "refine" in ctx.results:
-            return ctx.results["refine"]["masks"], "refined"
-        return ctx.results["bootstrap"].get("masks"), "motion"
+            return ctx.results["refine"].masks, "refined"
+        return ctx.results["bootstrap"].masks, "motion"
 
     def run(self, ctx, out):
         import torch
@@ -174,7 +167,7 @@ class TrainStage(Stage):
         model.to(dev)
         callbacks = model.training_callbacks(masks is not None, given=source == "given")
         sampler = PixelSampler(
-            ctx.clip.frames, *(fl[k] for k in ("fw", "bw", "fw_ok", "bw_ok")) if fl else (None,) * 4,
+            ctx.clip.frames, *(fl.fw, fl.bw, fl.fw_ok, fl.bw_ok) if fl is not None else (None,) * 4,
             masks=masks, device=dev, seed=distributed.rank_seed(cfg.train.seed),
         )
         if self.final:
@@ -224,7 +217,7 @@ class TrainStage(Stage):
         """A cached training: the model rebuilt once from its final checkpoint into ``ctx.model``."""
         if ctx.model is None:
             ctx.model = self.trained(ctx, out)
-        return summary
+        return TrainResult(summary)
 
 
 class PrefitStage(TrainStage):
@@ -236,7 +229,7 @@ class PrefitStage(TrainStage):
     final = False
 
     def load(self, ctx, out, summary):
-        return summary
+        return TrainResult(summary)
 
 
 class RefineStage(Stage):
@@ -271,7 +264,7 @@ class RefineStage(Stage):
             alpha.append(r["alpha"])
         masks = segment.refine_masks(np.stack(seen), np.stack(bg), np.stack(alpha), ctx.resolved.settings.segment.refine_threshold)
         segment.save_masks(out, masks)
-        boot = ctx.results["bootstrap"].get("masks")
+        boot = ctx.results["bootstrap"].masks
         agree = float(np.mean([iou(a, b > 0.5) for a, b in zip(masks, boot)]))  # refine_wanted: the bootstrap made masks
         ctx.say(f"[refine] masks from the first fit's background residual: mean coverage {masks.mean():.3f} (motion masks {segment.mask_coverage(boot).mean():.3f}, IoU with them {agree:.3f}), saved in {out / 'masks'}")
         return {"coverage": float(masks.mean()), "iou_with_motion_masks": agree}
@@ -279,14 +272,14 @@ class RefineStage(Stage):
     def load(self, ctx, out, summary):
         from layercam.vision.segment import load_masks
 
-        return {**summary, "masks": load_masks(out)}
+        return RefineResult(summary, masks=load_masks(out))
 
 
 def refine_wanted(ctx) -> bool:
     """``segment.refine`` applies: two layers whose masks came from the motion segmentation."""
-    boot = ctx.results.get("bootstrap", {})
+    boot = ctx.results.get("bootstrap")
     cfg = ctx.resolved.settings
-    return bool(cfg.segment.refine) and cfg.model.layers > 1 and ctx.masks is None and boot.get("masks") is not None
+    return bool(cfg.segment.refine) and cfg.model.layers > 1 and ctx.masks is None and boot is not None and boot.masks is not None
 
 
 def device_of(name: str) -> str:
@@ -314,12 +307,12 @@ def device_line(asked: str, dev: str) -> str:
 
 def ctx_clip_levels(ctx: Context) -> np.ndarray:
     """The clip's clipping levels (:func:`layercam.core.visibility.clip_levels`), measured once per run
-    (a pass over every pixel: seconds on a 1080p clip) and kept in ``ctx.results``."""
+    (a pass over every pixel: seconds on a 1080p clip) and kept in ``ctx.clip_levels``."""
     from layercam.core.visibility import clip_levels
 
-    if "clip_levels" not in ctx.results:
-        ctx.results["clip_levels"] = clip_levels(ctx.clip.frames)
-    return ctx.results["clip_levels"]
+    if ctx.clip_levels is None:
+        ctx.clip_levels = clip_levels(ctx.clip.frames)
+    return ctx.clip_levels
 
 
 def model_meta(ctx: Context) -> dict:
@@ -327,11 +320,11 @@ def model_meta(ctx: Context) -> dict:
     b = ctx.results["bootstrap"]
     e = ctx.exposures
     return {
-        "h0": b["h0"],
+        "h0": b.h0,
         "log2_dt": np.asarray(e.log2_dt, dtype=np.float32),
         "exposure_learn": e.learn,
         "phase": None if e.phase is None else np.asarray(e.phase),
-        "init_log2": b["init_log2"],
+        "init_log2": b.init_log2,
         "frame_hw": (ctx.clip.H, ctx.clip.W),
         "n_frames": ctx.clip.T,
         "names": list(ctx.clip.names),

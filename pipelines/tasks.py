@@ -18,6 +18,7 @@ from layercam.core.errors import LayercamError
 from layercam.io.lock import run_lock
 from layercam.pipelines import publish
 from layercam.pipelines.export import ExportStage
+from layercam.pipelines.results import TrainResult
 from layercam.pipelines.runner import Context, output_sources, run_stages, write_json
 from layercam.pipelines.stages import BootstrapStage, FlowStage, PrefitStage, RefineStage, TrainStage, refine_wanted
 
@@ -93,12 +94,12 @@ def _run(ctx: Context, stages: list, t0: float, window=None, ray: str | None = N
                     ctx.warn(f"window {r['index']} (frames {r['frames'][0]}..{r['frames'][1] - 1}): {w}")
             stages = [stages[0], windows.WindowsStage(plan, results)]
             run_stages(ctx, stages[1:])
-            ctx.results["train"] = windows.train_summary(results)
+            ctx.results["train"] = TrainResult(windows.train_summary(results))
             runs = [{**{k: r[k] for k in ("index", "frames", "keys", "times")}, "folder": str(Path(r["folder"]).relative_to(ctx.run_dir))} for r in results]
-            extra = {"windows": {**plan.to_dict(), "runs": runs, "ray": ctx.results.get("ray")}}
+            extra = {"windows": {**plan.to_dict(), "runs": runs, "ray": ctx.ray}}
         else:
             run_stages(ctx, stages[1:2])  # the bootstrap: motion masks for two layers
-            unfound = analyse.unfound_foreground(cfg, ctx.results.get("bootstrap"))
+            unfound = analyse.unfound_foreground(cfg, ctx.results["bootstrap"].foreground)
             if unfound:  # the analysis chose two layers and the finder found no object: one layer, saying why
                 ctx.measures.update(foreground_found=False, foreground_reason=unfound)
                 again = resolve(cfg, clip, exposures, task, ctx.measures)
@@ -149,7 +150,7 @@ def faded_foreground(ctx: Context) -> str | None:
     over the clip). Alpha that is 0 everywhere satisfies the flow terms, and the plain mask term
     pulls a small object towards the background (docs/measurements.md). None when it did not, or without masks or
     the atlas export (one layer, a run exported before the share was kept)."""
-    share = (ctx.results.get("export", {}).get("atlas") or {}).get("foreground_share")
+    share = (ctx.results["export"].atlas or {}).get("foreground_share") if "export" in ctx.results else None
     masks, source = TrainStage.masks(ctx)
     if share is None or masks is None:
         return None
@@ -167,7 +168,7 @@ def write_report(ctx: Context, wall: float, name: str | None = "report.json", ex
     """The run's report; written to ``RUN/name`` by rank 0 unless ``name`` is None."""
     import torch
 
-    train = dict(ctx.results.get("train", {}))
+    res = {k: r.report() for k, r in ctx.results.items()}
     rep = {
         "task": ctx.task,
         "input": {"source": str(ctx.clip.source), "frames": ctx.clip.T, "width": ctx.clip.W, "height": ctx.clip.H, "fps": ctx.clip.fps, "bit_depth": ctx.clip.bit_depth,
@@ -177,12 +178,12 @@ def write_report(ctx: Context, wall: float, name: str | None = "report.json", ex
         "settings": ctx.resolved.to_dict() if ctx.resolved is not None else ctx.cfg.to_dict(),
         "stages": ctx.times,
         "wall_seconds": round(wall, 2),
-        "train": train,
-        "flow": ctx.results.get("flow", {}),
-        **({"refine": {k: v for k, v in ctx.results["refine"].items() if k != "masks"}} if "refine" in ctx.results else {}),
-        "export": {k: v for k, v in ctx.results.get("export", {}).items() if not k.endswith("_path")},
-        "metrics": ctx.results.get("evaluate", {}).get("metrics"),
-        "baselines": ctx.results.get("evaluate", {}).get("baselines"),
+        "train": res.get("train", {}),
+        "flow": res.get("flow", {}),
+        **({"refine": res["refine"]} if "refine" in res else {}),
+        "export": res.get("export", {}),
+        "metrics": res.get("evaluate", {}).get("metrics"),
+        "baselines": res.get("evaluate", {}).get("baselines"),
         "machine": {"python": platform.python_version(), "torch": torch.__version__, "threads": torch.get_num_threads(), "cpu": platform.processor() or platform.machine()},
         "cache_keys": ctx.keys,
         "memory": {"estimate": ctx.estimate, "peak_rss_bytes": _peak_rss()},

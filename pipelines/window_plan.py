@@ -123,7 +123,7 @@ def atlas_px(homs: np.ndarray, a: int, b: int, hw: tuple[int, int]) -> float:
     return px if np.isfinite(px) else float("inf")
 
 
-def plan(clip, exposures, flow: dict | None, task: str, window=None) -> Plan:
+def plan(clip, exposures, flow, task: str, window=None) -> Plan:
     """The windows of a clip: ``window`` None (auto), 0 (off) or a length in frames.
 
     Auto: a model holds the clip as long as its atlas does. The atlas grid's finest level has at
@@ -152,11 +152,11 @@ def plan(clip, exposures, flow: dict | None, task: str, window=None) -> Plan:
             return Plan([(0, T)], f"one model (--window {n} covers the clip's {T} frames)", forced=True)
         w = split(T, n, cycle)
         return Plan(w, f"forced (--window {n}): {len(w)} windows of {w[0][1] - w[0][0]} frames or fewer, overlapping by {overlap_for(n, cycle)}", forced=True)
-    if flow is None or "homs" not in flow or len(flow["homs"]) != T - 1:
+    if flow is None or flow.homs is None or len(flow.homs) != T - 1:
         return Plan([(0, T)], "one model (no flow measured)")
     hw = (clip.H, clip.W)
-    work = tuple(flow["fw"].shape[1:3]) if "fw" in flow else hw
-    homs = rescale_homographies(flow["homs"], work, hw) if work != hw else np.asarray(flow["homs"], np.float64)
+    work = flow.grid if flow.fw is not None else hw
+    homs = rescale_homographies(flow.homs, work, hw) if work != hw else np.asarray(flow.homs, np.float64)
     cap = max(float(GRID_MAX_RES), max(hw) / 0.9)  # geometry.atlas_mappings: a frame fills 0.9 of the atlas
     whole = atlas_px(homs, 0, T, hw)
     floor = 3 * OVERLAP
@@ -202,11 +202,10 @@ def sub_exposures(e, a: int, b: int):
     return Exposures(e.log2_dt[a:b], e.learn, None if e.phase is None else e.phase[a:b], e.spec, e.reason, None if e.dt_seconds is None else e.dt_seconds[a:b])
 
 
-def sub_flow(flow: dict | None, T: int, a: int, b: int) -> dict | None:
-    """The whole clip's flow arrays for the pairs inside frames ``a .. b - 1``."""
-    if flow is None:
-        return None
-    return {k: (rows(v, a, b - 1) if hasattr(v, "__len__") and len(v) == T - 1 else v) for k, v in flow.items()}
+def sub_flow(flow, a: int, b: int):
+    """The whole clip's flow (:class:`~layercam.vision.flow_store.FlowArrays`) for the pairs inside
+    frames ``a .. b - 1``: views, nothing read."""
+    return None if flow is None else flow.rows(a, b - 1)
 
 
 def rows(x, a: int, b: int):

@@ -35,6 +35,7 @@ import numpy as np
 from layercam.core.config import config_hash
 from layercam.core.errors import LayercamError
 from layercam.core.interrupts import reached
+from layercam.pipelines.results import FlowResult
 from layercam.pipelines.runner import Context, Stage, run_stages, write_json
 from layercam.pipelines.window_plan import Plan, rows, sub_clip, sub_exposures, sub_flow
 
@@ -57,7 +58,7 @@ class WindowSpec:
     cfg: object
     resolved: object
     masks: object
-    flow: dict | None
+    flow: object                    # the window's layercam.vision.flow_store.FlowArrays (views), None for one frame
     flow_key: str
     flow_summary: dict
     measures: dict
@@ -74,13 +75,13 @@ def window_dir(run_dir: Path, a: int, b: int) -> Path:
 def specs(ctx: Context, p: Plan) -> list[WindowSpec]:
     from layercam.pipelines.stages import ctx_clip_levels
 
-    T, lv = ctx.clip.T, ctx_clip_levels(ctx)
+    lv = ctx_clip_levels(ctx)
     out = []
     for k, (a, b) in enumerate(p.windows):
         out.append(WindowSpec(
             k, a, b, str(window_dir(ctx.run_dir, a, b)), ctx.task, sub_clip(ctx.clip, a, b), sub_exposures(ctx.exposures, a, b), ctx.cfg, ctx.resolved,
-            None if ctx.masks is None else rows(ctx.masks, a, b), sub_flow(ctx.flow, T, a, b),
-            config_hash({"flow": ctx.keys["flow"], "window": [a, b]})[:12], dict(ctx.results.get("flow", {})),
+            None if ctx.masks is None else rows(ctx.masks, a, b), sub_flow(ctx.flow, a, b),
+            config_hash({"flow": ctx.keys["flow"], "window": [a, b]})[:12], ctx.results["flow"].summary,
             ctx.measures, lv, progress=ctx.progress,
         ))
     return out
@@ -101,8 +102,8 @@ def run_window(spec: WindowSpec) -> dict:
                   progress=spec.progress, measures=spec.measures, resolved=spec.resolved, flow=spec.flow)
     ctx.camera = spec.camera
     ctx.keys["flow"] = spec.flow_key
-    ctx.results["flow"] = dict(spec.flow_summary)
-    ctx.results["clip_levels"] = spec.clip_levels
+    ctx.results["flow"] = FlowResult(dict(spec.flow_summary))
+    ctx.clip_levels = spec.clip_levels
     ctx.say(f"[window {spec.index}] frames {spec.a}..{spec.b - 1} in {ctx.run_dir}")
     run_stages(ctx, [BootstrapStage()])
     if refine_wanted(ctx):
@@ -112,8 +113,8 @@ def run_window(spec: WindowSpec) -> dict:
     return {
         "index": spec.index, "frames": [spec.a, spec.b], "folder": spec.run_dir,
         "keys": dict(ctx.keys), "dirs": {k: str(v) for k, v in ctx.dirs.items()}, "times": ctx.times,
-        "train": ctx.results.get("train", {}), "export": {k: v for k, v in ctx.results.get("export", {}).items() if not k.endswith("_path")},
-        "warnings": list(ctx.warnings) + ([faded] if faded else []), "static": bool(ctx.results["bootstrap"].get("static")),
+        "train": ctx.results["train"].report(), "export": ctx.results["export"].report(),
+        "warnings": list(ctx.warnings) + ([faded] if faded else []), "static": ctx.results["bootstrap"].static,
     }
 
 
@@ -152,7 +153,7 @@ def run_all(ctx: Context, p: Plan, ray: str | None = None) -> list[dict]:
         from layercam.engine import cluster
 
         runner = cluster.Runner(ray, ctx.say)
-        ctx.results["ray"] = runner.describe
+        ctx.ray = runner.describe
         from layercam.io.frames import TempArray
 
         for s in todo:
@@ -179,7 +180,6 @@ class WindowsStage(Stage):
 
     name = "windows"
     deps = ("flow",)
-    version = 1
 
     def __init__(self, plan: Plan | None = None, results: list[dict] | None = None):
         self.plan, self.results = plan, results or []
@@ -320,8 +320,10 @@ class WindowsStage(Stage):
             write_png(out / "alpha" / f"frame_{t:05d}.png", np.clip(a, 0.0, 1.0))
 
     def load(self, ctx, out, summary):
-        p = out / "deblurred.npy"
-        return {**summary, **({"frames_path": str(p)} if p.exists() else {})}
+        from layercam.pipelines.export import kept_arrays
+        from layercam.pipelines.results import ExportResult
+
+        return ExportResult(summary, **kept_arrays(out))
 
 
 def _link(src: Path, dst: Path) -> None:

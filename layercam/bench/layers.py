@@ -108,9 +108,9 @@ def run_layer_job(job: dict) -> dict:
     wall = sum((v.get("seconds") or v.get("original_seconds") or 0.0) for v in ctx.times.values())
     alpha = read_alpha(run, clip.T, (clip.H, clip.W))
     ious = mask_ious(alpha, truth)
-    boot = ctx.results["bootstrap"].get("masks")
+    boot = ctx.results["bootstrap"].masks
     boot_ious = mask_ious(boot, truth) if boot is not None and job["variant"] == "motion" else None
-    verdict = ((ctx.results["bootstrap"].get("foreground") or {}).get("verdict") or {}) if job["variant"] == "motion" else {}
+    verdict = ctx.results["bootstrap"].verdict if job["variant"] == "motion" else {}
     model, _ = load_run_model(run)
     psnrs = reconstruction_psnr(model, clip.frames)
     row = {
@@ -120,7 +120,7 @@ def run_layer_job(job: dict) -> dict:
         "found": verdict.get("found"), "verdict": verdict.get("reason", ""),
         "bootstrap_iou": None if boot_ious is None else round(float(np.mean(boot_ious)), 4),
         "psnr": round(float(np.mean(psnrs)), 3), "wall_s": round(wall, 1), "total_s": round(total, 1),
-        "steps": ctx.results["train"]["steps"], "per_frame_iou": [round(v, 4) for v in ious],
+        "steps": ctx.results["train"].steps, "per_frame_iou": [round(v, 4) for v in ious],
         "per_frame_bootstrap_iou": None if boot_ious is None else [round(v, 4) for v in boot_ious],
         "per_frame_psnr": [round(v, 3) for v in psnrs], "overrides": job.get("overrides", []),
         "threads": job.get("threads", 1),

@@ -112,9 +112,9 @@ def run_job(job: dict) -> dict:
     ctx = run_task(SCENES[job["scene"]]["task"], scene.clip, scene_exposures(scene), cfg, Path(job["out"]), progress=False,
                    extra_stages=[EvaluateStage(scene, baselines=())], train_callbacks=[make_probe])
     wall = time.perf_counter() - t0
-    tr = ctx.results["train"]
+    tr = ctx.results["train"].summary
     probe_s = probe["cb"].probe_time if probe["cb"] else 0.0
-    m = ctx.results["evaluate"]["metrics"]
+    m = ctx.results["evaluate"].metrics
     stage_s = sum(v["seconds"] for k, v in ctx.times.items() if k != "evaluate")
     row = {
         "scene": job["scene"], "method": "layercam", "preset": job["preset"],
@@ -333,7 +333,7 @@ def analysis_job(name: str, variant: str, out: Path, preset: str, quick: bool, o
     t0 = time.perf_counter()
     ctx = run_task(task, scene.clip, scene_exposures(scene), cfg, out / name / variant, progress=False, extra_stages=[EvaluateStage(scene, baselines=(), **extra)])
     wall = sum(v["seconds"] for k, v in ctx.times.items() if k != "evaluate")
-    m = ctx.results["evaluate"]["metrics"]
+    m = ctx.results["evaluate"].metrics
     metric, value = ("psnr_mu", m["psnr_mu"]) if "psnr_mu" in m else ("psnr", m["psnr"])
     return {"family": name, "variant": variant, **model_summary(ctx.resolved.settings), "metric": metric, "value": round(float(value), 2), "wall_s": round(wall, 1),
             "total_s": round(time.perf_counter() - t0, 1), "reasons": dict(ctx.resolved.reasons)}

@@ -33,7 +33,7 @@ def run(args) -> int:
     exposures = Exposures(log2, "none", phase, f"alt (ev-step {args.ev_step}, known)", f"synthetic: exposures alternate by {args.ev_step} EV")
     ctx = run_task("demo", scene.clip, exposures, cfg, Path(args.out), progress=not args.quiet, extra_stages=[EvaluateStage(scene)])
     ev = ctx.results["evaluate"]
-    rows = [("layercam (" + cfg.preset + ")", ev["metrics"])] + [(k, v) for k, v in ev["baselines"].items()]
+    rows = [("layercam (" + cfg.preset + ")", ev.metrics)] + list(ev.baselines.items())
     print("\nHDR against ground truth (one scale per channel aligned):")
     print(f"  {'method':<22} {'PSNR-mu':>8} {'PSNR-L':>8} {'SSIM-mu':>8} {'wall s':>8}")
     for name, m in rows:

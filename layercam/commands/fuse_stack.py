@@ -75,6 +75,6 @@ def run(args) -> int:
     ctx = run_task("fuse-stack", clip, exposures, cfg, out, progress=not args.quiet)
     finish(ctx)
     if not args.quiet:
-        ex = ctx.results["export"]
+        ex = ctx.results["export"].summary
         print(f"fused into the view of image {ex['reference']} ({ex['reference_name']}): {out / 'fused.exr'}, {out / 'fused.png'}")
     return 0

@@ -218,13 +218,15 @@ def measure(clip, exposures, flow: dict | None) -> dict:
     return m
 
 
-def unfound_foreground(cfg: Config, bootstrap: dict | None) -> str | None:
+def unfound_foreground(cfg: Config, foreground: dict | None) -> str | None:
     """Why a two-layer run found no foreground, when the analysis chose its two layers (``cfg``:
     the settings as given, ``model.layers`` auto) and the foreground finder's verdict
-    (:mod:`layercam.vision.segment.verdict`) is that its masks hold no consistent, independently moving
-    object; None otherwise (one layer, layers given, masks given, an object found). The task then
-    decides again with ``measures["foreground_found"] = False`` (one layer, this reason)."""
-    fg = (bootstrap or {}).get("foreground") or {}
+    (:mod:`layercam.vision.segment.verdict`; ``foreground``: the bootstrap's account of its
+    foreground, ``masks`` and ``verdict``, None for one layer) is that its masks hold no consistent,
+    independently moving object; None otherwise (one layer, layers given, masks given, an object
+    found). The task then decides again with ``measures["foreground_found"] = False`` (one layer,
+    this reason)."""
+    fg = foreground or {}
     verdict = fg.get("verdict") or {}
     if cfg.model.layers != AUTO or fg.get("masks") != "motion segmentation" or verdict.get("found", True):
         return None

@@ -5,15 +5,18 @@ working grid ``h x w``, :func:`layercam.vision.scale.working_size`), ``fw_ok.raw
 (forward-backward consistency) and ``vis.raw`` (both frames see the pixel well), each ``(T-1, h, w)``
 bool, all :class:`~layercam.io.frames.DiskArray`; ``homs.npy`` ``(T-1, 3, 3)`` float64 (the global
 homography of each pair, fitted to the float32 flow where it is consistent and seen well) and
-``flow.json`` (shapes and dtypes). :func:`load` opens them as the dict the stages read
-(``ctx.flow``): the arrays index like ndarrays (``fl["fw"][t]`` reads one pair) and the sampler
+``flow.json`` (shapes and dtypes). :func:`load` opens them as the :class:`FlowArrays` the stages
+read (``ctx.flow``): the arrays index like ndarrays (``fl.fw[t]`` reads one pair) and the sampler
 gathers pixels from them; nothing holds the clip's flow in memory.
 """
 
 from __future__ import annotations
 
 import json
+from collections.abc import Mapping
+from dataclasses import dataclass, fields, replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -21,6 +24,62 @@ from layercam.core.interrupts import reached
 from layercam.io.frames import DiskArray
 
 ARRAYS = {"fw": (np.float16, 2), "bw": (np.float16, 2), "fw_ok": (np.bool_, 0), "bw_ok": (np.bool_, 0), "vis": (np.bool_, 0)}
+
+
+@dataclass(frozen=True, eq=False)
+class FlowArrays(Mapping):
+    """The flow of a clip's ``N = T - 1`` neighbour pairs on a working grid ``h x w``: ``fw``, ``bw``
+    ``(N, h, w, 2)`` flows (pixels of that grid), ``fw_ok``, ``bw_ok`` ``(N, h, w)`` forward-backward
+    consistency, ``vis`` ``(N, h, w)`` both frames see the pixel well, ``homs`` ``(N, 3, 3)`` each
+    pair's global homography. The arrays are anything that indexes like an ndarray (the flow
+    stage's :class:`~layercam.io.frames.DiskArray`, or arrays in memory); a field may be None where a
+    reader left it out (:func:`layercam.vision.scale.at_frame_size`'s ``keys``).
+
+    Also a read-only mapping of the arrays present (``fl["fw"]``), the contract of the vision
+    functions that take any mapping of flows (``layercam.vision.flow.compute_flow``'s dict)."""
+
+    fw: Any = None
+    bw: Any = None
+    fw_ok: Any = None
+    bw_ok: Any = None
+    vis: Any = None
+    homs: Any = None
+
+    @classmethod
+    def of(cls, arrays: Mapping) -> "FlowArrays":
+        """From any mapping of these names (others are not flow arrays: a KeyError says so)."""
+        bad = set(arrays) - {f.name for f in fields(cls)}
+        if bad:
+            raise KeyError(f"not flow arrays: {sorted(bad)}")
+        return cls(**arrays)
+
+    @property
+    def pairs(self) -> int:
+        return len(self.fw) if self.fw is not None else len(self.homs)
+
+    @property
+    def grid(self) -> tuple[int, int]:
+        """``(h, w)``: the working grid the flows are on."""
+        return tuple(self.fw.shape[1:3])
+
+    def rows(self, a: int, b: int) -> "FlowArrays":
+        """Pairs ``a .. b - 1`` (views of arrays on disk: nothing read)."""
+        return replace(self, **{k: (v.rows(a, b) if hasattr(v, "rows") else np.asarray(v)[a:b]) for k, v in self.items()})
+
+    def __getitem__(self, k: str):
+        v = getattr(self, k, None) if k in _NAMES else None
+        if v is None:
+            raise KeyError(k)
+        return v
+
+    def __iter__(self):
+        return (k for k in _NAMES if getattr(self, k) is not None)
+
+    def __len__(self) -> int:
+        return sum(1 for _ in self)
+
+
+_NAMES = tuple(f.name for f in fields(FlowArrays))
 
 
 
@@ -84,33 +143,13 @@ def compute(frames, out: Path, cfg, progress: bool = False) -> dict:
     return {"pairs": n, "working_size": [h, w], "mean_flow_px": mag_sum / px, "consistent_fraction": ok_sum / px}
 
 
-def load(out: Path) -> dict | None:
-    """The arrays :func:`compute` left in ``out`` (opened, not read), or None for a single frame. A
-    flow cached before (one ``flow.npz``) is moved to this layout first, an array at a time."""
+def load(out: Path) -> FlowArrays | None:
+    """The arrays :func:`compute` left in ``out`` (opened, not read), or None for a single frame."""
     out = Path(out)
-    if not (out / "flow.json").exists() and (out / "flow.npz").exists():
-        _migrate(out)
     info = json.loads((out / "flow.json").read_text())
     n = info["pairs"]
     if not n:
         return None
     h, w = info["working_size"]
     fl = {k: DiskArray(out / f"{k}.raw", dt, (n, h, w, 2) if c else (n, h, w)) for k, (dt, c) in info["arrays"].items()}
-    fl["homs"] = np.load(out / "homs.npy")
-    return fl
-
-
-def _migrate(out: Path) -> None:
-    """``flow.npz`` (the flow stage's cache before it was kept a file per array) as :func:`compute`
-    leaves it: the same arrays, so the stages after it keep their caches."""
-    with np.load(out / "flow.npz") as z:
-        n = len(z["fw"])
-        h, w = z["fw"].shape[1:3] if n else (0, 0)
-        for k, (dt, c) in ARRAYS.items():
-            if k in z.files or n == 0:
-                a = DiskArray.create(out / f"{k}.raw", dt, (n, h, w, 2) if c else (n, h, w))
-                if n:
-                    a[0:n] = z[k]
-                a.close()
-        np.save(out / "homs.npy", z["homs"].astype(np.float64) if "homs" in z.files else np.repeat(np.eye(3)[None], n, 0))
-    (out / "flow.json").write_text(json.dumps({"pairs": n, "working_size": [int(h), int(w)], "arrays": {k: [np.dtype(dt).str, c] for k, (dt, c) in ARRAYS.items()}}))
+    return FlowArrays.of({**fl, "homs": np.load(out / "homs.npy")})

@@ -74,11 +74,12 @@ def upsample_mask(ok: np.ndarray, hw: tuple[int, int]) -> np.ndarray:
     return np.stack([cv2.resize(m.astype(np.uint8), (hw[1], hw[0]), interpolation=cv2.INTER_NEAREST).astype(bool) for m in ok])
 
 
-def at_frame_size(fl: dict | None, hw: tuple[int, int], keys: tuple | None = None) -> dict | None:
+def at_frame_size(fl, hw: tuple[int, int], keys: tuple | None = None):
     """The flow stage's arrays (flows ``fw``/``bw``, masks ``fw_ok``/``bw_ok``/``vis``, homographies
     ``homs``), computed at a working size, at the frames' size ``hw``: flows upsampled (in frame
     pixels), masks by nearest pixel, homographies rescaled. ``keys``: only these (the others are
-    left out); ``fl`` itself when the sizes agree."""
+    left out); ``fl`` itself when the sizes agree. A :class:`~layercam.vision.flow_store.FlowArrays`
+    gives one (the left-out arrays None), any other mapping a dict."""
     if fl is None:
         return None
     work = tuple(fl["fw"].shape[1:3])
@@ -92,7 +93,9 @@ def at_frame_size(fl: dict | None, hw: tuple[int, int], keys: tuple | None = Non
             out[k] = upsample_mask(fl[k], hw)
         elif k == "homs":
             out[k] = rescale_homographies(fl[k], work, hw)
-    return out
+    from layercam.vision.flow_store import FlowArrays
+
+    return FlowArrays.of(out) if isinstance(fl, FlowArrays) else out
 
 
 class AtFrameSize:

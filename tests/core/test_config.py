@@ -129,7 +129,7 @@ def test_every_preset_trains_two_steps(name, tmp_path):
     tiny = ["train.steps=2", "train.bootstrap_steps=1", "train.batch=64", "train.checkpoint_every=0", "flow.method=dis_fast"]
     cfg = load_config(name, tiny + model_overrides(layers=2, blur="3x3"))
     ctx = run_task("hdr-video", scene.clip, ex, cfg, tmp_path / "run", masks=scene.fg_mask.astype(np.float32), progress=False)
-    assert ctx.results["train"]["steps"] == 2 and ctx.model.blur is not None and ctx.model.scene.n_layers == 2
+    assert ctx.results["train"].steps == 2 and ctx.model.blur is not None and ctx.model.scene.n_layers == 2
     assert len(list((tmp_path / "run" / "hdr").glob("*.exr"))) == 4 and (tmp_path / "run" / "psf.json").is_file()
 
 

@@ -252,7 +252,7 @@ def test_pipeline_divergence_writes_failed_report_keeps_checkpoint_and_resumes(t
     assert ck["step"] == 5 and all(torch.isfinite(v).all() for v in ck["model"].values() if v.is_floating_point())
     monkeypatch.undo()
     ctx = run_task("hdr-video", tiny_scene.clip, tiny_exposures, cfg, run, progress=False)
-    assert ctx.results["train"]["resumed_from"] == 5 and ctx.results["train"]["steps"] == 20
+    assert ctx.results["train"].resumed_from == 5 and ctx.results["train"].steps == 20
     assert (run / "report.json").exists() and not (run / "report_failed.json").exists()
 
 

@@ -60,14 +60,16 @@ def test_a_window_of_a_clip_on_disk_reads_nothing(tmp_path):
     from layercam.io import load_clip
     from layercam.pipelines.window_plan import rows
     from layercam.pipelines.window_plan import sub_clip, sub_flow
+    from layercam.vision.flow_store import FlowArrays
 
     v = _video(tmp_path / "v.mp4", n=5)
     clip = load_clip(v, cache=tmp_path / "cache")
     w = sub_clip(clip, 1, 4)
     assert w.T == 3 and w.frames.on_disk and np.array_equal(w.frames[0], clip.frames[1]) and w.meta["window"] == [1, 4]
-    flow = {"fw": DiskArray(clip.frames.raw.path, np.uint8, (4, 2, 2, 2)), "n": 3}
-    sub = sub_flow(flow, 5, 1, 4)
-    assert isinstance(sub["fw"], DiskArray) and len(sub["fw"]) == 2 and sub["n"] == 3
+    flow = FlowArrays(fw=DiskArray(clip.frames.raw.path, np.uint8, (4, 2, 2, 2)), homs=np.repeat(np.eye(3)[None], 4, 0))
+    sub = sub_flow(flow, 1, 4)
+    assert isinstance(sub.fw, DiskArray) and len(sub.fw) == 2 and sub.homs.shape == (2, 3, 3) and sub.pairs == 2
+    assert list(sub) == ["fw", "homs"] and sub.bw is None and sub.grid == (2, 2)
     assert np.array_equal(rows(np.arange(5), 1, 3), [1, 2])
 
 
@@ -139,7 +141,7 @@ def test_the_flow_store_holds_what_the_whole_clip_functions_give(tmp_path):
     want = flow.pair_arrays(fr, fw, bw)
     summary = flow_store.compute(Frames(fr), tmp_path, FlowConfig(method="dis_fast"))
     got = flow_store.load(tmp_path)
-    assert summary["pairs"] == 4 and isinstance(got["fw"], DiskArray)
+    assert summary["pairs"] == 4 and isinstance(got.fw, DiskArray) and got.grid == (40, 48) and got.pairs == 4
     assert np.array_equal(np.asarray(got["fw"]), fw.astype(np.float16)) and np.array_equal(np.asarray(got["bw"]), bw.astype(np.float16))
     for k in ("fw_ok", "bw_ok", "vis", "homs"):
         assert np.array_equal(np.asarray(got[k]), want[k]), k
@@ -191,8 +193,8 @@ def test_a_long_two_layer_clip_is_segmented_in_windows_and_resumes(tmp_path, mon
     cfg = load_config("fast", TINY + ["model.layers=2", "train.steps=20"])
     ctx = run_task("hdr-video", scene.clip, ex, cfg, tmp_path / "run", progress=False)
     boot = ctx.results["bootstrap"]
-    assert boot["foreground"]["windows"] == 3 and isinstance(boot["masks"], DiskArray) and boot["masks"].shape == (10, 40, 40)
-    assert np.asarray(boot["masks"]).any()
+    assert boot.foreground["windows"] == 3 and isinstance(boot.masks, DiskArray) and boot.masks.shape == (10, 40, 40)
+    assert np.asarray(boot.masks).any()
     import json
 
     mem = json.loads((tmp_path / "run" / "report.json").read_text())["memory"]
@@ -242,15 +244,3 @@ def test_the_estimate_grows_with_the_clip_on_disk_not_in_memory(tmp_path):
     with pytest.raises(LayercamError, match="--resize"):
         check(huge, tmp_path)
     check(short, tmp_path)  # fits this machine
-
-
-def test_a_flow_cached_before_is_moved_to_files(tmp_path):
-    """A flow stage's folder from before (one flow.npz) loads as the arrays it held."""
-    from layercam.vision import flow_store
-
-    rng = np.random.default_rng(4)
-    old = {"fw": rng.normal(size=(2, 4, 5, 2)).astype(np.float16), "bw": rng.normal(size=(2, 4, 5, 2)).astype(np.float16),
-           "fw_ok": rng.random((2, 4, 5)) > 0.5, "bw_ok": rng.random((2, 4, 5)) > 0.5, "vis": rng.random((2, 4, 5)) > 0.5, "homs": np.stack([np.eye(3)] * 2)}
-    np.savez(tmp_path / "flow.npz", **old)
-    fl = flow_store.load(tmp_path)
-    assert all(np.array_equal(np.asarray(fl[k]), v) for k, v in old.items())

@@ -130,7 +130,7 @@ def test_blur_generator_deblurs_shake_clip(tmp_path):
     e = Exposures(np.zeros(6), "none", None, "none", "single")
     cfg = load_config("fast", ["train.batch=2048", "model.layers=1"])  # with a blur generator, at most one grid cell per pixel
     ctx = run_task("deblur-video", sc.clip, e, cfg, tmp_path / "run", progress=False, extra_stages=[EvaluateStage(sc)])
-    res = ctx.results["evaluate"]["aligned"]
+    res = ctx.results["evaluate"].summary["aligned"]
     assert res["deblurred"]["psnr"] > res["input"]["psnr"] + 1.0, res
-    spread = ctx.results["export"]["psf"]["spread_px"]
+    spread = ctx.results["export"].summary["psf"]["spread_px"]
     assert np.corrcoef(spread, sc.meta["blur_length"])[0, 1] > 0.7

@@ -33,7 +33,7 @@ def test_export_writes_float32_when_irradiance_exceeds_half(tmp_path):
     ex = Exposures(np.array([-12.0, -11.0]), "none", np.array([0, 1]), "alt", "test")
     cfg = load_config("fast", TINY + ["train.steps=4", "train.batch=64"])
     ctx = run_task("hdr-video", _clip(np.ones((2, 8, 8, 3))), ex, cfg, tmp_path / "run", progress=False)
-    assert ctx.results["export"]["exr"] == "float32"
+    assert ctx.results["export"].summary["exr"] == "float32"
     img = read_exr(tmp_path / "run" / "hdr" / "frame_00000.exr")
     assert np.isfinite(img).all() and img.max() > 65504
 

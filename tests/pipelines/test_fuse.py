@@ -89,10 +89,10 @@ def test_mfme_with_times_file_learns_tone_and_scores(tmp_path):
     ctx = run_task("fuse-stack", clip, e, load_config("fast", TINY + SMALL_BLUR), run, progress=False, extra_stages=[ev_stage])
     assert all(ctx.times[k]["cached"] for k in ("flow", "bootstrap", "train", "export"))
     res = ctx.results["evaluate"]
-    assert 10 < res["metrics"]["psnr_mu"] < 100
-    (name,) = res["baselines"]
-    assert "two_stage_mfme" in name and np.isfinite(res["baselines"][name]["psnr_mu"])
-    assert json.loads((run / "report.json").read_text())["metrics"]["psnr_mu"] == res["metrics"]["psnr_mu"]
+    assert 10 < res.metrics["psnr_mu"] < 100
+    (name,) = res.baselines
+    assert "two_stage_mfme" in name and np.isfinite(res.baselines[name]["psnr_mu"])
+    assert json.loads((run / "report.json").read_text())["metrics"]["psnr_mu"] == res.metrics["psnr_mu"]
 
 
 @pytest.mark.parametrize("extra, needle", [(["--reference", "7"], "reference"), (["--reference", "side"], "reference"), (["--exposures", "nope.txt"], "nope.txt")])

@@ -73,8 +73,8 @@ def test_interrupted_training_resumes(tiny_scene, tiny_exposures, tmp_path, monk
     ckpts = list((run / "cache").glob("train-*/ckpt.pt"))
     assert len(ckpts) == 1
     ctx = _run(tiny_scene, tiny_exposures, run)
-    assert ctx.results["train"]["resumed_from"] == 45
-    assert ctx.results["train"]["steps"] == 60
+    assert ctx.results["train"].resumed_from == 45
+    assert ctx.results["train"].steps == 60
     assert ctx.times["flow"]["cached"]
 
 
@@ -227,7 +227,7 @@ def test_flow_at_a_working_size_runs_end_to_end(tiny_scene, tiny_exposures, tmp_
 
     monkeypatch.setattr(scale, "WORKING_SHORT_SIDE", 16)
     ctx = _run(tiny_scene, tiny_exposures, tmp_path / "run")
-    assert ctx.results["flow"]["working_size"] == [16, 16] and ctx.flow["fw"].shape[1:3] == (16, 16)
+    assert ctx.results["flow"].summary["working_size"] == [16, 16] and ctx.flow.grid == (16, 16)
     rep = json.loads((tmp_path / "run" / "report.json").read_text())
     assert rep["train"]["final_loss"]["color"] < 0.5 * rep["train"]["first_loss"]["color"]
 
@@ -303,5 +303,5 @@ def test_a_raft_flow_method_with_its_weights_file_runs_end_to_end(tiny_scene, ti
     torch.manual_seed(0)
     torch.save(raft_small(weights=None, progress=False).state_dict(), weights)
     ctx = _run(tiny_scene, tiny_exposures, tmp_path / "run", [f"flow.method={method}", f"flow.raft_weights={weights}"])
-    assert ctx.results["flow"]["pairs"] == tiny_scene.clip.T - 1 and np.isfinite(ctx.flow["fw"]).all()
+    assert ctx.results["flow"].pairs == tiny_scene.clip.T - 1 and np.isfinite(ctx.flow.fw).all()
     assert len(list((tmp_path / "run" / "hdr").glob("*.exr"))) == tiny_scene.clip.T

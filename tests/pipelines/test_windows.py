@@ -75,11 +75,12 @@ def test_any_split_joins_with_weights_that_sum_to_one(T, length, cycle):
 def _clip_with_pan(T, step_px, hw=(32, 32)):
     from layercam.io import Exposures
     from layercam.io.clip import Clip
+    from layercam.vision.flow_store import FlowArrays
 
     clip = Clip(np.zeros((T, *hw, 3), np.float32), "test", [str(t) for t in range(T)])
     homs = np.tile(np.eye(3), (T - 1, 1, 1))
     homs[:, 0, 2] = -step_px  # frame t+1 sees the scene moved left: the camera pans right
-    flow = {"fw": np.zeros((T - 1, *hw, 2), np.float16), "homs": homs}
+    flow = FlowArrays(fw=np.zeros((T - 1, *hw, 2), np.float16), homs=homs)
     return clip, Exposures(np.zeros(T), "none", None, "none", "test"), flow
 
 
@@ -94,7 +95,7 @@ def test_auto_plan_cuts_where_the_camera_leaves_the_atlas():
     assert p.count > 1 and "it holds" in p.reason
     assert p.windows[0][0] == 0 and p.windows[-1][1] == 120
     for (a, b), px in zip(p.windows[:-1], p.atlas_px[:-1]):
-        assert px <= cap and window_plan.atlas_px(flow["homs"], a, b + 1, (32, 32)) > cap  # the longest that fits
+        assert px <= cap and window_plan.atlas_px(flow.homs, a, b + 1, (32, 32)) > cap  # the longest that fits
     clip, exp, flow = _clip_with_pan(120, 0.0)  # a static camera: any length fits
     p = window_plan.plan(clip, exp, flow, "hdr-video")
     assert p.count == 1 and p.reason.startswith("one model")

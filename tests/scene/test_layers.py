@@ -22,7 +22,7 @@ def test_two_layer_run_separates_the_moving_object(two_layer_run):
     assert all(np.isfinite(v) for v in fl.values()) and rep["train"]["bad_steps"] == 0
     # no --masks: the bootstrap computed motion masks and kept them in its cache folder
     boot = ctx.dirs["bootstrap"]
-    assert ctx.results["bootstrap"]["foreground"]["masks"] == "motion segmentation"
+    assert ctx.results["bootstrap"].motion_masks
     assert (boot / "masks.npz").is_file() and len(list((boot / "masks").glob("frame_*.png"))) == T
     for t in range(T):
         hdr = read_exr(run / "hdr" / f"frame_{t:05d}.exr")
@@ -45,12 +45,13 @@ def test_a_foreground_that_faded_in_training_is_said(two_layer_run):
     without the share or masks."""
     from types import SimpleNamespace
 
+    from layercam.pipelines.results import BootstrapResult, ExportResult
     from layercam.pipelines.tasks import FADED_SHARE, faded_foreground
 
     masks = np.zeros((4, 10, 10), np.float32)
     masks[:, :2, :2] = 1  # 4% of the frames
     def ctx(share, given=False, boot=masks):
-        return SimpleNamespace(masks=masks if given else None, results={"bootstrap": {"masks": boot}, "export": {"atlas": {} if share is None else {"foreground_share": share}}})
+        return SimpleNamespace(masks=masks if given else None, results={"bootstrap": BootstrapResult(masks=boot), "export": ExportResult({"atlas": {} if share is None else {"foreground_share": share}})})
     faded = faded_foreground(ctx(0.001))
     assert "faded" in faded and "0.10%" in faded and "4.00%" in faded and "motion masks" in faded and "--masks" in faded
     given = faded_foreground(ctx(0.001, given=True))
@@ -145,7 +146,7 @@ def test_refine_fits_twice_and_trains_on_the_refined_masks(two_layer_run, tmp_pa
     rep = json.loads((run / "report.json").read_text())
     assert [k for k in rep["stages"]] == ["flow", "bootstrap", "prefit", "refine", "train", "export"]
     assert 0 < rep["refine"]["coverage"] < 0.5 and rep["refine"]["iou_with_motion_masks"] is not None
-    refined = ctx.results["refine"]["masks"]
+    refined = ctx.results["refine"].masks
     assert refined.shape == (scene.clip.T, scene.clip.H, scene.clip.W)
     assert (ctx.dirs["refine"] / "masks.npz").is_file() and len(list((ctx.dirs["refine"] / "masks").glob("frame_*.png"))) == scene.clip.T
     assert np.mean([metrics.iou(m > 0.5, scene.fg_mask[t]) for t, m in enumerate(refined)]) > 0.5
@@ -195,6 +196,6 @@ def test_no_object_found_runs_one_layer_and_says_why(tmp_path, monkeypatch):
     ctx = run_task("hdr-video", scene.clip, exposures, cfg, tmp_path / "auto", progress=False)
     rep = json.loads((tmp_path / "auto" / "report.json").read_text())
     assert rep["analysis"]["layers"] == 1 and said in rep["analysis"]["reasons"]["model.layers"]
-    assert ctx.results["bootstrap"]["layers"] == 1 and not (tmp_path / "auto" / "alpha").exists()
+    assert ctx.results["bootstrap"].h0.shape[0] == 1 and not (tmp_path / "auto" / "alpha").exists()
     forced = run_task("hdr-video", scene.clip, exposures, load_config("fast", TINY + ["train.steps=30", "train.bootstrap_steps=10", "model.layers=2"]), tmp_path / "two", progress=False)
-    assert forced.resolved.settings.model.layers == 2 and forced.results["bootstrap"]["foreground"]["verdict"]["found"] is False
+    assert forced.resolved.settings.model.layers == 2 and forced.results["bootstrap"].verdict["found"] is False

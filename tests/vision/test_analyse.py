@@ -162,7 +162,7 @@ def test_static_stack_drops_the_residual_warp(tmp_path):
     exp = Exposures(np.zeros(2), "none", None, "none", "single")
     cfg = load_config("fast", TINY + ["train.steps=20", "model.layers=1", "model.blur=on"])
     ctx = run_task("fuse-stack", sc.clip, exp, cfg, tmp_path / "run", progress=False)
-    assert ctx.resolved.static is True and ctx.results["bootstrap"]["static"] is True
+    assert ctx.resolved.static is True and ctx.results["bootstrap"].static is True
     model, ck = load_run_model(tmp_path / "run")
     assert model.scene.deformations[0].residual is None and ck["settings"]["static"] is True
     assert model.blur.centre_exact
@@ -181,7 +181,7 @@ def test_moving_clip_keeps_psf_shift_free(tmp_path):
     sc = synth.pan_hdr(frames=3, size=(48, 48), ev_step=0.0, seed=0)  # pans 1.5 to 3 px a frame
     cfg = load_config("fast", TINY + ["train.steps=10", "model.layers=1", "model.blur=on", "blur.n=3"])
     ctx = run_task("deblur-video", sc.clip, Exposures(np.zeros(3), "none", None, "none", "single"), cfg, tmp_path / "run", progress=False)
-    assert ctx.resolved.static is False and ctx.results["bootstrap"]["static"] is False
+    assert ctx.resolved.static is False and ctx.results["bootstrap"].static is False
     model, ck = load_run_model(tmp_path / "run")
     assert ck["settings"]["static"] is False and not model.blur.centre_exact
     assert model.scene.deformations[0].residual_scale > 0
@@ -340,12 +340,12 @@ def test_no_foreground_found_means_one_layer_and_says_why():
     from layercam.core.presets import load_config
 
     cfg = load_config("fast")
-    boot = {"foreground": {"masks": "motion segmentation", "verdict": {"found": False, "reason": "the candidate masks jump between frames"}}}
-    why = unfound_foreground(cfg, boot)
+    fg = {"masks": "motion segmentation", "verdict": {"found": False, "reason": "the candidate masks jump between frames"}}
+    why = unfound_foreground(cfg, fg)
     assert why == "the candidate masks jump between frames"
-    assert unfound_foreground(load_config("fast", ["model.layers=2"]), boot) is None
-    assert unfound_foreground(cfg, {"foreground": {"masks": "given"}}) is None
-    assert unfound_foreground(cfg, {"foreground": {"masks": "motion segmentation", "verdict": {"found": True}}}) is None
+    assert unfound_foreground(load_config("fast", ["model.layers=2"]), fg) is None
+    assert unfound_foreground(cfg, {"masks": "given"}) is None and unfound_foreground(cfg, None) is None
+    assert unfound_foreground(cfg, {"masks": "motion segmentation", "verdict": {"found": True}}) is None
     clip = SimpleNamespace(T=8, H=32, W=32)
     measures = {"independent_pairs": 1.0, "moving_pairs": 7, "independent_motion_frac": 0.1}
     exposures = SimpleNamespace(count_distinct=1, learn="none", reason="given")

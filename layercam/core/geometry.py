@@ -1,10 +1,15 @@
 """Frame geometry: homographies between frames, their chaining to a reference frame, and the
 mappings from frames into an atlas.
 
-Conventions: pixel coordinates have pixel centres at ``+0.5`` (the corner of the frame is ``(0, 0)``,
-the far corner ``(W, H)``); normalised frame coordinates are ``[-1, 1]`` over the frame (x along
-the width, :func:`layercam.engine.sampler.normalise_xy`); atlas coordinates ``uv`` live in ``[-1, 1]^2``.
-Homographies are ``(3, 3)`` float64 arrays acting on column vectors ``(x, y, 1)``.
+Conventions, the one definition for the whole project: **pixel coordinates** ``(x, y)`` put the
+centre of the pixel in column ``i``, row ``j`` at ``(i, j)``, as OpenCV, flow vectors and
+``cv2.remap`` count them (:func:`pixel_grid`); a ``W x H`` frame covers ``[-0.5, W - 0.5] x [-0.5,
+H - 0.5]`` (:func:`frame_corners`), and the same image at another size maps by
+:func:`layercam.vision.scale.pixel_scaling`. **Normalised frame coordinates** are ``[-1, 1]`` over
+the frame's edges (x along the width): ``x_n = (2 x + 1) / W - 1`` (:func:`normalised_frame_matrix`,
+:func:`layercam.engine.sampler.normalise_xy`, ``grid_sample(align_corners=False)``). Atlas
+coordinates ``uv`` live in ``[-1, 1]^2``. Homographies are ``(3, 3)`` float64 arrays acting on
+column vectors ``(x, y, 1)`` of pixel coordinates.
 
 >>> import numpy as np
 >>> shift = np.array([[1.0, 0, 2], [0, 1, 0], [0, 0, 1]])  # frame t -> t+1: 2 px to the right
@@ -22,9 +27,8 @@ from layercam.core.errors import LayercamError
 
 
 def pixel_grid(h: int, w: int) -> tuple[np.ndarray, np.ndarray]:
-    """``(xx, yy)``, each ``(h, w)`` float32: the index coordinates of every pixel (column, row),
-    as flow vectors and ``cv2.remap`` count them; the pixel's centre in the continuous pixel
-    coordinates above is ``+ 0.5`` of them."""
+    """``(xx, yy)``, each ``(h, w)`` float32: every pixel's coordinates (column, row), its centre in
+    this module's convention."""
     yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
     return xx, yy
 
@@ -67,7 +71,7 @@ def middle_frame(n: int) -> int:
 
 
 def normalised_frame_matrix(h: int, w: int) -> np.ndarray:
-    """Pixel coordinates -> normalised ``[-1, 1]`` coordinates (pixel centres at +0.5)."""
+    """Pixel coordinates -> normalised ``[-1, 1]`` coordinates (this module's conventions)."""
     return np.array([[2.0 / w, 0, 1.0 / w - 1], [0, 2.0 / h, 1.0 / h - 1], [0, 0, 1]], dtype=np.float64)
 
 
@@ -82,15 +86,16 @@ def chain_homographies(pair_h: np.ndarray, ref: int) -> np.ndarray:
     return np.stack([x / x[2, 2] for x in m])
 
 
-def _corners(h: int, w: int) -> np.ndarray:
-    return np.array([[0, 0, 1], [w, 0, 1], [0, h, 1], [w, h, 1]], dtype=np.float64).T
+def frame_corners(h: int, w: int) -> np.ndarray:
+    """``(3, 4)``: the outer corners of an ``h x w`` frame in pixel coordinates, homogeneous columns."""
+    return np.array([[-0.5, -0.5, 1], [w - 0.5, -0.5, 1], [-0.5, h - 0.5, 1], [w - 0.5, h - 0.5, 1]], dtype=np.float64).T
 
 
 def atlas_mappings(h: int, w: int, pixel_maps: np.ndarray, margin: float = 0.9) -> np.ndarray:
     """Per-frame pixel maps into a reference view ``(T, 3, 3)`` -> ``(T, 3, 3)`` from normalised frame
     coordinates to atlas ``uv``, scaled isotropically so that every frame lands inside
     ``[-margin, margin]^2``."""
-    corners = _corners(h, w)
+    corners = frame_corners(h, w)
     pts = []
     for m in pixel_maps:
         p = m @ corners
@@ -118,7 +123,7 @@ STATIC_CORNER_PX = 1.5
 
 def max_corner_shift(pixel_maps: np.ndarray, h: int, w: int) -> float:
     """Largest displacement (px) of a frame corner under the per-frame maps ``(T, 3, 3)``."""
-    c = _corners(h, w)
+    c = frame_corners(h, w)
     p = np.asarray(pixel_maps, dtype=np.float64) @ c  # (T, 3, 4)
     return float(np.abs(p[:, :2] / p[:, 2:] - c[:2]).max(initial=0.0))
 

@@ -8,7 +8,8 @@ import torch
 
 
 def normalise_xy(x: torch.Tensor, y: torch.Tensor, w: int, h: int) -> torch.Tensor:
-    """Pixel coordinates (centres at integer + 0.5 convention) -> ``(N, 2)`` in ``[-1, 1]``."""
+    """Pixel coordinates (:mod:`layercam.core.geometry`'s convention: centres at integers) -> ``(N, 2)``
+    normalised coordinates in ``[-1, 1]`` over the frame's edges."""
     return torch.stack([(x + 0.5) / w * 2 - 1, (y + 0.5) / h * 2 - 1], dim=1)
 
 

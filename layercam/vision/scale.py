@@ -35,7 +35,8 @@ def resize_frames(frames: np.ndarray, size: tuple[int, int]) -> np.ndarray:
 
 def pixel_scaling(from_hw: tuple[int, int], to_hw: tuple[int, int]) -> np.ndarray:
     """``(3, 3)`` map of pixel coordinates of an image of size ``to_hw`` to those of the same image
-    resized to ``from_hw`` (pixel centres at integers: ``x_from = (x_to + 0.5) * s - 0.5``)."""
+    resized to ``from_hw`` (:mod:`layercam.core.geometry`'s pixel coordinates, the frame's edges
+    kept: ``x_from = (x_to + 0.5) * s - 0.5``)."""
     sy, sx = from_hw[0] / to_hw[0], from_hw[1] / to_hw[1]
     return np.array([[sx, 0.0, 0.5 * sx - 0.5], [0.0, sy, 0.5 * sy - 0.5], [0.0, 0.0, 1.0]])
 

@@ -1,6 +1,6 @@
 """The evaluate stage: a run scored against the ground truth of a ``layercam.synth`` scene
 (:attr:`EvaluateStage.scene`) next to the classical baselines, by the scorer of its task
-(:data:`SCORERS`). Used by ``demo``, the benchmarks and the tests, not by the other commands.
+(:data:`SCORERS`). Used by ``demo``, ``layercam bench`` (its synthetic tables) and the tests, not by the other commands.
 
 * ``hdr``: PSNR-mu / PSNR-L / SSIM-mu of the exported ``hdr/`` frames against ``scene.hdr``, and the
   same for OpenCV Debevec (calibrate + merge of each frame with its DIS-aligned neighbour) unless

@@ -1,5 +1,7 @@
 """``layercam bench``: measure the speed/quality trade of the presets on scenes with ground truth
-(``--suite synthetic``), or layercam against the classical merges on real captures (``--suite real``)."""
+(``--suite synthetic``), or layercam against the classical merges on real captures (``--suite real``);
+``--table`` picks the synthetic suite's other tables (the analysis, layers, scaling, length, hdr.mp4's
+cost and round trip, the blur generator, window joins)."""
 
 from __future__ import annotations
 
@@ -18,7 +20,13 @@ Cases: ntire-000000..000003 (brackets with ground truth), taipei-3 and frobisher
 against a Robertson merge of all shots: a reference, not truth), composite-2ev and composite-3ev
 (a real person over a real radiance map, ground truth per frame), basler (real video, flicker).
 A finished job is skipped when run again (--force redoes it); writes real_suite.csv, real_suite.md
-and cases/<case>/figure.png."""
+and cases/<case>/figure.png.
+
+other tables:
+  layercam bench --table hdr-video --out runs/hdr                 # hdr.mp4 on the Basler clip: cost, round trip
+  layercam bench --table blur --cases shake --out runs/blur       # the blur generator on synthetic shake
+  layercam bench --table blur --cases mfme-3,mfme-9 --seeds 0,1,2  # ... and on a focus x exposure stack
+  layercam bench --table joins --out runs/joins                   # two windows against one model, 96 frames"""
 
 
 SIZES_DEFAULT = "128x128,256x256,512x512,1080x1920"
@@ -29,25 +37,27 @@ def register(sub) -> argparse.ArgumentParser:
     b.add_argument("--suite", choices=["synthetic", "real"], default="synthetic", help="synthetic scenes (default) or the real-capture suite")
     b.add_argument("--out", help="output folder (default: runs/bench, or runs/real for --suite real)")
     b.add_argument("--scenes", default="pan", help="synthetic suite: comma-separated scene names (default: pan)")
-    b.add_argument("--cases", help="real suite: comma-separated case names (default: all)")
+    b.add_argument("--cases", help="real suite: comma-separated case names (default: all); --table blur: shake, mfme-3, mfme-9 (the stack trained on 3 or all 9 images); --table joins: composite, basler (default: all)")
     b.add_argument("--presets", help="comma-separated presets (default: fast,balanced,quality,paper; real suite, --table layers and scaling: fast,balanced)")
     b.add_argument("--quick", action="store_true", help="tiny scenes and a few steps: a smoke test, not a measurement")
-    b.add_argument("--threads", type=POSITIVE_INT, help="torch threads per job (default: 2; real suite: 1)")
-    b.add_argument("--table", choices=["presets", "analysis", "layers", "scaling", "length"], default="presets", help="synthetic suite: presets, the speed/quality trade (default); analysis: the analysed model against the full model on each synthetic family; layers: alpha against the true masks on the real DAVIS clips, with and without --masks; scaling: cost against frame size (steps/s, stage times, peak memory, quality) -> scaling.csv, scaling.png; length: cost against the clip's length (peak memory sampled, the estimate, wall time) on a DAVIS clip played forth and back -> length.csv, length.png")
+    b.add_argument("--threads", type=POSITIVE_INT, help="torch threads per job (default: 2; real suite, --table hdr-video, blur, joins: 1)")
+    b.add_argument("--table", choices=["presets", "analysis", "layers", "scaling", "length", "hdr-video", "blur", "joins"], default="presets", help="synthetic suite: presets, the speed/quality trade (default); analysis: the analysed model against the full model on each synthetic family; layers: alpha against the true masks on the real DAVIS clips, with and without --masks; scaling: cost against frame size (steps/s, stage times, peak memory, quality) -> scaling.csv, scaling.png; length: cost against the clip's length (peak memory sampled, the estimate, wall time) on a DAVIS clip played forth and back -> length.csv, length.png; hdr-video: hdr.mp4's cost and round trip per --hdr-format on the real Basler clip -> hdr_video.json, .md, .png; blur: the blur generator's variants on synthetic camera shake and a focus x exposure stack against ground truth -> shake.json, mfme.json; joins: two windows against one model on 96-frame clips (a composite with truth, the Basler clip), PSNR-mu and flicker at the join -> joins.json, .md, .png")
     b.add_argument("--lengths", default="48,192,768", help="--table length: clip lengths in frames (default: 48,192,768); the clip: the first of --clips (default cows), its size: the first of --sizes when given (HxW, e.g. 1080x1920), else its own")
-    b.add_argument("--preset", default="fast", help="preset for --table analysis and layers (default: fast)")
-    b.add_argument("--force", action="store_true", help="real suite, --table layers: redo finished jobs")
-    b.add_argument("--data", help="real suite, --table layers: the shared captures (default: $LAYERCAM_DATA or ../shared/data)")
+    b.add_argument("--preset", help="preset for --table analysis, length, blur and joins (default: fast) and hdr-video (default: balanced, hdr-video's own)")
+    b.add_argument("--force", action="store_true", help="real suite, --table layers, hdr-video, joins: redo finished jobs (hdr-video: train the run again)")
+    b.add_argument("--data", help="real suite, --table layers, length, hdr-video, joins: the shared captures (default: $LAYERCAM_DATA or ../shared/data)")
     b.add_argument("--max-frames", type=POSITIVE_INT, help="real suite: frames of the Basler clip (default: all 74); --table layers: the first N of each clip (default: 24)")
     b.add_argument("--clips", help="--table layers: comma-separated clip names, e.g. libby,cows (default: every layers_davis_* clip)")
-    b.add_argument("--variants", default="motion,masks", help="--table layers: motion (no masks: the motion bootstrap), masks (the true masks given) (default: both); --table length: masks alone gives the true masks")
+    b.add_argument("--variants", help="--table layers: motion (no masks: the motion bootstrap), masks (the true masks given) (default: both); --table length: masks alone gives the true masks; --table hdr-video: the --hdr-format values to export (default: none,pq,hlg); --table blur: the blur generator's variants, s5 (3x3 patch, offsets up to 5 px), s0 (fixed 3x3 patch), off, s5n5 (5x5 patch), s5nf (no flow loss) (default: s5,s0,off for shake, s5,off for mfme)")
+    b.add_argument("--repeat", type=POSITIVE_INT, help="--table hdr-video: exports per --hdr-format, their median reported (default: 2; --quick: 1)")
+    b.add_argument("--seeds", default="0", help="--table blur: comma-separated training seeds of the mfme cases, their PSNR-mu mean and std reported (default: 0)")
     b.add_argument("--resize", default="0.33", help="--table layers: frame scale, as hdr-video's --resize (default: 0.33)")
     b.add_argument("--layers", choices=["auto", "2"], default="2", help="--table layers: 2, forced (default: alpha is scored on every clip); auto: the analysis decides (a clip where the finder finds no object runs with one layer)")
-    b.add_argument("--sizes", default=SIZES_DEFAULT, help="--table scaling: frame sizes HxW (default: 128x128,256x256,512x512,1080x1920)")
-    b.add_argument("--frames", type=POSITIVE_INT, default=48, help="--table scaling: frames per clip (default 48)")
+    b.add_argument("--sizes", help="--table scaling: frame sizes HxW (default: 128x128,256x256,512x512,1080x1920); --table blur: the scenes' size, the first of them (default: 64x64)")
+    b.add_argument("--frames", type=POSITIVE_INT, help="--table scaling: frames per clip (default 48); --table blur: the shake clip's frames (default 8); --table joins: the clips' length, cut into two windows (default 96)")
     b.add_argument("--no-baseline", action="store_true", help="--table scaling: no flow + Debevec rows")
     b.add_argument("--redraw", action="store_true", help="real suite: run nothing, write the table and figures again from the finished jobs")
-    b.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE", help="real suite, --table layers and scaling: a setting for every layercam job (repeatable)")
+    b.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE", help="real suite, --table layers, scaling, length, hdr-video, blur, joins: a setting for every layercam job (repeatable)")
     b.add_argument("--quiet", action="store_true")
     return b
 
@@ -65,7 +75,7 @@ def run(args) -> int:
     if args.table == "scaling":
         from layercam.bench.scaling import run_scaling
 
-        rows = run_scaling(out, _list(args.sizes), _list(args.presets), args.frames, args.threads or 2, args.overrides, not args.no_baseline, progress=not args.quiet)
+        rows = run_scaling(out, _list(args.sizes or SIZES_DEFAULT), _list(args.presets), args.frames or 48, args.threads or 2, args.overrides, not args.no_baseline, progress=not args.quiet)
         if not args.quiet:
             print(f"wrote {out / 'scaling.csv'} and scaling.png ({len(rows)} rows)")
         return 0
@@ -78,15 +88,14 @@ def run(args) -> int:
         data = Path(args.data or os.environ.get("LAYERCAM_DATA") or "../shared/data")
         from layercam.core.errors import LayercamError
 
-        sized = args.sizes != SIZES_DEFAULT  # given: the clip scaled to its first size
-        size = parse_size(_list(args.sizes)[0])[::-1] if sized else None
+        size = parse_size(_list(args.sizes)[0])[::-1] if args.sizes else None  # given: the clip scaled to its first size
         try:
             lengths = [int(v) for v in _list(args.lengths) or []]
         except ValueError:
             raise LayercamError(f"--lengths: expected frame counts like 48,192,768, got {args.lengths!r}") from None
         if not lengths or min(lengths) < 2:
             raise LayercamError(f"--lengths: expected frame counts of at least 2, got {args.lengths!r}")
-        rows = run_length(out if args.out else Path("runs/length"), data, (_list(args.clips) or ["cows"])[0], lengths, args.preset, size, args.threads or 1, args.overrides,
+        rows = run_length(out if args.out else Path("runs/length"), data, (_list(args.clips) or ["cows"])[0], lengths, args.preset or "fast", size, args.threads or 1, args.overrides,
                           progress=not args.quiet, masks="masks" in (_list(args.variants) or []) and "motion" not in (_list(args.variants) or []))
         if not args.quiet:
             print(f"wrote {(out if args.out else Path('runs/length')) / 'length.csv'} and length.png ({len(rows)} rows)")
@@ -94,15 +103,17 @@ def run(args) -> int:
     if args.table == "layers":
         import os
 
-        from layercam.bench.layers import MAX_FRAMES, run_layers_table
+        from layercam.bench.layers import MAX_FRAMES, VARIANTS, run_layers_table
 
         data = Path(args.data or os.environ.get("LAYERCAM_DATA") or "../shared/data")
-        rows = run_layers_table(out, data, _list(args.clips), tuple(_list(args.variants) or ()), tuple(_list(args.presets) or ("fast", "balanced")), args.resize, args.overrides, args.layers, args.max_frames or MAX_FRAMES, args.threads or 1, args.force, progress=not args.quiet)
+        rows = run_layers_table(out, data, _list(args.clips), tuple(_list(args.variants) or VARIANTS), tuple(_list(args.presets) or ("fast", "balanced")), args.resize, args.overrides, args.layers, args.max_frames or MAX_FRAMES, args.threads or 1, args.force, progress=not args.quiet)
         if not args.quiet:
             print(f"wrote {out / 'layers.md'} ({len(rows)} rows)")
         return 0
+    if args.table in ("hdr-video", "blur", "joins"):
+        return _run_moved(args)
     if args.table == "analysis":
-        rows = run_analysis_table(out, args.preset, args.quick, progress=not args.quiet)
+        rows = run_analysis_table(out, args.preset or "fast", args.quick, progress=not args.quiet)
         if not args.quiet:
             print(f"wrote {out / 'analysis_table.md'} ({len(rows)} rows)")
         return 0
@@ -110,6 +121,43 @@ def run(args) -> int:
     rows = run_bench(out, _list(args.scenes) or [], _list(args.presets) or ["fast", "balanced", "quality", "paper"], quick=args.quick, progress=not args.quiet, threads=args.threads or 2)
     if not args.quiet:
         print(f"wrote {out / 'bench.csv'} and bench.png ({len(rows)} rows)")
+    return 0
+
+
+def _data(args) -> Path:
+    import os
+
+    return Path(args.data or os.environ.get("LAYERCAM_DATA") or "../shared/data")
+
+
+def _run_moved(args) -> int:
+    """--table hdr-video, blur and joins (each writes its files under --out, default runs/<table>)."""
+    out = Path(args.out or f"runs/{args.table}")
+    common = dict(overrides=args.overrides, quick=args.quick, threads=args.threads or 1, progress=not args.quiet)
+    if args.table == "hdr-video":
+        from layercam.bench.hdr_video import run_hdr_video
+
+        rows = run_hdr_video(out, _data(args), args.preset or "balanced", _list(args.variants), args.repeat or (1 if args.quick else 2), force=args.force, **common)
+        wrote = f"{out / 'hdr_video.md'}, hdr_video.json and hdr_video.png ({len(rows)} exports)"
+    elif args.table == "blur":
+        from layercam.bench.blur import run_blur
+        from layercam.bench.scaling import parse_size
+        from layercam.core.errors import LayercamError
+
+        try:
+            seeds = [int(v) for v in _list(args.seeds) or [0]]
+        except ValueError:
+            raise LayercamError(f"--seeds: expected integers like 0,1,2, got {args.seeds!r}") from None
+        size = parse_size(_list(args.sizes)[0]) if args.sizes else None
+        res = run_blur(out, _list(args.cases), _list(args.variants), seeds, args.preset or "fast", size=size, frames=args.frames, **common)
+        wrote = " and ".join(str(out / f"{k}.json") for k in res)
+    else:
+        from layercam.bench.joins import run_joins
+
+        rows = run_joins(out, _data(args), _list(args.cases), args.preset or "fast", args.frames, force=args.force, **common)
+        wrote = f"{out / 'joins.md'}, joins.json and joins.png ({len(rows)} clips)"
+    if not args.quiet:
+        print(f"wrote {wrote}")
     return 0
 
 

@@ -1,31 +1,33 @@
-"""Window joins on long real clips (issue 42): one model against two windows sharing one camera.
+"""``layercam bench --table joins``: window joins on long real clips, one model against two windows
+sharing one camera.
 
-    python benchmarks/windows_joins.py --out /work/scratch/windows/joins [--cases composite,basler] [--preset fast] [--window 52]
-
-Two 96-frame clips, each run twice with ``layercam hdr-video`` (one process each, one torch
-thread): ``--window off`` (one model) and ``--window 52`` (two windows of 52 frames overlapping by
-8, the second holding window 0's camera fixed).
+Each case is a clip of ``frames`` frames (default :data:`FRAMES`), run twice with ``layercam hdr-video``
+(one process each, ``threads`` torch threads, ``nice -n 10``): ``--window off`` (one model) and
+``--window N`` with N = :func:`two_windows` (two windows overlapping by
+:data:`layercam.pipelines.window_plan.OVERLAP`, 52 frames each for 96; the second holds window 0's
+camera fixed).
 
 * ``composite``: the real-suite composite (``layercam.bench.realsuite.composite``: DAVIS parkour's person
   over bracket_taipei's radiance map, a pan, a filmic camera, noise, 8 bits, alternating 2 EV)
-  made 96 frames long, the person's 30 frames played forth and back; ground truth per frame.
+  made ``frames`` long, the person's 30 frames played forth and back; ground truth per frame.
   Scores: PSNR-mu of each frame against the truth (one scale per channel for the whole clip).
 * ``basler``: ``altexp_video_basler/clip_2exp_3stop.mp4`` (74 frames, alternating 3 EV), played
-  forth and back to 96 frames. No truth: each frame's PSNR-mu against the one-model run's frame.
+  forth and back to ``frames``. No truth: each frame's PSNR-mu against the one-model run's frame.
 
 Both: flicker of each pair of neighbouring frames (``layercam.bench.realsuite.measures.flicker``: the
 preview's tonemap over the whole clip, 8-bit codes on the input's registered static pixels), so
 that the pairs at the windows' join (the overlap and the pair on each side of it) can be compared
 with the clip's median pair, and with the median over the pairs of their own phase (short -> long
-and long -> short pairs flicker differently). Writes OUT/<case>/{frames/,truth.npy,single/,windows/}, OUT/joins.json,
-OUT/joins.md and OUT/joins.png.
+and long -> short pairs flicker differently). A finished run is reused (``force``: run again).
+``--quick``: 24 frames, a smaller composite and a few steps (a smoke test, not a measurement).
+Writes OUT/<case>/{frames/,truth.npy,single/,windows/}, OUT/joins.json, OUT/joins.md and OUT/joins.png.
 """
 
 from __future__ import annotations
 
-import argparse
 import json
 import os
+import shutil
 import subprocess
 import sys
 import time
@@ -33,8 +35,19 @@ from pathlib import Path
 
 import numpy as np
 
-DATA = Path(os.environ.get("LAYERCAM_DATA") or Path(__file__).resolve().parents[2] / "shared" / "data")
-T = 96
+from layercam.core.errors import LayercamError
+
+CASES = ["composite", "basler"]
+FRAMES = 96
+QUICK_FRAMES = 24
+QUICK = ["train.steps=20", "train.bootstrap_steps=2", "train.batch=512"]
+
+
+def two_windows(T: int) -> int:
+    """The window length that cuts ``T`` frames into two windows overlapping by ``OVERLAP`` (52 for 96)."""
+    from layercam.pipelines.window_plan import OVERLAP
+
+    return (T + 1) // 2 + OVERLAP // 2
 
 
 def forth_and_back(n: int, length: int) -> list[int]:
@@ -43,7 +56,9 @@ def forth_and_back(n: int, length: int) -> list[int]:
     return [cycle[i % len(cycle)] for i in range(length)]
 
 
-def build(case: str, folder: Path) -> dict:
+def build(case: str, folder: Path, data: Path, T: int, quick: bool = False) -> dict:
+    """The case's ``T`` frames as PNGs under ``folder/frames`` (and ``truth.npy`` for the composite);
+    ``folder/clip.json`` says what they are (a clip already built is reused)."""
     from layercam.io import write_png
 
     frames_dir = folder / "frames"
@@ -54,10 +69,10 @@ def build(case: str, folder: Path) -> dict:
     if case == "composite":
         from layercam.bench.realsuite.composite import CompositeSpec, compose, load_background, load_foreground
 
-        spec = CompositeSpec(frames=T, ev_step=2.0)
-        rgb, alpha = load_foreground(DATA, spec.fg_clip, 30)
+        spec = CompositeSpec(frames=T, ev_step=2.0, **({"size": (48, 64)} if quick else {}))
+        rgb, alpha = load_foreground(data, spec.fg_clip, 30)
         idx = forth_and_back(30, T)
-        c = compose(load_background(DATA), rgb[idx], alpha[idx], spec)
+        c = compose(load_background(data), rgb[idx], alpha[idx], spec)
         for t, f in enumerate(c["frames"]):
             write_png(frames_dir / f"frame_{t:03d}.png", f.astype(np.float32) / 255.0)
         np.save(folder / "truth.npy", c["hdr"])
@@ -65,7 +80,7 @@ def build(case: str, folder: Path) -> dict:
     else:
         from layercam.io import load_clip
 
-        clip = load_clip(DATA / "altexp_video_basler" / "clip_2exp_3stop.mp4")
+        clip = load_clip(data / "altexp_video_basler" / "clip_2exp_3stop.mp4")
         idx = forth_and_back(clip.T, T)
         for t, i in enumerate(idx):
             write_png(frames_dir / f"frame_{t:03d}.png", clip.frames[i])
@@ -75,18 +90,22 @@ def build(case: str, folder: Path) -> dict:
     return meta
 
 
-def run(folder: Path, name: str, meta: dict, preset: str, window: str) -> dict:
+def run(folder: Path, name: str, meta: dict, preset: str, window: str, overrides: list[str] | None = None, threads: int = 1, force: bool = False) -> dict:
+    """``layercam hdr-video`` on the case's frames with ``--window window`` into ``folder/name``
+    (a finished run is reused unless ``force``): its wall time."""
     out = folder / name
+    if force and out.exists():
+        shutil.rmtree(out)
     if (out / "report.json").exists():
         rep = json.loads((out / "report.json").read_text())
         return {"wall_s": rep["wall_seconds"], "cached": True}
-    env = dict(os.environ, OMP_NUM_THREADS="1")
+    env = dict(os.environ, OMP_NUM_THREADS=str(threads))
     argv = [sys.executable, "-m", "layercam", "hdr-video", str(folder / "frames"), "--exposures", "alt", "--ev-step", f"{meta['ev_step']:g}",
-            "--preset", preset, "--window", window, "--out", str(out), "--quiet"]
+            "--preset", preset, "--window", window, "--out", str(out), "--quiet", *[a for s in overrides or [] for a in ("--set", s)]]
     t0 = time.perf_counter()
     r = subprocess.run(["nice", "-n", "10", *argv], env=env, capture_output=True, text=True)
     if r.returncode:
-        raise SystemExit(f"{name} failed: {r.stderr[-2000:]}")
+        raise LayercamError(f"{folder.name}/{name}: hdr-video failed: {(r.stderr.strip().splitlines() or ['?'])[-1]}")
     return {"wall_s": round(time.perf_counter() - t0, 1), "cached": False, "argv": " ".join(argv[1:])}
 
 
@@ -132,7 +151,7 @@ def score(case: str, folder: Path, meta: dict) -> dict:
     index = json.loads((folder / "windows" / "windows.json").read_text())
     (a, b), = [(w["frames"][0], index["windows"][w["index"] - 1]["frames"][1]) for w in index["windows"][1:]]
     ref = np.load(folder / "truth.npy") if meta["truth"] else single
-    ps_single = per_frame_psnr_mu(single, ref) if meta["truth"] else np.full(T, np.inf)
+    ps_single = per_frame_psnr_mu(single, ref) if meta["truth"] else np.full(len(single), np.inf)
     ps_win = per_frame_psnr_mu(win, ref)
     fl_single, fl_win = pair_flicker(single, hom, static), pair_flicker(win, hom, static)
     join = list(range(a - 1, b))  # pairs (t, t+1) touching the overlap [a, b)
@@ -162,6 +181,7 @@ def score(case: str, folder: Path, meta: dict) -> dict:
 
 
 def figure(results: list[dict], path: Path) -> None:
+    """Per case: PSNR-mu per frame (top) and flicker per pair (bottom), the overlap shaded."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -190,10 +210,14 @@ def figure(results: list[dict], path: Path) -> None:
         ax.set_xlabel("frame")
         ax.legend(fontsize=8)
     fig.tight_layout()
-    fig.savefig(path, dpi=90)
+    from layercam.io.atomic import atomic_write
+
+    atomic_write(path, lambda p: fig.savefig(p, dpi=90))
+    plt.close(fig)
 
 
 def table(results: list[dict], runs: dict) -> str:
+    """The markdown table: a row per case and run (one model, two windows)."""
     rows = ["| clip | run | wall | PSNR-mu mean (dB) | worst frame against one model | flicker, codes: clip's median pair / join pairs' mean / max | join pairs / their phase's median: mean, max |", "|---|---|---|---|---|---|---|"]
     for r in results:
         c = r["case"]
@@ -211,27 +235,38 @@ def table(results: list[dict], runs: dict) -> str:
     return "\n".join(rows)
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--out", required=True)
-    ap.add_argument("--cases", default="composite,basler")
-    ap.add_argument("--preset", default="fast")
-    ap.add_argument("--window", default="52")
-    a = ap.parse_args()
-    out = Path(a.out)
+
+
+def run_joins(out: Path, data: Path, cases: list[str] | None = None, preset: str = "fast", frames: int | None = None, overrides: list[str] | None = None,
+              quick: bool = False, force: bool = False, threads: int = 1, progress: bool = True) -> list[dict]:
+    """Each case built, run twice and scored; writes joins.{json,md,png} under ``out``. The scores per case."""
+    from layercam.io.atomic import atomic_write
+
+    cases = cases or CASES
+    bad = [c for c in cases if c not in CASES]
+    if bad:
+        raise LayercamError(f"--table joins: unknown case {bad[0]!r} (cases: {', '.join(CASES)})")
+    if not Path(data).is_dir():
+        raise LayercamError(f"shared captures not found at {data} (--data or $LAYERCAM_DATA)")
+    T = frames or (QUICK_FRAMES if quick else FRAMES)
+    window = str(two_windows(T))
+    overrides = (QUICK if quick else []) + list(overrides or [])
+    out = Path(out)
     results, runs = [], {}
-    for case in a.cases.split(","):
+    for case in cases:
         folder = out / case
-        meta = build(case, folder)
-        runs[case] = {"single": run(folder, "single", meta, a.preset, "off"), "windows": run(folder, "windows", meta, a.preset, a.window)}
-        print(case, runs[case], flush=True)
+        meta = build(case, folder, Path(data), T, quick)
+        if len(meta["indices"]) != T:
+            raise LayercamError(f"{folder} holds a clip of {len(meta['indices'])} frames, not {T}: another --out, or delete it")
+        runs[case] = {"single": run(folder, "single", meta, preset, "off", overrides, threads, force),
+                      "windows": run(folder, "windows", meta, preset, window, overrides, threads, force)}
+        if progress:
+            print(case, runs[case], flush=True)
         results.append(score(case, folder, meta))
-    (out / "joins.json").write_text(json.dumps({"results": results, "runs": runs, "preset": a.preset, "window": a.window}, indent=1))
+    atomic_write(out / "joins.json", lambda p: p.write_text(json.dumps({"results": results, "runs": runs, "preset": preset, "window": window}, indent=1)))
     md = table(results, runs)
-    (out / "joins.md").write_text(md + "\n")
+    atomic_write(out / "joins.md", lambda p: p.write_text(md + "\n"))
     figure(results, out / "joins.png")
-    print(md)
-
-
-if __name__ == "__main__":
-    main()
+    if progress:
+        print(md)
+    return results

@@ -104,7 +104,7 @@ def atlas_px(homs: np.ndarray, a: int, b: int, hw: tuple[int, int]) -> float:
     the middle frame; the identity where they move no corner by ``STATIC_CORNER_PX``), fitted into
     the atlas (:func:`layercam.core.geometry.atlas_mappings`), measured by
     :func:`layercam.core.geometry.atlas_pixels`; inf where the chain degenerates."""
-    from layercam.core.geometry import STATIC_CORNER_PX, atlas_mappings, atlas_pixels, chain_homographies, frame_corners, max_corner_shift, middle_frame
+    from layercam.core.geometry import STATIC_CORNER_PX, atlas_mappings, atlas_pixels, chain_homographies, atlas_box, max_corner_shift, middle_frame
 
     h, w = hw
     with np.errstate(all="ignore"):
@@ -114,7 +114,7 @@ def atlas_px(homs: np.ndarray, a: int, b: int, hw: tuple[int, int]) -> float:
             return float("inf")
         if not np.isfinite(maps).all():
             return float("inf")
-        c = frame_corners(h, w)
+        c = atlas_box(h, w)
         if ((maps @ c)[:, 2] <= 1e-9).any():  # a corner behind the reference view: no plane holds the frames
             return float("inf")
         if max_corner_shift(maps, h, w) < STATIC_CORNER_PX:

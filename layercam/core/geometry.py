@@ -91,11 +91,21 @@ def frame_corners(h: int, w: int) -> np.ndarray:
     return np.array([[-0.5, -0.5, 1], [w - 0.5, -0.5, 1], [-0.5, h - 0.5, 1], [w - 0.5, h - 0.5, 1]], dtype=np.float64).T
 
 
+def atlas_box(h: int, w: int) -> np.ndarray:
+    """``(3, 4)``: the box the atlas framing measures a frame by, ``[0, W] x [0, H]`` in pixel
+    coordinates: each pixel taken as the unit square from its coordinates, ``[x, x + 1]``, so the box
+    is :func:`frame_corners` moved by half a pixel right and down. :func:`atlas_mappings` fits it into
+    the atlas, :func:`max_corner_shift` measures corner motion on it, and the object mapping
+    (:mod:`layercam.vision.segment.mapping`) takes a pixel's square's centre ``x + 0.5``. Framing the
+    frame's true edges instead was measured worse on a real bracket (``docs/measurements.md``)."""
+    return np.array([[0, 0, 1], [w, 0, 1], [0, h, 1], [w, h, 1]], dtype=np.float64).T
+
+
 def atlas_mappings(h: int, w: int, pixel_maps: np.ndarray, margin: float = 0.9) -> np.ndarray:
     """Per-frame pixel maps into a reference view ``(T, 3, 3)`` -> ``(T, 3, 3)`` from normalised frame
     coordinates to atlas ``uv``, scaled isotropically so that every frame lands inside
     ``[-margin, margin]^2``."""
-    corners = frame_corners(h, w)
+    corners = atlas_box(h, w)
     pts = []
     for m in pixel_maps:
         p = m @ corners
@@ -123,7 +133,7 @@ STATIC_CORNER_PX = 1.5
 
 def max_corner_shift(pixel_maps: np.ndarray, h: int, w: int) -> float:
     """Largest displacement (px) of a frame corner under the per-frame maps ``(T, 3, 3)``."""
-    c = frame_corners(h, w)
+    c = atlas_box(h, w)
     p = np.asarray(pixel_maps, dtype=np.float64) @ c  # (T, 3, 4)
     return float(np.abs(p[:, :2] / p[:, 2:] - c[:2]).max(initial=0.0))
 

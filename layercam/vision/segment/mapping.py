@@ -85,7 +85,7 @@ def foreground_mappings(h: int, w: int, masks: np.ndarray, fw=None, fw_ok=None, 
         ys, xs = ys[::every], xs[::every]
         if len(xs) == 0:
             continue
-        p = pix[t] @ np.stack([xs, ys, np.ones_like(xs)]).astype(np.float64)
+        p = pix[t] @ np.stack([xs + 0.5, ys + 0.5, np.ones_like(xs, dtype=np.float64)])  # the pixel's square's centre (geometry.atlas_box)
         pts.append((p[:2] / p[2:]).T)
     pts = np.concatenate(pts)
     lo, hi = np.percentile(pts, 1, axis=0), np.percentile(pts, 99, axis=0)

@@ -35,7 +35,7 @@ from layercam.core.errors import LayercamError
 BASE = 700e6             # python, torch, OpenCV and layercam imported, a clip opened (VmRSS 680-700 MB on this machine)
 FLOW_PER_PX = 180.0      # per working-grid pixel of a pair: the two frames, flows, checks, DIS
 ANALYSIS_PER_PX = 28.0   # per working-grid pixel of each pair measured (flow in float32, residuals, chains)
-SEG_PER_PX = 72.0        # two layers, a clip segmented whole: per pixel of the flow's grid of each frame
+SEG_PER_PX = 23.0        # two layers, a clip segmented whole: per pixel of the flow's grid of each frame
 SEG_WORK_PER_PX = 66.0   # two layers, a clip segmented in windows: per pixel of the finder's working size of each window frame
 BOOT_PER_PX = 24.0       # one layer: per frame pixel (a frame and its temporaries)
 EXPORT_PER_PX = 1300.0   # per frame pixel: the faithful export's arrays for a frame and its two neighbours

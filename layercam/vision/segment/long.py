@@ -73,9 +73,9 @@ def window_at_work(frames, flows: dict, a0: int, b0: int, grid: tuple[int, int])
 
 def _give_back_freed_memory() -> None:
     """Returns the C heap's free pages to the system (glibc ``malloc_trim``; nothing elsewhere). A
-    window's arrays are freed when it ends, but the allocator keeps most of the heap it grew for them
-    (fragmented by the small arrays still alive) and the next window, its arrays of other sizes, grows
-    it further: without this the resident memory between windows rose window after window."""
+    window's arrays are freed when it ends, but the allocator keeps the heap it grew for them
+    (fragmented by the small arrays still alive), so that without this the memory held between
+    windows is what the last windows freed as well as what the run needs."""
     import ctypes
 
     try:
@@ -123,15 +123,15 @@ def foreground_bootstrap_long(frames, flows: dict, out, masks=None, cfg: Segment
             fr, fl = window_at_work(frames, flows, a0, b0, (h, w))
             part, inf = find_foreground(fr, fl, cfg)
             del fr, fl
-            part = np.stack([up(m, (h, w)) for m in np.asarray(part, np.float32)])  # the window's masks on the flow's grid
-            if cfg.detector:  # a local Mask R-CNN's instances where they lie in the motion masks (as foreground_bootstrap)
+            if cfg.detector:  # a local Mask R-CNN's instances where they lie in the motion masks (as foreground_bootstrap), on the flow's grid
                 from layercam.vision.segment.detect import detect_instances, pick_instances
 
                 small = np.stack([np.asarray(frames[t], np.float32) if (h, w) == (H, W) else cv2.resize(np.asarray(frames[t], np.float32), (w, h), interpolation=cv2.INTER_AREA) for t in range(a0, b0)])
+                part = np.stack([up(m, (h, w)) for m in np.asarray(part, np.float32)])
                 part, _ = pick_instances(detect_instances(small, cfg.detector, cfg.detector_score, cfg.detector_size, False), part, cfg.detector_overlap)
                 del small
-            for t in range(a, b):
-                masks[t] = up(np.asarray(part[t - a0], np.float32), (H, W)) > 0.5
+            for t in range(a, b):  # working size -> the flow's grid -> the frames' size, each at 0.5
+                masks[t] = up(up(np.asarray(part[t - a0], np.float32), (h, w)), (H, W)) > 0.5
             models.append(inf.get("model"))
             del part, inf
             _give_back_freed_memory()

@@ -10,7 +10,7 @@ bound of what the analysis can choose; the run says it again once the analysis h
 built on PyTorch's meta device: no memory); the working sets of the stages are per-pixel and
 per-sample costs measured on this project's runs (``docs/measurements.md``), scaled by what each
 stage holds at once: a pair of frames (flow), at most ``analyse.MOTION_PAIRS`` pairs (analysis), a
-window of at most ``segment.long.SEG_FRAMES`` frames (two-layer bootstrap), the model, its optimiser and
+window of at most ``segment.long.SEG_FRAMES`` frames at the finder's working size (two-layer bootstrap), the model, its optimiser and
 a batch (training), a frame and a render chunk (export). None of them grows with the clip's length
 except the alpha grid's slices up to ``scene.fields.ALPHA_GRID_CELLS``; the disk does.
 
@@ -35,7 +35,8 @@ from layercam.core.errors import LayercamError
 BASE = 700e6             # python, torch, OpenCV and layercam imported, a clip opened (VmRSS 680-700 MB on this machine)
 FLOW_PER_PX = 180.0      # per working-grid pixel of a pair: the two frames, flows, checks, DIS
 ANALYSIS_PER_PX = 28.0   # per working-grid pixel of each pair measured (flow in float32, residuals, chains)
-SEG_PER_PX = 72.0        # two layers: per pixel of the flow's grid of each frame of a segmentation window
+SEG_PER_PX = 23.0        # two layers, a clip segmented whole: per pixel of the flow's grid of each frame
+SEG_WORK_PER_PX = 70.0   # two layers, a clip segmented in windows: per pixel of the finder's working size of each window frame
 BOOT_PER_PX = 24.0       # one layer: per frame pixel (a frame and its temporaries)
 EXPORT_PER_PX = 1300.0   # per frame pixel: the faithful export's arrays for a frame and its two neighbours
 RENDER_PER_PX = 1600.0   # per pixel of a render chunk: the networks' layers, one at a time
@@ -175,7 +176,8 @@ def estimate(info: dict, cfg, task: str = "hdr-video", windows: list | None = No
     in memory; on disk each window's masks, checkpoints and outputs, besides the joined outputs."""
     from layercam.vision.analyse import MOTION_PAIRS
     from layercam.vision.scale import working_size
-    from layercam.vision.segment.long import SEG_FRAMES
+    from layercam.vision.segment import WORK_SHORT
+    from layercam.vision.segment.long import SEG_FRAMES, windowed
 
     T = max(int(info.get("frames") or 1), 1)
     H, W = int(info["height"]), int(info["width"])
@@ -193,7 +195,8 @@ def estimate(info: dict, cfg, task: str = "hdr-video", windows: list | None = No
     stages = {
         "flow": FLOW_PER_PX * wpx + 24.0 * px if T > 1 else 0.0,
         "analysis": ANALYSIS_PER_PX * min(T - 1, MOTION_PAIRS) * wpx,
-        "bootstrap": SEG_PER_PX * min(T, SEG_FRAMES) * wpx + 16.0 * px if rc.model.layers > 1 else BOOT_PER_PX * px,  # segmented on the flow's grid
+        "bootstrap": (BOOT_PER_PX * px if rc.model.layers == 1 else SEG_PER_PX * T * wpx + 16.0 * px if not windowed(T, (H, W), (h, w))
+                      else SEG_WORK_PER_PX * min(T, SEG_FRAMES) * math.prod(working_size((h, w), WORK_SHORT)) + 16.0 * px),  # windows at the finder's size
         "train": PARAM_BYTES * n_params + sample * batch,
         "export": 4.0 * n_params + EXPORT_PER_PX * px + RENDER_PER_PX * min(RENDER_CHUNK, px),  # no autograd: a render chunk's layers one at a time
     }

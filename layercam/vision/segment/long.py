@@ -38,16 +38,63 @@ def windowed(T: int, hw: tuple[int, int], work: tuple[int, int]) -> bool:
     return T > SEG_FRAMES or tuple(work) != tuple(hw)
 
 
+def window_at_work(frames, flows: dict, a0: int, b0: int, grid: tuple[int, int]) -> tuple[np.ndarray, dict]:
+    """Frames ``a0:b0`` and their pairs' ``fw``, ``bw``, ``fw_ok``, ``bw_ok`` at the finder's working
+    size (``segment.WORK_SHORT`` on the short side of ``grid``, the flow's grid), read a frame or a
+    pair at a time: the same arrays as ``segment._working`` of the window read whole at ``grid`` (the
+    frames scaled to ``grid`` first, as the flow saw them), without the window at ``grid`` in memory.
+    Frames ``(b0-a0, h, w, 3)`` float32; flows ``(b0-a0-1, h, w, 2)`` float32, checks bool."""
+    import cv2
+
+    from layercam.vision.scale import working_size
+    from layercam.vision.segment import WORK_SHORT
+
+    gh, gw = grid
+    h, w = working_size((gh, gw), WORK_SHORT)
+    area = lambda f, size: f if f.shape[:2] == size else cv2.resize(f, (size[1], size[0]), interpolation=cv2.INTER_AREA)  # noqa: E731
+    fr = np.empty((b0 - a0, h, w, 3), np.float32)
+    for t in range(a0, b0):
+        fr[t - a0] = area(area(np.asarray(frames[t], np.float32), (gh, gw)), (h, w))
+    n, fl = b0 - a0 - 1, {}
+    scale = np.float32([w / gw, h / gh])
+    for k in ("fw", "bw"):
+        fl[k] = np.empty((n, h, w, 2), np.float32)
+        for i in range(n):
+            f = np.asarray(flows[k][a0 + i], np.float32)
+            fl[k][i] = f if (h, w) == (gh, gw) else area(f, (h, w)) * scale
+    for k in ("fw_ok", "bw_ok"):
+        if flows.get(k) is not None:
+            fl[k] = np.empty((n, h, w), bool)
+            for i in range(n):
+                m = np.asarray(flows[k][a0 + i], bool)
+                fl[k][i] = m if (h, w) == (gh, gw) else cv2.resize(m.astype(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST) > 0
+    return fr, fl
+
+
+def _give_back_freed_memory() -> None:
+    """Returns the C heap's free pages to the system (glibc ``malloc_trim``; nothing elsewhere). A
+    window's arrays are freed when it ends, but the allocator keeps the heap it grew for them
+    (fragmented by the small arrays still alive), so that without this the memory held between
+    windows is what the last windows freed as well as what the run needs."""
+    import ctypes
+
+    try:
+        ctypes.CDLL("libc.so.6").malloc_trim(0)
+    except (OSError, AttributeError):  # not glibc
+        pass
+
+
 def foreground_bootstrap_long(frames, flows: dict, out, masks=None, cfg: SegmentConfig | None = None, progress: bool = False) -> dict:
     """:func:`foreground_bootstrap` for a long clip or one larger than the flow's working grid
-    (:func:`windowed`), with the memory of a ``SEG_FRAMES``-frame clip on that grid: each window of
-    :func:`segment_windows` is segmented on the flow's grid (its frames scaled to it, its flows as
-    the flow stage keeps them), each frame's mask taken from the window it is the middle of, scaled
-    up to the frames' size (bilinear, at 0.5) and written to ``out/masks.raw`` (uint8,
-    :func:`load_masks` reads it); then the foreground mapping from all of them and the flows, read a
-    frame or a pair at a time. ``flows`` as the flow stage keeps them (possibly at a working size
-    and on disk); ``masks`` given by the user are not segmented again. Returns what
-    :func:`foreground_bootstrap` does, ``masks`` the ``DiskArray``."""
+    (:func:`windowed`), with the memory of a ``SEG_FRAMES``-frame clip at the finder's working size:
+    each window of :func:`segment_windows` is read at that size (:func:`window_at_work`) and
+    segmented by :func:`find_foreground`, each frame's mask taken from the window it is the middle
+    of, scaled up to the flow's grid and then to the frames' size (bilinear, at 0.5, as
+    :func:`foreground_bootstrap` would) and written to ``out/masks.raw`` (uint8, :func:`load_masks`
+    reads it); then the foreground mapping from all of them and the flows, read a frame or a pair at
+    a time. ``flows`` as the flow stage keeps them (possibly at a working size and on disk);
+    ``masks`` given by the user are not segmented again. Returns what :func:`foreground_bootstrap`
+    does, ``masks`` the ``DiskArray``."""
     import json
     from pathlib import Path
 
@@ -56,7 +103,7 @@ def foreground_bootstrap_long(frames, flows: dict, out, masks=None, cfg: Segment
     from layercam.vision.scale import AtFrameSize
     from layercam.core.interrupts import reached
     from layercam.io.frames import DiskArray
-    from layercam.vision.segment import foreground_bootstrap
+    from layercam.vision.segment import find_foreground
     from layercam.core.progress import bar
 
     cfg = cfg or SegmentConfig()
@@ -70,17 +117,24 @@ def foreground_bootstrap_long(frames, flows: dict, out, masks=None, cfg: Segment
         (out / "masks.json").write_text(json.dumps({"shape": [T, H, W]}))
         wins = segment_windows(T)
         models = []
-        small = lambda f: f if f.shape[:2] == (h, w) else cv2.resize(f, (w, h), interpolation=cv2.INTER_AREA)  # noqa: E731
+        up = lambda m, size: m if m.shape[:2] == size else (cv2.resize(m, (size[1], size[0]), interpolation=cv2.INTER_LINEAR) > 0.5).astype(np.float32)  # noqa: E731
         for i, (a0, b0, a, b) in enumerate(bar(wins, desc="bootstrap (windows)", unit="window", enabled=progress and len(wins) > 1)):
             reached("segment", i)
-            fl = {k: np.asarray(flows[k][a0 : b0 - 1]) for k in ("fw", "bw", "fw_ok", "bw_ok", "vis") if k in flows}
-            fl["homs"] = np.asarray(flows["homs"])[a0 : b0 - 1]
-            part = foreground_bootstrap(np.stack([small(frames[t]) for t in range(a0, b0)]), fl, None, cfg)  # a full-size frame at a time
-            for t in range(a, b):
-                m = np.asarray(part["masks"][t - a0], np.float32)
-                masks[t] = (m if (h, w) == (H, W) else cv2.resize(m, (W, H), interpolation=cv2.INTER_LINEAR)) > 0.5
-            models.append(part["info"].get("model"))
-            del part, fl
+            fr, fl = window_at_work(frames, flows, a0, b0, (h, w))
+            part, inf = find_foreground(fr, fl, cfg)
+            del fr, fl
+            if cfg.detector:  # a local Mask R-CNN's instances where they lie in the motion masks (as foreground_bootstrap), on the flow's grid
+                from layercam.vision.segment.detect import detect_instances, pick_instances
+
+                small = np.stack([np.asarray(frames[t], np.float32) if (h, w) == (H, W) else cv2.resize(np.asarray(frames[t], np.float32), (w, h), interpolation=cv2.INTER_AREA) for t in range(a0, b0)])
+                part = np.stack([up(m, (h, w)) for m in np.asarray(part, np.float32)])
+                part, _ = pick_instances(detect_instances(small, cfg.detector, cfg.detector_score, cfg.detector_size, False), part, cfg.detector_overlap)
+                del small
+            for t in range(a, b):  # working size -> the flow's grid -> the frames' size, each at 0.5
+                masks[t] = up(up(np.asarray(part[t - a0], np.float32), (h, w)), (H, W)) > 0.5
+            models.append(inf.get("model"))
+            del part, inf
+            _give_back_freed_memory()
         masks.flush()
         cover = mask_coverage(masks)
         info = {"windows": len(wins), "window_frames": SEG_FRAMES, "window_margin": SEG_MARGIN, "grid": [h, w], "models": models,

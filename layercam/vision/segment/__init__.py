@@ -49,24 +49,39 @@ WORK_SHORT = 240  # the finder sees frames at most this many pixels on the short
                   # frame; training refines alpha's edges at the frame's size): its cost stays under a second a frame
 
 
-def _working(frames: np.ndarray, flows: dict) -> tuple[np.ndarray, dict]:
-    """Frames and flows at the finder's working size (``WORK_SHORT``; unchanged when smaller)."""
+def flow_at(f, work: tuple[int, int]) -> np.ndarray:
+    """One flow ``(h, w, 2)`` at the size ``work`` (area averaging), in that size's pixels; float32."""
     import cv2
 
+    f = np.asarray(f, np.float32)
+    h, w = f.shape[:2]
+    if (h, w) == tuple(work):
+        return f
+    return cv2.resize(f, (work[1], work[0]), interpolation=cv2.INTER_AREA) * np.float32([work[1] / w, work[0] / h])
+
+
+def check_at(m, work: tuple[int, int]) -> np.ndarray:
+    """One flow check ``(h, w)`` at the size ``work`` (nearest pixel); bool."""
+    import cv2
+
+    m = np.asarray(m, bool)
+    if m.shape == tuple(work):
+        return m
+    return cv2.resize(m.astype(np.uint8), (work[1], work[0]), interpolation=cv2.INTER_NEAREST) > 0
+
+
+def _working(frames: np.ndarray, flows: dict) -> tuple[np.ndarray, dict]:
+    """Frames and flows at the finder's working size (``WORK_SHORT``; unchanged when smaller)."""
     from layercam.vision.scale import resize_frames, working_size
 
     h, w = frames.shape[1:3]
     work = working_size((h, w), WORK_SHORT)
     if work == (h, w):
         return frames, flows
-    sy, sx = work[0] / h, work[1] / w
-    out = {}
-    for k in ("fw", "bw"):
-        f = np.asarray(flows[k], np.float32)
-        out[k] = np.stack([cv2.resize(x, (work[1], work[0]), interpolation=cv2.INTER_AREA) for x in f]) * np.float32([sx, sy])
+    out = {k: np.stack([flow_at(x, work) for x in flows[k]]) for k in ("fw", "bw")}
     for k in ("fw_ok", "bw_ok"):
         if flows.get(k) is not None:
-            out[k] = np.stack([cv2.resize(np.asarray(x, np.uint8), (work[1], work[0]), interpolation=cv2.INTER_NEAREST) > 0 for x in flows[k]])
+            out[k] = np.stack([check_at(x, work) for x in flows[k]])
     return resize_frames(frames, work), out
 
 

@@ -44,30 +44,17 @@ def window_at_work(frames, flows: dict, a0: int, b0: int, grid: tuple[int, int])
     pair at a time: the same arrays as ``segment._working`` of the window read whole at ``grid`` (the
     frames scaled to ``grid`` first, as the flow saw them), without the window at ``grid`` in memory.
     Frames ``(b0-a0, h, w, 3)`` float32; flows ``(b0-a0-1, h, w, 2)`` float32, checks bool."""
-    import cv2
+    from layercam.vision.scale import resize_frames, working_size
+    from layercam.vision.segment import WORK_SHORT, check_at, flow_at
 
-    from layercam.vision.scale import working_size
-    from layercam.vision.segment import WORK_SHORT
-
-    gh, gw = grid
-    h, w = working_size((gh, gw), WORK_SHORT)
-    area = lambda f, size: f if f.shape[:2] == size else cv2.resize(f, (size[1], size[0]), interpolation=cv2.INTER_AREA)  # noqa: E731
-    fr = np.empty((b0 - a0, h, w, 3), np.float32)
-    for t in range(a0, b0):
-        fr[t - a0] = area(area(np.asarray(frames[t], np.float32), (gh, gw)), (h, w))
-    n, fl = b0 - a0 - 1, {}
-    scale = np.float32([w / gw, h / gh])
-    for k in ("fw", "bw"):
-        fl[k] = np.empty((n, h, w, 2), np.float32)
-        for i in range(n):
-            f = np.asarray(flows[k][a0 + i], np.float32)
-            fl[k][i] = f if (h, w) == (gh, gw) else area(f, (h, w)) * scale
+    work = working_size(tuple(grid), WORK_SHORT)
+    fr = np.empty((b0 - a0, *work, 3), np.float32)
+    for t in range(a0, b0):  # as the flow saw the frame (at its grid), then at the working size
+        fr[t - a0] = resize_frames(resize_frames(np.asarray(frames[t], np.float32)[None], tuple(grid)), work)[0]
+    fl = {k: np.stack([flow_at(flows[k][i], work) for i in range(a0, b0 - 1)]) for k in ("fw", "bw")}
     for k in ("fw_ok", "bw_ok"):
         if flows.get(k) is not None:
-            fl[k] = np.empty((n, h, w), bool)
-            for i in range(n):
-                m = np.asarray(flows[k][a0 + i], bool)
-                fl[k][i] = m if (h, w) == (gh, gw) else cv2.resize(m.astype(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST) > 0
+            fl[k] = np.stack([check_at(flows[k][i], work) for i in range(a0, b0 - 1)])
     return fr, fl
 
 

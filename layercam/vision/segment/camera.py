@@ -43,13 +43,18 @@ def _grid(h: int, w: int) -> np.ndarray:
     return np.stack(pixel_grid(h, w), -1)
 
 
-def _ring_sample(valid: np.ndarray) -> np.ndarray:
+def _frame_sample(valid: np.ndarray) -> np.ndarray:
+    """``(H, W)`` bool: a regular lattice of the ``valid`` pixels, spaced so that the border ring
+    holds about ``RING_POINTS`` of them."""
     h, w = valid.shape
-    ring = border_ring(h, w)
-    step = max(1, int(np.sqrt(ring.sum() / RING_POINTS)))
+    step = max(1, int(np.sqrt(border_ring(h, w).sum() / RING_POINTS)))
     sel = np.zeros((h, w), bool)
     sel[::step, ::step] = True
-    return sel & ring & valid
+    return sel & valid
+
+
+def _ring_sample(valid: np.ndarray) -> np.ndarray:
+    return _frame_sample(valid) & border_ring(*valid.shape)
 
 
 def _project(hm: np.ndarray, x: np.ndarray) -> np.ndarray:
@@ -77,14 +82,6 @@ def refit(hm: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
             break
         hm = new / new[2, 2]
     return hm
-
-
-def _frame_sample(valid: np.ndarray) -> np.ndarray:
-    h, w = valid.shape
-    step = max(1, int(np.sqrt(border_ring(h, w).sum() / RING_POINTS)))
-    sel = np.zeros((h, w), bool)
-    sel[::step, ::step] = True
-    return sel & valid
 
 
 def pair_residuals(d: np.ndarray, valid: np.ndarray, seed: int = 0) -> tuple[np.ndarray | None, bool]:

@@ -128,6 +128,16 @@ def find_foreground(frames: np.ndarray, flows: dict, cfg: SegmentConfig | None =
     return masks, info
 
 
+def detector_masks(frames: np.ndarray, masks: np.ndarray, cfg: SegmentConfig, progress: bool = False) -> tuple[np.ndarray, dict]:
+    """The motion ``masks`` ``(T, H, W)`` replaced by the instances of the local detector file
+    ``cfg.detector`` (:mod:`layercam.vision.segment.detect`) that lie in them, on ``frames``
+    ``(T, H, W, 3)`` of the masks' size; returns the masks and what was picked."""
+    from layercam.vision.segment.detect import detect_instances, pick_instances
+
+    found = detect_instances(frames, cfg.detector, cfg.detector_score, cfg.detector_size, progress)
+    return pick_instances(found, masks, cfg.detector_overlap)
+
+
 def foreground_bootstrap(frames: np.ndarray, flows: dict | None, masks: np.ndarray | None = None, cfg: SegmentConfig | None = None, progress: bool = False) -> dict:
     """What a two-layer scene starts from: ``{"h0": (T, 3, 3), "masks": (T, H, W) | None,
     "computed": bool, "how": str, "info": dict}``.
@@ -145,10 +155,7 @@ def foreground_bootstrap(frames: np.ndarray, flows: dict | None, masks: np.ndarr
     if masks is None and flows is not None and T > 1:
         masks, info = find_foreground(frames, flows, cfg)
         if cfg.detector:  # a local Mask R-CNN's instances where they lie in the motion masks
-            from layercam.vision.segment.detect import detect_instances, pick_instances
-
-            found = detect_instances(frames, cfg.detector, cfg.detector_score, cfg.detector_size, progress)
-            masks, picked = pick_instances(found, masks, cfg.detector_overlap)
+            masks, picked = detector_masks(frames, masks, cfg, progress)
             info.update(picked, coverage_after_detector=float(masks.mean()))
         computed = True
     fw = flows["fw"].astype(np.float32) if flows is not None and T > 1 else None

@@ -110,12 +110,12 @@ def foreground_bootstrap_long(frames, flows: dict, out, masks=None, cfg: Segment
             fr, fl = window_at_work(frames, flows, a0, b0, (h, w))
             part, inf = find_foreground(fr, fl, cfg)
             del fr, fl
-            if cfg.detector:  # a local Mask R-CNN's instances where they lie in the motion masks (as foreground_bootstrap), on the flow's grid
-                from layercam.vision.segment.detect import detect_instances, pick_instances
+            if cfg.detector:  # as foreground_bootstrap, on the flow's grid
+                from layercam.vision.scale import resize_frames
+                from layercam.vision.segment import detector_masks
 
-                small = np.stack([np.asarray(frames[t], np.float32) if (h, w) == (H, W) else cv2.resize(np.asarray(frames[t], np.float32), (w, h), interpolation=cv2.INTER_AREA) for t in range(a0, b0)])
-                part = np.stack([up(m, (h, w)) for m in np.asarray(part, np.float32)])
-                part, _ = pick_instances(detect_instances(small, cfg.detector, cfg.detector_score, cfg.detector_size, False), part, cfg.detector_overlap)
+                small = resize_frames([frames[t] for t in range(a0, b0)], (h, w))
+                part, _ = detector_masks(small, np.stack([up(m, (h, w)) for m in np.asarray(part, np.float32)]), cfg)
                 del small
             for t in range(a, b):  # working size -> the flow's grid -> the frames' size, each at 0.5
                 masks[t] = up(up(np.asarray(part[t - a0], np.float32), (h, w)), (H, W)) > 0.5

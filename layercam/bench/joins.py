@@ -133,12 +133,7 @@ def pair_flicker(hdr: np.ndarray, hom: np.ndarray, static: np.ndarray) -> np.nda
 
     _, stats = tonemap_display(hdr)
     disp = np.stack([tonemap_display(x, stats)[0] for x in hdr])
-    out = np.full(len(static), np.nan)
-    for t in range(len(static)):
-        m = np.zeros_like(static)
-        m[t] = static[t]
-        out[t] = flicker(disp, hom, m)
-    return out
+    return np.array([flicker(disp[t : t + 2], hom[t : t + 1], static[t : t + 1]) for t in range(len(static))])
 
 
 def score(case: str, folder: Path, meta: dict) -> dict:

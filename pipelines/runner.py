@@ -164,7 +164,7 @@ def run_stages(ctx: Context, stages: list[Stage]) -> Context:
             if alone and main:
                 distributed.barrier()
             continue
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         CURRENT[0] = st.name
         try:
             out.mkdir(parents=True, exist_ok=True)
@@ -182,7 +182,7 @@ def run_stages(ctx: Context, stages: list[Stage]) -> Context:
         if main:
             atomic_write(done, lambda p: p.write_text(json.dumps(summary, indent=1, default=_json_default)))
         ctx.results[st.name] = st.load(ctx, out, summary)
-        ctx.times[st.name] = {"seconds": round(secs, 3), "cached": False}
+        ctx.times[st.name] = {"seconds": round(secs, 3), "cpu_seconds": round(time.process_time() - c0, 3), "cached": False}
         ctx.say(f"[{st.name}] done in {secs:.1f} s")
         if alone and main:
             distributed.barrier()

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import json
 import os
+import resource
 import subprocess
 import sys
 import threading
@@ -25,8 +26,8 @@ import numpy as np
 from layercam.core.errors import LayercamError
 
 LENGTHS = [48, 192, 768]
-FIELDS = ["clip", "frames", "size", "preset", "layers", "steps", "wall_s", "flow_s", "bootstrap_s", "train_s", "export_s",
-          "peak_rss_mb", "peak_anon_mb", "estimate_mb", "estimate_disk_mb", "cache_mb", "note"]  # and stage_peak_mb in length.json
+FIELDS = ["clip", "frames", "size", "preset", "layers", "steps", "wall_s", "cpu_s", "flow_s", "bootstrap_s", "train_s", "export_s",
+          "peak_rss_mb", "peak_anon_mb", "estimate_mb", "estimate_disk_mb", "cache_mb", "note"]  # and stage_peak_mb, stage_cpu_s in length.json
 
 
 def _status() -> dict:
@@ -146,10 +147,11 @@ def run_job(job: dict) -> None:
     t0 = time.perf_counter()
     with MemorySampler() as mem:
         code = main(argv)
+    use = [resource.getrusage(w) for w in (resource.RUSAGE_SELF, resource.RUSAGE_CHILDREN)]  # the decoder's ffmpeg is a child
     stopped = os.environ.get("LAYERCAM_SIGNAL_AT") if code == 130 else None  # stopped on purpose (a partial run)
     if code != 0 and not stopped:
         raise SystemExit(code)
-    res = {"wall_s": round(time.perf_counter() - t0, 2), "peak_rss_mb": round(mem.peak, 1), "peak_anon_mb": round(mem.peak_anon, 1),
+    res = {"wall_s": round(time.perf_counter() - t0, 2), "cpu_s": round(sum(u.ru_utime + u.ru_stime for u in use), 1), "peak_rss_mb": round(mem.peak, 1), "peak_anon_mb": round(mem.peak_anon, 1),
            "stage_peak_mb": {k: round(v, 1) for k, v in mem.by_stage.items()}, **({"stopped_at": stopped} if stopped else {})}
     Path(job["out"], "memory.json").write_text(json.dumps({**res, "series": mem.series}))
     Path(job["result"]).write_text(json.dumps(res))
@@ -174,10 +176,11 @@ def _row(clip: str, n: int, size: tuple[int, int], preset: str, run: Path, res: 
     sec = lambda k: round(st.get(k, {}).get("seconds", 0.0), 1)  # noqa: E731
     est = rep.get("memory", {}).get("estimate", {}).get("before", {})
     return {"clip": clip, "frames": n, "size": f"{size[0]}x{size[1]}", "preset": preset, "layers": rep["analysis"].get("layers"),
-            "steps": rep["train"].get("steps"), "wall_s": res["wall_s"], "flow_s": sec("flow"), "bootstrap_s": sec("bootstrap"),
+            "steps": rep["train"].get("steps"), "wall_s": res["wall_s"], "cpu_s": res.get("cpu_s"), "flow_s": sec("flow"), "bootstrap_s": sec("bootstrap"),
             "train_s": sec("train"), "export_s": sec("export"), "peak_rss_mb": res["peak_rss_mb"], "peak_anon_mb": res["peak_anon_mb"],
             "estimate_mb": round(est.get("memory", 0) / 1e6), "estimate_disk_mb": round(est.get("disk", 0) / 1e6),
-            "cache_mb": round(disk_used(run / "cache") / 1e6), "stage_peak_mb": res.get("stage_peak_mb", {}), "note": note}
+            "cache_mb": round(disk_used(run / "cache") / 1e6), "stage_peak_mb": res.get("stage_peak_mb", {}),
+            "stage_cpu_s": {k: v.get("cpu_seconds") for k, v in st.items() if "cpu_seconds" in v}, "note": note}
 
 
 def run_length(out: Path, data: Path, clip: str = "cows", lengths: list[int] | None = None, preset: str = "fast", size: tuple[int, int] | None = None,
@@ -224,7 +227,7 @@ def write_length(out: Path, rows: list[dict]) -> None:
 
 def plot_length(path: Path, rows: list[dict]) -> None:
     """Two panels against the clip's length: peak memory (resident, its anonymous part, the
-    estimate said before the work) and wall time (with the line through the origin and the
+    estimate said before the work) and time, wall and CPU (with the line through the origin and the
     shortest clip: time proportional to the length)."""
     import matplotlib
 
@@ -241,10 +244,12 @@ def plot_length(path: Path, rows: list[dict]) -> None:
         a.plot(x, [r["peak_rss_mb"] / 1000 for r in pts], "o-", color=c, label=f"{key[0]} {key[1]}: peak resident")
         a.plot(x, [r["peak_anon_mb"] / 1000 for r in pts], "s:", color=c, label="its anonymous part")
         a.plot(x, [r["estimate_mb"] / 1000 for r in pts], "x--", color=c, label="estimate before the work")
-        b.plot(x, [r["wall_s"] / 60 for r in pts], "o-", color=c, label=f"{key[0]} {key[1]}")
+        b.plot(x, [r["wall_s"] / 60 for r in pts], "o-", color=c, label=f"{key[0]} {key[1]}: wall")
+        if all(r.get("cpu_s") for r in pts):
+            b.plot(x, [r["cpu_s"] / 60 for r in pts], "s:", color=c, label="CPU (all threads)")
         if x:
             b.plot([0, max(x)], [0, pts[0]["wall_s"] / 60 * max(x) / x[0]], ":", color="grey", label="proportional to the length")
-    for ax, title in ((a, "peak memory (GB)"), (b, "wall time (min)")):
+    for ax, title in ((a, "peak memory (GB)"), (b, "time (min)")):
         ax.set_xscale("log", base=2)
         ax.set_xticks(sorted({r["frames"] for r in rows}), [str(v) for v in sorted({r["frames"] for r in rows})])
         ax.set_xlabel("frames")

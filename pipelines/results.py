@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-PRIVATE = ("_seconds", "_outputs")  # what the runner adds to a summary (timing, outputs kept)
+PRIVATE = ("_seconds", "_cpu_seconds", "_outputs")  # what the runner adds to a summary (timing, outputs kept)
 
 
 @dataclass(frozen=True)

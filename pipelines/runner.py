@@ -159,7 +159,7 @@ def run_stages(ctx: Context, stages: list[Stage]) -> Context:
         if done.exists():
             summary = json.loads(done.read_text())
             ctx.results[st.name] = st.load(ctx, out, summary)
-            ctx.times[st.name] = {"seconds": 0.0, "cached": True, "original_seconds": summary.get("_seconds")}
+            ctx.times[st.name] = {"seconds": 0.0, "cached": True, "original_seconds": summary.get("_seconds"), "original_cpu_seconds": summary.get("_cpu_seconds")}
             ctx.say(f"[{st.name}] cached ({out.name})")
             if alone and main:
                 distributed.barrier()
@@ -176,13 +176,13 @@ def run_stages(ctx: Context, stages: list[Stage]) -> Context:
             if e.errno not in (errno.ENOSPC, errno.EDQUOT, errno.EROFS):
                 raise
             raise LayercamError(f"[{st.name}] cannot write in {out}: {e.strerror}; free some space and run the same command again: the finished stages are kept") from None
-        secs = time.perf_counter() - t0
-        summary["_seconds"] = secs
+        secs, cpu = time.perf_counter() - t0, time.process_time() - c0
+        summary["_seconds"], summary["_cpu_seconds"] = secs, cpu
         summary["_outputs"] = [n for n in st.output_names(ctx) if (out / n).exists()]
         if main:
             atomic_write(done, lambda p: p.write_text(json.dumps(summary, indent=1, default=_json_default)))
         ctx.results[st.name] = st.load(ctx, out, summary)
-        ctx.times[st.name] = {"seconds": round(secs, 3), "cpu_seconds": round(time.process_time() - c0, 3), "cached": False}
+        ctx.times[st.name] = {"seconds": round(secs, 3), "cpu_seconds": round(cpu, 3), "cached": False}
         ctx.say(f"[{st.name}] done in {secs:.1f} s")
         if alone and main:
             distributed.barrier()

@@ -19,7 +19,7 @@ Written into the run folder by the export stage's ``atlases`` writer (:mod:`laye
 from __future__ import annotations
 
 import contextlib
-
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -65,64 +65,111 @@ def write_rgba_png(path: Path, rgb: np.ndarray, alpha: np.ndarray) -> None:
     atomic_write(Path(path), _write)
 
 
+class AtlasSink:
+    """The atlas outputs written as the frames' geometry arrives: ``add(t, uv, alpha)`` for
+    ``t = 0, 1, ..., T - 1`` in turn (``uv``: each layer's ``(H, W, 2)``, ``alpha (H, W)`` or None,
+    as :func:`~layercam.scene.render.render_frame` returns them), then ``close()`` -> the summary.
+    A writer that renders each frame anyway (the HDR frames) feeds it, so the frames' geometry is
+    computed once; :func:`export_atlases` renders it for the atlases alone. Holds one frame."""
+
+    def __init__(self, model, run_dir: Path, frames: np.ndarray, fps: float = 24.0, chunk: int = 65536):
+        from layercam.core.geometry import middle_frame
+        from layercam.io import VideoWriter
+        from layercam.scene.render import layer_weights, render_frame
+
+        self.model, self.frames, self.chunk = model, frames, chunk
+        self.run_dir = Path(run_dir)
+        T, H, W = frames.shape[:3]
+        self.L = L = model.scene.n_layers
+        self.adir = self.run_dir / "atlases"
+        self.adir.mkdir(parents=True, exist_ok=True)
+        m = render_frame(model, middle_frame(T), (H, W), ("uv", "alpha"), chunk=chunk)
+        ws = layer_weights(m["alpha"], L, (H, W))
+        self.res = [atlas_resolution(m["uv"][k], ws[k], pixels=T * H * W) for k in range(L)]
+        self.acc = [np.zeros(r * r, np.float64) for r in self.res]
+        self.two = m["alpha"] is not None
+        self.fg: list[float] = []  # per frame, the share of pixels the foreground's alpha holds (> 0.5)
+        self.next_t, self.open = 0, True
+        if self.two:
+            (self.run_dir / "alpha").mkdir(exist_ok=True)
+        self._videos = contextlib.ExitStack()  # written as the frames arrive: memory of one frame
+        self.uv_videos = [self._videos.enter_context(VideoWriter(self.adir / f"layer{k}_uv.mp4", fps=fps)) for k in range(L)]
+        self.alpha_videos = [self._videos.enter_context(VideoWriter(self.adir / f"layer{k}_alpha.mp4", fps=fps)) for k in range(L)] if self.two else []
+
+    def add(self, t: int, uv: list[np.ndarray], alpha: np.ndarray | None) -> None:
+        from layercam.io import write_png
+        from layercam.scene.render import checker_overlay, layer_weights, splat_add
+
+        if t != self.next_t:
+            raise ValueError(f"AtlasSink.add: frame {t} where frame {self.next_t} was due")
+        self.next_t += 1
+        reached("atlas", t)
+        H, W = self.frames.shape[1:3]
+        ws = layer_weights(alpha, self.L, (H, W))
+        to8 = lambda x: np.round(np.clip(x, 0, 1) * 255).astype(np.uint8)  # noqa: E731 - videos kept as 8-bit
+        for k in range(self.L):
+            splat_add(self.acc[k], uv[k], ws[k], self.res[k])
+            self.uv_videos[k].add(to8(checker_overlay(self.frames[t], uv[k], ws[k])))
+            if self.two:
+                self.alpha_videos[k].add(to8(ws[k]))
+        if self.two:
+            write_png(self.run_dir / "alpha" / f"frame_{t:05d}.png", alpha)
+            self.fg.append(float(np.mean(np.asarray(alpha) > 0.5)))
+
+    def abort(self) -> None:
+        """Drops the videos begun (called while an exception ends the export: no partial file is kept)."""
+        self.open = False
+        self._videos.__exit__(*sys.exc_info())
+
+    def close(self) -> dict:
+        from layercam.io import write_exr
+        from layercam.scene.render import coverage_from_splat, sample_atlas, tone_map_log2
+
+        T, H, W = self.frames.shape[:3]
+        if self.next_t != T:
+            raise ValueError(f"AtlasSink.close: {self.next_t} of {T} frames added")
+        self.open = False
+        self._videos.close()
+        model, adir, two = self.model, self.adir, self.two
+        log2_dt = model.exposure.reference()
+        layers = []
+        for k in range(self.L):
+            log2_r = sample_atlas(model, k, self.res[k], self.chunk)
+            cov = coverage_from_splat(self.acc[k], self.res[k])
+            write_exr(adir / f"layer{k}.exr", np.exp2(log2_r).astype(np.float32), half=False)
+            write_rgba_png(adir / f"layer{k}.png", tone_map_log2(model, log2_r, log2_dt), cov)
+            entry = {"layer": k, "res": self.res[k], "exr": f"layer{k}.exr", "png": f"layer{k}.png", "uv_video": f"layer{k}_uv.mp4", "coverage": float(cov.mean())}
+            if two:
+                entry["alpha_video"] = f"layer{k}_alpha.mp4"
+            layers.append(entry)
+        info = {
+            "layers": layers,
+            "uv_grid": "res x res pixel centres over [-1, 1]^2; row = v, column = u (grid_sample, align_corners=False)",
+            "log2_dt_png": log2_dt,
+            "png_space": "the learned camera (tone mapper) at log2_dt_png; alpha = coverage",
+            "exr_space": "linear irradiance (camera dropped)",
+            "foreground_alpha": "alpha/frame_*.png" if two else None,
+            "frames": T,
+            "frame_hw": [H, W],
+        }
+        write_json(adir / "atlas.json", info)
+        return {"layers": [{k: v for k, v in e.items() if k in ("layer", "res", "coverage")} for e in layers], "alpha_mattes": T if two else 0,
+                **({"foreground_share": float(np.mean(self.fg))} if two else {})}
+
+
 def export_atlases(model, run_dir: Path, frames: np.ndarray, fps: float = 24.0, chunk: int = 65536, progress: bool = False) -> dict:
     """Writes the files listed in this module's docstring into ``run_dir``, each atlas at
-    :func:`atlas_resolution`; returns a summary."""
-    from layercam.core.geometry import middle_frame
-    from layercam.io import VideoWriter, write_exr, write_png
+    :func:`atlas_resolution`, rendering each frame's geometry for them; returns a summary."""
     from layercam.core.progress import bar as progress_bar
-    from layercam.scene.render import checker_overlay, coverage_from_splat, layer_weights, render_frame, sample_atlas, splat_add, tone_map_log2
+    from layercam.scene.render import render_frame
 
-    run_dir = Path(run_dir)
     T, H, W = frames.shape[:3]
-    L = model.scene.n_layers
-    adir = run_dir / "atlases"
-    adir.mkdir(parents=True, exist_ok=True)
-    m = render_frame(model, middle_frame(T), (H, W), ("uv", "alpha"), chunk=chunk)
-    ws = layer_weights(m["alpha"], L, (H, W))
-    res = [atlas_resolution(m["uv"][k], ws[k], pixels=T * H * W) for k in range(L)]
-    acc = [np.zeros(r * r, np.float64) for r in res]
-    to8 = lambda x: np.round(np.clip(x, 0, 1) * 255).astype(np.uint8)  # noqa: E731 - videos kept as 8-bit
-    two = m["alpha"] is not None
-    fg = []  # per frame, the share of pixels the foreground's alpha holds (> 0.5)
-    if two:
-        (run_dir / "alpha").mkdir(exist_ok=True)
-    with contextlib.ExitStack() as open_videos:  # written as the frames are rendered: memory of one frame
-        uv_videos = [open_videos.enter_context(VideoWriter(adir / f"layer{k}_uv.mp4", fps=fps)) for k in range(L)]
-        alpha_videos = [open_videos.enter_context(VideoWriter(adir / f"layer{k}_alpha.mp4", fps=fps)) for k in range(L)] if two else []
+    sink = AtlasSink(model, run_dir, frames, fps, chunk)
+    try:
         for t in progress_bar(range(T), desc="atlases", unit="frame", enabled=progress):
-            reached("atlas", t)
             m = render_frame(model, t, (H, W), ("uv", "alpha"), chunk=chunk)
-            ws = layer_weights(m["alpha"], L, (H, W))
-            for k in range(L):
-                splat_add(acc[k], m["uv"][k], ws[k], res[k])
-                uv_videos[k].add(to8(checker_overlay(frames[t], m["uv"][k], ws[k])))
-                if two:
-                    alpha_videos[k].add(to8(ws[k]))
-            if two:
-                write_png(run_dir / "alpha" / f"frame_{t:05d}.png", m["alpha"])
-                fg.append(float(np.mean(np.asarray(m["alpha"]) > 0.5)))
-    log2_dt = model.exposure.reference()
-    layers = []
-    for k in range(L):
-        log2_r = sample_atlas(model, k, res[k], chunk)
-        cov = coverage_from_splat(acc[k], res[k])
-        write_exr(adir / f"layer{k}.exr", np.exp2(log2_r).astype(np.float32), half=False)
-        write_rgba_png(adir / f"layer{k}.png", tone_map_log2(model, log2_r, log2_dt), cov)
-        entry = {"layer": k, "res": res[k], "exr": f"layer{k}.exr", "png": f"layer{k}.png", "uv_video": f"layer{k}_uv.mp4", "coverage": float(cov.mean())}
-        if two:
-            entry["alpha_video"] = f"layer{k}_alpha.mp4"
-        layers.append(entry)
-    info = {
-        "layers": layers,
-        "uv_grid": "res x res pixel centres over [-1, 1]^2; row = v, column = u (grid_sample, align_corners=False)",
-        "log2_dt_png": log2_dt,
-        "png_space": "the learned camera (tone mapper) at log2_dt_png; alpha = coverage",
-        "exr_space": "linear irradiance (camera dropped)",
-        "foreground_alpha": "alpha/frame_*.png" if two else None,
-        "frames": T,
-        "frame_hw": [H, W],
-    }
-    write_json(adir / "atlas.json", info)
-    return {"layers": [{k: v for k, v in e.items() if k in ("layer", "res", "coverage")} for e in layers], "alpha_mattes": T if two else 0,
-            **({"foreground_share": float(np.mean(fg))} if two else {})}
+            sink.add(t, m["uv"], m["alpha"])
+    except BaseException:
+        sink.abort()
+        raise
+    return sink.close()

@@ -74,18 +74,23 @@ def first_pass(ctx: Context, model) -> tuple[dict, float]:
     return render.display_stats(np.concatenate(lum)), peak
 
 
-def faithful_hdr(ctx: Context, model, ts) -> Iterator[tuple[int, np.ndarray, dict]]:
+def faithful_hdr(ctx: Context, model, ts, geometry=None) -> Iterator[tuple[int, np.ndarray, dict]]:
     """For each frame ``t`` of ``ts`` in turn: ``(t, linear HDR (H, W, 3), what the correction did)``.
     With ``export.faithful`` the model corrected towards the frame where it saw well, and where it
     did not towards its neighbours' corrections moved along the clip's flow
     (:mod:`layercam.camera.faithful`); else the model alone (and ``{}``). Each frame's correction is
-    computed once and kept while a neighbour needs it."""
+    computed once and kept while a neighbour needs it. ``geometry(t, uv, alpha)``, when given, is
+    called with each frame's geometry from the same render, before the frame is yielded."""
     from layercam.scene import render
 
+    geo = ("uv", "alpha") if geometry is not None else ()
     if not ctx.resolved.settings.export.faithful:
         for t in ts:
             reached("export", t)
-            yield t, render.render_frame(model, t, (ctx.clip.H, ctx.clip.W), ("hdr",))["hdr"], {}
+            out = render.render_frame(model, t, (ctx.clip.H, ctx.clip.W), ("hdr", *geo))
+            if geo:
+                geometry(t, out["uv"], out["alpha"])
+            yield t, out["hdr"], {}
         return
     from layercam.camera.faithful import correction, faithful_log2, merge_weight, neighbour_fill
     from layercam.pipelines.stages import ctx_clip_levels
@@ -107,7 +112,7 @@ def faithful_hdr(ctx: Context, model, ts) -> Iterator[tuple[int, np.ndarray, dic
 
     def corr(t: int) -> dict:
         if t not in kept:
-            kept[t] = correction(model, frames[t], t, lv)
+            kept[t] = correction(model, frames[t], t, lv, geometry=bool(geo))
         return kept[t]
 
     for t in ts:
@@ -122,6 +127,8 @@ def faithful_hdr(ctx: Context, model, ts) -> Iterator[tuple[int, np.ndarray, dic
                     still = np.zeros_like(fl) if static else fl  # a static camera: the same scene point, whatever the flow says
                     merge.append((c["model_log2_r"] + c["weight"] * c["delta"], merge_weight(c["exposed"], c["log2_dts"][n], c["log2_dts"]), still))
         res = faithful_log2(model, frames[t], t, lv, extremes if static else None, corr=corr(t), fill=neighbour_fill(neighbours), merge=merge, clipped=ctx.resolved.settings.export.clipped_everywhere, denoise=denoise)
+        if geo:
+            geometry(t, kept[t].pop("uv"), kept[t].pop("alpha"))
         for k in [k for k in kept if k < t]:
             del kept[k]
         yield t, np.exp2(res["log2_r"]).astype(np.float32), res["info"]
@@ -158,7 +165,9 @@ def _faithful_summary(infos: list[dict]) -> dict:
                          "merged_neighbours": any(i.get("merged", False) for i in infos)}}
 
 
-def hdr_writer(ctx: Context, model, dest: Path, cache: Path) -> dict:
+def hdr_writer(ctx: Context, model, dest: Path, cache: Path, atlas=None) -> dict:
+    """``hdr/``, ``preview.mp4``, ``hdr.mp4``; each frame's geometry handed to ``atlas`` (an
+    :class:`~layercam.pipelines.atlas_export.AtlasSink`) when given."""
     from layercam.scene import render
     from layercam.io import VideoWriter
 
@@ -167,7 +176,7 @@ def hdr_writer(ctx: Context, model, dest: Path, cache: Path) -> dict:
     (dest / "hdr").mkdir(exist_ok=True)
     infos = []
     with VideoWriter(dest / "preview.mp4", fps=_fps(ctx), audio=audio(ctx)) as preview:
-        for t, hdr, info in faithful_hdr(ctx, model, _frames(ctx)):
+        for t, hdr, info in faithful_hdr(ctx, model, _frames(ctx), None if atlas is None else atlas.add):
             exrs.add(dest / "hdr" / f"frame_{t:05d}.exr", hdr)
             preview.add(render.tonemap_display(hdr, stats)[0])
             infos.append(info)
@@ -260,9 +269,12 @@ def fused_writer(ctx: Context, model, dest: Path, cache: Path) -> dict:
     return {"reference": ref, "reference_name": ctx.clip.names[ref], "png": how, "display": stats, "hdr_min": float(hdr.min()), "hdr_max": float(hdr.max()), **_faithful_summary([info])}
 
 
-def atlas_writer(ctx: Context, model, dest: Path, cache: Path) -> dict:
+def atlas_writer(ctx: Context, model, dest: Path, cache: Path, atlas=None) -> dict:
+    """``atlases/``, ``alpha/``: closes ``atlas`` (fed by the HDR writer) or renders the frames' geometry."""
     from layercam.pipelines.atlas_export import export_atlases
 
+    if atlas is not None:
+        return {"atlas": atlas.close()}
     return {"atlas": export_atlases(model, dest, ctx.clip.frames, fps=_fps(ctx), progress=ctx.progress)}
 
 
@@ -313,6 +325,7 @@ WRITERS = {
     "checkpoint": (checkpoint_writer, [CHECKPOINT_NAME]),
 }
 TASK_WRITERS = {"hdr-video": ("hdr",), "demo": ("hdr",), "deblur-video": ("sharp",), "fuse-stack": ("fused",)}
+SHARING = ("hdr", "atlases")  # the first renders every frame and hands the second each frame's geometry
 COMMON_WRITERS = ("atlases", "crf", "psf", "checkpoint")  # render writers run on the training device, these on the CPU from "crf" on
 REPORT_NAME = "report.json"  # written by the task after its stages; set aside with the outputs it describes
 
@@ -342,10 +355,22 @@ class ExportStage(Stage):
         model = ctx.model
         model.to(ctx.resolved.settings.train.device)  # render where it trained (GPU when there is one)
         summary: dict = {}
-        for name in writers_for(ctx.task):
-            if name == "crf":
-                model.cpu()
-            summary.update(WRITERS[name][0](ctx, model, dest, out))
+        names = writers_for(ctx.task)
+        atlas = None
+        if SHARING[0] in names and SHARING[1] in names:  # the HDR frames' renders give the atlases their geometry
+            from layercam.pipelines.atlas_export import AtlasSink
+
+            atlas = AtlasSink(model, dest, ctx.clip.frames, fps=_fps(ctx))
+        try:
+            for name in names:
+                if name == "crf":
+                    model.cpu()
+                fn = WRITERS[name][0]
+                summary.update(fn(ctx, model, dest, out, atlas=atlas) if name in SHARING else fn(ctx, model, dest, out))
+        except BaseException:
+            if atlas is not None and atlas.open:
+                atlas.abort()
+            raise
         return summary
 
     def load(self, ctx, out, summary):

@@ -193,24 +193,27 @@ def smooth_within(z: np.ndarray, mask: np.ndarray, sigma: float = UNSEEN_SIGMA) 
     return out
 
 
-def correction(model, frame: np.ndarray, t: int, levels: np.ndarray | None = None, chunk: int = 65536, kappa: float = KAPPA) -> dict:
+def correction(model, frame: np.ndarray, t: int, levels: np.ndarray | None = None, chunk: int = 65536, kappa: float = KAPPA, geometry: bool = False) -> dict:
     """What ``frame (H, W, 3)`` (frame ``t``) says about the model: ``{"model_log2_r"}`` the
     model's log2 irradiance, ``"delta"`` the frame's disagreement with it through the inverse camera,
     ``"weight"`` the share of it to keep (:func:`fidelity_weight`), ``"exposed"``
     (:func:`exposure_weight`), all ``(H, W, 3)``; ``"log2_dts"`` the clip's exposures, ``"levels"``,
-    ``"info"``."""
+    ``"info"``; with ``geometry`` also the frame's ``"uv"`` and ``"alpha"`` from the same render
+    (:func:`~layercam.scene.render.render_frame`'s)."""
     import torch
 
     from layercam.scene.render import inverse_tone, render_frame
 
-    out = render_frame(model, t, frame.shape[:2], ("log2_r", "ldr"), blur=True, chunk=chunk)
+    geo = ("uv", "alpha") if geometry else ()
+    out = render_frame(model, t, frame.shape[:2], ("log2_r", "ldr", *geo), blur=True, chunk=chunk)
     with torch.no_grad():
         dts = model.exposure.values().detach().float().cpu().numpy()
     log2_dt = float(dts[int(t)])
     levels = np.full(3, CLIP_LEVEL, np.float32) if levels is None else np.asarray(levels, np.float32)
     w, info = fidelity_weight(frame, out["ldr"], kappa, levels)
     delta = inverse_tone(model, frame, log2_dt) - inverse_tone(model, out["ldr"], log2_dt)
-    return {"model_log2_r": out["log2_r"], "delta": delta, "weight": w, "exposed": exposure_weight(frame, levels), "log2_dts": dts, "levels": levels, "info": info}
+    return {"model_log2_r": out["log2_r"], "delta": delta, "weight": w, "exposed": exposure_weight(frame, levels), "log2_dts": dts, "levels": levels, "info": info,
+            **{k: out[k] for k in geo}}
 
 
 def merge_neighbours(own: tuple[np.ndarray, np.ndarray], neighbours: list[tuple[np.ndarray, np.ndarray, np.ndarray]], frame: np.ndarray, model, log2_dt: float, levels: np.ndarray, sigma: np.ndarray, exposed: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:

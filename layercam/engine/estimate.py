@@ -38,7 +38,8 @@ ANALYSIS_PER_PX = 28.0   # per working-grid pixel of each pair measured (flow in
 SEG_PER_PX = 23.0        # two layers, a clip segmented whole: per pixel of the flow's grid of each frame
 SEG_WORK_PER_PX = 70.0   # two layers, a clip segmented in windows: per pixel of the finder's working size of each window frame
 BOOT_PER_PX = 24.0       # one layer: per frame pixel (a frame and its temporaries)
-EXPORT_PER_PX = 1300.0   # per frame pixel: the faithful export's arrays for a frame and its two neighbours
+EXPORT_PER_PX = 1360.0   # per frame pixel: the faithful export's arrays for a frame and its two neighbours (1300 measured)
+                         # and their geometry kept for the atlases (2 layers: 5 floats, 60 bytes for three frames)
 RENDER_PER_PX = 1600.0   # per pixel of a render chunk: the networks' layers, one at a time
 RENDER_CHUNK = 65536     # pixels rendered at once (layercam.scene.render)
 PARAM_BYTES = 24.0       # per model parameter in training: value, gradient, Adam's two moments, and a copy when saved

@@ -55,3 +55,30 @@ def test_export_refuses_non_finite_render(tiny_scene, tiny_exposures, tmp_path, 
     with pytest.raises(LayercamError, match="non-finite irradiance"):
         run_task("hdr-video", tiny_scene.clip, tiny_exposures, cfg, tmp_path / "run", progress=False)
     assert not list((tmp_path / "run").glob("hdr/*.exr"))
+
+
+def test_atlases_fed_by_the_hdr_frames_match_the_atlases_rendered_alone(two_layer_run, tmp_path):
+    """hdr-video's export hands each frame's geometry from its HDR render to the atlases
+    (``AtlasSink``): the same files as rendering the geometry for the atlases alone; a frame out of
+    order is refused."""
+    import cv2
+
+    from layercam.engine.checkpoint import load_run_model
+    from layercam.pipelines.atlas_export import AtlasSink, export_atlases
+
+    run, frames = two_layer_run["run"], two_layer_run["scene"].clip.frames
+    model, ck = load_run_model(run)
+    summary = export_atlases(model, tmp_path, frames, fps=float(ck.get("fps") or 24.0))
+    assert summary["alpha_mattes"] == len(frames) == len(list((run / "alpha").glob("*.png")))
+    for name in ("alpha/frame_00000.png", f"alpha/frame_{len(frames) - 1:05d}.png", "atlases/layer1.png"):
+        assert np.array_equal(cv2.imread(str(run / name), cv2.IMREAD_UNCHANGED), cv2.imread(str(tmp_path / name), cv2.IMREAD_UNCHANGED)), name
+    for k in (0, 1):
+        assert np.array_equal(read_exr(run / "atlases" / f"layer{k}.exr"), read_exr(tmp_path / "atlases" / f"layer{k}.exr"))
+    sink = AtlasSink(model, tmp_path / "again", frames)
+    with pytest.raises(ValueError, match="frame 1 where frame 0 was due"):
+        try:
+            sink.add(1, [np.zeros((*frames.shape[1:3], 2), np.float32)] * 2, np.zeros(frames.shape[1:3], np.float32))
+        except ValueError:
+            sink.abort()
+            raise
+    assert not list((tmp_path / "again" / "atlases").glob("*.mp4"))  # the videos begun were dropped

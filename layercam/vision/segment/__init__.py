@@ -14,9 +14,7 @@ learned over the whole clip. One step per module:
 3. :mod:`~layercam.vision.segment.moving`: the evidence voted with its neighbours along the flow, counted
    where the frame has texture the flow can follow, one object per frame, still frames filled from
    their neighbours.
-4. :mod:`~layercam.vision.segment.edges`: GrabCut pulls each mask to the object's colour edges; its
-   trimap's sure background is only what the motion measured static (on a point track that never
-   moves, :func:`~layercam.vision.segment.moving.sure_background`), the rest probable background.
+4. :mod:`~layercam.vision.segment.edges`: GrabCut pulls each mask to the object's colour edges.
 5. :mod:`~layercam.vision.segment.background`: the clean plate (neighbours registered by the camera's
    motion, their object left out) adds limbs the flow missed and drops background the flow smeared.
 6. :mod:`~layercam.vision.segment.colour`: a graph cut on the object's colours learned over the clip grows
@@ -108,11 +106,10 @@ def find_foreground(frames: np.ndarray, flows: dict, cfg: SegmentConfig | None =
     fo, bo = flow_checks(fw, bw, flows.get("fw_ok"), flows.get("bw_ok"))
     masks, info = motion_masks(fw, bw, fo, bo, cfg, frames=frames)
     evidence = info.pop("evidence")
-    still = info.pop("still")
     if "grabcut" in steps:
         from layercam.vision.segment.edges import grabcut_refine
 
-        masks = np.stack([grabcut_refine(frames[t], masks[t], still=still[t]) for t in range(T)]).astype(np.float32)
+        masks = np.stack([grabcut_refine(frames[t], masks[t]) for t in range(T)]).astype(np.float32)
     if "background" in steps:
         from layercam.vision.segment.background import background_refine
         from layercam.vision.segment.clean import fill_still_frames

@@ -1,8 +1,5 @@
 """Step 4: the motion masks tightened to the object's colour edges by GrabCut: flow masks overshoot
-the object by about a flow patch. Its trimap's background follows the motion (as FST's appearance
-model takes its background from what the motion puts outside the object, Papazoglou & Ferrari
-2013): sure background only where the motion measured a pixel static, probable background where it
-measured nothing or saw it move (a part of the object standing still, occlusions, smooth patches)."""
+the object by about a flow patch."""
 
 from __future__ import annotations
 
@@ -12,14 +9,11 @@ ITERATIONS = 4  # GrabCut's iterations
 RING = 0.03     # the erosion that is sure foreground and the dilation that may be background, a share of the short side
 
 
-def grabcut_refine(frame: np.ndarray, mask: np.ndarray, iters: int = ITERATIONS, still: np.ndarray | None = None) -> np.ndarray:
+def grabcut_refine(frame: np.ndarray, mask: np.ndarray, iters: int = ITERATIONS) -> np.ndarray:
     """Tighten a motion mask ``(H, W)`` to the object's colour edges with GrabCut, seeded by the
     mask: eroded mask = sure foreground, mask = probable foreground, a ring around it = probable
-    background, the rest = sure background where ``still`` ``(H, W)`` bool (what the motion
-    measured static, :func:`layercam.vision.segment.moving.sure_background`; everywhere when None),
-    probable background elsewhere (still parts of the object, occlusions, smooth patches: GrabCut
-    may take them back). Flow-based masks overshoot the object by about a flow patch; this pulls
-    them back. Returns ``(H, W)`` bool (the input when GrabCut cannot run)."""
+    background, the rest = background. Flow-based masks overshoot the object by about a flow patch;
+    this pulls them back. Returns ``(H, W)`` bool (the input when GrabCut cannot run)."""
     import cv2
 
     m = np.asarray(mask) > 0.5
@@ -31,10 +25,7 @@ def grabcut_refine(frame: np.ndarray, mask: np.ndarray, iters: int = ITERATIONS,
     k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
     mm = m.astype(np.uint8)
     lab = np.full((h, w), cv2.GC_BGD, np.uint8)
-    far = cv2.dilate(mm, k, iterations=2) == 0
-    if still is not None:
-        far &= np.asarray(still, bool)  # sure background only where the motion measured it static
-    lab[~far] = cv2.GC_PR_BGD
+    lab[cv2.dilate(mm, k, iterations=2) > 0] = cv2.GC_PR_BGD
     lab[m] = cv2.GC_PR_FGD
     lab[cv2.erode(mm, k, iterations=2) > 0] = cv2.GC_FGD
     bgd, fgd = np.zeros((1, 65), np.float64), np.zeros((1, 65), np.float64)

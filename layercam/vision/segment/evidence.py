@@ -10,10 +10,6 @@ object move farther and weigh more (sqrt(k)). The evidence is the share of pairs
 pixel moves, the smaller of both directions' (twice) and their mean: a moving object disagrees in
 both directions, the background it is about to cover, or has just uncovered, in one only.
 
-A pixel is *measured static* where its consistent pairs all fall under that level (the same test:
-no new threshold); a pixel some pair saw move, or that no consistent pair measured (an occlusion,
-the frame's edge), is not.
-
 Shapes: flows ``(T-1, H, W, 2)``, evidence ``(T, H, W)`` float32 in [0, 1].
 """
 
@@ -57,9 +53,7 @@ def _ends(ev: np.ndarray, fw: np.ndarray, bw: np.ndarray, has: np.ndarray) -> np
 def motion_evidence(fw, bw, fw_ok, bw_ok, reach: int = 8, k_sigma: float = 4.0) -> tuple[np.ndarray, dict]:
     """``(evidence (T, H, W) float32 in [0, 1], info)``: the share of pairs (module docstring) in
     which each pixel moves against the camera; ``info``: the share of pairs whose border needed the
-    epipolar model (parallax), and ``"still"`` ``(T, H, W)`` bool: the pixels measured static, i.e.
-    followed on forward-backward consistent flow in a pair of each direction the frame has, and
-    moving against the camera (the same test as the evidence's) in none of their pairs."""
+    epipolar model (parallax)."""
     from layercam.vision.motion import chained_displacements
 
     fw, bw = np.asarray(fw, np.float32), np.asarray(bw, np.float32)
@@ -67,8 +61,6 @@ def motion_evidence(fw, bw, fw_ok, bw_ok, reach: int = 8, k_sigma: float = 4.0) 
     h, w = fw.shape[1:3]
     acc = np.zeros((T, 2, h, w), np.float32)
     cnt = np.zeros((T, 2, h, w), np.float32)
-    seen = np.zeros((T, 2, h, w), bool)  # measured (forward-backward consistent) in a pair of this direction
-    moved = np.zeros((T, h, w), bool)    # ... and moved against the camera in one of them
     epi = []
     for t in range(T):
         ch = chained_displacements(fw, bw, fw_ok, bw_ok, t, max(offsets(reach)))
@@ -77,7 +69,6 @@ def motion_evidence(fw, bw, fw_ok, bw_ok, reach: int = 8, k_sigma: float = 4.0) 
                 if sgn * k not in ch:
                     continue
                 d, v = ch[sgn * k]
-                ok = v
                 if k == 1:
                     v = np.ones_like(v)
                 res, used = pair_residuals(d, v)
@@ -85,15 +76,11 @@ def motion_evidence(fw, bw, fw_ok, bw_ok, reach: int = 8, k_sigma: float = 4.0) 
                     continue
                 epi.append(used)
                 wk = np.float32(np.sqrt(k))
-                mv = _moved(res, v, MIN_PX * np.sqrt(k), k_sigma)
-                acc[t, di] += wk * mv
+                acc[t, di] += wk * _moved(res, v, MIN_PX * np.sqrt(k), k_sigma)
                 cnt[t, di] += wk * v
-                seen[t, di] |= ok
-                moved[t] |= mv & ok
     has = cnt.reshape(T, 2, -1).max(-1) > 0
     frac = acc / np.maximum(cnt, 1.0)
     ev = np.empty((T, h, w), np.float32)
     for t in range(T):
         ev[t] = np.minimum(2 * frac[t].min(0), frac[t].mean(0)) if has[t].all() else frac[t, 0 if has[t, 0] else 1]
-    still = ~moved & np.where(has[:, :, None, None], seen, True).all(1) & seen.any(1)
-    return _ends(ev, fw, bw, has), {"epipolar_pairs": round(float(np.mean(epi)) if epi else 0.0, 3), "still": still}
+    return _ends(ev, fw, bw, has), {"epipolar_pairs": round(float(np.mean(epi)) if epi else 0.0, 3)}

@@ -70,37 +70,10 @@ def temporal_vote(ev: np.ndarray, fw: np.ndarray, bw: np.ndarray, window: int) -
     return acc / cnt[:, None, None]
 
 
-def along_tracks(flag: np.ndarray, fw: np.ndarray, bw: np.ndarray, fw_ok: np.ndarray, bw_ok: np.ndarray) -> np.ndarray:
-    """``flag (T, H, W)`` bool carried to every frame its pixels' tracks reach: a pixel is flagged
-    where it is flagged, or where the chain of forward-backward consistent flow steps from it
-    (``fw_ok``, ``bw_ok`` ``(T-1, H, W)``) reaches a flagged pixel in an earlier or later frame.
-    ``(T, H, W)`` bool."""
-    f = np.asarray(flag, bool)
-    fwd, bwd = f.copy(), f.copy()
-    for t in range(len(f) - 2, -1, -1):  # later frames' flags brought back
-        fwd[t] |= np.asarray(fw_ok[t], bool) & (warp_mask(fwd[t + 1], fw[t]) >= 0.5)
-    for t in range(1, len(f)):  # earlier frames' flags brought forward
-        bwd[t] |= np.asarray(bw_ok[t - 1], bool) & (warp_mask(bwd[t - 1], bw[t - 1]) >= 0.5)
-    return fwd | bwd
-
-
-def sure_background(still: np.ndarray, moving: np.ndarray, fw, bw, fw_ok, bw_ok, tex: np.ndarray | None = None) -> np.ndarray:
-    """``(T, H, W)`` bool: what the motion measured as background, the trimap's sure background
-    (:func:`layercam.vision.segment.edges.grabcut_refine`): pixels measured static (``still``,
-    :func:`layercam.vision.segment.evidence.motion_evidence`), where the frame has texture the flow
-    follows (``tex``; flow over a smooth patch is interpolated, not measured), on a point track that
-    reaches no ``moving`` pixel in any frame (:func:`along_tracks`): a part of the object that
-    stands still for a while moves at some other time of its track, as point-trajectory methods
-    label a track by its motion over its whole life (Brox & Malik 2010)."""
-    out = np.asarray(still, bool) & ~along_tracks(moving, fw, bw, fw_ok, bw_ok)
-    return out if tex is None else out & tex
-
-
 def motion_masks(fw, bw, fw_ok=None, bw_ok=None, cfg=None, frames=None) -> tuple[np.ndarray, dict]:
     """Foreground masks of whatever moves on its own: ``(T, H, W)`` float32 in {0, 1}, and an info
-    dict (coverage per frame, frames filled from neighbours, ``evidence``: the motion evidence
-    ``(T, H, W)`` the masks came from, and ``still``: what it measured as background,
-    :func:`sure_background`). ``fw_ok``, ``bw_ok`` ``(T-1, H, W)``: the flows'
+    dict (coverage per frame, frames filled from neighbours, and ``evidence``: the motion evidence
+    ``(T, H, W)`` the masks came from). ``fw_ok``, ``bw_ok`` ``(T-1, H, W)``: the flows'
     forward-backward checks (computed when None); ``cfg``: a :class:`layercam.core.config.SegmentConfig`
     (``reach``, ``k_sigma``). With the ``frames`` ``(T, H, W[, C])``, evidence counts only where
     the frame has texture."""
@@ -118,7 +91,6 @@ def motion_masks(fw, bw, fw_ok=None, bw_ok=None, cfg=None, frames=None) -> tuple
         if tex.shape != soft.shape:
             raise LayercamError(f"motion segmentation: frames {tex.shape} do not match the flows {soft.shape}")
         info["untextured"] = round(float(1 - tex.mean()), 4)
-    info["still"] = sure_background(info["still"], soft >= EVIDENCE, f, b, fo, bo, tex)
     vote = temporal_vote(soft >= EVIDENCE, f, b, WINDOW)
     masks = []
     for t, v in enumerate(vote):

@@ -7,6 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from layercam.core.config import SegmentConfig
+from layercam.core.heap import give_back_freed_memory
 from layercam.vision.segment.mapping import foreground_mappings
 from layercam.vision.segment.store import mask_coverage
 
@@ -56,19 +57,6 @@ def window_at_work(frames, flows: dict, a0: int, b0: int, grid: tuple[int, int])
         if flows.get(k) is not None:
             fl[k] = np.stack([check_at(flows[k][i], work) for i in range(a0, b0 - 1)])
     return fr, fl
-
-
-def _give_back_freed_memory() -> None:
-    """Returns the C heap's free pages to the system (glibc ``malloc_trim``; nothing elsewhere). A
-    window's arrays are freed when it ends, but the allocator keeps the heap it grew for them
-    (fragmented by the small arrays still alive), so that without this the memory held between
-    windows is what the last windows freed as well as what the run needs."""
-    import ctypes
-
-    try:
-        ctypes.CDLL("libc.so.6").malloc_trim(0)
-    except (OSError, AttributeError):  # not glibc
-        pass
 
 
 def foreground_bootstrap_long(frames, flows: dict, out, masks=None, cfg: SegmentConfig | None = None, progress: bool = False) -> dict:
@@ -121,7 +109,7 @@ def foreground_bootstrap_long(frames, flows: dict, out, masks=None, cfg: Segment
                 masks[t] = up(up(np.asarray(part[t - a0], np.float32), (h, w)), (H, W)) > 0.5
             models.append(inf.get("model"))
             del part, inf
-            _give_back_freed_memory()
+            give_back_freed_memory()
         masks.flush()
         cover = mask_coverage(masks)
         info = {"windows": len(wins), "window_frames": SEG_FRAMES, "window_margin": SEG_MARGIN, "grid": [h, w], "models": models,

@@ -80,12 +80,10 @@ def run(args) -> int:
             print(f"wrote {out / 'scaling.csv'} and scaling.png ({len(rows)} rows)")
         return 0
     if args.table == "length":
-        import os
-
         from layercam.bench.length import run_length
         from layercam.bench.scaling import parse_size
 
-        data = Path(args.data or os.environ.get("LAYERCAM_DATA") or "../shared/data")
+        data = _data(args)
         from layercam.core.errors import LayercamError
 
         size = parse_size(_list(args.sizes)[0])[::-1] if args.sizes else None  # given: the clip scaled to its first size
@@ -101,11 +99,9 @@ def run(args) -> int:
             print(f"wrote {(out if args.out else Path('runs/length')) / 'length.csv'} and length.png ({len(rows)} rows)")
         return 0
     if args.table == "layers":
-        import os
-
         from layercam.bench.layers import MAX_FRAMES, VARIANTS, run_layers_table
 
-        data = Path(args.data or os.environ.get("LAYERCAM_DATA") or "../shared/data")
+        data = _data(args)
         rows = run_layers_table(out, data, _list(args.clips), tuple(_list(args.variants) or VARIANTS), tuple(_list(args.presets) or ("fast", "balanced")), args.resize, args.overrides, args.layers, args.max_frames or MAX_FRAMES, args.threads or 1, args.force, progress=not args.quiet)
         if not args.quiet:
             print(f"wrote {out / 'layers.md'} ({len(rows)} rows)")
@@ -125,6 +121,8 @@ def run(args) -> int:
 
 
 def _data(args) -> Path:
+    """The shared captures: --data, else $LAYERCAM_DATA, else ../shared/data (unchecked: each table
+    says which capture it misses)."""
     import os
 
     return Path(args.data or os.environ.get("LAYERCAM_DATA") or "../shared/data")

@@ -185,7 +185,8 @@ def paper_overrides(budget_s: float | None, paper_steps_per_s: float | None) -> 
     return [f"train.steps={steps}", f"train.bootstrap_steps={max(steps // 15, 1)}"]
 
 
-def run_bench(out: Path, scenes: list[str], presets: list[str], quick: bool = False, progress: bool = True, threads: int = 2) -> list[dict]:
+def run_bench(out: Path, scenes: list[str], presets: list[str], quick: bool = False, progress: bool = True, threads: int = 2,
+              overrides: list[str] | None = None) -> list[dict]:
     from layercam.io.atomic import ensure_writable_dir
 
     out = ensure_writable_dir(out)
@@ -199,13 +200,14 @@ def run_bench(out: Path, scenes: list[str], presets: list[str], quick: bool = Fa
             say(f"{sc:>8} {r['method']:>10} {'':>9} {r['wall_s']:>8.1f} s  PSNR-mu {r['psnr_mu']:.2f}")
         quality_wall = None
         for pr in presets:
-            ov = ["train.steps=20", "train.bootstrap_steps=2", "train.batch=1024"] if quick else []
+            ov = (["train.steps=20", "train.bootstrap_steps=2", "train.batch=1024"] if quick else []) + list(overrides or [])
             note = ""
             if pr == "paper" and not quick:
                 # measure the paper preset's speed, then give it quality's budget
-                probe = _spawn({"scene": sc, "preset": pr, "quick": quick, "overrides": paper_overrides(None, None), "out": str(out / sc / "paper-speed"), "threads": threads, "probes": 1}, out)
-                ov = paper_overrides(quality_wall, probe["row"]["steps_per_s"])
+                probe = _spawn({"scene": sc, "preset": pr, "quick": quick, "overrides": ov + paper_overrides(None, None), "out": str(out / sc / "paper-speed"), "threads": threads, "probes": 1}, out)
+                ov = ov + paper_overrides(quality_wall, probe["row"]["steps_per_s"])
                 note = f"paper preset at {probe['row']['steps_per_s']} steps/s: 150k steps would take {150000 / max(probe['row']['steps_per_s'], 1e-9) / 3600:.1f} h here; run for quality's wall time"
+            note = "; ".join(filter(None, [note, " ".join(overrides or [])]))
             res = _spawn({"scene": sc, "preset": pr, "quick": quick, "overrides": ov, "out": str(out / sc / preset_tag(pr)), "threads": threads, "note": note}, out)
             rows.append(res["row"])
             curves[(sc, pr)] = res["curve"]

@@ -57,7 +57,7 @@ def register(sub) -> argparse.ArgumentParser:
     b.add_argument("--frames", type=POSITIVE_INT, help="--table scaling: frames per clip (default 48); --table blur: the shake clip's frames (default 8); --table joins: the clips' length, cut into two windows (default 96)")
     b.add_argument("--no-baseline", action="store_true", help="--table scaling: no flow + Debevec rows")
     b.add_argument("--redraw", action="store_true", help="real suite: run nothing, write the table and figures again from the finished jobs")
-    b.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE", help="real suite, --table layers, scaling, length, hdr-video, blur, joins: a setting for every layercam job (repeatable)")
+    b.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE", help="a setting for every layercam job of the suite or table (repeatable; e.g. train.seed=1 for a spread over training seeds)")
     b.add_argument("--quiet", action="store_true")
     return b
 
@@ -109,12 +109,13 @@ def run(args) -> int:
     if args.table in ("hdr-video", "blur", "joins"):
         return _run_moved(args)
     if args.table == "analysis":
-        rows = run_analysis_table(out, args.preset or "fast", args.quick, progress=not args.quiet)
+        rows = run_analysis_table(out, args.preset or "fast", args.quick, progress=not args.quiet, overrides_cfg=args.overrides)
         if not args.quiet:
             print(f"wrote {out / 'analysis_table.md'} ({len(rows)} rows)")
         return 0
 
-    rows = run_bench(out, _list(args.scenes) or [], _list(args.presets) or ["fast", "balanced", "quality", "paper"], quick=args.quick, progress=not args.quiet, threads=args.threads or 2)
+    rows = run_bench(out, _list(args.scenes) or [], _list(args.presets) or ["fast", "balanced", "quality", "paper"], quick=args.quick, progress=not args.quiet, threads=args.threads or 2,
+                     overrides=args.overrides)
     if not args.quiet:
         print(f"wrote {out / 'bench.csv'} and bench.png ({len(rows)} rows)")
     return 0

@@ -60,6 +60,17 @@ def test_a_preset_file_runs_under_its_stem(tmp_path):
     assert len(rows) == 1 and rows[0]["preset"].endswith("mine.toml")
 
 
+def test_a_setting_reaches_every_preset_job(tmp_path):
+    """``--set KEY=VALUE`` (here a training seed, for a spread over seeds) reaches each preset's run
+    and is written in the row's note."""
+    out = tmp_path / "bench"
+    assert main(["bench", "--quick", "--out", str(out), "--presets", "fast", "--threads", "1", "--set", "train.seed=3", "--quiet"]) == 0
+    report = json.loads((out / "pan" / "fast" / "report.json").read_text())
+    assert report["settings"]["train"]["seed"] == 3
+    rows = [r for r in csv.DictReader(open(out / "bench.csv")) if r["method"] == "layercam"]
+    assert "train.seed=3" in rows[0]["note"]
+
+
 def test_unknown_bench_scene_is_one_line_error(tmp_path, capsys):
     assert main(["bench", "--quick", "--out", str(tmp_path / "b"), "--scenes", "nope"]) == 2
     err = capsys.readouterr().err

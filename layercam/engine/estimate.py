@@ -7,8 +7,9 @@ costliest plausible value (two layers for a clip of more than one frame, the blu
 deblur-video and fuse-stack, or the ``n`` given), so that what is said before the work is an upper
 bound of what the analysis can choose; the run says it again once the analysis has chosen
 (:func:`layercam.pipelines.tasks.run_task`). The model's parameters are counted exactly (the model is
-built on PyTorch's meta device: no memory); the working sets of the stages are per-pixel and
-per-sample costs measured on this project's runs (``docs/measurements.md``), scaled by what each
+built on PyTorch's meta device: no memory); what a training step keeps per sample is measured on a
+small stand-in of the model (:func:`kept_for_backward`); the other working sets are per-pixel
+costs measured on this project's runs (``docs/measurements.md``), scaled by what each
 stage holds at once: a pair of frames (flow), at most ``analyse.MOTION_PAIRS`` pairs (analysis), a
 window of at most ``segment.long.SEG_FRAMES`` frames at the finder's working size (two-layer bootstrap), the model, its optimiser and
 a batch (training), a frame and a render chunk (export). None of them grows with the clip's length
@@ -40,10 +41,16 @@ SEG_WORK_PER_PX = 70.0   # two layers, a clip segmented in windows: per pixel of
 BOOT_PER_PX = 24.0       # one layer: per frame pixel (a frame and its temporaries)
 EXPORT_PER_PX = 1360.0   # per frame pixel: the faithful export's arrays for a frame and its two neighbours (1300 measured)
                          # and their geometry kept for the atlases (2 layers: 5 floats, 60 bytes for three frames)
-RENDER_PER_PX = 1600.0   # per pixel of a render chunk: the networks' layers, one at a time
-RENDER_CHUNK = 65536     # pixels rendered at once (layercam.scene.render)
-PARAM_BYTES = 24.0       # per model parameter in training: value, gradient, Adam's two moments, and a copy when saved
-ACT_PER_FLOAT = 21.0     # bytes of activations per float a sample carries through a network (autograd)
+RENDER_SHARE = 0.25      # a render chunk's pixel holds this share of what a training sample keeps (no autograd: the
+                         # networks' layers one at a time): fast 1600 B measured against 6144 kept, paper 9 kB against 38 kB
+RENDER_CHUNK = 65536     # pixels rendered at once (layercam.scene.render: frames, atlases, the tone mapping of both)
+PARAM_BYTES = 38.6       # per model parameter in training: value, gradient, Adam's two moments (24 B), and what the
+                         # sparse grid rows' gradients and the checkpoint's writing add (fast at 854x480: 38.6 measured)
+PROBE = (1024, 2048)     # samples of the two forward passes that measure what a training step keeps (kept_for_backward)
+GRAD_FACTOR = 1.4        # a training step's peak over what autograd keeps for the backward pass (a layer's gradients
+                         # at a time besides): paper, 2 layers, 64x64 frames: 1.39; fast 2.0 (there 67 MB in all)
+PROBE_HW = 64            # the stand-in clip's side (px) and its frames (below): what a sample keeps does not depend
+PROBE_FRAMES = 4         # on the clip's size, only on the model's structure
 
 
 def _fmt(b: float) -> str:
@@ -144,10 +151,60 @@ def _settings(cfg, keys) -> str:
     return ", ".join(f"{k}={getattr(getattr(cfg, k.split('.')[0]), k.split('.')[1])}" for k in keys)
 
 
+def kept_for_backward(r) -> tuple[float, float]:
+    """``(fixed, per_sample)``: the bytes autograd keeps for the backward pass of one training step
+    of the model the resolved settings ``r`` build, ``fixed + per_sample * batch``, measured: the
+    model's loss (every term it computes at the start of training, masks and flow matches
+    included) evaluated on the CPU for a stand-in clip (``PROBE_FRAMES`` frames of ``PROBE_HW``
+    px: the tensors a sample keeps follow the model's structure, not the clip's size) at the two
+    batch sizes of ``PROBE``, its saved tensors counted once each (parameters not: they are
+    :data:`PARAM_BYTES`'s). Random weights and samples; no gradient is computed."""
+    import torch
+
+    from layercam.core.geometry import atlas_mappings
+    from layercam.engine.checkpoint import build_model
+    from layercam.engine.sampler import PROBES
+    from layercam.scene.layered import derived_sizes
+
+    T, hw = PROBE_FRAMES, (PROBE_HW, PROBE_HW)
+    m = r.settings.model
+    h0 = np.stack([atlas_mappings(*hw, np.repeat(np.eye(3)[None], T, 0))] * int(m.layers))
+    meta = {"h0": h0, "log2_dt": np.zeros(T, np.float32), "init_log2": 0.0, "frame_hw": hw,
+            "sizes": derived_sizes(h0, hw, fine=m.blur == "on" or (r.static and m.layers == 1))}
+    with torch.random.fork_rng():
+        torch.manual_seed(0)
+        model = build_model(r, meta)
+        if model.scene.alpha is not None:
+            model.loss_weights.alpha_mask = 1.0
+        if r.settings.train.bootstrap_steps > 0:
+            model.loss_weights.bootstrap = 1.0
+        params = {p.untyped_storage().data_ptr() for p in model.parameters()}
+        kept = []
+        for n in PROBE:
+            t = torch.randint(0, T, (n,))
+            batch = {"t": t, "xy": torch.rand(n, 2) * 2 - 1, "rgb": torch.rand(n, 3), "mask": (torch.rand(n) < 0.5).float(),
+                     "probe": torch.rand(PROBES, 3)}
+            if m.flow_loss:
+                batch.update(t_match=(t + 1).clamp(max=T - 1), xy_match=torch.rand(n, 2) * 2 - 1, match_ok=torch.ones(n, dtype=torch.bool))
+            seen: dict[int, int] = {}
+
+            def pack(x, seen=seen):
+                st = x.untyped_storage()
+                if st.data_ptr() not in params:
+                    seen[st.data_ptr()] = st.nbytes()
+                return x
+
+            with torch.autograd.graph.saved_tensors_hooks(pack, lambda x: x):
+                model.loss_dict(batch)
+            kept.append(float(sum(seen.values())))
+    per = max((kept[1] - kept[0]) / (PROBE[1] - PROBE[0]), 0.0)
+    return max(kept[0] - per * PROBE[0], 0.0), per
+
+
 def floats_per_sample(cfg) -> dict:
     """Floats one training sample carries through each part's networks (their inputs and each
     layer's output), by part (as :data:`SETTINGS` names them), for the resolved settings ``cfg``:
-    times ``ACT_PER_FLOAT`` the activations autograd keeps and the backward pass makes."""
+    which part a batch's activations are most for (:func:`kept_for_backward` measures how much)."""
     from layercam.scene import fields as f
 
     s, L = cfg.scene, int(cfg.model.layers)
@@ -192,14 +249,18 @@ def estimate(info: dict, cfg, task: str = "hdr-video", windows: list | None = No
     wpx = h * w
     batch = int(rc.train.batch)
     per_part = floats_per_sample(rc)
-    sample = sum(per_part.values()) * ACT_PER_FLOAT
+    if PARAM_BYTES * n_params < available_memory():  # a model that cannot be trained here is refused on its parameters alone
+        fixed, per = kept_for_backward(r)
+    else:
+        fixed, per = 0.0, 0.0
+    sample = GRAD_FACTOR * per
     stages = {
         "flow": FLOW_PER_PX * wpx + 24.0 * px if T > 1 else 0.0,
         "analysis": ANALYSIS_PER_PX * min(T - 1, MOTION_PAIRS) * wpx,
         "bootstrap": (BOOT_PER_PX * px if rc.model.layers == 1 else SEG_PER_PX * T * wpx + 16.0 * px if not windowed(T, (H, W), (h, w))
                       else SEG_WORK_PER_PX * min(T, SEG_FRAMES) * math.prod(working_size((h, w), WORK_SHORT)) + 16.0 * px),  # windows at the finder's size
-        "train": PARAM_BYTES * n_params + sample * batch,
-        "export": 4.0 * n_params + EXPORT_PER_PX * px + RENDER_PER_PX * min(RENDER_CHUNK, px),  # no autograd: a render chunk's layers one at a time
+        "train": PARAM_BYTES * n_params + GRAD_FACTOR * fixed + sample * batch,
+        "export": 4.0 * n_params + EXPORT_PER_PX * px + RENDER_SHARE * per * RENDER_CHUNK,  # the atlases render whole chunks at any frame size
     }
     store = 1 if int(info.get("bit_depth") or 8) <= 8 else (2 if int(info.get("bit_depth")) <= 16 else 4)
     disk = {

@@ -175,14 +175,17 @@ def checker_overlay(frame: np.ndarray, uv: np.ndarray, weight: np.ndarray, cells
 
 
 @torch.no_grad()
-def tone_map_log2(model, log2_r: np.ndarray, log2_dt) -> np.ndarray:
+def tone_map_log2(model, log2_r: np.ndarray, log2_dt, chunk: int = 65536) -> np.ndarray:
     """Through the learned camera (no blur): ``log2_r (..., 3)`` at exposure ``log2_dt`` (a float or an
-    array broadcastable to ``(..., 1)``) -> pixel values ``(..., 3)`` in [0, 1]."""
+    array broadcastable to ``(..., 1)``) -> pixel values ``(..., 3)`` in [0, 1]; ``chunk`` pixels at a
+    time (a tone mapper evaluated per pixel holds its width's activations for each)."""
     shp = log2_r.shape
     z = torch.as_tensor(np.asarray(log2_r, np.float32).reshape(-1, 3))
     dt = torch.as_tensor(np.broadcast_to(np.asarray(log2_dt, np.float32), shp[:-1] + (1,)).reshape(-1, 1).copy())
     dev = next(model.parameters()).device
-    out = model.tone_map(z.to(dev), dt.to(dev)).float().cpu().numpy()
+    out = np.empty((z.shape[0], 3), np.float32)
+    for s in range(0, z.shape[0], chunk):
+        out[s : s + chunk] = model.tone_map(z[s : s + chunk].to(dev), dt[s : s + chunk].to(dev)).float().cpu().numpy()
     return out.reshape(shp)
 
 

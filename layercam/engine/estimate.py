@@ -95,20 +95,27 @@ def _resolved(cfg, task: str, frames: int, hw: tuple[int, int]):
     return resolve(costliest(cfg, task, frames, hw), frames=frames, hw=hw, task=task)
 
 
+def _identity_meta(r, frames: int, hw: tuple[int, int]) -> dict:
+    """What :func:`~layercam.engine.checkpoint.build_model` needs to build the model ``r`` (resolved)
+    for ``frames`` frames of ``hw`` before any frame is seen: identity mappings, the sizes they derive."""
+    from layercam.core.geometry import atlas_mappings
+    from layercam.scene.layered import derived_sizes
+
+    m = r.settings.model
+    h0 = np.stack([atlas_mappings(*hw, np.repeat(np.eye(3)[None], frames, 0))] * int(m.layers))
+    return {"h0": h0, "log2_dt": np.zeros(frames, np.float32), "init_log2": 0.0, "frame_hw": hw,
+            "sizes": derived_sizes(h0, hw, fine=m.blur == "on" or (r.static and m.layers == 1))}
+
+
 def _model_parts(r, frames: int, hw: tuple[int, int]) -> dict:
     """Parameters by part of the model ``r`` (resolved) builds for ``frames`` frames of ``hw``,
     counted on the meta device (its sizes derived from the identity mappings)."""
     import torch
 
     from layercam.engine.checkpoint import build_model
-    from layercam.core.geometry import atlas_mappings
-    from layercam.scene.layered import derived_sizes
 
-    T, (H, W) = frames, hw
-    h0 = np.stack([atlas_mappings(H, W, np.repeat(np.eye(3)[None], T, 0))] * int(r.settings.model.layers))
-    m = r.settings.model
-    sizes = derived_sizes(h0, hw, fine=m.blur == "on" or (r.static and m.layers == 1))  # on the host: the meta device holds no values
-    meta = {"h0": h0, "log2_dt": np.zeros(T, np.float32), "init_log2": 0.0, "frame_hw": hw, "sizes": sizes}
+    H, W = hw
+    meta = _identity_meta(r, frames, hw)  # on the host: the meta device holds no values
     try:
         with torch.device("meta"):
             model = build_model(r, meta)
@@ -158,19 +165,28 @@ def kept_for_backward(r) -> tuple[float, float]:
     included) evaluated on the CPU for a stand-in clip (``PROBE_FRAMES`` frames of ``PROBE_HW``
     px: the tensors a sample keeps follow the model's structure, not the clip's size) at the two
     batch sizes of ``PROBE``, its saved tensors counted once each (parameters not: they are
-    :data:`PARAM_BYTES`'s). Random weights and samples; no gradient is computed."""
+    :data:`PARAM_BYTES`'s). Random weights and samples; no gradient is computed. Measured once per
+    resolved settings in a process (a run estimates before its work and again after the analysis)."""
+    import json
+
+    key = json.dumps(r.to_dict(), sort_keys=True, default=str)
+    if key not in _KEPT:
+        _KEPT[key] = _measure_kept(r)
+    return _KEPT[key]
+
+
+_KEPT: dict[str, tuple[float, float]] = {}  # kept_for_backward's measures, by resolved settings
+
+
+def _measure_kept(r) -> tuple[float, float]:
     import torch
 
-    from layercam.core.geometry import atlas_mappings
     from layercam.engine.checkpoint import build_model
     from layercam.engine.sampler import PROBES
-    from layercam.scene.layered import derived_sizes
 
-    T, hw = PROBE_FRAMES, (PROBE_HW, PROBE_HW)
+    T = PROBE_FRAMES
     m = r.settings.model
-    h0 = np.stack([atlas_mappings(*hw, np.repeat(np.eye(3)[None], T, 0))] * int(m.layers))
-    meta = {"h0": h0, "log2_dt": np.zeros(T, np.float32), "init_log2": 0.0, "frame_hw": hw,
-            "sizes": derived_sizes(h0, hw, fine=m.blur == "on" or (r.static and m.layers == 1))}
+    meta = _identity_meta(r, T, (PROBE_HW, PROBE_HW))
     with torch.random.fork_rng():
         torch.manual_seed(0)
         model = build_model(r, meta)

@@ -209,23 +209,27 @@ def test_checkpoint_refuses_non_finite_state_and_final_state_is_checked(tmp_path
 
 
 def _nan_loss_from(monkeypatch, bad_calls):
-    from layercam.engine.estimate import PROBE
-    from layercam.scene.model import ImplicitCameraModel
+    """The trainer's ``bad_calls(i)``-th loss made non-finite (the trainer's own calls: the memory
+    estimate also evaluates a model's loss)."""
+    from layercam.engine import distributed
 
-    real = ImplicitCameraModel.loss_dict
+    real = distributed.loss_fn
     calls = {"n": 0}
 
-    def loss_dict(self, batch):
-        terms = real(self, batch)
-        if len(batch["t"]) in PROBE:  # the memory estimate's passes on a stand-in model, not training steps
-            return terms
-        i = calls["n"]
-        calls["n"] += 1
-        if bad_calls(i):
-            terms["color"] = terms["color"] * float("nan")
-        return terms
+    def loss_fn(model):
+        inner = real(model)
 
-    monkeypatch.setattr(ImplicitCameraModel, "loss_dict", loss_dict)
+        def terms_of(batch):
+            terms = inner(batch)
+            i = calls["n"]
+            calls["n"] += 1
+            if bad_calls(i):
+                terms["color"] = terms["color"] * float("nan")
+            return terms
+
+        return terms_of
+
+    monkeypatch.setattr(distributed, "loss_fn", loss_fn)
 
 
 def test_pipeline_logs_skipped_steps_in_report(tiny_scene, tiny_exposures, tmp_path, monkeypatch):

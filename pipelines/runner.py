@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from layercam.core import heap
 from layercam.engine import distributed
 from layercam.core.config import Config, config_hash
 from layercam.core.errors import LayercamError
@@ -166,6 +167,7 @@ def run_stages(ctx: Context, stages: list[Stage]) -> Context:
             continue
         t0, c0 = time.perf_counter(), time.process_time()
         CURRENT[0] = st.name
+        heap.reset_peak()
         try:
             out.mkdir(parents=True, exist_ok=True)
             if main:
@@ -182,7 +184,8 @@ def run_stages(ctx: Context, stages: list[Stage]) -> Context:
         if main:
             atomic_write(done, lambda p: p.write_text(json.dumps(summary, indent=1, default=_json_default)))
         ctx.results[st.name] = st.load(ctx, out, summary)
-        ctx.times[st.name] = {"seconds": round(secs, 3), "cpu_seconds": round(cpu, 3), "cached": False}
+        peak = heap.peak_bytes()  # the stage's own peak resident memory
+        ctx.times[st.name] = {"seconds": round(secs, 3), "cpu_seconds": round(cpu, 3), "cached": False, **({"peak_mb": round(peak / 2**20, 1)} if peak else {})}
         ctx.say(f"[{st.name}] done in {secs:.1f} s")
         if alone and main:
             distributed.barrier()

@@ -196,10 +196,7 @@ def write_report(ctx: Context, wall: float, name: str | None = "report.json", ex
 
 
 def _peak_rss() -> int | None:
-    """This process's peak resident memory so far (bytes; ``ru_maxrss``), None where unknown."""
-    try:
-        import resource
+    """This process's peak resident memory so far (bytes), None where unknown."""
+    from layercam.core.heap import process_peak_bytes
 
-        return int(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss) * 1024
-    except (ImportError, OSError):
-        return None
+    return process_peak_bytes()

@@ -2,10 +2,11 @@
 
 A real clip (a DAVIS clip from the shared captures) is played forth and back to ``T`` frames and
 written as an H.264 mp4 (:func:`long_clip`); then ``layercam hdr-video`` runs on it as a user would,
-in its own process, while a thread samples the process's memory (:class:`MemorySampler`: resident
-set from ``/proc/self/status``, with its anonymous and file-backed parts, every 50 ms). Recorded per
-length: peak resident memory (and its anonymous part), the estimate the run printed before the
-work, wall time and seconds per stage. Writes ``length.csv``, ``length.json`` and ``length.png``
+in its own process as a user runs it, while a thread of the bench's samples that process's memory
+(:class:`MemorySampler`: resident set from ``/proc/PID/status``, with its anonymous part, every
+50 ms) and the run reports each stage's peak (the kernel's high-water mark). Recorded per length:
+peak resident memory (and its anonymous part), the estimate the run printed before the work, wall
+time and seconds and peak memory per stage. Writes ``length.csv``, ``length.json`` and ``length.png``
 (peak memory and wall time against ``T``) after each case; a later run into the same folder replaces
 the rows of the lengths it runs and keeps the others.
 """
@@ -21,7 +22,6 @@ import threading
 import time
 from pathlib import Path
 
-import numpy as np
 
 from layercam.core.errors import LayercamError
 
@@ -30,43 +30,44 @@ FIELDS = ["clip", "frames", "size", "preset", "layers", "steps", "wall_s", "cpu_
           "peak_rss_mb", "peak_anon_mb", "estimate_mb", "estimate_disk_mb", "cache_mb", "note"]  # and stage_peak_mb, stage_cpu_s in length.json
 
 
-def _status() -> dict:
-    """``VmRSS``, ``RssAnon``, ``RssFile``, ``VmHWM`` of this process in MB (Linux)."""
+def _status(pid: int | str = "self") -> dict:
+    """``VmRSS``, ``RssAnon``, ``RssFile``, ``VmHWM`` of process ``pid`` in MB (Linux; empty once it is gone)."""
     out = {}
-    with open("/proc/self/status") as f:
-        for line in f:
-            k, _, v = line.partition(":")
-            if k in ("VmRSS", "RssAnon", "RssFile", "RssShmem", "VmHWM"):
-                out[k] = int(v.split()[0]) / 1024.0
+    try:
+        with open(f"/proc/{pid}/status") as f:
+            for line in f:
+                k, _, v = line.partition(":")
+                if k in ("VmRSS", "RssAnon", "RssFile", "RssShmem", "VmHWM"):
+                    out[k] = int(v.split()[0]) / 1024.0
+    except (OSError, ValueError):
+        pass
     return out
 
 
 class MemorySampler:
-    """A thread that reads this process's resident memory every ``every`` seconds: ``peak`` (the
-    largest ``VmRSS``, and ``VmHWM``, the kernel's own high-water mark, whichever is larger),
-    ``peak_anon`` (the largest anonymous part: what the process allocated, without the pages of
-    files it maps, which the kernel can drop) and ``series`` ``[(seconds, rss, anon), ...]``.
+    """A thread that reads the resident memory of process ``pid`` (default this one) every ``every``
+    seconds: ``peak`` (the largest ``VmRSS``), ``peak_anon`` (the largest anonymous part: what the
+    process allocated, without the pages of files it maps, which the kernel can drop) and
+    ``series`` ``[(seconds, rss, anon), ...]`` (a reading a second).
 
-    >>> with MemorySampler() as m:       # doctest: +SKIP
-    ...     work()
-    >>> m.peak, m.peak_anon             # doctest: +SKIP
+    >>> with MemorySampler(proc.pid) as m:       # doctest: +SKIP
+    ...     proc.wait()
+    >>> m.peak, m.peak_anon                      # doctest: +SKIP
     """
 
-    def __init__(self, every: float = 0.05):
-        self.every, self.series, self.peak, self.peak_anon, self.by_stage = every, [], 0.0, 0.0, {}
+    def __init__(self, pid: int | str = "self", every: float = 0.05):
+        self.pid, self.every, self.series, self.peak, self.peak_anon = pid, every, [], 0.0, 0.0
         self._stop = threading.Event()
         self._t0 = time.perf_counter()
 
     def _read(self) -> None:
-        from layercam.pipelines.runner import CURRENT
-
-        s = _status()
-        self.peak = max(self.peak, s.get("VmRSS", 0.0), s.get("VmHWM", 0.0))
+        s = _status(self.pid)
+        if not s:
+            return
+        self.peak = max(self.peak, s.get("VmRSS", 0.0))
         self.peak_anon = max(self.peak_anon, s.get("RssAnon", 0.0))
-        stage = CURRENT[0]
-        self.by_stage[stage] = max(self.by_stage.get(stage, 0.0), s.get("VmRSS", 0.0))
         if not self.series or time.perf_counter() - self._t0 - self.series[-1][0] >= 1.0:  # a reading a second for the record
-            self.series.append((round(time.perf_counter() - self._t0, 2), round(s.get("VmRSS", 0.0), 1), round(s.get("RssAnon", 0.0), 1), stage))
+            self.series.append((round(time.perf_counter() - self._t0, 2), round(s.get("VmRSS", 0.0), 1), round(s.get("RssAnon", 0.0), 1)))
 
     def _loop(self) -> None:
         while not self._stop.wait(self.every):
@@ -81,7 +82,6 @@ class MemorySampler:
     def __exit__(self, *exc) -> None:
         self._stop.set()
         self._thread.join()
-        self._read()
 
 
 def long_clip(frames_dir: Path, n: int, out: Path, size: tuple[int, int] | None = None, fps: float = 30.0) -> Path:
@@ -132,40 +132,44 @@ def long_masks(masks_dir: Path, n: int, out: Path, size: tuple[int, int] | None 
 
 
 # -- the job, in its own process ------------------------------------------------------------------
-def run_job(job: dict) -> None:
-    """``layercam hdr-video`` on the clip, in this process, with the memory sampler running."""
-    import torch
-
-    from layercam.cli import main
-
-    torch.set_num_threads(job["threads"])
-    argv = ["hdr-video", job["clip"], "--exposures", "none", "--preset", job["preset"], "--out", job["out"], "--quiet"]
+def _spawn(job: dict) -> dict:
+    """``layercam hdr-video`` on the clip as a user runs it (``python -m layercam``, torch's threads
+    set by ``OMP_NUM_THREADS``), its memory sampled from this process (no thread of the bench's in
+    the run's process, whose heap it would change). The peak is the one the run reports
+    (``report.json``: the kernel's high-water mark up to the report, across its stages; not the
+    shared libraries the interpreter pages in as it exits, which the readings see), the readings'
+    largest where it reports none (a run stopped on purpose); each stage's peak is the run's own
+    (``peak_mb`` of each stage, the largest over windows)."""
+    argv = [sys.executable, "-m", "layercam", "hdr-video", job["clip"], "--exposures", "none", "--preset", job["preset"], "--out", job["out"], "--quiet"]
     if job.get("masks"):
         argv += ["--masks", job["masks"]]
     for s in job["overrides"]:
         argv += ["--set", s]
+    env = {**os.environ, "OMP_NUM_THREADS": str(job["threads"])}
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
-    with MemorySampler() as mem:
-        code = main(argv)
-    use = [resource.getrusage(w) for w in (resource.RUSAGE_SELF, resource.RUSAGE_CHILDREN)]  # the decoder's ffmpeg is a child
-    stopped = os.environ.get("LAYERCAM_SIGNAL_AT") if code == 130 else None  # stopped on purpose (a partial run)
-    if code != 0 and not stopped:
-        raise SystemExit(code)
-    res = {"wall_s": round(time.perf_counter() - t0, 2), "cpu_s": round(sum(u.ru_utime + u.ru_stime for u in use), 1), "peak_rss_mb": round(mem.peak, 1), "peak_anon_mb": round(mem.peak_anon, 1),
-           "stage_peak_mb": {k: round(v, 1) for k, v in mem.by_stage.items()}, **({"stopped_at": stopped} if stopped else {})}
-    Path(job["out"], "memory.json").write_text(json.dumps({**res, "series": mem.series}))
-    Path(job["result"]).write_text(json.dumps(res))
-
-
-def _spawn(job: dict, result: Path) -> dict:
-    """Runs :func:`run_job` in a fresh process (its memory is the run's alone); returns what it wrote."""
-    code = "import json, sys; from layercam.bench.length import run_job; run_job(json.loads(sys.argv[1]))"
-    result.unlink(missing_ok=True)
-    p = subprocess.run([sys.executable, "-c", code, json.dumps({**job, "result": str(result)})], capture_output=True, text=True)
-    if p.returncode != 0:
-        tail = (p.stderr or p.stdout).strip().splitlines()[-1:] or ["?"]
+    p = subprocess.Popen(argv, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    with MemorySampler(p.pid) as mem:
+        err = p.communicate()[1]
+    wall = time.perf_counter() - t0
+    use = resource.getrusage(resource.RUSAGE_CHILDREN)  # the run and its decoder's ffmpeg, once waited for
+    stopped = os.environ.get("LAYERCAM_SIGNAL_AT") if p.returncode == 130 else None  # stopped on purpose (a partial run)
+    if p.returncode != 0 and not stopped:
+        tail = (err or "").strip().splitlines()[-1:] or [f"exit {p.returncode}"]
         raise LayercamError(f"length job {job['frames']} frames failed: {tail[0]}")
-    return json.loads(result.read_text())
+    rep_path = Path(job["out"], "report.json")
+    rep = json.loads(rep_path.read_text()) if rep_path.exists() and not stopped else {}
+    reported = (rep.get("memory", {}).get("peak_rss_bytes") or 0) / 2**20
+    stages: dict = {}
+    for times in [rep.get("stages", {})] + [r.get("times", {}) for r in rep.get("windows", {}).get("runs", [])]:
+        for k, v in times.items():
+            if v.get("peak_mb"):
+                stages[k] = max(stages.get(k, 0.0), v["peak_mb"])
+    res = {"wall_s": round(wall, 2), "cpu_s": round(use.ru_utime + use.ru_stime - before.ru_utime - before.ru_stime, 1), "peak_rss_mb": round(reported or mem.peak, 1),
+           "peak_anon_mb": round(mem.peak_anon, 1), "stage_peak_mb": stages, **({"stopped_at": stopped} if stopped else {})}
+    Path(job["out"]).mkdir(parents=True, exist_ok=True)
+    Path(job["out"], "memory.json").write_text(json.dumps({**res, "series": mem.series}))
+    return res
 
 
 def _row(clip: str, n: int, size: tuple[int, int], preset: str, run: Path, res: dict, note: str) -> dict:
@@ -205,7 +209,7 @@ def run_length(out: Path, data: Path, clip: str = "cows", lengths: list[int] | N
             job["masks"] = str(long_masks(frames_dir.parent / "masks_gt", n, out / "clips" / f"{tag}-masks", size))
             tag += "-masks"
         run = out / "runs" / f"{tag}-{preset}"
-        res = _spawn({**job, "out": str(run)}, out / "result.json")
+        res = _spawn({**job, "out": str(run)})
         from layercam.io.video import probe_video
 
         row = _row(clip + (" (true masks given)" if masks else ""), n, probe_video(video)["size"], preset, run, res, f"{threads} thread(s); " + " ".join(overrides or []))

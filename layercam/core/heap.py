@@ -1,4 +1,4 @@
-"""The C heap between the parts of a long run."""
+"""The C heap between the parts of a long run, and the peak resident memory of each part."""
 
 from __future__ import annotations
 
@@ -14,3 +14,52 @@ def give_back_freed_memory() -> None:
         ctypes.CDLL("libc.so.6").malloc_trim(0)
     except (OSError, AttributeError):  # not glibc
         pass
+
+
+_PEAK = [0]  # the largest high-water mark read before a reset (bytes)
+
+
+def _status_kb(key: str) -> int | None:
+    try:
+        with open("/proc/self/status") as f:
+            for line in f:
+                if line.startswith(key + ":"):
+                    return int(line.split()[1])
+    except (OSError, ValueError, IndexError):
+        pass
+    return None
+
+
+def peak_bytes() -> int | None:
+    """This process's peak resident memory since :func:`reset_peak` (the kernel's ``VmHWM``; bytes),
+    None where the kernel does not say (not Linux)."""
+    kb = _status_kb("VmHWM")
+    return None if kb is None else kb * 1024
+
+
+def reset_peak() -> None:
+    """Starts a new high-water mark (``/proc/self/clear_refs``, 5): :func:`peak_bytes` then says the
+    peak of what follows, e.g. one stage's. The mark so far is kept for :func:`process_peak_bytes`."""
+    now = peak_bytes()
+    if now is None:
+        return
+    _PEAK[0] = max(_PEAK[0], now)
+    try:
+        with open("/proc/self/clear_refs", "w") as f:
+            f.write("5")
+    except OSError:
+        pass
+
+
+def process_peak_bytes() -> int | None:
+    """This process's peak resident memory since it started, across :func:`reset_peak` (bytes; the
+    resource module's ``ru_maxrss`` where ``/proc`` is absent), None where unknown."""
+    now = peak_bytes()
+    if now is not None:
+        return max(_PEAK[0], now)
+    try:
+        import resource
+
+        return int(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss) * 1024
+    except (ImportError, OSError):
+        return None

@@ -160,7 +160,8 @@ def run_stages(ctx: Context, stages: list[Stage]) -> Context:
         if done.exists():
             summary = json.loads(done.read_text())
             ctx.results[st.name] = st.load(ctx, out, summary)
-            ctx.times[st.name] = {"seconds": 0.0, "cached": True, "original_seconds": summary.get("_seconds"), "original_cpu_seconds": summary.get("_cpu_seconds")}
+            ctx.times[st.name] = {"seconds": 0.0, "cached": True, "original_seconds": summary.get("_seconds"), "original_cpu_seconds": summary.get("_cpu_seconds"),
+                                  **({"original_peak_mb": summary["_peak_mb"]} if "_peak_mb" in summary else {})}
             ctx.say(f"[{st.name}] cached ({out.name})")
             if alone and main:
                 distributed.barrier()
@@ -179,13 +180,15 @@ def run_stages(ctx: Context, stages: list[Stage]) -> Context:
                 raise
             raise LayercamError(f"[{st.name}] cannot write in {out}: {e.strerror}; free some space and run the same command again: the finished stages are kept") from None
         secs, cpu = time.perf_counter() - t0, time.process_time() - c0
+        peak = heap.peak_bytes()  # the stage's own peak resident memory
         summary["_seconds"], summary["_cpu_seconds"] = secs, cpu
+        if peak:
+            summary["_peak_mb"] = round(peak / 2**20, 1)
         summary["_outputs"] = [n for n in st.output_names(ctx) if (out / n).exists()]
         if main:
             atomic_write(done, lambda p: p.write_text(json.dumps(summary, indent=1, default=_json_default)))
         ctx.results[st.name] = st.load(ctx, out, summary)
-        peak = heap.peak_bytes()  # the stage's own peak resident memory
-        ctx.times[st.name] = {"seconds": round(secs, 3), "cpu_seconds": round(cpu, 3), "cached": False, **({"peak_mb": round(peak / 2**20, 1)} if peak else {})}
+        ctx.times[st.name] = {"seconds": round(secs, 3), "cpu_seconds": round(cpu, 3), "cached": False, **({"peak_mb": summary["_peak_mb"]} if peak else {})}
         ctx.say(f"[{st.name}] done in {secs:.1f} s")
         if alone and main:
             distributed.barrier()

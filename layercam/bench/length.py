@@ -163,8 +163,9 @@ def _spawn(job: dict) -> dict:
     stages: dict = {}
     for times in [rep.get("stages", {})] + [r.get("times", {}) for r in rep.get("windows", {}).get("runs", [])]:
         for k, v in times.items():
-            if v.get("peak_mb"):
-                stages[k] = max(stages.get(k, 0.0), v["peak_mb"])
+            peak = v.get("peak_mb") or v.get("original_peak_mb")  # a resumed run: the peak its stage had when it ran
+            if peak:
+                stages[k] = max(stages.get(k, 0.0), peak)
     res = {"wall_s": round(wall, 2), "cpu_s": round(use.ru_utime + use.ru_stime - before.ru_utime - before.ru_stime, 1), "peak_rss_mb": round(reported or mem.peak, 1),
            "peak_anon_mb": round(mem.peak_anon, 1), "stage_peak_mb": stages, **({"stopped_at": stopped} if stopped else {})}
     Path(job["out"]).mkdir(parents=True, exist_ok=True)

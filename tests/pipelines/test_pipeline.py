@@ -49,9 +49,12 @@ def test_same_command_skips_changed_setting_redoes_dependents(tiny_scene, tiny_e
     from layercam.pipelines.export import faithful_hdr
 
     run = tmp_path / "run"
-    trained = _run(tiny_scene, tiny_exposures, run).model
+    first = _run(tiny_scene, tiny_exposures, run)
+    trained = first.model
     ctx = _run(tiny_scene, tiny_exposures, run)
     assert all(t["cached"] for t in ctx.times.values())
+    # a cached stage reports the peak memory it had when it ran
+    assert all(t.get("original_peak_mb") == first.times[k].get("peak_mb") for k, t in ctx.times.items())
     # an export setting: the model is rebuilt once from the cached training, and renders what the trained one did
     ctx = _run(tiny_scene, tiny_exposures, run, ["export.half=off"])
     assert ctx.times["train"]["cached"] and not ctx.times["export"]["cached"] and ctx.model is not trained

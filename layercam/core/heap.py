@@ -4,12 +4,17 @@ from __future__ import annotations
 
 
 def give_back_freed_memory() -> None:
-    """Returns the C heap's free pages to the system (glibc ``malloc_trim``; nothing elsewhere). A
-    window's arrays are freed when it ends, but the allocator keeps the heap it grew for them
-    (fragmented by the small arrays still alive), so that without this the memory held between
-    windows is what the last windows freed as well as what the run needs."""
+    """Frees what a finished part of the run (a window) left in reference cycles, then returns the C
+    heap's free pages to the system (glibc ``malloc_trim``; nothing elsewhere). A window's model,
+    optimiser and stage results refer to each other, so they are freed by Python's cyclic collector,
+    whose full passes are rare: without one, each window's arrays outlived it and the memory held
+    grew by a window's working set each window. And the allocator keeps the heap it grew for them
+    (fragmented by the small arrays still alive): without the trim the memory held between windows
+    is what the last windows freed as well as what the run needs."""
     import ctypes
+    import gc
 
+    gc.collect()
     try:
         ctypes.CDLL("libc.so.6").malloc_trim(0)
     except (OSError, AttributeError):  # not glibc

@@ -23,3 +23,23 @@ def test_a_reset_peak_forgets_a_freed_array_and_the_process_peak_keeps_it():
     small = np.ones(20 * 2**20 // 8)
     assert heap.peak_bytes() >= after + 15 * 2**20
     del small
+
+
+def test_giving_back_frees_a_cycle_that_holds_an_array():
+    """What a finished window leaves in reference cycles (its model and results refer to each other)
+    is freed when the window ends, not at the cyclic collector's next full pass."""
+    import gc
+
+    def rss() -> int:
+        return heap._status_kb("VmRSS") * 1024
+
+    gc.disable()  # as between the collector's rare full passes
+    try:
+        a, b = {"arr": np.ones(200 * 2**20 // 8)}, {}
+        a["other"], b["other"] = b, a  # a cycle
+        del a, b
+        held = rss()
+        heap.give_back_freed_memory()
+        assert held - rss() > 150 * 2**20
+    finally:
+        gc.enable()

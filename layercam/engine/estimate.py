@@ -39,8 +39,9 @@ ANALYSIS_PER_PX = 28.0   # per working-grid pixel of each pair measured (flow in
 SEG_PER_PX = 23.0        # two layers, a clip segmented whole: per pixel of the flow's grid of each frame
 SEG_WORK_PER_PX = 70.0   # two layers, a clip segmented in windows: per pixel of the finder's working size of each window frame
 BOOT_PER_PX = 24.0       # one layer: per frame pixel (a frame and its temporaries)
-EXPORT_PER_PX = 1360.0   # per frame pixel: the faithful export's arrays for a frame and its two neighbours (1300 measured)
-                         # and their geometry kept for the atlases (2 layers: 5 floats, 60 bytes for three frames)
+EXPORT_PER_PX = 455.0    # per frame pixel: the faithful export's arrays for a frame and its two neighbours and their
+EXPORT_FIXED = 240e6     # geometry kept for the atlases, and what it holds at any frame size (the writers, the atlases'
+                         # images): the line no export measured lies above (fast, 24 frames, 427x240..1920x1080, Basler)
 RENDER_SHARE = 0.25      # a render chunk's pixel holds this share of what a training sample keeps (no autograd: the
                          # networks' layers one at a time): fast 1600 B measured against 6144 kept, paper 9 kB against 38 kB
 RENDER_CHUNK = 65536     # pixels rendered at once (layercam.scene.render: frames, atlases, the tone mapping of both)
@@ -276,7 +277,7 @@ def estimate(info: dict, cfg, task: str = "hdr-video", windows: list | None = No
         "bootstrap": (BOOT_PER_PX * px if rc.model.layers == 1 else SEG_PER_PX * T * wpx + 16.0 * px if not windowed(T, (H, W), (h, w))
                       else SEG_WORK_PER_PX * min(T, SEG_FRAMES) * math.prod(working_size((h, w), WORK_SHORT)) + 16.0 * px),  # windows at the finder's size
         "train": PARAM_BYTES * n_params + GRAD_FACTOR * fixed + sample * batch,
-        "export": 4.0 * n_params + EXPORT_PER_PX * px + RENDER_SHARE * per * RENDER_CHUNK,  # the atlases render whole chunks at any frame size
+        "export": 4.0 * n_params + EXPORT_FIXED + EXPORT_PER_PX * px + RENDER_SHARE * per * RENDER_CHUNK,  # the atlases render whole chunks at any frame size
     }
     store = 1 if int(info.get("bit_depth") or 8) <= 8 else (2 if int(info.get("bit_depth")) <= 16 else 4)
     disk = {

@@ -41,7 +41,7 @@ SEG_WORK_PER_PX = 70.0   # two layers, a clip segmented in windows: per pixel of
 BOOT_PER_PX = 24.0       # one layer: per frame pixel (a frame and its temporaries)
 EXPORT_PER_PX = 455.0    # per frame pixel: the faithful export's arrays for a frame and its two neighbours and their
 EXPORT_FIXED = 240e6     # geometry kept for the atlases, and what it holds at any frame size (the writers, the atlases'
-                         # images): the line no export measured lies above (fast, 24 frames, 427x240..1920x1080, Basler)
+                         # images): fitted to fast's exports of 24 frames at 427x240..1920x1080 (within 0..14%) and Basler's
 RENDER_SHARE = 0.25      # a render chunk's pixel holds this share of what a training sample keeps (no autograd: the
                          # networks' layers one at a time): fast 1600 B measured against 6144 kept, paper 9 kB against 38 kB
 RENDER_CHUNK = 65536     # pixels rendered at once (layercam.scene.render: frames, atlases, the tone mapping of both)

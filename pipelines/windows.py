@@ -160,17 +160,18 @@ def run_all(ctx: Context, p: Plan, ray: str | None = None) -> list[dict]:
             s.progress, s.threads = False, runner.threads
             if isinstance(s.masks, TempArray):  # an unlinked file no other process can open: the window's masks sent as they are
                 s.masks = np.asarray(s.masks)
-    first = runner.map(run_window, todo[:1])[0] if runner else _in_turn(todo[0])
+    first = runner.map(_in_turn, todo[:1])[0] if runner else _in_turn(todo[0])
     camera = camera_from(first, ctx.exposures.learn) if ctx.resolved.settings.model.tone_mapper == "learned" else None
     for s in todo[1:]:
         s.camera = camera
-    rest = runner.map(run_window, todo[1:]) if runner else [_in_turn(s) for s in todo[1:]]
+    rest = runner.map(_in_turn, todo[1:]) if runner else [_in_turn(s) for s in todo[1:]]
     return [first, *rest]
 
 
 def _in_turn(spec: WindowSpec) -> dict:
-    """:func:`run_window` in this process, the heap it freed given back after it (so the memory
-    held between windows does not grow window after window)."""
+    """:func:`run_window`, then what it freed given back (its objects' cycles collected, the heap
+    trimmed), so that the memory held does not grow window after window in this process or in a
+    Ray worker that runs several windows."""
     from layercam.core.heap import give_back_freed_memory
 
     out = run_window(spec)

@@ -133,9 +133,6 @@ def input_key(ctx: Context) -> dict:
     }
 
 
-CURRENT = ["start"]  # the stage (or "analysis") running now: what a memory sampler files its readings under
-
-
 def run_stages(ctx: Context, stages: list[Stage]) -> Context:
     ensure_writable_dir(ctx.run_dir)
     cache = ensure_writable_dir(ctx.run_dir / "cache")
@@ -167,7 +164,6 @@ def run_stages(ctx: Context, stages: list[Stage]) -> Context:
                 distributed.barrier()
             continue
         t0, c0 = time.perf_counter(), time.process_time()
-        CURRENT[0] = st.name
         heap.reset_peak()
         try:
             out.mkdir(parents=True, exist_ok=True)

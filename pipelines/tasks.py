@@ -11,6 +11,7 @@ import numpy as np
 
 from layercam.vision import analyse
 
+from layercam.core.heap import process_peak_bytes
 from layercam.engine import distributed
 from layercam.core.config import validate
 from layercam.engine.resolve import format_table, resolve
@@ -74,9 +75,6 @@ def _run(ctx: Context, stages: list, t0: float, window=None, ray: str | None = N
     try:
         # flow first: the analysis reads it to decide what the model needs
         run_stages(ctx, stages[:1])
-        from layercam.pipelines import runner
-
-        runner.CURRENT[0] = "analysis"
         ctx.measures = analyse.measure(clip, exposures, ctx.flow)
         ctx.measures["masks_given"] = ctx.masks is not None and any(np.asarray(m).any() for m in ctx.masks)
         ctx.resolved = resolve(cfg, clip, exposures, task, ctx.measures)
@@ -128,9 +126,7 @@ def _estimate(ctx: Context, cfg, what: str, plan=None) -> dict:
     in one line and checked against the memory available and the disk free (less what the run
     folder's cache holds)."""
     from layercam.engine import estimate as cost
-    from layercam.pipelines import runner
 
-    runner.CURRENT[0] = "estimate"
     clip = ctx.clip
     est = cost.estimate({"frames": clip.T, "width": clip.W, "height": clip.H, "bit_depth": clip.bit_depth}, cfg, ctx.task,
                         windows=None if plan is None else plan.windows)
@@ -186,7 +182,7 @@ def write_report(ctx: Context, wall: float, name: str | None = "report.json", ex
         "baselines": res.get("evaluate", {}).get("baselines"),
         "machine": {"python": platform.python_version(), "torch": torch.__version__, "threads": torch.get_num_threads(), "cpu": platform.processor() or platform.machine()},
         "cache_keys": ctx.keys,
-        "memory": {"estimate": ctx.estimate, "peak_rss_bytes": _peak_rss()},
+        "memory": {"estimate": ctx.estimate, "peak_rss_bytes": process_peak_bytes()},
         "warnings": ctx.warnings,
         **(extra or {}),
     }
@@ -194,9 +190,3 @@ def write_report(ctx: Context, wall: float, name: str | None = "report.json", ex
         write_json(ctx.run_dir / name, rep)
     return rep
 
-
-def _peak_rss() -> int | None:
-    """This process's peak resident memory so far (bytes), None where unknown."""
-    from layercam.core.heap import process_peak_bytes
-
-    return process_peak_bytes()

@@ -24,24 +24,11 @@ from pathlib import Path
 
 
 from layercam.core.errors import LayercamError
+from layercam.core.heap import proc_status
 
 LENGTHS = [48, 192, 768]
 FIELDS = ["clip", "frames", "size", "preset", "layers", "steps", "wall_s", "cpu_s", "flow_s", "bootstrap_s", "train_s", "export_s",
           "peak_rss_mb", "peak_anon_mb", "estimate_mb", "estimate_disk_mb", "cache_mb", "note"]  # and stage_peak_mb, stage_cpu_s in length.json
-
-
-def _status(pid: int | str = "self") -> dict:
-    """``VmRSS``, ``RssAnon``, ``RssFile``, ``VmHWM`` of process ``pid`` in MB (Linux; empty once it is gone)."""
-    out = {}
-    try:
-        with open(f"/proc/{pid}/status") as f:
-            for line in f:
-                k, _, v = line.partition(":")
-                if k in ("VmRSS", "RssAnon", "RssFile", "RssShmem", "VmHWM"):
-                    out[k] = int(v.split()[0]) / 1024.0
-    except (OSError, ValueError):
-        pass
-    return out
 
 
 class MemorySampler:
@@ -61,7 +48,7 @@ class MemorySampler:
         self._t0 = time.perf_counter()
 
     def _read(self) -> None:
-        s = _status(self.pid)
+        s = {k: v / 1024.0 for k, v in proc_status(self.pid).items()}  # MB
         if not s:
             return
         self.peak = max(self.peak, s.get("VmRSS", 0.0))

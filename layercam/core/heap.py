@@ -24,21 +24,25 @@ def give_back_freed_memory() -> None:
 _PEAK = [0]  # the largest high-water mark read before a reset (bytes)
 
 
-def _status_kb(key: str) -> int | None:
+def proc_status(pid: int | str = "self") -> dict:
+    """The memory lines of ``/proc/PID/status`` (``VmRSS``, ``VmHWM``, ``RssAnon``, ``RssFile``,
+    ``RssShmem``) in kB; empty where there is no such file (not Linux, or the process is gone)."""
+    out = {}
     try:
-        with open("/proc/self/status") as f:
+        with open(f"/proc/{pid}/status") as f:
             for line in f:
-                if line.startswith(key + ":"):
-                    return int(line.split()[1])
+                k, _, v = line.partition(":")
+                if k in ("VmRSS", "VmHWM", "RssAnon", "RssFile", "RssShmem"):
+                    out[k] = int(v.split()[0])
     except (OSError, ValueError, IndexError):
         pass
-    return None
+    return out
 
 
 def peak_bytes() -> int | None:
     """This process's peak resident memory since :func:`reset_peak` (the kernel's ``VmHWM``; bytes),
     None where the kernel does not say (not Linux)."""
-    kb = _status_kb("VmHWM")
+    kb = proc_status().get("VmHWM")
     return None if kb is None else kb * 1024
 
 

@@ -31,7 +31,7 @@ def test_giving_back_frees_a_cycle_that_holds_an_array():
     import gc
 
     def rss() -> int:
-        return heap._status_kb("VmRSS") * 1024
+        return heap.proc_status()["VmRSS"] * 1024
 
     gc.disable()  # as between the collector's rare full passes
     try:

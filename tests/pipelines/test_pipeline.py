@@ -40,7 +40,7 @@ def test_end_to_end_outputs_and_loss_falls(tiny_scene, tiny_exposures, tmp_path)
     assert rep["analysis"]["layers"] == 1 and rep["analysis"]["tone_mapper"] == "learned"
     if Path("/proc/self/clear_refs").exists():  # each stage's own peak resident memory, within the run's
         peaks = {k: v["peak_mb"] for k, v in rep["stages"].items() if not v.get("cached")}
-        assert set(peaks) >= {"flow", "train", "export"} and all(0 < v <= rep["memory"]["peak_rss_bytes"] / 2**20 for v in peaks.values()), peaks
+        assert set(peaks) >= {"flow", "train", "export"} and all(0 < v <= rep["memory"]["peak_rss_bytes"] / 2**20 + 4 for v in peaks.values()), (peaks, rep["memory"]["peak_rss_bytes"] / 2**20)  # the kernel counts lazily
     crf = json.loads((run / "crf.json").read_text())
     assert len(crf["r"]) == len(crf["z_stops"])
 

@@ -122,14 +122,17 @@ def _run(ctx: Context, stages: list, t0: float, window=None, ray: str | None = N
 
 
 def _estimate(ctx: Context, cfg, what: str, plan=None) -> dict:
-    """:func:`layercam.engine.estimate.estimate` of this run with ``cfg`` (and the windows of ``plan``), said
+    """:func:`layercam.engine.estimate.estimate` of this run with ``cfg`` (and the windows of ``plan`` and
+    their atlas's extent as the flow measured it), said
     in one line and checked against the memory available and the disk free (less what the run
     folder's cache holds)."""
     from layercam.engine import estimate as cost
 
     clip = ctx.clip
+    from layercam.pipelines.window_plan import extent
+
     est = cost.estimate({"frames": clip.T, "width": clip.W, "height": clip.H, "bit_depth": clip.bit_depth}, cfg, ctx.task,
-                        windows=None if plan is None else plan.windows)
+                        windows=None if plan is None else plan.windows, extent=None if plan is None else extent(clip, ctx.flow, plan.windows))
     ctx.say(cost.summary_line(est) + what)
     cost.check(est, ctx.run_dir, cost.disk_used(ctx.run_dir / "cache"))
     return {k: est[k] for k in ("memory", "disk", "stages", "disk_parts", "assumed", "windows")} | {"params": int(sum(est["params"].values()))}

@@ -123,6 +123,29 @@ def atlas_px(homs: np.ndarray, a: int, b: int, hw: tuple[int, int]) -> float:
     return px if np.isfinite(px) else float("inf")
 
 
+def frame_homographies(clip, flow) -> np.ndarray | None:
+    """The flow's pair homographies ``t -> t + 1`` ``(T - 1, 3, 3)`` in frame pixels; None where the
+    flow measured none."""
+    from layercam.vision.scale import rescale_homographies
+
+    if flow is None or flow.homs is None or len(flow.homs) != clip.T - 1:
+        return None
+    hw = (clip.H, clip.W)
+    work = flow.grid if flow.fw is not None else hw
+    return rescale_homographies(flow.homs, work, hw) if work != hw else np.asarray(flow.homs, np.float64)
+
+
+def extent(clip, flow, windows: list[tuple[int, int]]) -> float | None:
+    """How many frame pixels the widest of ``windows`` spans across its atlas (:func:`atlas_px`: what
+    sizes its model's atlas grid); None where the flow measured no homographies or the chain
+    degenerates (then the estimate takes the widest an atlas can be)."""
+    homs = frame_homographies(clip, flow)
+    if homs is None or clip.T < 2:
+        return None
+    px = max(atlas_px(homs, a, b, (clip.H, clip.W)) for a, b in windows)
+    return px if np.isfinite(px) else None
+
+
 def plan(clip, exposures, flow, task: str, window=None) -> Plan:
     """The windows of a clip: ``window`` None (auto), 0 (off) or a length in frames.
 
@@ -133,7 +156,6 @@ def plan(clip, exposures, flow, task: str, window=None) -> Plan:
     :func:`overlap_for` (a frame larger than the grid alone: as much as one frame needs; a window
     never shorter than three overlaps). A static camera's clip fits at any length.
     """
-    from layercam.vision.scale import rescale_homographies
     from layercam.scene.layered import GRID_RES_RANGE
 
     GRID_MAX_RES = GRID_RES_RANGE[1]
@@ -152,11 +174,10 @@ def plan(clip, exposures, flow, task: str, window=None) -> Plan:
             return Plan([(0, T)], f"one model (--window {n} covers the clip's {T} frames)", forced=True)
         w = split(T, n, cycle)
         return Plan(w, f"forced (--window {n}): {len(w)} windows of {w[0][1] - w[0][0]} frames or fewer, overlapping by {overlap_for(n, cycle)}", forced=True)
-    if flow is None or flow.homs is None or len(flow.homs) != T - 1:
+    homs = frame_homographies(clip, flow)
+    if homs is None:
         return Plan([(0, T)], "one model (no flow measured)")
     hw = (clip.H, clip.W)
-    work = flow.grid if flow.fw is not None else hw
-    homs = rescale_homographies(flow.homs, work, hw) if work != hw else np.asarray(flow.homs, np.float64)
     cap = max(float(GRID_MAX_RES), max(hw) / 0.9)  # geometry.atlas_mappings: a frame fills 0.9 of the atlas
     whole = atlas_px(homs, 0, T, hw)
     floor = 3 * OVERLAP

@@ -12,7 +12,8 @@ camera fixed).
   made ``frames`` long, the person's 30 frames played forth and back; ground truth per frame.
   Scores: PSNR-mu of each frame against the truth (one scale per channel for the whole clip).
 * ``basler``: ``altexp_video_basler/clip_2exp_3stop.mp4`` (74 frames, alternating 3 EV), played
-  forth and back to ``frames``. No truth: each frame's PSNR-mu against the one-model run's frame.
+  back and forth to ``frames`` (:func:`centred`: 11 + 74 + 11 frames for 96, so that each window
+  holds 41 distinct frames). No truth: each frame's PSNR-mu against the one-model run's frame.
 
 Both: flicker of each pair of neighbouring frames (``layercam.bench.realsuite.measures.flicker``: the
 preview's tonemap over the whole clip, 8-bit codes on the input's registered static pixels), so
@@ -50,10 +51,20 @@ def two_windows(T: int) -> int:
     return (T + 1) // 2 + OVERLAP // 2
 
 
-def forth_and_back(n: int, length: int) -> list[int]:
-    """Frame indices 0, 1, ..., n-1, n-2, ..., 0, 1, ... (``length`` of them)."""
+def forth_and_back(n: int, length: int, first: int = 0) -> list[int]:
+    """Frame indices ``first``, ``first - 1``, ..., 0, 1, ..., n-1, n-2, ... (``length`` of them;
+    ``first`` 0: 0, 1, ..., n-1, n-2, ..., 0, 1, ...)."""
     cycle = list(range(n)) + list(range(n - 2, 0, -1))
-    return [cycle[i % len(cycle)] for i in range(length)]
+    start = (len(cycle) - first) % len(cycle) if n > 1 else 0
+    return [cycle[(start + i) % len(cycle)] for i in range(length)]
+
+
+def centred(n: int, length: int) -> list[int]:
+    """A clip of ``n`` frames made ``length`` long (``n < length``) with its two turnarounds placed
+    alike: it starts ``(length - n) // 2`` frames in, played back to frame 0, then forth and back.
+    Two windows that split it then hold as many distinct frames each (a model fits a frame it sees
+    twice better, and the join is judged between windows that fit their frames alike)."""
+    return forth_and_back(n, length, max(length - n, 0) // 2 if n < length else 0)
 
 
 def build(case: str, folder: Path, data: Path, T: int, quick: bool = False) -> dict:
@@ -81,10 +92,10 @@ def build(case: str, folder: Path, data: Path, T: int, quick: bool = False) -> d
         from layercam.io import load_clip
 
         clip = load_clip(data / "altexp_video_basler" / "clip_2exp_3stop.mp4")
-        idx = forth_and_back(clip.T, T)
+        idx = centred(clip.T, T)
         for t, i in enumerate(idx):
             write_png(frames_dir / f"frame_{t:03d}.png", clip.frames[i])
-        meta = {"ev_step": 3.0, "truth": False, "source": f"altexp_video_basler/clip_2exp_3stop.mp4 ({clip.T} frames) forth and back"}
+        meta = {"ev_step": 3.0, "truth": False, "source": f"altexp_video_basler/clip_2exp_3stop.mp4 ({clip.T} frames) back and forth, centred"}
     meta["indices"] = idx
     info.write_text(json.dumps(meta))
     return meta

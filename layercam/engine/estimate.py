@@ -4,10 +4,11 @@ preset and the settings, and a one-line refusal of what cannot fit.
 :func:`estimate` takes the clip's size (``layercam.io.probe_clip``: a video's header, the first
 image) and a config; the model's ``auto`` choices not yet made by the analysis are taken at their
 costliest plausible value (two layers for a clip of more than one frame, the blur generator for
-deblur-video and fuse-stack, or the ``n`` given), so that what is said before the work is an upper
-bound of what the analysis can choose; the run says it again once the analysis has chosen
-(:func:`layercam.pipelines.tasks.run_task`). The model's parameters are counted exactly (the model is
-built on PyTorch's meta device: no memory); what a training step keeps per sample is measured on a
+deblur-video and fuse-stack, or the ``n`` given, and an atlas as wide as its grid holds: the camera's
+motion is not known before the flow), so that what is said before the work is an upper bound of what
+the analysis can choose; the run says it again once the analysis has chosen and the flow has measured
+how far the camera moves (:func:`layercam.pipelines.tasks.run_task`). The model's parameters are counted
+exactly (the model is built on PyTorch's meta device: no memory); what a training step keeps per sample is measured on a
 small stand-in of the model (:func:`kept_for_backward`); the other working sets are per-pixel
 costs measured on this project's runs (``docs/measurements.md``), scaled by what each
 stage holds at once: a pair of frames (flow), at most ``analyse.MOTION_PAIRS`` pairs (analysis), a
@@ -45,8 +46,9 @@ EXPORT_FIXED = 240e6     # geometry kept for the atlases, and what it holds at a
 RENDER_SHARE = 0.25      # a render chunk's pixel holds this share of what a training sample keeps (no autograd: the
                          # networks' layers one at a time): fast 1600 B measured against 6144 kept, paper 9 kB against 38 kB
 RENDER_CHUNK = 65536     # pixels rendered at once (layercam.scene.render: frames, atlases, the tone mapping of both)
-PARAM_BYTES = 38.6       # per model parameter in training: value, gradient, Adam's two moments (24 B), and what the
-                         # sparse grid rows' gradients and the checkpoint's writing add (fast at 854x480: 38.6 measured)
+PARAM_BYTES = 23.3       # per model parameter in training: value, Adam's two moments, a dense part's gradient (the sparse
+                         # grid levels' are rows) and what the step's scratch adds: fitted to fast's training peaks on twelve
+                         # clips, 64x64 to 1920x1080, 0.35-75 M parameters (within -12..+8%)
 PROBE = (1024, 2048)     # samples of the two forward passes that measure what a training step keeps (kept_for_backward)
 GRAD_FACTOR = 1.4        # a training step's peak over what autograd keeps for the backward pass (a layer's gradients
                          # at a time besides): paper, 2 layers, 64x64 frames: 1.39; fast 2.0 (there 67 MB in all)
@@ -96,27 +98,40 @@ def _resolved(cfg, task: str, frames: int, hw: tuple[int, int]):
     return resolve(costliest(cfg, task, frames, hw), frames=frames, hw=hw, task=task)
 
 
-def _identity_meta(r, frames: int, hw: tuple[int, int]) -> dict:
+def _identity_meta(r, frames: int, hw: tuple[int, int], extent: float | None = None) -> dict:
     """What :func:`~layercam.engine.checkpoint.build_model` needs to build the model ``r`` (resolved)
-    for ``frames`` frames of ``hw`` before any frame is seen: identity mappings, the sizes they derive."""
-    from layercam.core.geometry import atlas_mappings
-    from layercam.scene.layered import derived_sizes
+    for ``frames`` frames of ``hw`` before any frame is seen: identity mappings, and the sizes of
+    an atlas whose frames span ``extent`` frame pixels across (None: the identity's own)."""
+    from layercam.core.geometry import atlas_mappings, atlas_pixels
+    from layercam.scene.layered import sizes_for_extent
 
     m = r.settings.model
     h0 = np.stack([atlas_mappings(*hw, np.repeat(np.eye(3)[None], frames, 0))] * int(m.layers))
+    px = atlas_pixels(h0, hw) if extent is None else extent
     return {"h0": h0, "log2_dt": np.zeros(frames, np.float32), "init_log2": 0.0, "frame_hw": hw,
-            "sizes": derived_sizes(h0, hw, fine=m.blur == "on" or (r.static and m.layers == 1))}
+            "sizes": sizes_for_extent(px, hw, fine=m.blur == "on" or (r.static and m.layers == 1))}
 
 
-def _model_parts(r, frames: int, hw: tuple[int, int]) -> dict:
-    """Parameters by part of the model ``r`` (resolved) builds for ``frames`` frames of ``hw``,
-    counted on the meta device (its sizes derived from the identity mappings)."""
+def widest_atlas(frames: int, hw: tuple[int, int]) -> float:
+    """The widest atlas (frame pixels across) a model of ``frames`` frames of ``hw`` can be sized
+    for, whatever the camera's motion: the frames side by side, at most what the grid holds
+    (``layercam.scene.layered.GRID_RES_RANGE``; a wider pan is cut into windows)."""
+    from layercam.core.geometry import atlas_mappings, atlas_pixels
+    from layercam.scene.layered import GRID_RES_RANGE
+
+    one = atlas_pixels(atlas_mappings(*hw, np.eye(3)[None])[None], hw)
+    return max(one, min(float(GRID_RES_RANGE[1]), frames * one))
+
+
+def _model_parts(r, frames: int, hw: tuple[int, int], extent: float) -> dict:
+    """Parameters by part of the model ``r`` (resolved) builds for ``frames`` frames of ``hw`` and
+    an atlas ``extent`` frame pixels across, counted on the meta device."""
     import torch
 
     from layercam.engine.checkpoint import build_model
 
     H, W = hw
-    meta = _identity_meta(r, frames, hw)  # on the host: the meta device holds no values
+    meta = _identity_meta(r, frames, hw, extent)  # on the host: the meta device holds no values
     try:
         with torch.device("meta"):
             model = build_model(r, meta)
@@ -240,7 +255,7 @@ def floats_per_sample(cfg) -> dict:
     return out
 
 
-def estimate(info: dict, cfg, task: str = "hdr-video", windows: list | None = None) -> dict:
+def estimate(info: dict, cfg, task: str = "hdr-video", windows: list | None = None, extent: float | None = None) -> dict:
     """Peak memory and disk of a run on a clip of ``info`` (:func:`layercam.io.probe_clip`:
     ``frames``, ``width``, ``height``, ``bit_depth``) with ``cfg`` (the settings as given, a
     :class:`~layercam.core.config.Config`, or as resolved after the analysis, a
@@ -248,7 +263,9 @@ def estimate(info: dict, cfg, task: str = "hdr-video", windows: list | None = No
     bytes}, "disk_parts": {...}, "params": {...}, "largest": str, "settings": str}``; ``largest``
     names the costliest stage or part and ``settings`` what sizes it. ``windows``: a long clip's
     windows ``[(a, b), ...]`` (``pipelines/windows.py``): one model of the longest window at a time
-    in memory; on disk each window's masks, checkpoints and outputs, besides the joined outputs."""
+    in memory; on disk each window's masks, checkpoints and outputs, besides the joined outputs.
+    ``extent``: how many frame pixels the widest window's frames span across its atlas, as the flow
+    measured it (``pipelines.window_plan.extent``); None: the widest it can be (:func:`widest_atlas`)."""
     from layercam.vision.analyse import MOTION_PAIRS
     from layercam.vision.scale import working_size
     from layercam.vision.segment import WORK_SHORT
@@ -260,7 +277,7 @@ def estimate(info: dict, cfg, task: str = "hdr-video", windows: list | None = No
     spans = [int(b) - int(a) for a, b in windows] if windows and len(windows) > 1 else [T]
     r = _resolved(cfg, task, T, (H, W))
     rc = r.settings
-    params = _model_parts(r, max(spans), (H, W))
+    params = _model_parts(r, max(spans), (H, W), widest_atlas(max(spans), (H, W)) if extent is None else extent)
     n_params = sum(params.values())
     h, w = working_size((H, W))
     wpx = h * w

@@ -30,7 +30,11 @@ def derived_sizes(h0, frame_hw: tuple[int, int], fine: bool) -> dict:
     cell per pixel along the frame's longer side, at most :data:`ALPHA_GRID_MAX`."""
     from layercam.core.geometry import atlas_pixels
 
-    px = atlas_pixels(np.asarray(h0), frame_hw)
+    return sizes_for_extent(atlas_pixels(np.asarray(h0), frame_hw), frame_hw, fine)
+
+
+def sizes_for_extent(px: float, frame_hw: tuple[int, int], fine: bool) -> dict:
+    """:func:`derived_sizes` of an atlas whose frames span ``px`` frame pixels across."""
     res = int(round(px)) if fine else 2 ** math.ceil(math.log2(max(px, 2.0)))
     lo, hi = GRID_RES_RANGE
     return {"grid_max_res": int(min(max(res, lo), hi)), "alpha_grid_res": int(min(max(frame_hw), ALPHA_GRID_MAX))}

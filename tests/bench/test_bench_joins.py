@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from layercam.bench.joins import forth_and_back, pair_flicker, per_frame_psnr_mu, two_windows
+from layercam.bench.joins import centred, forth_and_back, pair_flicker, per_frame_psnr_mu, two_windows
 from layercam.cli import main
 from layercam.pipelines.window_plan import OVERLAP, split
 
@@ -21,6 +21,10 @@ def test_two_windows_cut_any_length_in_two():
 
 def test_forth_and_back_and_per_frame_psnr():
     assert forth_and_back(4, 9) == [0, 1, 2, 3, 2, 1, 0, 1, 2]
+    assert forth_and_back(4, 9, 2) == [2, 1, 0, 1, 2, 3, 2, 1, 0]
+    idx = centred(74, 96)  # the Basler clip: each of two windows holds 41 distinct frames
+    assert idx[:3] == [11, 10, 9] and idx[-3:] == [64, 63, 62] and all(abs(a - b) == 1 for a, b in zip(idx, idx[1:]))
+    assert len(set(idx[:52])) == len(set(idx[44:])) == 41 and centred(5, 4) == [0, 1, 2, 3]
     gt = np.random.default_rng(0).random((3, 8, 8, 3)).astype(np.float32) + 0.1
     pred = gt * 2.0  # one scale: aligned away
     pred[2] += 0.05  # frame 2 off

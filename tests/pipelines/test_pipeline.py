@@ -38,6 +38,8 @@ def test_end_to_end_outputs_and_loss_falls(tiny_scene, tiny_exposures, tmp_path)
     tr = rep["train"]
     assert tr["final_loss"]["color"] < 0.5 * tr["first_loss"]["color"]
     assert rep["analysis"]["layers"] == 1 and rep["analysis"]["tone_mapper"] == "learned"
+    est = rep["memory"]["estimate"]  # after the analysis: the model the run built (its atlas sized by the pan); before: an upper bound
+    assert est["after_analysis"]["params"] == sum(p.numel() for p in ctx.model.parameters()) < est["before"]["params"]
     if Path("/proc/self/clear_refs").exists():  # each stage's own peak resident memory, within the run's
         peaks = {k: v["peak_mb"] for k, v in rep["stages"].items() if not v.get("cached")}
         assert set(peaks) >= {"flow", "train", "export"} and all(0 < v <= rep["memory"]["peak_rss_bytes"] / 2**20 + 4 for v in peaks.values()), (peaks, rep["memory"]["peak_rss_bytes"] / 2**20)  # the kernel counts lazily

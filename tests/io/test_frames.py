@@ -235,7 +235,8 @@ def test_the_estimate_grows_with_the_clip_on_disk_not_in_memory(tmp_path):
 
     cfg = load_config("fast")
     short, long = (estimate({"frames": n, "width": 854, "height": 480, "bit_depth": 8}, cfg) for n in (48, 768))
-    assert long["memory"] < 1.3 * short["memory"] and long["disk"] > 6 * short["disk"]
+    assert long["memory"] < 1.3 * short["memory"] and long["disk"] > 4 * short["disk"]
+    assert long["disk_parts"]["frames"] == 16 * short["disk_parts"]["frames"] and long["disk_parts"]["flow"] > 16 * short["disk_parts"]["flow"]  # 767 pairs, 47
     assert short["assumed"] == {"layers": 2, "blur": "off"}  # the analysis's costliest plausible choice
     win = estimate({"frames": 768, "width": 854, "height": 480, "bit_depth": 8}, cfg, windows=[(0, 400), (368, 768)])
     assert win["windows"] == 2 and win["memory"] <= long["memory"] and win["disk"] > long["disk"]  # one window's model at a time, each window's files

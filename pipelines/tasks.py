@@ -127,10 +127,9 @@ def _estimate(ctx: Context, cfg, what: str, plan=None) -> dict:
     in one line and checked against the memory available and the disk free (less what the run
     folder's cache holds)."""
     from layercam.engine import estimate as cost
-
-    clip = ctx.clip
     from layercam.pipelines.window_plan import extent
 
+    clip = ctx.clip
     est = cost.estimate({"frames": clip.T, "width": clip.W, "height": clip.H, "bit_depth": clip.bit_depth}, cfg, ctx.task,
                         windows=None if plan is None else plan.windows, extent=None if plan is None else extent(clip, ctx.flow, plan.windows))
     ctx.say(cost.summary_line(est) + what)

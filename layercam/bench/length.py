@@ -170,8 +170,8 @@ def _row(clip: str, n: int, size: tuple[int, int], preset: str, run: Path, res: 
     return {"clip": clip, "frames": n, "size": f"{size[0]}x{size[1]}", "preset": preset, "layers": rep["analysis"].get("layers"),
             "steps": rep["train"].get("steps"), "wall_s": res["wall_s"], "cpu_s": res.get("cpu_s"), "flow_s": sec("flow"), "bootstrap_s": sec("bootstrap"),
             "train_s": sec("train"), "export_s": sec("export"), "peak_rss_mb": res["peak_rss_mb"], "peak_anon_mb": res["peak_anon_mb"],
-            "estimate_mb": round(est.get("memory", 0) / 1e6), "estimate_disk_mb": round(est.get("disk", 0) / 1e6),
-            "cache_mb": round(disk_used(run / "cache") / 1e6), "stage_peak_mb": res.get("stage_peak_mb", {}),
+            "estimate_mb": round(est.get("memory", 0) / 2**20), "estimate_disk_mb": round(est.get("disk", 0) / 2**20),  # MiB, as the peaks
+            "cache_mb": round(disk_used(run / "cache") / 2**20), "stage_peak_mb": res.get("stage_peak_mb", {}),
             "stage_cpu_s": {k: v.get("cpu_seconds") for k, v in st.items() if "cpu_seconds" in v}, "note": note}
 
 

@@ -32,21 +32,23 @@ import numpy as np
 
 from layercam.core.errors import LayercamError
 
-# measured costs (bytes), see docs/measurements.md: this process after its imports, and per pixel /
-# per sample of what each stage holds at once
-BASE = 700e6             # python, torch, OpenCV and layercam imported, a clip opened (VmRSS 680-700 MB on this machine)
-FLOW_PER_PX = 180.0      # per working-grid pixel of a pair: the two frames, flows, checks, DIS
-ANALYSIS_PER_PX = 28.0   # per working-grid pixel of each pair measured (flow in float32, residuals, chains)
-SEG_PER_PX = 23.0        # two layers, a clip segmented whole: per pixel of the flow's grid of each frame
-SEG_WORK_PER_PX = 70.0   # two layers, a clip segmented in windows: per pixel of the finder's working size of each window frame
-BOOT_PER_PX = 24.0       # one layer: per frame pixel (a frame and its temporaries)
-EXPORT_PER_PX = 455.0    # per frame pixel: the faithful export's arrays for a frame and its two neighbours and their
-EXPORT_FIXED = 240e6     # geometry kept for the atlases, and what it holds at any frame size (the writers, the atlases'
-                         # images): fitted to fast's exports of 24 frames at 427x240..1920x1080 (within 0..14%) and Basler's
+# measured costs, see docs/measurements.md: this process after its imports, and per pixel / per sample
+# of what each stage holds at once. Fitted to readings of /proc (kB / 1024: MiB, 2^20 B), so in MiB
+# and scaled by MIB to bytes (the estimate is said in bytes: 1 GB = 1e9 B)
+MIB = 2**20 / 1e6
+BASE = 700e6 * MIB       # python, torch, OpenCV and layercam imported, a clip opened (VmRSS 680-700 MiB on this machine)
+FLOW_PER_PX = 180.0 * MIB      # per working-grid pixel of a pair: the two frames, flows, checks, DIS
+ANALYSIS_PER_PX = 28.0 * MIB   # per working-grid pixel of each pair measured (flow in float32, residuals, chains)
+SEG_PER_PX = 23.0 * MIB        # two layers, a clip segmented whole: per pixel of the flow's grid of each frame
+SEG_WORK_PER_PX = 70.0 * MIB   # two layers, a clip segmented in windows: per pixel of the finder's working size of each window frame
+BOOT_PER_PX = 24.0 * MIB       # one layer: per frame pixel (a frame and its temporaries)
+EXPORT_PER_PX = 455.0 * MIB    # per frame pixel: the faithful export's arrays for a frame and its two neighbours and their
+EXPORT_FIXED = 240e6 * MIB     # geometry kept for the atlases, and what it holds at any frame size (the writers, the atlases'
+                               # images): fitted to fast's exports of 24 frames at 427x240..1920x1080 (within 0..14%) and Basler's
 RENDER_SHARE = 0.25      # a render chunk's pixel holds this share of what a training sample keeps (no autograd: the
                          # networks' layers one at a time): fast 1600 B measured against 6144 kept, paper 9 kB against 38 kB
 RENDER_CHUNK = 65536     # pixels rendered at once (layercam.scene.render: frames, atlases, the tone mapping of both)
-PARAM_BYTES = 23.3       # per model parameter in training: value, Adam's two moments, a dense part's gradient (the sparse
+PARAM_BYTES = 23.3 * MIB # per model parameter in training: value, Adam's two moments, a dense part's gradient (the sparse
                          # grid levels' are rows) and what the step's scratch adds: fitted to fast's training peaks on twelve
                          # clips, 64x64 to 1920x1080, 0.35-75 M parameters (within -12..+8%)
 PROBE = (1024, 2048)     # samples of the two forward passes that measure what a training step keeps (kept_for_backward)

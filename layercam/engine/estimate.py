@@ -14,7 +14,8 @@ costs measured on this project's runs (``docs/measurements.md``), scaled by what
 stage holds at once: a pair of frames (flow), at most ``analyse.MOTION_PAIRS`` pairs (analysis), a
 window of at most ``segment.long.SEG_FRAMES`` frames at the finder's working size (two-layer bootstrap), the model, its optimiser and
 a batch (training), a frame and a render chunk (export). None of them grows with the clip's length
-except the alpha grid's slices up to ``scene.fields.ALPHA_GRID_CELLS``; the disk does.
+except the alpha grid's slices up to ``scene.fields.ALPHA_GRID_CELLS`` (and, before the analysis, the
+widest atlas the frames could span, up to the grid's cap: :func:`widest_atlas`); the disk does.
 
 :func:`check` refuses (``LayercamError``, one line) an estimate above the memory available
 (``MemAvailable``) or the free disk of the run folder, naming the estimate, its largest part and

@@ -55,7 +55,7 @@ def forth_and_back(n: int, length: int, first: int = 0) -> list[int]:
     """Frame indices ``first``, ``first - 1``, ..., 0, 1, ..., n-1, n-2, ... (``length`` of them;
     ``first`` 0: 0, 1, ..., n-1, n-2, ..., 0, 1, ...)."""
     cycle = list(range(n)) + list(range(n - 2, 0, -1))
-    start = (len(cycle) - first) % len(cycle) if n > 1 else 0
+    start = (len(cycle) - first) % len(cycle)
     return [cycle[(start + i) % len(cycle)] for i in range(length)]
 
 
@@ -64,7 +64,7 @@ def centred(n: int, length: int) -> list[int]:
     alike: it starts ``(length - n) // 2`` frames in, played back to frame 0, then forth and back.
     Two windows that split it then hold as many distinct frames each (a model fits a frame it sees
     twice better, and the join is judged between windows that fit their frames alike)."""
-    return forth_and_back(n, length, max(length - n, 0) // 2 if n < length else 0)
+    return forth_and_back(n, length, (length - n) // 2 if n < length else 0)
 
 
 def build(case: str, folder: Path, data: Path, T: int, quick: bool = False) -> dict:

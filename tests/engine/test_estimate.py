@@ -44,7 +44,6 @@ def test_the_estimate_counts_the_atlas_the_camera_pans_over():
     import torch
 
     from layercam.core.geometry import atlas_mappings, chain_homographies, middle_frame
-    from layercam.core.presets import load_config
     from layercam.engine import estimate as E
     from layercam.engine.checkpoint import build_model
     from layercam.pipelines.window_plan import extent
@@ -55,14 +54,14 @@ def test_the_estimate_counts_the_atlas_the_camera_pans_over():
     homs[:, 0, 2] = 12.0  # the view moves 12 px a frame
     px = extent(SimpleNamespace(T=T, H=64, W=64), SimpleNamespace(homs=homs, fw=None, grid=hw), [(0, T)])
     cfg = load_config("fast", [])
-    r = E._resolved(cfg, "hdr-video", T, hw)
+    r = _resolved(cfg, "hdr-video", T, hw)
     maps = atlas_mappings(*hw, chain_homographies(homs, middle_frame(T)))
     h0 = np.stack([maps] * int(r.settings.model.layers))
     meta = {**E._identity_meta(r, T, hw), "h0": h0, "sizes": derived_sizes(h0, hw, fine=False)}  # as the run's model derives them
     with torch.device("meta"):
         built = sum(p.numel() for p in build_model(r, meta).parameters())
     info = {"frames": T, "width": 64, "height": 64}
-    counted = lambda **k: sum(E.estimate(info, cfg, **k)["params"].values())  # noqa: E731
+    counted = lambda **k: sum(estimate(info, cfg, **k)["params"].values())  # noqa: E731
     with torch.device("meta"):
         still = sum(p.numel() for p in build_model(r, E._identity_meta(r, T, hw)).parameters())
     assert counted(extent=px) == built > still and counted() >= built

@@ -86,13 +86,6 @@ class TrainResult(StageResult):
 
 
 @dataclass(frozen=True)
-class RefineResult(StageResult):
-    """``masks`` ``(T, H, W)``: the foreground masks from the first fit's background residual."""
-
-    masks: Any = None
-
-
-@dataclass(frozen=True)
 class ExportResult(StageResult):
     """The export's summary and the arrays it kept for a scorer: ``frames`` (``deblurred.npy``,
     the sharp frames) and ``fused`` (``fused.npy``), None where the task writes none."""

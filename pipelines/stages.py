@@ -8,7 +8,7 @@ import dataclasses
 import numpy as np
 
 from layercam.core.errors import LayercamError
-from layercam.pipelines.results import BootstrapResult, FlowResult, RefineResult, TrainResult
+from layercam.pipelines.results import BootstrapResult, FlowResult, TrainResult
 from layercam.pipelines.runner import Context, Stage
 
 
@@ -116,16 +116,15 @@ class TrainStage(Stage):
     deps = ("flow", "bootstrap")
     reads = ("model", "scene", "tone", "blur", "loss", "train", "static")
     all_ranks = True  # data-parallel under torch.distributed (layercam/engine/distributed.py)
-    final = True      # the run's model (ctx.model), probed by the benchmark's callbacks; not the refine option's first fit
+    final = True      # the run's model (ctx.model), probed by the benchmark's callbacks
 
     def options(self, ctx):
-        """Trained on the refine stage's masks, after its first fit: their key; a long clip's alpha
-        grid with slices shared by neighbouring frames (:data:`layercam.scene.fields.ALPHA_GRID_CELLS`;
+        """A long clip's alpha grid with slices shared by neighbouring frames (:data:`layercam.scene.fields.ALPHA_GRID_CELLS`;
         clips where it changes nothing keep their key); a long clip's later window: the key of
         window 0's camera, held fixed."""
         from layercam.scene.fields import ALPHA_GRID_CELLS, alpha_grid_capped
 
-        out = {"refined_masks": ctx.keys["refine"]} if "refine" in ctx.keys else {}
+        out = {}
         clip, cfg = getattr(ctx, "clip", None), ctx.resolved.settings
         if clip is not None and cfg.model.layers > 1 and alpha_grid_capped(cfg.scene, clip.T, (clip.H, clip.W)):
             out["alpha_grid_cells"] = ALPHA_GRID_CELLS
@@ -135,11 +134,9 @@ class TrainStage(Stage):
 
     @staticmethod
     def masks(ctx):
-        """The masks alpha is fitted to and whether the user gave them: given, else refined, else motion."""
+        """The masks alpha is fitted to and whether the user gave them: given, else motion."""
         if ctx.masks is not None:
             return ctx.masks, "given"
-        if "refine" in ctx.results:
-            return ctx.results["refine"].masks, "refined"
         return ctx.results["bootstrap"].masks, "motion"
 
     def run(self, ctx, out):
@@ -218,68 +215,6 @@ class TrainStage(Stage):
         if ctx.model is None:
             ctx.model = self.trained(ctx, out)
         return TrainResult(summary)
-
-
-class PrefitStage(TrainStage):
-    """``segment.refine``: the first fit, on the motion masks, whose background layer the refine
-    stage compares each frame with. The same training as the final one; its model is read from
-    ``ckpt.pt`` by the refine stage and is not the run's model."""
-
-    name = "prefit"
-    final = False
-
-    def load(self, ctx, out, summary):
-        return TrainResult(summary)
-
-
-class RefineStage(Stage):
-    """``segment.refine``: new foreground masks from the first fit (:func:`layercam.vision.segment.refine_masks`),
-    saved as ``masks.npz`` and ``masks/`` PNGs; the train stage fits alpha to them."""
-
-    name = "refine"
-    deps = ("bootstrap", "prefit")
-    reads = ("segment.refine_threshold",)
-
-    def run(self, ctx, out):
-        import torch
-
-        from layercam.vision import segment
-        from layercam.core.metrics import iou
-        from layercam.scene.render import inverse_tone, render_frame, tone_map_log2
-
-        model = TrainStage.trained(ctx, ctx.dirs["prefit"])
-        clip = ctx.clip
-        # frame and background compared through the camera at one exposure (the clip's mean), so that
-        # a threshold in pixel values means the same in a short and a long frame: at each frame's own
-        # exposure the alternating short frames' masks came out smaller (synthetic moving object,
-        # seed 2: 1305, 1061, 1220, 1068, ... pixels against 1161-1173 true)
-        with torch.no_grad():
-            dts = model.exposure.values().float().cpu().numpy()
-        common = float(dts.mean())
-        seen, bg, alpha = [], [], []
-        for t in range(clip.T):  # render_frame, tone_map_log2 and inverse_tone run without gradients
-            r = render_frame(model, t, (clip.H, clip.W), what=("layers", "alpha"))
-            bg.append(tone_map_log2(model, r["layers"][0], common))
-            seen.append(tone_map_log2(model, inverse_tone(model, clip.frames[t], float(dts[t])), common))
-            alpha.append(r["alpha"])
-        masks = segment.refine_masks(np.stack(seen), np.stack(bg), np.stack(alpha), ctx.resolved.settings.segment.refine_threshold)
-        segment.save_masks(out, masks)
-        boot = ctx.results["bootstrap"].masks
-        agree = float(np.mean([iou(a, b > 0.5) for a, b in zip(masks, boot)]))  # refine_wanted: the bootstrap made masks
-        ctx.say(f"[refine] masks from the first fit's background residual: mean coverage {masks.mean():.3f} (motion masks {segment.mask_coverage(boot).mean():.3f}, IoU with them {agree:.3f}), saved in {out / 'masks'}")
-        return {"coverage": float(masks.mean()), "iou_with_motion_masks": agree}
-
-    def load(self, ctx, out, summary):
-        from layercam.vision.segment import load_masks
-
-        return RefineResult(summary, masks=load_masks(out))
-
-
-def refine_wanted(ctx) -> bool:
-    """``segment.refine`` applies: two layers whose masks came from the motion segmentation."""
-    boot = ctx.results.get("bootstrap")
-    cfg = ctx.resolved.settings
-    return bool(cfg.segment.refine) and cfg.model.layers > 1 and ctx.masks is None and boot is not None and boot.masks is not None
 
 
 def device_of(name: str) -> str:

@@ -21,7 +21,7 @@ from layercam.pipelines import publish
 from layercam.pipelines.export import ExportStage
 from layercam.pipelines.results import TrainResult
 from layercam.pipelines.runner import Context, output_sources, run_stages, write_json
-from layercam.pipelines.stages import BootstrapStage, FlowStage, PrefitStage, RefineStage, TrainStage, refine_wanted
+from layercam.pipelines.stages import BootstrapStage, FlowStage, TrainStage
 
 
 def all_output_names() -> list[str]:
@@ -104,8 +104,6 @@ def _run(ctx: Context, stages: list, t0: float, window=None, ray: str | None = N
                 ctx.resolved = dataclasses.replace(again, reasons={**ctx.resolved.reasons, **again.reasons})
                 ctx.say("model chosen again (no foreground found):\n" + format_table(ctx.resolved, plan.count))
                 run_stages(ctx, stages[1:2])
-            if refine_wanted(ctx):  # segment.refine: a first fit, and masks from its background residual
-                run_stages(ctx, [PrefitStage(), RefineStage()])
             run_stages(ctx, stages[2:])
             faded = faded_foreground(ctx)
             if faded:
@@ -144,7 +142,7 @@ FADED = "the foreground layer faded in training"  # how the warning begins (laye
 def faded_foreground(ctx: Context) -> str | None:
     """A warning when a two-layer run's foreground layer lost its object in training: the trained
     alpha (> 0.5, ``export["atlas"]["foreground_share"]``) covers less than ``FADED_SHARE`` of the
-    area the masks it was fitted to cover (given, refined or motion masks; a share of the frames,
+    area the masks it was fitted to cover (given or motion masks; a share of the frames,
     over the clip). Alpha that is 0 everywhere satisfies the flow terms, and the plain mask term
     pulls a small object towards the background (docs/measurements.md). None when it did not, or without masks or
     the atlas export (one layer, a run exported before the share was kept)."""
@@ -178,7 +176,6 @@ def write_report(ctx: Context, wall: float, name: str | None = "report.json", ex
         "wall_seconds": round(wall, 2),
         "train": res.get("train", {}),
         "flow": res.get("flow", {}),
-        **({"refine": res["refine"]} if "refine" in res else {}),
         "export": res.get("export", {}),
         "metrics": res.get("evaluate", {}).get("metrics"),
         "baselines": res.get("evaluate", {}).get("baselines"),

@@ -2,7 +2,7 @@
 
 A clip longer than one model holds (:func:`plan`: the analysis's rule, or ``--window N``) is cut
 into overlapping windows of frames. Each window is a run of the ordinary stages (bootstrap,
-train, export; the refine option's too) in its own folder ``RUN/cache/windows/<first>-<end>/``
+train, export) in its own folder ``RUN/cache/windows/<first>-<end>/``
 (its own stage cache: each window resumes on its own), on its slice of the clip and of the whole
 clip's flow, with the model the analysis decided once for the whole clip. The camera is learned
 once: window 0 trains as a single model would, and the others start from its tone mapper (and
@@ -88,10 +88,10 @@ def specs(ctx: Context, p: Plan) -> list[WindowSpec]:
 
 
 def run_window(spec: WindowSpec) -> dict:
-    """One window's stages (bootstrap, the refine option's, train, export) in its own folder;
+    """One window's stages (bootstrap, train, export) in its own folder;
     returns what the joining stage and the report need (JSON-able)."""
     from layercam.pipelines.export import ExportStage
-    from layercam.pipelines.stages import BootstrapStage, PrefitStage, RefineStage, TrainStage, refine_wanted
+    from layercam.pipelines.stages import BootstrapStage, TrainStage
     from layercam.pipelines.tasks import faded_foreground
 
     if spec.threads:
@@ -106,8 +106,6 @@ def run_window(spec: WindowSpec) -> dict:
     ctx.clip_levels = spec.clip_levels
     ctx.say(f"[window {spec.index}] frames {spec.a}..{spec.b - 1} in {ctx.run_dir}")
     run_stages(ctx, [BootstrapStage()])
-    if refine_wanted(ctx):
-        run_stages(ctx, [PrefitStage(), RefineStage()])
     run_stages(ctx, [TrainStage(), ExportStage()])
     faded = faded_foreground(ctx)
     return {

@@ -184,9 +184,6 @@ class SegmentConfig(Section):
                                             # motion (its atlas holds it still) | the identity (the paper's start)
     margin: float = setting(0.6, above=0.0, hi=1.0)  # the share of the foreground atlas the masked object fills at the
                                             # start: more texels for it, less slack for what the masks missed
-    refine: bool = False                    # fit once, take new masks from where each frame differs from its background
-                                            # layer near the fitted alpha (segment.refine_masks), fit again: twice the training
-    refine_threshold: float = setting(0.1, above=0.0, hi=1.0)  # that residual, in pixel values: lower takes in more
     detector: str = ""                      # a torchvision Mask R-CNN weights file (layercam.vision.segment.detect); "": the motion masks alone
     detector_score: float = setting(0.5, 0.0, 1.0)   # the detector's instances scoring at least this: lower finds more, and more wrongly
     detector_overlap: float = setting(0.3, above=0.0, hi=1.0)  # an instance replaces a frame's mask where this share of it lies

@@ -103,10 +103,7 @@ class ImplicitCameraModel(nn.Module):
         with the flow's to the share ``MASK_GIVEN`` or ``MASK_MOTION`` of it. The term is
         class-balanced (a small object takes its shape fast); given masks only during the bootstrap
         steps, since balanced all through it keeps a halo around a thin object. Motion masks stay
-        balanced: they miss parts of the object, which the halo partly covers. ``refined`` masks (``segment.refine``) come from the motion masks and miss parts as they do:
-        balanced all through like them, and tapered to ``MASK_MOTION`` (balanced during the
-        bootstrap steps only, the plain term's pull to the background can fade a thin object's
-        alpha to nothing; docs/measurements.md)."""
+        balanced: they miss parts of the object, which the halo partly covers."""
         from layercam.engine.train import BootstrapPhase, FlowDecay, MaskTaper
 
         c = self.cfg

@@ -131,35 +131,6 @@ def test_flow_loss_counts_each_layer_where_it_is_seen():
     assert len(one) == 1 and torch.equal(one[0], ok)
 
 
-def test_refine_fits_twice_and_trains_on_the_refined_masks(two_layer_run, tmp_path):
-    """``segment.refine``: a first fit (prefit), masks from its background residual (refine), the
-    final fit on them; the same command again finds all three cached. Without it (the shared run)
-    there is neither stage."""
-    from layercam.pipelines.tasks import run_task
-
-    assert not list((two_layer_run["run"] / "cache").glob("prefit-*")) and "refine" not in two_layer_run["ctx"].results
-    scene, exposures = two_layer_run["scene"], two_layer_run["exposures"]
-    cfg = copy.deepcopy(two_layer_run["cfg"])
-    cfg.segment.refine = True
-    run = tmp_path / "refined"
-    ctx = run_task("hdr-video", scene.clip, exposures, cfg, run, progress=False)
-    rep = json.loads((run / "report.json").read_text())
-    assert [k for k in rep["stages"]] == ["flow", "bootstrap", "prefit", "refine", "train", "export"]
-    assert 0 < rep["refine"]["coverage"] < 0.5 and rep["refine"]["iou_with_motion_masks"] is not None
-    refined = ctx.results["refine"].masks
-    assert refined.shape == (scene.clip.T, scene.clip.H, scene.clip.W)
-    assert (ctx.dirs["refine"] / "masks.npz").is_file() and len(list((ctx.dirs["refine"] / "masks").glob("frame_*.png"))) == scene.clip.T
-    assert np.mean([metrics.iou(m > 0.5, scene.fg_mask[t]) for t, m in enumerate(refined)]) > 0.5
-    # the final training is keyed on the refined masks: not the shared run's training
-    assert ctx.keys["train"] != two_layer_run["ctx"].keys["train"]
-    # the refined masks miss parts as the motion masks do: class-balanced all through (plain after the
-    # bootstrap steps, DAVIS libby's alpha faded to nothing at balanced), and keyed apart from runs before it
-    assert ctx.model.loss_weights.mask_balance == 1.0
-    assert json.loads((ctx.dirs["train"] / "settings.json").read_text())["options"]["refined_masks"] == ctx.keys["refine"]
-    again = run_task("hdr-video", scene.clip, exposures, cfg, run, progress=False)
-    assert all(again.times[k]["cached"] for k in ("prefit", "refine", "train", "export"))
-
-
 def test_a_segment_setting_changed_makes_the_masks_again(two_layer_run, tmp_path):
     """The bootstrap's key holds the segment settings: the same run folder made again with another
     one computes its masks again (stale masks are never reused)."""

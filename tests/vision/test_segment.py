@@ -162,34 +162,6 @@ def test_bad_inputs_raise():
         segment.motion_masks(np.zeros((0, 8, 8, 2)), np.zeros((0, 8, 8, 2)))
 
 
-def test_refine_masks_follow_the_background_residual():
-    """A first fit's alpha shifted off the object (a strip of wall taken in, a strip of the object
-    missed): near alpha, the masks follow where the frame differs from its background."""
-    import cv2
-
-    rng = np.random.default_rng(0)
-    h = w = 96
-    bg = cv2.GaussianBlur(rng.uniform(0, 0.4, (h, w, 3)).astype(np.float32), (0, 0), 1.5)
-    truth = np.zeros((2, h, w), bool)
-    truth[0, 30:60, 30:55] = True
-    truth[1, 34:64, 36:61] = True
-    frames = np.stack([bg, bg]).copy()
-    frames[truth] = 0.6 + 0.4 * rng.uniform(0, 1, (int(truth.sum()), 3))
-    alpha = np.roll(truth, 4, axis=2).astype(np.float32)  # 4 px of wall right of it, 4 px of object missed on its left
-    refined = segment.refine_masks(frames, np.stack([bg, bg]), alpha, threshold=0.1)
-    assert refined.shape == truth.shape and refined.dtype == bool
-    for t in range(2):
-        before, after = metrics.iou(alpha[t] > 0.5, truth[t]), metrics.iou(refined[t], truth[t])
-        assert after > before + 0.1, (before, after)
-        assert not (truth[t] & ~refined[t]).any()  # the strip alpha missed is back
-        right = np.flatnonzero(truth[t].any(0))[-1]
-        assert not refined[t][:, right + 4 :].any()  # of the wall strip, at most the eroded alpha's 2 px and a 1 px halo
-    # far from alpha nothing is taken in, however much the frame differs there
-    frames[:, 5:15, 80:90] = 1.0
-    far = segment.refine_masks(frames, np.stack([bg, bg]), alpha, threshold=0.1)
-    assert not far[:, 5:15, 80:90].any()
-
-
 def test_textured_tells_sky_from_texture_at_any_exposure():
     import cv2
 

@@ -38,11 +38,10 @@ from layercam.vision.segment.clean import clean_mask
 from layercam.vision.segment.mapping import foreground_mappings, object_motion
 from layercam.vision.segment.evidence import offsets as motion_offsets
 from layercam.vision.segment.moving import motion_masks
-from layercam.vision.segment.refine import refine_masks
 from layercam.vision.segment.long import foreground_bootstrap_long, segment_windows, windowed
 from layercam.vision.segment.store import load_masks, mask_coverage, save_masks, sure_pixels
 
-__all__ = ["SegmentConfig", "STEPS", "foreground_bootstrap", "motion_masks", "motion_offsets", "clean_mask", "object_motion", "foreground_mappings", "refine_masks", "sure_pixels", "load_masks", "save_masks"]
+__all__ = ["SegmentConfig", "STEPS", "foreground_bootstrap", "motion_masks", "motion_offsets", "clean_mask", "object_motion", "foreground_mappings", "sure_pixels", "load_masks", "save_masks"]
 
 STEPS = ("grabcut", "background", "colour")  # the optional steps after the motion masks (each measured: the ablation)
 WORK_SHORT = 240  # the finder sees frames at most this many pixels on the short side (masks are upsampled to the

@@ -59,6 +59,7 @@ def register(sub) -> argparse.ArgumentParser:
     b.add_argument("--redraw", action="store_true", help="real suite: run nothing, write the table and figures again from the finished jobs")
     b.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE", help="a setting for every layercam job of the suite or table (repeatable; e.g. train.seed=1 for a spread over training seeds)")
     b.add_argument("--quiet", action="store_true")
+    b.set_defaults(bench_defaults={a.dest: a.default for a in b._actions if a.dest not in ("help",)})
     return b
 
 
@@ -66,7 +67,37 @@ def _list(s: str | None) -> list[str] | None:
     return [x for x in s.split(",") if x] if s else None
 
 
+# the options each mode reads besides --out, --set, --quiet (--suite real, else its --table)
+READS = {
+    "real": {"cases", "presets", "max_frames", "threads", "force", "data", "redraw", "quick"},
+    "presets": {"scenes", "presets", "quick", "threads"},
+    "analysis": {"preset", "quick"},
+    "layers": {"clips", "variants", "presets", "resize", "layers", "max_frames", "threads", "force", "data"},
+    "scaling": {"sizes", "presets", "frames", "threads", "no_baseline"},
+    "length": {"lengths", "clips", "sizes", "preset", "threads", "variants", "data"},
+    "hdr-video": {"preset", "variants", "repeat", "force", "data", "quick", "threads"},
+    "blur": {"cases", "variants", "seeds", "preset", "sizes", "frames", "quick", "threads"},
+    "joins": {"cases", "preset", "frames", "force", "data", "quick", "threads"},
+}
+
+
+def check_options(args, parser_defaults: dict) -> None:
+    """An option the chosen suite or table does not read is an error (one line), not ignored."""
+    from layercam.core.errors import LayercamError
+
+    mode = "real" if args.suite == "real" else args.table
+    if mode == "real" and args.table != "presets":
+        raise LayercamError(f"--suite real and --table {args.table} are two benchmarks: give one of them")
+    for name, default in parser_defaults.items():
+        if name in READS[mode] or name in ("suite", "table", "out", "overrides", "quiet") or getattr(args, name, default) == default:
+            continue
+        what = "--suite real" if mode == "real" else f"--table {mode}"
+        uses = ", ".join("--" + o.replace("_", "-") for o in sorted(READS[mode]))
+        raise LayercamError(f"--{name.replace('_', '-')} is not read by {what} (it reads {uses})")
+
+
 def run(args) -> int:
+    check_options(args, getattr(args, "bench_defaults", {}))
     if args.suite == "real":
         return _run_real(args)
     from layercam.bench.synthetic import run_analysis_table, run_bench

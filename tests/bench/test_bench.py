@@ -77,6 +77,21 @@ def test_unknown_bench_scene_is_one_line_error(tmp_path, capsys):
     assert "unknown bench scene" in err and len(err.strip().splitlines()) == 1
 
 
+@pytest.mark.parametrize("argv, says", [
+    (["--table", "layers", "--cases", "goat"], "--cases is not read by --table layers (it reads --clips"),
+    (["--table", "joins", "--clips", "cows"], "--clips is not read by --table joins"),
+    (["--suite", "real", "--table", "layers"], "--suite real and --table layers are two benchmarks"),
+    (["--suite", "real", "--seeds", "0,1"], "--seeds is not read by --suite real"),
+])
+def test_an_option_the_bench_does_not_read_is_one_line_error(tmp_path, capsys, argv, says):
+    """Given to a suite or table that ignores it (``--cases`` for the layers table, whose clips are
+    ``--clips``), an option is refused before any work, not silently dropped."""
+    out = tmp_path / "b"
+    assert main(["bench", "--out", str(out), *argv]) == 2
+    err = capsys.readouterr().err
+    assert says in err and len(err.strip().splitlines()) == 1 and not out.exists()
+
+
 def test_quick_analysis_table_chosen_against_full(tmp_path):
     rows = run_analysis_table(tmp_path / "an", quick=True, families=["static", "shake"], progress=False)
     by = {(r["family"], r["variant"]): r for r in rows}

@@ -204,7 +204,7 @@ def run_length(out: Path, data: Path, clip: str = "cows", lengths: list[int] | N
         rows = [r for r in rows if (r["clip"], r["frames"], r["size"], r["preset"]) != (row["clip"], row["frames"], row["size"], row["preset"])] + [row]
         rows.sort(key=lambda r: (r["size"], r["preset"], r["frames"]))
         write_length(out, rows)
-        say(f"{tag:>16} {preset}: {row['wall_s']:8.1f} s, peak {row['peak_rss_mb']:.0f} MB (anonymous {row['peak_anon_mb']:.0f}), estimate {row['estimate_mb']} MB")
+        say(f"{tag:>16} {preset}: {row['wall_s']:8.1f} s, peak {row['peak_rss_mb']:.0f} MiB (anonymous {row['peak_anon_mb']:.0f}), estimate {row['estimate_mb']} MiB")
     return rows
 
 
@@ -233,9 +233,10 @@ def plot_length(path: Path, rows: list[dict]) -> None:
         pts = sorted((r for r in rows if (r["size"], r["preset"]) == key), key=lambda r: r["frames"])
         x = [r["frames"] for r in pts]
         c = f"C{i}"
-        a.plot(x, [r["peak_rss_mb"] / 1000 for r in pts], "o-", color=c, label=f"{key[0]} {key[1]}: peak resident")
-        a.plot(x, [r["peak_anon_mb"] / 1000 for r in pts], "s:", color=c, label="its anonymous part")
-        a.plot(x, [r["estimate_mb"] / 1000 for r in pts], "x--", color=c, label="estimate before the work")
+        gb = lambda k: [r[k] * 2**20 / 1e9 for r in pts]  # noqa: E731 - the columns are MiB; the axis GB of 1e9 B, as the README
+        a.plot(x, gb("peak_rss_mb"), "o-", color=c, label=f"{key[0]} {key[1]}: peak resident")
+        a.plot(x, gb("peak_anon_mb"), "s:", color=c, label="its anonymous part")
+        a.plot(x, gb("estimate_mb"), "x--", color=c, label="estimate before the work")
         b.plot(x, [r["wall_s"] / 60 for r in pts], "o-", color=c, label=f"{key[0]} {key[1]}: wall")
         if all(r.get("cpu_s") for r in pts):
             b.plot(x, [r["cpu_s"] / 60 for r in pts], "s:", color=c, label="CPU (all threads)")

@@ -33,7 +33,9 @@ def _check_int(name: str, value, minimum: int) -> None:
         raise LayercamError(f"{name} must be >= {minimum}, got {value}")
 
 
-_OUT_STREAM = re.compile(r"Output #0.*?Stream #0:0.*?: Video: rawvideo[^\n]*?, (\d+)x(\d+)([^\n]*)", re.S)
+# the output stream's whole line (its newline too: on a loaded machine the log was read while ffmpeg
+# had written the line up to the size and not yet the rate, and the clip took 24 fps)
+_OUT_STREAM = re.compile(r"Output #0.*?Stream #0:0.*?: Video: rawvideo[^\n]*?, (\d+)x(\d+)([^\n]*)\n", re.S)
 
 
 _DURATION = re.compile(r"Duration: (\d+):(\d+):([\d.]+)")

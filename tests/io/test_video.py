@@ -167,3 +167,15 @@ def test_video_writer_carries_the_sound_over_unchanged_and_cut(tmp_path, codec):
     with VideoWriter(gone, fps=fps, audio={"path": str(tmp_path / "moved.mp4"), "codec": "aac", "duration": None}) as vw:
         vw.add(frames[0])
     assert not vw.audio_info["kept"] and "no longer there" in vw.audio_info["why"] and read_video(gone)[0].shape[0] == 1
+
+
+def test_the_output_stream_line_is_read_whole():
+    """The decoder's log is polled while ffmpeg writes it: a line read before its rate is written
+    must not be taken (the clip's frame rate then fell back to 24 fps on a loaded machine)."""
+    from layercam.io.video import _OUT_STREAM
+
+    head = "Input #0, mov,mp4\n  Duration: 00:00:01.00\nOutput #0, rawvideo, to 'pipe:':\n  Stream #0:0: Video: rawvideo (RGB[24] / 0x18424752), rgb24(pc), 160x96"
+    assert _OUT_STREAM.search(head) is None
+    assert _OUT_STREAM.search(head + ", q=2-31") is None
+    m = _OUT_STREAM.search(head + ", q=2-31, 368 kb/s, 8 fps, 8 tbn\n")
+    assert m and (m.group(1), m.group(2)) == ("160", "96") and "8 fps" in m.group(3)

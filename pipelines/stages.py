@@ -116,7 +116,6 @@ class TrainStage(Stage):
     deps = ("flow", "bootstrap")
     reads = ("model", "scene", "tone", "blur", "loss", "train", "static")
     all_ranks = True  # data-parallel under torch.distributed (layercam/engine/distributed.py)
-    final = True      # the run's model (ctx.model), probed by the benchmark's callbacks
 
     def options(self, ctx):
         """A long clip's alpha grid with slices shared by neighbouring frames (:data:`layercam.scene.fields.ALPHA_GRID_CELLS`;
@@ -167,15 +166,13 @@ class TrainStage(Stage):
             ctx.clip.frames, *(fl.fw, fl.bw, fl.fw_ok, fl.bw_ok) if fl is not None else (None,) * 4,
             masks=masks, device=dev, seed=distributed.rank_seed(cfg.train.seed),
         )
-        if self.final:
-            callbacks += [make(model) for make in ctx.train_callbacks]  # e.g. the benchmark's quality probe
+        callbacks += [make(model) for make in ctx.train_callbacks]  # e.g. the benchmark's quality probe
         tcfg = dataclasses.replace(cfg.train, batch=distributed.rank_batch(cfg.train.batch))  # each rank's share
         trainer = Trainer(model, sampler, tcfg, out / "ckpt.pt", callbacks, progress=ctx.progress, desc=f"{ctx.task} {self.name}")
         if (out / "ckpt.pt").exists():
             ctx.say(f"[{self.name}] resuming from {out / 'ckpt.pt'}")
         res = trainer.fit()  # its last checkpoint (out / "ckpt.pt") holds the final model
-        if self.final:
-            ctx.model = model.eval()
+        ctx.model = model.eval()
         losses = [h for h in res.history if "total" in h]
         return {
             "steps": res.steps,

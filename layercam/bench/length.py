@@ -226,6 +226,7 @@ def plot_length(path: Path, rows: list[dict]) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    from layercam.engine.estimate import MIB
     from layercam.io.atomic import atomic_write
 
     fig, (a, b) = plt.subplots(1, 2, figsize=(9, 3.6), dpi=110)
@@ -233,7 +234,7 @@ def plot_length(path: Path, rows: list[dict]) -> None:
         pts = sorted((r for r in rows if (r["size"], r["preset"]) == key), key=lambda r: r["frames"])
         x = [r["frames"] for r in pts]
         c = f"C{i}"
-        gb = lambda k: [r[k] * 2**20 / 1e9 for r in pts]  # noqa: E731 - the columns are MiB; the axis GB of 1e9 B, as the README
+        gb = lambda k: [r[k] * MIB / 1000 for r in pts]  # noqa: E731 - the columns are MiB; the axis GB of 1e9 B, as the README
         a.plot(x, gb("peak_rss_mb"), "o-", color=c, label=f"{key[0]} {key[1]}: peak resident")
         a.plot(x, gb("peak_anon_mb"), "s:", color=c, label="its anonymous part")
         a.plot(x, gb("estimate_mb"), "x--", color=c, label="estimate before the work")

@@ -12,12 +12,10 @@ import numpy as np
 from layercam.core.errors import LayercamError
 
 
-# Frames that two neighbouring windows share and cross-fade over (fewer for windows under three
-# times this long: a third of the window). A join that moves each frame 1/(OVERLAP + 1) of the
-# way from one window's estimate to the other's changes a static pixel by an eighth of their
-# difference per frame, under the frame-to-frame flicker the clips measure (docs/measurements.md).
-# Rounded down to whole exposure cycles, so that both windows see each exposure of the overlap.
-OVERLAP = 8
+# The shortest window the automatic plan cuts (a camera too fast for the atlas, or the clip's last
+# frames): its overlap of a third is then 8 frames, a join that moves each frame 1/9 of the way from
+# one window's estimate to the other's.
+MIN_WINDOW = 24
 
 
 @dataclass
@@ -61,9 +59,13 @@ class Plan:
 
 
 def overlap_for(length: int, cycle: int) -> int:
-    """The overlap of windows ``length`` frames long on a clip whose exposures repeat every
-    ``cycle`` frames: :data:`OVERLAP`, at most a third of the window, whole cycles where it can."""
-    v = min(OVERLAP, length // 3)
+    """The frames two neighbouring windows ``length`` frames long share and cross-fade over, on a clip
+    whose exposures repeat every ``cycle`` frames: a third of the window, rounded down to whole cycles
+    where it can (so that both windows see each exposure of the overlap). A share of the window, not
+    a count: a window's model knows only its frames, so its last ones (whose scene continues in frames
+    it does not hold) fit worse than the same frames in the middle of a window, and the fade must reach
+    into frames both windows fit well (docs/measurements.md, 2026-11-28)."""
+    v = length // 3
     if v >= cycle:
         v -= v % cycle
     return max(v, 1)
@@ -154,7 +156,7 @@ def plan(clip, exposures, flow, task: str, window=None) -> Plan:
     pixel over the frames' extent in the atlas, :func:`atlas_px`: the camera's motion). A clip
     that needs more (a long pan) is cut into the longest windows that need no more, overlapping by
     :func:`overlap_for` (a frame larger than the grid alone: as much as one frame needs; a window
-    never shorter than three overlaps). A static camera's clip fits at any length.
+    never shorter than MIN_WINDOW). A static camera's clip fits at any length.
     """
     from layercam.scene.layered import GRID_RES_RANGE
 
@@ -180,7 +182,7 @@ def plan(clip, exposures, flow, task: str, window=None) -> Plan:
     hw = (clip.H, clip.W)
     cap = max(float(GRID_MAX_RES), max(hw) / 0.9)  # geometry.atlas_mappings: a frame fills 0.9 of the atlas
     whole = atlas_px(homs, 0, T, hw)
-    floor = 3 * OVERLAP
+    floor = MIN_WINDOW
     if whole <= cap or T < 2 * floor:
         why = f"needs {whole:.0f} px across the atlas at one cell per pixel, within the {cap:.0f} it holds" if whole <= cap else \
               f"needs {whole:.0f} px across the atlas, more than the {cap:.0f} it holds, but is shorter than two windows of {floor} frames"

@@ -3,8 +3,8 @@ sharing one camera.
 
 Each case is a clip of ``frames`` frames (default :data:`FRAMES`), run twice with ``layercam hdr-video``
 (one process each, ``threads`` torch threads, ``nice -n 10``): ``--window off`` (one model) and
-``--window N`` with N = :func:`two_windows` (two windows overlapping by
-:data:`layercam.pipelines.window_plan.OVERLAP`, 52 frames each for 96; the second holds window 0's
+``--window N`` with N = :func:`two_windows` (two windows overlapping by a third of their length,
+57 frames each for 96; the second holds window 0's
 camera fixed).
 
 * ``composite``: the real-suite composite (``layercam.bench.realsuite.composite``: DAVIS parkour's person
@@ -13,7 +13,7 @@ camera fixed).
   Scores: PSNR-mu of each frame against the truth (one scale per channel for the whole clip).
 * ``basler``: ``altexp_video_basler/clip_2exp_3stop.mp4`` (74 frames, alternating 3 EV), played
   back and forth to ``frames`` (:func:`centred`: 11 + 74 + 11 frames for 96, so that each window
-  holds 41 distinct frames). No truth: each frame's PSNR-mu against the one-model run's frame.
+  holds 46 distinct frames). No truth: each frame's PSNR-mu against the one-model run's frame.
 
 Both: flicker of each pair of neighbouring frames (``layercam.bench.realsuite.measures.flicker``: the
 preview's tonemap over the whole clip, 8-bit codes on the input's registered static pixels), so
@@ -44,11 +44,16 @@ QUICK_FRAMES = 24
 QUICK = ["train.steps=20", "train.bootstrap_steps=2", "train.batch=512"]
 
 
-def two_windows(T: int) -> int:
-    """The window length that cuts ``T`` frames into two windows overlapping by ``OVERLAP`` (52 for 96)."""
-    from layercam.pipelines.window_plan import OVERLAP
+def two_windows(T: int, cycle: int = 2) -> int:
+    """The shortest window length that cuts ``T`` frames (exposures repeating every ``cycle``) into
+    two windows overlapping by :func:`layercam.pipelines.window_plan.overlap_for` (57 for 96: windows
+    of 57 frames overlapping by 18)."""
+    from layercam.pipelines.window_plan import overlap_for
 
-    return (T + 1) // 2 + OVERLAP // 2
+    n = (T + 1) // 2
+    while 2 * n - overlap_for(n, cycle) < T:
+        n += 1
+    return n
 
 
 def forth_and_back(n: int, length: int, first: int = 0) -> list[int]:

@@ -51,13 +51,13 @@ def windowed(tmp_path_factory, long_frames):
 
 # -- the plan ----------------------------------------------------------------------------------------
 def test_split_covers_the_clip_with_equal_overlaps():
-    w = window_plan.split(96, 52, 2)
-    assert w == [(0, 52), (44, 96)]
+    w = window_plan.split(96, 57, 2)
+    assert w == [(0, 57), (39, 96)]
     p = window_plan.Plan(w, "")
-    assert p.overlaps() == [8]
-    assert p.weights(43) == [(0, 1.0)] and p.weights(96 - 1) == [(1, 1.0)]
-    fades = [dict(p.weights(t))[1] for t in range(44, 52)]
-    assert np.allclose(fades, np.arange(1, 9) / 9)  # a linear cross-fade, never 0 or 1 inside the overlap
+    assert p.overlaps() == [18]  # a third of the window, whole exposure cycles
+    assert p.weights(38) == [(0, 1.0)] and p.weights(96 - 1) == [(1, 1.0)]
+    fades = [dict(p.weights(t))[1] for t in range(39, 57)]
+    assert np.allclose(fades, np.arange(1, 19) / 19)  # a linear cross-fade, never 0 or 1 inside the overlap
 
 
 @settings(max_examples=200, deadline=None)

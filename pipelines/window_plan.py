@@ -62,9 +62,9 @@ def overlap_for(length: int, cycle: int) -> int:
     """The frames two neighbouring windows ``length`` frames long share and cross-fade over, on a clip
     whose exposures repeat every ``cycle`` frames: a third of the window, rounded down to whole cycles
     where it can (so that both windows see each exposure of the overlap). A share of the window, not
-    a count: a window's model knows only its frames, so its last ones (whose scene continues in frames
-    it does not hold) fit worse than the same frames in the middle of a window, and the fade must reach
-    into frames both windows fit well (docs/measurements.md, 2026-11-28)."""
+    a count: a window's model knows only its frames, so frames near its end (whose background the
+    frames after the window may show better) fit worse than in a window that also holds those, and the
+    fade must reach into frames both windows fit well (docs/measurements.md, 2026-11-28)."""
     v = length // 3
     if v >= cycle:
         v -= v % cycle

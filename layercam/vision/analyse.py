@@ -61,9 +61,9 @@ MIN_TILES = 3                # a pair with fewer comparable tiles says nothing a
 MIN_TILE_FRACTION = 0.25     # ... nor one with under this fraction of the median pair's comparable tiles:
                              # 5 of 6 tiles of one pair of a sharp composite (37 elsewhere) chose a blur
                              # generator for an alternating-exposure video without blur
-BLUR_PAIR_SHARE = 0.25       # ... in more than this share of the pairs measured (every pair of a clip of two
-                             # frames): a count of pairs grew false positives with a clip's length
-                             # (a sharp 96-frame composite: 2 pairs of 26); camera shake: 43-100% (docs/measurements.md)
+BLUR_PAIR_SHARE = 0.25       # ... in more than this share of the pairs measured (a clip of two frames: its
+                             # pair): a share, not a count, so that a long clip's stray pairs do not add
+                             # up to a blur generator (docs/measurements.md, 2026-11-28)
 MAX_BLUR_PAIRS = 32          # pairs compared for blur, evenly spread over a long clip
 BLUR_5X5_SIGMA = 2.5         # beyond this a 3x3 patch cannot reach: 5x5
 OFFSET_PER_SIGMA = 5.0       # max offset (px) per px of relative blur: the energy match underestimates

@@ -182,18 +182,17 @@ def plan(clip, exposures, flow, task: str, window=None) -> Plan:
     hw = (clip.H, clip.W)
     cap = max(float(GRID_MAX_RES), max(hw) / 0.9)  # geometry.atlas_mappings: a frame fills 0.9 of the atlas
     whole = atlas_px(homs, 0, T, hw)
-    floor = MIN_WINDOW
-    if whole <= cap or T < 2 * floor:
+    if whole <= cap or T < 2 * MIN_WINDOW:
         why = f"needs {whole:.0f} px across the atlas at one cell per pixel, within the {cap:.0f} it holds" if whole <= cap else \
-              f"needs {whole:.0f} px across the atlas, more than the {cap:.0f} it holds, but is shorter than two windows of {floor} frames"
+              f"needs {whole:.0f} px across the atlas, more than the {cap:.0f} it holds, but is shorter than two windows of {MIN_WINDOW} frames"
         return Plan([(0, T)], f"one model: the camera's motion over the {T} frames {why} (--window N cuts it)", atlas_px=[whole])
     out, sizes, a = [], [], 0
     while True:
         b = a + 2
         while b < T and atlas_px(homs, a, b + 1, hw) <= cap:
             b += 1
-        b = min(max(b, a + floor), T)  # a camera too fast for the atlas: windows of the shortest length
-        if T - b < floor // 2 and b < T:  # what is left would be a sliver: this window takes it
+        b = min(max(b, a + MIN_WINDOW), T)  # a camera too fast for the atlas: windows of the shortest length
+        if T - b < MIN_WINDOW // 2 and b < T:  # what is left would be a sliver: this window takes it
             b = T
         out.append((a, b))
         sizes.append(atlas_px(homs, a, b, hw))

@@ -301,8 +301,7 @@ def decide(cfg: Config, clip, exposures, task: str, measures: dict | None = None
     sigma = mm.get("max_blur_sigma", 0.0)
     shares = [v for v in mm.get("blur_tile_share", []) if v is not None]
     over = sum(v >= BLUR_TILE_SHARE for v in shares)  # pairs that differ
-    few = 0 < over <= BLUR_PAIR_SHARE * len(shares)
-    measured = bool(measures) and over > 0 and not few
+    measured = bool(measures) and over > BLUR_PAIR_SHARE * len(shares)
     if not forced("model.blur", m.blur):
         if measured:
             m.blur = "on"
@@ -311,7 +310,7 @@ def decide(cfg: Config, clip, exposures, task: str, measures: dict | None = None
             m.blur = "off"
             if not measures:
                 r["blur"] = "no blur expected (nothing measured)"
-            elif few:
+            elif over:  # some pairs differ, too few of them
                 r["blur"] = f"sharpness differs by {BLUR_SIGMA} px on at least {BLUR_TILE_SHARE:.0%} of the tiles in only {over} of {len(shares)} pairs measured (more than {BLUR_PAIR_SHARE:.0%} needed): not the camera"
             elif mm.get("blur_pairs_measured", 0) == 0:
                 r["blur"] = "no pair of frames has enough texture that both see well to compare sharpness"

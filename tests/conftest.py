@@ -98,8 +98,6 @@ def decided(cfg=None, h0=None, frame_hw=(16, 16), static: bool = False, *, layer
     cfg = (load_config("fast") if cfg is None else cfg).copy()
     for item in model_overrides(layers, tone_mapper, blur, max_offset, flow_loss) + [f"model.exposures={exposures}"]:
         cfg.set(*item.split("=", 1))
-    if cfg.blur.n == "auto":
-        cfg.blur.n = 3
     h0 = np.tile(np.eye(3)[None, None], (layers, 2, 1, 1)) if h0 is None else h0
     r = resolve(cfg, frames=np.asarray(h0).shape[1], hw=frame_hw)
     return dataclasses.replace(r, static=static) if static else r

@@ -83,8 +83,6 @@ def costliest(cfg, task: str, frames: int, hw: tuple[int, int] = (2, 2)):
         m.blur = "on" if task in ("deblur-video", "fuse-stack") else "off"
     if m.flow_loss == AUTO:
         m.flow_loss = frames > 1
-    if b.n == AUTO:
-        b.n = 5 if m.blur == "on" else 3
     if b.max_offset == AUTO:
         b.max_offset = 5.0
     return c

@@ -8,8 +8,8 @@ stage's cache key hashes the part of it that the stage reads.
 
 What it decides, each with a reason in ``Resolved.reasons`` (keyed ``section.field``):
 
-* the model's components (``model.*``) and the blur generator's shape (``blur.n``,
-  ``blur.max_offset``), the colour loss (``loss.robust``): :func:`layercam.vision.analyse.decide`;
+* the model's components (``model.*``) and the blur generator's reach (``blur.max_offset``),
+  the colour loss (``loss.robust``): :func:`layercam.vision.analyse.decide`;
 * ``static``: the camera did not move (the flow's chained homographies move no frame corner by
   :data:`layercam.core.geometry.STATIC_CORNER_PX`; with ``scene.bootstrap=flow``). A static one-layer
   scene then has no residual warp and blur PSFs centred on their pixel, a static two-layer scene
@@ -94,7 +94,7 @@ def resolve(cfg: Config, clip=None, exposures=None, task: str = "hdr-video", mea
 
         exposures = Exposures(np.zeros(clip.T), "none", None, "none", "single")
     cfg, why = analyse.decide(cfg, clip, exposures, task, measures)
-    reasons = {(k if "." in k else (f"blur.{k}" if k in ("n", "max_offset") else f"model.{k}")): v for k, v in why.items()}
+    reasons = {(k if "." in k else (f"blur.{k}" if k == "max_offset" else f"model.{k}")): v for k, v in why.items()}
     mm = measures or {}
 
     shift = mm.get("corner_shift_px")

@@ -65,7 +65,6 @@ BLUR_PAIR_SHARE = 0.25       # ... in more than this share of the pairs measured
                              # pair): a share, not a count, so that a long clip's stray pairs do not add
                              # up to a blur generator (docs/measurements.md, 2026-11-28)
 MAX_BLUR_PAIRS = 32          # pairs compared for blur, evenly spread over a long clip
-BLUR_5X5_SIGMA = 2.5         # beyond this a 3x3 patch cannot reach: 5x5
 OFFSET_PER_SIGMA = 5.0       # max offset (px) per px of relative blur: the energy match underestimates
                              # motion and disc blur (8 px shake reads as sigma ~0.9; s = 5 in the paper)
 
@@ -239,8 +238,8 @@ MODEL_KEYS = ("layers", "tone_mapper", "exposures", "blur", "max_offset", "flow_
 
 def decide(cfg: Config, clip, exposures, task: str, measures: dict | None = None) -> tuple[Config, dict]:
     """The analysis's choices written into a copy of ``cfg``: each ``auto`` of the ``model`` section
-    (layers, tone mapper, exposures, blur generator, flow loss) and of the blur generator's ``n``
-    and ``max_offset``; returns ``(cfg, reasons)``, one measured reason per choice. A value that is
+    (layers, tone mapper, exposures, blur generator, flow loss) and the blur generator's
+    ``max_offset``; returns ``(cfg, reasons)``, one measured reason per choice. A value that is
     not ``auto`` (a flag such as ``--layers 2``, or ``--set``) is kept and its reason says so.
     Without ``measures`` (no flow yet) only the exposure-based choices are informed.
     """
@@ -321,8 +320,6 @@ def decide(cfg: Config, clip, exposures, task: str, measures: dict | None = None
                 r["blur"] += "; a frame is sharpened from sharper views of the same place, so the frames come out as sharp as they went in (--blur 3x3 forces the blur generator)"
     if cfg.loss.robust == AUTO:  # an exposure bracket (a stack without a blur generator to fit by its edges)
         cfg.loss.robust = ROBUST_STACK if task == "fuse-stack" and m.blur == "off" else 0.0
-    if not forced("blur.n", b.n):
-        b.n = 5 if measured and sigma >= BLUR_5X5_SIGMA else 3
     if not forced("blur.max_offset", b.max_offset):
         if m.blur == "off":
             b.max_offset, r["max_offset"] = 5.0, "unused (blur off)"

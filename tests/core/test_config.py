@@ -63,7 +63,7 @@ def test_cli_refuses_before_any_stage_runs(item, tmp_path, capsys):
 def test_flags_become_settings():
     assert model_overrides(2, "fixed", "5x5", 2.0, "off") == ["model.layers=2", "model.tone_mapper=fixed", "model.blur=on", "blur.n=5", "blur.max_offset=2.0", "model.flow_loss=off"]
     cfg = load_config("fast", model_overrides(blur="off"))
-    assert cfg.model.blur == "off" and cfg.blur.n == "auto"
+    assert cfg.model.blur == "off" and cfg.blur.n == 3
     with pytest.raises(LayercamError, match="blur must be off or NxN"):
         model_overrides(blur="big")
 
@@ -92,7 +92,7 @@ def test_every_section_is_reachable_by_set():
 def test_auto_is_left_to_the_analysis():
     cfg = load_config("balanced")
     autos = {f"{sec}.{k}" for sec, d in cfg.to_dict().items() if isinstance(d, dict) for k, v in d.items() if v == AUTO}
-    assert autos == {"model.layers", "model.tone_mapper", "model.exposures", "model.blur", "model.flow_loss", "blur.n", "blur.max_offset", "loss.robust",
+    assert autos == {"model.layers", "model.tone_mapper", "model.exposures", "model.blur", "model.flow_loss", "blur.max_offset", "loss.robust",
                      "train.autocast", "train.device", "export.merge_neighbours", "export.denoise"}
     paper = load_config("paper")  # the paper's n = 3, s = 5 are set, not derived
     assert (paper.blur.n, paper.blur.max_offset) == (3, 5.0)

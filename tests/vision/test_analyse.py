@@ -104,8 +104,11 @@ def test_blurred_frames_get_a_blur_generator():
     tex = _texture(64, 64)
     frames = np.stack([tex, cv2.GaussianBlur(tex, (0, 0), 2.0), tex, cv2.GaussianBlur(tex, (0, 0), 1.5)])
     spec, m = _decide(frames)
-    assert spec.blur in ("3x3", "5x5"), m["blur_tile_share"]
+    assert spec.blur == "3x3", m["blur_tile_share"]  # the paper's patch: its offsets reach the blur
     assert 2 <= spec.max_offset <= 8
+    wide = np.stack([tex, cv2.GaussianBlur(tex, (0, 0), 4.0), tex, cv2.GaussianBlur(tex, (0, 0), 4.0)])
+    spec, m = _decide(wide)
+    assert spec.blur == "3x3" and spec.max_offset == 8, (m["blur_tile_share"], m["max_blur_sigma"])
 
 
 def test_two_exposures_learn_a_tone_mapper_and_flags_force_choices():

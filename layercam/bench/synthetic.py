@@ -315,7 +315,7 @@ ANALYSIS_FAMILIES = {
     "shake": ("shake_blur", {"frames": 10, "size": (96, 96)}, {"frames": 3, "size": (48, 48)}, "deblur-video"),  # 48 px: smaller frames have too few tiles to compare sharpness
     "mfme": ("mfme_stack", {"size": (96, 96)}, {"size": (24, 24)}, "fuse-stack"),
 }
-FULL_MODEL = {"layers": 2, "tone_mapper": "learned", "blur": "5x5", "max_offset": 5.0, "flow_loss": True}  # presets.model_overrides
+FULL_MODEL = {"layers": 2, "tone_mapper": "learned", "blur": "3x3", "max_offset": 5.0, "flow_loss": True}  # the paper's (n = 3, s = 5); presets.model_overrides
 
 
 def analysis_job(name: str, variant: str, out: Path, preset: str, quick: bool, overrides_cfg: list[str]) -> dict:

@@ -99,7 +99,7 @@ def test_quick_analysis_table_chosen_against_full(tmp_path):
     # the analysis keeps the static, single-exposure, sharp clip minimal; the full model is forced
     assert by["static", "chosen"]["layers"] == 1 and by["static", "chosen"]["blur"] == "off"
     assert by["static", "chosen"]["tone_mapper"] == "fixed"
-    assert by["static", "full"]["layers"] == 2 and by["static", "full"]["blur"] == "5x5"
+    assert by["static", "full"]["layers"] == 2 and by["static", "full"]["blur"] == "3x3"
     assert by["shake", "chosen"]["blur"] != "off"
     assert all(np.isfinite(r["value"]) and r["reasons"] for r in rows)
     md = (tmp_path / "an" / "analysis_table.md").read_text()

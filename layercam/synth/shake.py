@@ -51,6 +51,7 @@ def shake_blur(
     noise: float = 0.005,
     seed: int = 0,
     speed: tuple[float, float] = (0.5, 1.5),
+    canvas: np.ndarray | None = None,
 ) -> SynthScene:
     """Camera-shake motion blur: each frame is the mean, in linear irradiance, of 9-15
     sub-frame renders along a random smooth trajectory around the frame's pose (a slow pan).
@@ -61,6 +62,10 @@ def shake_blur(
     "single" (all ``t=1``, background median at 0.18) or "alternating" (``1, 2**ev_step``).
     meta: ``blur_length`` (T,), ``trajectories`` (list of (n,2) pixel offsets of the content
     sample point), ``kernels`` (T,2m+1,2m+1) correlation kernels (see ``_splat_kernel``).
+
+    ``canvas``: a linear irradiance image ``(Hc, Wc, 3)`` (real material) shaken instead of a
+    generated one, exposed as given (``exposures="single"``, gain 1); the path is centred on it and
+    must fit (a :class:`LayercamError` says how large a canvas it needs).
     """
     h, w = _check_common(frames, size, crf, noise)
     if exposures not in ("single", "alternating"):
@@ -70,9 +75,18 @@ def shake_blur(
     rng = np.random.default_rng(seed)
     ctr, scale = _pan_path(rng, frames, h, w, speed, 0.0)
     csize, off = _canvas_for_path(ctr, scale, h, w, margin=8, extra=max_blur_px + 2)
-    ctr_abs = ctr + off
-    n_em = max(3, int(round(csize[0] * csize[1] / 6000)))
-    canvas, info = hdr_canvas(csize, rng, emitters=_emitters_along(rng, ctr_abs, h, w, n_em))
+    if canvas is None:
+        ctr_abs = ctr + off
+        n_em = max(3, int(round(csize[0] * csize[1] / 6000)))
+        canvas, info = hdr_canvas(csize, rng, emitters=_emitters_along(rng, ctr_abs, h, w, n_em))
+    else:
+        canvas = np.asarray(canvas, np.float32)
+        if canvas.ndim != 3 or canvas.shape[2] != 3 or canvas.shape[0] < csize[0] or canvas.shape[1] < csize[1]:
+            raise LayercamError(f"canvas {canvas.shape} cannot hold this path: it needs (H, W, 3) of at least {csize[0]}x{csize[1]}")
+        ctr_abs = ctr + off + np.array([canvas.shape[1] - csize[1], canvas.shape[0] - csize[0]]) / 2.0
+        if exposures != "single":
+            raise LayercamError("a given canvas is exposed as given: exposures must be 'single'")
+        info = {"median": 0.18, "emitters": []}  # gain 0.18 / median = 1
     lengths = rng.permutation(np.linspace(0.2, max_blur_px, frames))
     aff = np.stack([_affine(ctr_abs[t, 0], ctr_abs[t, 1], 1.0, h, w) for t in range(frames)])
     m = int(np.ceil(max_blur_px)) + 1

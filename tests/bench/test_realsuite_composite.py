@@ -63,3 +63,24 @@ def test_too_few_foreground_frames_is_an_error():
     bg, fg, alpha = _material(frames=2)
     with pytest.raises(LayercamError, match="foreground has 2 frames"):
         compose(bg, fg, alpha, CompositeSpec(frames=4, size=(24, 32)))
+
+
+def test_shaken_still_is_the_still_blurred_along_known_paths():
+    """``shake_still``: the still's view per frame, its sharp frame noise-free at the path's mid point,
+    and a frame blurred more where its path is longer."""
+    from layercam.bench.realsuite.composite import ShakeSpec, shake_still
+
+    rng = np.random.default_rng(1)
+    still = np.clip(rng.uniform(0.0, 1.0, (90, 120, 3)), 0, 1).astype(np.float32) ** 2.2  # linear, textured
+    spec = ShakeSpec(frames=4, size=(40, 56), max_blur_px=6.0, noise=0.0)
+    r = shake_still(still, spec)
+    assert r["frames"].shape == (4, 40, 56, 3) and r["frames"].dtype == np.uint8 and r["sharp"].shape == (4, 40, 56, 3)
+    lengths = r["blur_length"]
+    assert lengths.min() == pytest.approx(0.2) and lengths.max() == pytest.approx(6.0)
+    err = [float(np.abs(r["frames"][t] / 255.0 - r["sharp"][t]).mean()) for t in range(4)]
+    assert err[int(np.argmax(lengths))] > 3 * err[int(np.argmin(lengths))]
+    # exposed as given: a flat still of linear 0.2 is sRGB 0.4845 (code 124) in every frame
+    flat = shake_still(np.full((90, 120, 3), 0.2, np.float32), spec)
+    assert np.all(flat["sharp"] == np.float32(124 / 255)) and np.all(flat["frames"] == 124)
+    with pytest.raises(LayercamError, match="cannot hold this path"):
+        shake_still(still[:30, :40], spec)

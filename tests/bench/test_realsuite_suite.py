@@ -34,6 +34,21 @@ def test_real_suite_smoke_on_one_ntire_case(tmp_path, shared_data, capsys):
     assert (out / "cases/ntire-000000/layercam-fast/result.json").stat().st_mtime == stamp
 
 
+@pytest.mark.data
+def test_real_suite_shaken_still_scores_against_its_own_sharp_frames(tmp_path, shared_data):
+    """``gopro-shake``: a real sharp frame shaken along known paths, rendered once, scored (input,
+    the classical baselines, layercam) against the sharp frames it was made from."""
+    out = tmp_path / "real"
+    args = ["bench", "--suite", "real", "--quick", "--cases", "gopro-shake", "--presets", "fast", "--out", str(out), "--data", str(shared_data)]
+    assert main(args) == 0
+    rows = {r["method"]: r for r in csv.DictReader(open(out / "real_suite.csv"))}
+    assert set(rows) == {"input", "unsharp", "lucky", "layercam"}
+    assert float(rows["input"]["gain_db"]) == 0.0 and 20 < float(rows["input"]["psnr"]) < 60
+    assert np.isfinite(float(rows["layercam"]["psnr"])) and rows["layercam"]["truth"] == "truth"
+    z = np.load(out / "cases/gopro-shake/inputs/shake.npz")
+    assert z["sharp"].shape == (3, 48, 64, 3) and len(list((out / "cases/gopro-shake/inputs/frames").glob("*.png"))) == 3
+
+
 def test_real_suite_unknown_case_and_missing_data_are_one_line_errors(tmp_path, capsys):
     assert main(["bench", "--suite", "real", "--cases", "nope", "--out", str(tmp_path / "r")]) == 2
     err = capsys.readouterr().err

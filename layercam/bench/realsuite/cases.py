@@ -16,7 +16,9 @@ Groups:
 * ``deblur``: ``deblur_gopro0477_dev``, 12 blurry frames made from real 240 fps GoPro footage,
   run through ``deblur-video`` at half size (640x360) and scored (PSNR, SSIM, sRGB) against the
   sharp frames (the middle 240 fps frame of each blurry frame's window), next to the blurry input
-  itself (the floor) and the classical deblurring a user could run.
+  itself (the floor) and the classical deblurring a user could run. ``gopro-shake``: one of its
+  sharp frames, still, shaken along known hand-held paths (:class:`ShakeSpec`): the camera shake
+  alone, where the method's assumptions hold, scored the same way against the sharp frames.
 """
 
 from __future__ import annotations
@@ -27,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from layercam.core.errors import LayercamError
-from layercam.bench.realsuite.composite import CompositeSpec, read_image_list
+from layercam.bench.realsuite.composite import CompositeSpec, ShakeSpec, read_image_list
 
 __all__ = ["Case", "CASES", "case_inputs", "load_inputs", "load_truth", "read_prediction"]
 
@@ -62,6 +64,8 @@ def _cases() -> list[Case]:
         Case("basler", "video", "none", "hdr-video", "altexp_video_basler/clip_2exp_3stop.mp4: real alternating 3 EV video, 256x136, person walking", {"video": "altexp_video_basler/clip_2exp_3stop.mp4"}),
         Case("gopro-0477", "deblur", "truth", "deblur-video", "deblur_gopro0477_dev: 12 blurry frames (15 frames of real 240 fps GoPro footage averaged), hand-held, a dribbling player; --resize 0.5 (640x360)",
              {"folder": "deblur_gopro0477_dev", "resize": "0.5"}),
+        Case("gopro-shake", "deblur", "truth", "deblur-video", "a still: deblur_gopro0477_dev's sharp frame 6 at 640x360, shaken along known hand-held paths (blur 0.2-8 px, linear light, 8 bit); 12 frames 448x256",
+             {"shake": True}),
     ]
     return out
 
@@ -73,6 +77,10 @@ def composite_spec(case: Case, quick: bool) -> CompositeSpec:
     if quick:
         return CompositeSpec(frames=6, size=(48, 64), ev_step=case.params["ev_step"])
     return CompositeSpec(ev_step=case.params["ev_step"])
+
+
+def shake_spec(quick: bool) -> ShakeSpec:
+    return ShakeSpec(frames=3, size=(48, 64), max_blur_px=3.0) if quick else ShakeSpec()
 
 
 def _need(path: Path) -> Path:
@@ -109,6 +117,9 @@ def case_inputs(case: Case, case_dir: Path, data: Path, quick: bool = False, max
         n = 6 if quick else max_frames
         extra = ["--max-frames", str(n)] if n else []
         return {"paths": video, "argv": [str(video), "--exposures", "alt", "--ev-step", "3", *extra], "load": {"max_frames": n}}
+    if case.group == "deblur" and case.params.get("shake"):
+        frames_dir = inp / "frames"
+        return {"paths": frames_dir, "argv": [str(frames_dir)], "load": {}}
     if case.group == "deblur":
         blur = _need(data / case.params["folder"] / "blur")
         n = 3 if quick else max_frames
@@ -152,6 +163,12 @@ def load_truth(case: Case, case_dir: Path, data: Path, frames: np.ndarray, times
         return {k: z[k] for k in z.files}
     if case.group == "video":
         return None
+    if case.group == "deblur" and case.params.get("shake"):
+        out = {"sharp": np.load(Path(case_dir) / "inputs" / "shake.npz")["sharp"]}
+        if out["sharp"].shape != frames.shape:
+            raise LayercamError(f"{case.name}: the sharp frames {out['sharp'].shape} do not match the shaken ones {frames.shape}")
+        np.savez(cache, **out)
+        return out
     if case.group == "deblur":
         from layercam.io import load_clip
 
@@ -218,17 +235,11 @@ def prepare_composite(case: Case, case_dir: Path, data: Path, shared_dir: Path, 
     """Render the composite's frames into ``case_dir/inputs/frames`` and its ground truth into
     ``inputs/composite.npz`` unless they are there for the same spec. The background radiance map
     is cached in ``shared_dir`` for every composite."""
-    import json
-
-    import cv2
-
     from layercam.bench.realsuite.composite import compose, load_background, load_foreground
 
     spec = composite_spec(case, quick)
-    inp = Path(case_dir) / "inputs"
-    npz = inp / "composite.npz"
-    key = json.dumps(spec.key(), sort_keys=True)
-    if npz.exists() and str(np.load(npz)["spec"]) == key:
+    npz, key = _rendered(case_dir, "composite.npz", spec)
+    if npz is None:
         return
     shared_dir.mkdir(parents=True, exist_ok=True)
     bg_path = shared_dir / "taipei_radiance.npy"
@@ -236,14 +247,46 @@ def prepare_composite(case: Case, case_dir: Path, data: Path, shared_dir: Path, 
         np.save(bg_path, load_background(data))
     rgb, alpha = load_foreground(data, spec.fg_clip, spec.frames)
     res = compose(np.load(bg_path), rgb, alpha, spec)
-    frames_dir = inp / "frames"
+    _write_frames(case_dir, res["frames"])
+    np.savez(npz, hdr=res["hdr"], alpha=res["alpha"], times=res["times"], spec=key)
+
+
+def _rendered(case_dir: Path, name: str, spec) -> tuple[Path | None, str]:
+    """``(inputs/name, spec's key)``, or ``(None, key)`` when that file holds this spec's render already."""
+    import json
+
+    npz = Path(case_dir) / "inputs" / name
+    key = json.dumps(spec.key(), sort_keys=True)
+    return (None if npz.exists() and str(np.load(npz)["spec"]) == key else npz), key
+
+
+def _write_frames(case_dir: Path, frames: np.ndarray) -> None:
+    """A rendered clip's uint8 RGB frames as ``inputs/frames/frame_NNN.png`` (replacing any there);
+    the case's cached truth goes with them."""
+    import cv2
+
+    frames_dir = Path(case_dir) / "inputs" / "frames"
     frames_dir.mkdir(parents=True, exist_ok=True)
     for old in frames_dir.glob("*.png"):
         old.unlink()
-    for t, f in enumerate(res["frames"]):
+    for t, f in enumerate(frames):
         cv2.imwrite(str(frames_dir / f"frame_{t:03d}.png"), np.ascontiguousarray(f[..., ::-1]))
     (Path(case_dir) / "truth.npz").unlink(missing_ok=True)
-    np.savez(npz, hdr=res["hdr"], alpha=res["alpha"], times=res["times"], spec=key)
+
+
+def prepare_shake(case: Case, case_dir: Path, data: Path, quick: bool) -> None:
+    """Render ``gopro-shake``'s frames into ``case_dir/inputs/frames`` and its sharp frames into
+    ``inputs/shake.npz`` unless they are there for the same spec."""
+    from layercam.bench.realsuite.composite import load_still, shake_still
+
+    spec = shake_spec(quick)
+    npz, key = _rendered(case_dir, "shake.npz", spec)
+    if npz is None:
+        return
+    _need(Path(data) / spec.source)
+    res = shake_still(load_still(data, spec), spec)
+    _write_frames(case_dir, res["frames"])
+    np.savez(npz, sharp=res["sharp"], blur_length=res["blur_length"], spec=key)
 
 
 def read_prediction(case: Case, run_dir: Path, n: int) -> np.ndarray:

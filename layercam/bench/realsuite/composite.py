@@ -12,6 +12,11 @@ per channel) and quantised to 8 bits.
 
 :func:`compose` is pure (arrays in, arrays out; seeded); :func:`load_background` and
 :func:`load_foreground` read the shared captures.
+
+Camera shake over a real still (:class:`ShakeSpec`, :func:`shake_still`): a sharp frame of real
+footage, linearised, shaken along known hand-held paths and blurred in linear light; the sharp frames
+(each at its path's mid point) are the truth. It isolates what deblurring a hand-held clip needs when
+nothing in it moves on its own.
 """
 
 from __future__ import annotations
@@ -23,7 +28,7 @@ import numpy as np
 
 from layercam.core.errors import LayercamError
 
-__all__ = ["CompositeSpec", "filmic", "compose", "expose", "load_background", "load_foreground"]
+__all__ = ["CompositeSpec", "filmic", "compose", "expose", "load_background", "load_foreground", "ShakeSpec", "shake_still", "load_still"]
 
 # Hable's filmic curve constants (shoulder, linear, toe strengths and angles)
 _A, _B, _C, _D, _E, _F = 0.15, 0.50, 0.10, 0.20, 0.02, 0.30
@@ -137,6 +142,51 @@ def compose(background: np.ndarray, fg_rgb: np.ndarray, fg_alpha: np.ndarray, sp
     hdr = alpha[..., None] * fg * k + (1.0 - alpha[..., None]) * bg
     frames = expose(hdr, times, np.random.default_rng(spec.seed), spec)
     return {"frames": frames, "hdr": hdr.astype(np.float32), "alpha": alpha.astype(np.float32), "times": times}
+
+
+# -- camera shake over a real still ------------------------------------------------------------
+@dataclass(frozen=True)
+class ShakeSpec:
+    """A real still frame shaken by a hand-held camera: ``frames`` of ``size`` (H, W), each the mean
+    in linear light of sub-frames along a smooth random path whose extent runs from 0.2 px to
+    ``max_blur_px`` over the clip (shuffled), around a slow pan; sRGB, noise of sd ``noise``, 8 bits
+    (:func:`layercam.synth.shake_blur` with the still as its canvas). The still is ``source``'s
+    sharp frame ``still`` at ``scale``."""
+
+    frames: int = 12
+    size: tuple[int, int] = (256, 448)
+    max_blur_px: float = 8.0
+    noise: float = 0.005
+    seed: int = 0
+    source: str = "deblur_gopro0477_dev"
+    still: int = 6
+    scale: float = 0.5
+
+    def key(self) -> dict:
+        return asdict(self)
+
+
+def load_still(data: Path, spec: ShakeSpec) -> np.ndarray:
+    """``source/sharp``'s frame ``still`` at ``scale``, in linear light ``(H, W, 3)`` float32."""
+    from layercam.io import load_clip
+
+    folder = Path(data) / spec.source / "sharp"
+    names = sorted(p for p in folder.iterdir() if p.suffix.lower() in (".png", ".jpg", ".jpeg", ".tif", ".tiff")) if folder.is_dir() else []
+    if len(names) <= spec.still:
+        raise LayercamError(f"{folder} has {len(names)} frames, frame {spec.still} needed")
+    img = load_clip([names[spec.still]], resize=f"{spec.scale:g}").frames[0]
+    return np.where(img <= 0.04045, img / 12.92, ((img + 0.055) / 1.055) ** 2.4).astype(np.float32)
+
+
+def shake_still(still: np.ndarray, spec: ShakeSpec) -> dict:
+    """Shake ``still`` (linear ``(Hs, Ws, 3)``, larger than ``spec.size`` by the path) as ``spec``
+    says. Returns ``{"frames": (T,H,W,3) uint8, "sharp": (T,H,W,3) float32 sRGB in [0, 1] (each frame
+    at its path's mid point, noise-free), "blur_length": (T,) px}``."""
+    from layercam.synth import shake_blur
+
+    sc = shake_blur(frames=spec.frames, size=spec.size, max_blur_px=spec.max_blur_px, noise=spec.noise, seed=spec.seed, canvas=still)
+    frames = np.round(np.asarray(sc.clip.frames, np.float64) * 255.0).astype(np.uint8)
+    return {"frames": frames, "sharp": np.asarray(sc.sharp_ldr, np.float32), "blur_length": np.asarray(sc.meta["blur_length"], np.float32)}
 
 
 # -- the real material --------------------------------------------------------------------------

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from layercam.bench.realsuite.cases import CASES, case_inputs, load_inputs, load_truth, prepare_composite, read_prediction
+from layercam.bench.realsuite.cases import CASES, case_inputs, load_inputs, load_truth, prepare_composite, prepare_shake, read_prediction
 
 __all__ = ["run_job", "analysis_summary", "code_version"]
 
@@ -105,6 +105,8 @@ def job_prepare(job: dict) -> dict:
     case, case_dir, ci = _context(job)
     if case.group == "composite":
         prepare_composite(case, case_dir, Path(job["data"]), Path(job["shared_dir"]), job.get("quick", False))
+    if case.params.get("shake"):
+        prepare_shake(case, case_dir, Path(job["data"]), job.get("quick", False))
     frames, times, _ = load_inputs(case, ci)
     truth = load_truth(case, case_dir, Path(job["data"]), frames, times)
     unseen = float(truth["unseen"].mean()) if truth is not None and "unseen" in truth else float(np.mean([_unseen_pair(frames, t) for t in range(len(frames) - 1)]))

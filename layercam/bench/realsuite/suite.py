@@ -111,7 +111,7 @@ def run_real_suite(out, cases: list[str] | None = None, presets: list[str] | Non
     with _Lock(s.out):
         for name in names:
             if force:
-                for f in ("truth.npz", "inputs/composite.npz"):
+                for f in ("truth.npz", "inputs/composite.npz", "inputs/shake.npz"):
                     (s.out / "cases" / name / f).unlink(missing_ok=True)
             s.run(s.job(name, "prepare", "prepare"), f"{name} prepare", force)
             s.run(s.job(name, "classical", "classical"), f"{name} classical", force)

@@ -80,3 +80,17 @@ def test_score_deblur_against_the_input_floor():
     assert s["gain_db"] > 5 and s["frames_below"] == 0 and abs(s["worst_gain_db"]) < 1e-6
     w = measures.score_deblur(worse, sharp, floor)
     assert w["frames_below"] == 1 and w["worst_gain_db"] < -1 and len(w["psnr_frames"]) == 3
+
+
+def test_score_deblur_aligned_forgives_a_small_shift_only():
+    """``psnr_aligned``: a sharp frame one pixel off the truth's instant scores as sharp; five off
+    (outside the 3 px search) does not."""
+    import cv2
+
+    rng = np.random.default_rng(1)
+    sharp = np.stack([cv2.GaussianBlur(rng.random((40, 48, 3)).astype(np.float32), (0, 0), 1.0) for _ in range(2)])
+    near = np.roll(sharp, 1, axis=2)
+    far = np.roll(sharp, 5, axis=2)
+    s_near, s_far = measures.score_deblur(near, sharp), measures.score_deblur(far, sharp)
+    assert s_near["psnr"] < 40 and s_near["psnr_aligned"] > 60
+    assert s_far["psnr_aligned"] < 40

@@ -150,15 +150,25 @@ def error_map(pred: np.ndarray, gt: np.ndarray) -> np.ndarray:
     return np.abs(_mu_normalised(pred, gt) - _mu_normalised(gt, gt))[..., keep].mean(axis=-1).astype(np.float32)
 
 
+ALIGN_CROP = 8  # px: the border the aligned score leaves out (what a shift of up to 3 px moves in)
+
+
 def score_deblur(pred: np.ndarray, sharp: np.ndarray, floor: np.ndarray | None = None) -> dict:
     """Sharp frames ``pred (T,H,W,3)`` in [0,1] against the truth ``sharp`` (same shape), as a user
     sees them (sRGB, whole frame, no shift): ``psnr``/``ssim`` (means over the frames), ``psnr_frames``
     (per frame) and, against ``floor`` (the blurry input's per-frame PSNR, ``(T,)``), ``gain_db``
     (mean PSNR over the floor's mean), ``worst_gain_db`` (the frame that gains least) and
-    ``frames_below`` (frames scoring under their input)."""
-    rows = [metrics.ldr_metrics(np.clip(p, 0, 1), g) for p, g in zip(np.asarray(pred, np.float32), np.asarray(sharp, np.float32))]
+    ``frames_below`` (frames scoring under their input). ``psnr_aligned``: the mean PSNR with each
+    frame first moved by its best shift within 3 px (:func:`layercam.core.frame_metrics.score_frames`,
+    a ``ALIGN_CROP`` border left out): a sharp frame may show any instant of the exposure (the truth
+    shows its middle, a deblurred frame naturally its blur's centre of mass), so this scores the
+    sharpness apart from that instant."""
+    pred, sharp = np.clip(np.asarray(pred, np.float32), 0, 1), np.asarray(sharp, np.float32)
+    rows = [metrics.ldr_metrics(p, g) for p, g in zip(pred, sharp)]
     ps = np.round([r["psnr"] for r in rows], 3)  # as listed (the floor: another method's psnr_frames)
-    out = {"psnr": float(ps.mean()), "ssim": float(np.mean([r["ssim"] for r in rows])), "psnr_frames": [float(v) for v in ps]}
+    aligned = frame_metrics.score_frames(pred, sharp, ALIGN_CROP, align=True)
+    out = {"psnr": float(ps.mean()), "ssim": float(np.mean([r["ssim"] for r in rows])), "psnr_frames": [float(v) for v in ps],
+           "psnr_aligned": float(np.mean([r["psnr"] for r in aligned]))}
     if floor is not None:
         gain = ps - np.asarray(floor, np.float64)
         out.update(gain_db=float(ps.mean() - np.mean(floor)), worst_gain_db=float(gain.min()), frames_below=int((gain < 0).sum()))

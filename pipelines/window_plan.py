@@ -26,6 +26,7 @@ class Plan:
     reason: str
     forced: bool = False
     atlas_px: list[float] = field(default_factory=list)  # each window's atlas extent (px), when measured
+    fits: dict = field(default_factory=dict)  # (window, frame) -> that window's fit to the overlap frame (MSE), when measured
 
     @property
     def count(self) -> int:
@@ -35,7 +36,17 @@ class Plan:
         return [self.windows[k][1] - self.windows[k + 1][0] for k in range(self.count - 1)]
 
     def weights(self, t: int) -> list[tuple[int, float]]:
-        """``[(window, weight), ...]`` of frame ``t`` (one or two windows; weights sum to 1)."""
+        """``[(window, weight), ...]`` of frame ``t`` (one or two windows; weights sum to 1): in an
+        overlap, the linear cross-fade from one window to the next, each side divided by its window's
+        fit to the frame where :attr:`fits` has both (the error of each window's estimate taken as
+        its variance: the better-fitting window takes more of the frame; equal fits keep the fade)."""
+        out = self._fades(t)
+        if len(out) == 2 and all((k, t) in self.fits for k, _ in out):
+            q = [w / max(float(self.fits[k, t]), 1e-12) for k, w in out]
+            out = [(k, qk / sum(q)) for (k, _), qk in zip(out, q)]
+        return out
+
+    def _fades(self, t: int) -> list[tuple[int, float]]:
         out = []
         for k, (a, b) in enumerate(self.windows):
             if not a <= t < b:

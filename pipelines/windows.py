@@ -12,8 +12,9 @@ names window 0's training, :func:`hold_camera`). Window 0 runs first; the others
 one another (``--ray``: tasks on a Ray cluster, ``layercam.engine.cluster``).
 
 The windows' outputs are then joined by the ``windows`` stage (:class:`WindowsStage`): in the
-overlap of windows ``k`` and ``k + 1`` (frames ``a_(k+1) .. b_k - 1``) each frame is the linear
-cross-fade ``(1 - w) X_k + w X_(k+1)`` with ``w = (t - a_(k+1) + 1) / (overlap + 1)`` of the
+overlap of windows ``k`` and ``k + 1`` (frames ``a_(k+1) .. b_k - 1``) each frame is the
+cross-fade ``(1 - w) X_k + w X_(k+1)`` of the linear fade ``f = (t - a_(k+1) + 1) / (overlap + 1)``
+weighted by each window's fit to the frame (:func:`overlap_fits`, :meth:`Plan.weights`) of the
 linear HDR (``hdr/``), the sharp frames (``frames/``, as floats before they are quantised) and the
 foreground's alpha mattes (``alpha/``); the preview is tonemapped once over the joined clip. Each
 window's own outputs for ``layercam render`` and ``edit`` (``checkpoint.pt``, ``atlases/``,
@@ -211,6 +212,7 @@ class WindowsStage(Stage):
         dirs = [Path(r["dirs"]["export"]) for r in res]
         summary: dict = {"windows": p.count}
         gains = self._gains(ctx, dirs)
+        p.fits = overlap_fits(ctx, p, dirs)
         if (dirs[0] / "hdr").is_dir() and ctx.task != "deblur-video":
             summary.update(self._hdr(ctx, out, dirs, gains))
         if ctx.task == "deblur-video":
@@ -228,10 +230,11 @@ class WindowsStage(Stage):
                     _link(d / n, sub / n)
         write_json(out / INDEX, {
             "frames": ctx.clip.T,
-            "windows": [{"index": k, "frames": list(p.windows[k]), "folder": f"{FOLDER}/w{k:02d}", "hdr_gain": gains[k]} for k in range(p.count)],
+            "windows": [{"index": k, "frames": list(p.windows[k]), "folder": f"{FOLDER}/w{k:02d}", "hdr_gain": gains[k],
+                         "overlap_fit_mse": {str(t): v for (j, t), v in sorted(p.fits.items()) if j == k}} for k in range(p.count)],
             "overlaps": p.overlaps(), "reason": p.reason,
             "camera": "learned by window 0, held fixed in the others" if ctx.resolved.settings.model.tone_mapper == "learned" else "the fixed sRGB curve",
-            "join": "linear cross-fade over each overlap: frame t of the overlap [a, b) of windows k and k+1 is (1 - w) x_k + w x_(k+1), w = (t - a + 1) / (b - a + 1), in linear HDR (hdr/), sharp frames (frames/) and alpha (alpha/)",
+            "join": "cross-fade over each overlap weighted by each window's fit: frame t of the overlap [a, b) of windows k and k+1 is (1 - w) x_k + w x_(k+1), w = q_(k+1) / (q_k + q_(k+1)), q_k = (1 - f) / e_k(t), q_(k+1) = f / e_(k+1)(t), f = (t - a + 1) / (b - a + 1), e the window's overlap_fit_mse at t (its model through its camera against the input frame), in linear HDR (hdr/), sharp frames (frames/) and alpha (alpha/)",
         })
         summary["hdr_gains"] = gains
         return summary
@@ -362,7 +365,33 @@ def read_index(run: Path) -> dict | None:
 
 
 def index_plan(index: dict) -> Plan:
-    return Plan([tuple(w["frames"]) for w in index["windows"]], index.get("reason", ""))
+    """The plan a published run was joined with (its windows and their fits to the overlaps)."""
+    fits = {(int(w["index"]), int(t)): float(v) for w in index["windows"] for t, v in w.get("overlap_fit_mse", {}).items()}
+    return Plan([tuple(w["frames"]) for w in index["windows"]], index.get("reason", ""), fits=fits)
+
+
+def overlap_fits(ctx: Context, p: Plan, dirs: list[Path]) -> dict:
+    """``{(window, frame): MSE}``: each window's model through its own camera (blur included)
+    against the input frames it shares with a neighbour, in the input's tonality: how well each
+    window explains the overlap, which :meth:`Plan.weights` blends by. One model in memory at a time;
+    rendered where it trained."""
+    from layercam.engine.checkpoint import load_run_model
+    from layercam.scene import render
+
+    fits: dict = {}
+    hw = (ctx.clip.H, ctx.clip.W)
+    for k, d in enumerate(dirs):
+        a, b = p.windows[k]
+        shared = [t for t in range(a, b) if len(p._fades(t)) == 2]
+        if not shared:
+            continue
+        model, _ = load_run_model(d, ctx.resolved.settings.train.device)
+        for t in shared:
+            reached("windows", t)
+            ldr = render.render_frame(model, t - a, hw, ("ldr",), blur=True)["ldr"]
+            fits[k, t] = float(np.mean((np.clip(ldr, 0.0, 1.0) - np.asarray(ctx.clip.frames[t], np.float32)) ** 2))
+        del model
+    return fits
 
 
 def window_folders(run: Path, index: dict) -> list[Path]:

@@ -327,7 +327,7 @@ def _render(args) -> int:
         if T > 1:
             write_video(stage / name / "video.mp4", frames, fps=args.fps or fps, audio=run_audio(meta0, args.fps or fps))
         write_json(stage / name / "render.json", {**base, "what": "exposure", "ev": args.exposure, "log2_exposure": z0 + args.exposure, "blur": args.keep_blur,
-                                                  **({} if v.plan is None else {"windows": v.plan.to_dict()["windows"], "join": "each window's frames, cross-faded over the overlaps as in the export"})})
+                                                  **({} if v.plan is None else {"windows": v.plan.to_dict()["windows"], "join": "each window's frames, cross-faded over the overlaps by their fits as in the export"})})
         commit_staged(stage, out, products["exposure"])
         say(f"{T} frames at {args.exposure:+g} EV: {out / name}")
     if "hdr" in products:

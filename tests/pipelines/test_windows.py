@@ -134,15 +134,19 @@ def test_windows_share_window_0s_camera(windowed):
     assert material["options"]["camera"] == keys[0]  # the later windows' training names window 0's
 
 
-def test_the_join_is_each_windows_hdr_cross_faded_over_the_overlap(windowed):
+def test_the_join_is_each_windows_hdr_cross_faded_over_the_overlap_by_their_fits(windowed):
     rep = json.loads((windowed / "report.json").read_text())
+    index = json.loads((windowed / "windows.json").read_text())
+    fit = lambda k, t: index["windows"][k]["overlap_fit_mse"][str(t)]  # noqa: E731
     exports = [windowed / "cache" / "windows" / f"{a:05d}-{b:05d}" / "cache" / f"export-{r['keys']['export']}" for r, (a, b) in
                zip(rep["windows"]["runs"], [(0, 6), (4, 9), (7, 12)])]
     own = lambda k, i: read_exr(exports[k] / "hdr" / f"frame_{i:05d}.exr")  # noqa: E731
     joined = lambda t: read_exr(windowed / "hdr" / f"frame_{t:05d}.exr")  # noqa: E731
     assert np.array_equal(joined(2), own(0, 2)) and np.array_equal(joined(6), own(1, 2)) and np.array_equal(joined(11), own(2, 4))
     for t, (k, i, j) in {4: (0, 4, 0), 5: (0, 5, 1)}.items():
-        w = (t - 4 + 1) / 3
+        f = (t - 4 + 1) / 3  # the linear fade, each side divided by its window's fit to frame t
+        w = (f / fit(1, t)) / ((1 - f) / fit(0, t) + f / fit(1, t))
+        assert 0 < w < 1 and (w > f) == (fit(1, t) < fit(0, t))
         want = (1 - w) * own(k, i) + w * own(1, j)
         assert np.allclose(joined(t), want, rtol=2e-3, atol=1e-6)  # half floats
 
@@ -296,3 +300,18 @@ def test_deblur_video_windows_join_the_sharp_frames_and_alpha(long_frames, tmp_p
     assert np.array_equal(read_image(run / "frames" / "frame_00006.png"), read_image(export / "frames" / "frame_00002.png"))  # window 1's alone
     assert np.array_equal(read_image(run / "alpha" / "frame_00006.png"), read_image(export / "alpha" / "frame_00002.png"))
     assert (run / "windows" / "w02" / "atlases" / "layer1.png").is_file()
+
+
+def test_overlap_weights_follow_the_windows_fits():
+    """Equal fits keep the linear fade; a window fitting the frame four times better (a quarter of
+    the error) takes four times its fade's share; frames outside an overlap are one window's alone."""
+    p = window_plan.Plan([(0, 6), (4, 9)], "test")
+    assert np.allclose([w for _, w in p.weights(4)], [2 / 3, 1 / 3])
+    p.fits = {(0, 4): 0.01, (1, 4): 0.01, (0, 5): 0.01, (1, 5): 0.0025}
+    assert np.allclose([w for _, w in p.weights(4)], [2 / 3, 1 / 3])
+    w = dict(p.weights(5))
+    assert np.isclose(w[0] + w[1], 1.0) and np.isclose(w[1] / w[0], 4 * (2 / 3) / (1 / 3))
+    assert p.weights(2) == [(0, 1.0)] and p.weights(7) == [(1, 1.0)]
+    back = windows.index_plan({"windows": [{"index": 0, "frames": [0, 6], "overlap_fit_mse": {"5": 0.01}},
+                                            {"index": 1, "frames": [4, 9], "overlap_fit_mse": {"5": 0.0025}}]})
+    assert back.weights(5) == p.weights(5)

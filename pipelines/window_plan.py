@@ -1,11 +1,13 @@
 """Where a long clip is cut: the plan (how many windows, how long, how much overlap, and why), the
-window bounds, and a window's slice of the clip, its exposures and its flow (views of the files
-on disk, nothing read)."""
+window bounds, a window's slice of the clip, its exposures and its flow (views of the files on
+disk, nothing read), and how two windows share an overlap's frames (:meth:`Plan.weights`, from each
+window's fit to them, :func:`overlap_fits`)."""
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -244,3 +246,28 @@ def sub_flow(flow, a: int, b: int):
 def rows(x, a: int, b: int):
     """Rows ``a:b`` of an array: a view (of a :class:`~layercam.io.frames.DiskArray`: nothing read)."""
     return x.rows(a, b) if hasattr(x, "rows") else np.asarray(x)[a:b]
+
+
+def overlap_fits(ctx, p: Plan, dirs: list[Path]) -> dict:
+    """``{(window, frame): MSE}``: each window's model through its own camera (blur included)
+    against the input frames it shares with a neighbour, in the input's tonality: how well each
+    window explains the overlap, which :meth:`Plan.weights` blends by. One model in memory at a time;
+    rendered where it trained."""
+    from layercam.engine.checkpoint import load_run_model
+    from layercam.core.interrupts import reached
+    from layercam.scene import render
+
+    fits: dict = {}
+    hw = (ctx.clip.H, ctx.clip.W)
+    for k, d in enumerate(dirs):
+        a, b = p.windows[k]
+        shared = [t for t in range(a, b) if len(p._fades(t)) == 2]
+        if not shared:
+            continue
+        model, _ = load_run_model(d, ctx.resolved.settings.train.device)
+        for t in shared:
+            reached("windows", t)
+            ldr = render.render_frame(model, t - a, hw, ("ldr",), blur=True)["ldr"]
+            fits[k, t] = float(np.mean((np.clip(ldr, 0.0, 1.0) - np.asarray(ctx.clip.frames[t], np.float32)) ** 2))
+        del model
+    return fits

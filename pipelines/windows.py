@@ -14,7 +14,8 @@ one another (``--ray``: tasks on a Ray cluster, ``layercam.engine.cluster``).
 The windows' outputs are then joined by the ``windows`` stage (:class:`WindowsStage`): in the
 overlap of windows ``k`` and ``k + 1`` (frames ``a_(k+1) .. b_k - 1``) each frame is the
 cross-fade ``(1 - w) X_k + w X_(k+1)`` of the linear fade ``f = (t - a_(k+1) + 1) / (overlap + 1)``
-weighted by each window's fit to the frame (:func:`overlap_fits`, :meth:`Plan.weights`) of the
+weighted by each window's fit to the frame (:func:`~layercam.pipelines.window_plan.overlap_fits`,
+:meth:`Plan.weights`) of the
 linear HDR (``hdr/``), the sharp frames (``frames/``, as floats before they are quantised) and the
 foreground's alpha mattes (``alpha/``); the preview is tonemapped once over the joined clip. Each
 window's own outputs for ``layercam render`` and ``edit`` (``checkpoint.pt``, ``atlases/``,
@@ -38,7 +39,7 @@ from layercam.core.errors import LayercamError
 from layercam.core.interrupts import reached
 from layercam.pipelines.results import FlowResult
 from layercam.pipelines.runner import Context, Stage, run_stages, write_json
-from layercam.pipelines.window_plan import Plan, rows, sub_clip, sub_exposures, sub_flow
+from layercam.pipelines.window_plan import Plan, overlap_fits, rows, sub_clip, sub_exposures, sub_flow
 
 INDEX = "windows.json"
 FOLDER = "windows"  # RUN/windows/w00/: each window's checkpoint.pt, atlases/, psf.json
@@ -212,7 +213,7 @@ class WindowsStage(Stage):
         dirs = [Path(r["dirs"]["export"]) for r in res]
         summary: dict = {"windows": p.count}
         gains = self._gains(ctx, dirs)
-        p.fits = overlap_fits(ctx, p, dirs)
+        p.fits = overlap_fits(ctx, p, dirs)  # each window's fit to the frames it shares: the join's weights
         if (dirs[0] / "hdr").is_dir() and ctx.task != "deblur-video":
             summary.update(self._hdr(ctx, out, dirs, gains))
         if ctx.task == "deblur-video":
@@ -369,29 +370,6 @@ def index_plan(index: dict) -> Plan:
     fits = {(int(w["index"]), int(t)): float(v) for w in index["windows"] for t, v in w.get("overlap_fit_mse", {}).items()}
     return Plan([tuple(w["frames"]) for w in index["windows"]], index.get("reason", ""), fits=fits)
 
-
-def overlap_fits(ctx: Context, p: Plan, dirs: list[Path]) -> dict:
-    """``{(window, frame): MSE}``: each window's model through its own camera (blur included)
-    against the input frames it shares with a neighbour, in the input's tonality: how well each
-    window explains the overlap, which :meth:`Plan.weights` blends by. One model in memory at a time;
-    rendered where it trained."""
-    from layercam.engine.checkpoint import load_run_model
-    from layercam.scene import render
-
-    fits: dict = {}
-    hw = (ctx.clip.H, ctx.clip.W)
-    for k, d in enumerate(dirs):
-        a, b = p.windows[k]
-        shared = [t for t in range(a, b) if len(p._fades(t)) == 2]
-        if not shared:
-            continue
-        model, _ = load_run_model(d, ctx.resolved.settings.train.device)
-        for t in shared:
-            reached("windows", t)
-            ldr = render.render_frame(model, t - a, hw, ("ldr",), blur=True)["ldr"]
-            fits[k, t] = float(np.mean((np.clip(ldr, 0.0, 1.0) - np.asarray(ctx.clip.frames[t], np.float32)) ** 2))
-        del model
-    return fits
 
 
 def window_folders(run: Path, index: dict) -> list[Path]:

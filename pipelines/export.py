@@ -44,6 +44,7 @@ from layercam.pipelines.view import VIEW_MIN_DB, view_check, view_sigma
 from layercam.pipelines.export_context import _bits, _fps, _frames, _sound, audio, exposures_vary, resolve_reference
 
 CHECKPOINT_NAME = "checkpoint.pt"
+FIT_FILE = "fit_mse.npy"  # (T,) each frame's MSE of the model through its camera against it (the HDR writer's faithful step)
 
 
 # The preview's clip-wide tonemap statistics and the EXRs' type come from a first pass over every
@@ -180,6 +181,8 @@ def hdr_writer(ctx: Context, model, dest: Path, cache: Path, atlas=None) -> dict
             exrs.add(dest / "hdr" / f"frame_{t:05d}.exr", hdr)
             preview.add(render.tonemap_display(hdr, stats)[0])
             infos.append(info)
+    if infos and "fit_mse" in infos[0]:  # how well the model reproduces each frame (a window join's weights)
+        np.save(cache / FIT_FILE, np.float32([i["fit_mse"] for i in infos]))
     return {"frames": int(ctx.clip.T), "hdr_min": exrs.lo, "hdr_max": exrs.hi, "exr": "half" if exrs.half else "float32", "display": stats, **_faithful_summary(infos),
             "hdr_video": hdr_video(ctx, model, exrs.paths, dest), "fps": _fps(ctx), "sound": _sound(ctx, preview)}
 

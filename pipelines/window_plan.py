@@ -1,7 +1,7 @@
 """Where a long clip is cut: the plan (how many windows, how long, how much overlap, and why), the
 window bounds, a window's slice of the clip, its exposures and its flow (views of the files on
 disk, nothing read), and how two windows share an overlap's frames (:meth:`Plan.weights`, from each
-window's fit to them, :func:`overlap_fits`)."""
+window's fit to them as its export measured it, :func:`overlap_fits`)."""
 
 from __future__ import annotations
 
@@ -248,26 +248,18 @@ def rows(x, a: int, b: int):
     return x.rows(a, b) if hasattr(x, "rows") else np.asarray(x)[a:b]
 
 
-def overlap_fits(ctx, p: Plan, dirs: list[Path]) -> dict:
-    """``{(window, frame): MSE}``: each window's model through its own camera (blur included)
-    against the input frames it shares with a neighbour, in the input's tonality: how well each
-    window explains the overlap, which :meth:`Plan.weights` blends by. One model in memory at a time;
-    rendered where it trained."""
-    from layercam.engine.checkpoint import load_run_model
-    from layercam.core.interrupts import reached
-    from layercam.scene import render
+
+def overlap_fits(p: Plan, dirs: list[Path]) -> dict:
+    """``{(window, frame): MSE}`` over the frames each window shares with a neighbour: how well the
+    window's model reproduced the frame through its camera, as its export measured it
+    (``export.FIT_FILE``, written by the HDR writer's faithful step); {} where an export has none
+    (no faithful step, or a deblurred clip): :meth:`Plan.weights` then keeps the plain fade."""
+    from layercam.pipelines.export import FIT_FILE
 
     fits: dict = {}
-    hw = (ctx.clip.H, ctx.clip.W)
     for k, d in enumerate(dirs):
-        a, b = p.windows[k]
-        shared = [t for t in range(a, b) if len(p._fades(t)) == 2]
-        if not shared:
-            continue
-        model, _ = load_run_model(d, ctx.resolved.settings.train.device)
-        for t in shared:
-            reached("windows", t)
-            ldr = render.render_frame(model, t - a, hw, ("ldr",), blur=True)["ldr"]
-            fits[k, t] = float(np.mean((np.clip(ldr, 0.0, 1.0) - np.asarray(ctx.clip.frames[t], np.float32)) ** 2))
-        del model
+        if not (Path(d) / FIT_FILE).is_file():
+            return {}
+        mse, a = np.load(Path(d) / FIT_FILE), p.windows[k][0]
+        fits.update({(k, t): float(mse[t - a]) for t in range(a, p.windows[k][1]) if len(p._fades(t)) == 2})
     return fits

@@ -213,7 +213,7 @@ class WindowsStage(Stage):
         dirs = [Path(r["dirs"]["export"]) for r in res]
         summary: dict = {"windows": p.count}
         gains = self._gains(ctx, dirs)
-        p.fits = overlap_fits(ctx, p, dirs)  # each window's fit to the frames it shares: the join's weights
+        p.fits = overlap_fits(p, dirs)  # each window's fit to the frames it shares: the join's weights
         if (dirs[0] / "hdr").is_dir() and ctx.task != "deblur-video":
             summary.update(self._hdr(ctx, out, dirs, gains))
         if ctx.task == "deblur-video":
@@ -235,7 +235,7 @@ class WindowsStage(Stage):
                          "overlap_fit_mse": {str(t): v for (j, t), v in sorted(p.fits.items()) if j == k}} for k in range(p.count)],
             "overlaps": p.overlaps(), "reason": p.reason,
             "camera": "learned by window 0, held fixed in the others" if ctx.resolved.settings.model.tone_mapper == "learned" else "the fixed sRGB curve",
-            "join": "cross-fade over each overlap weighted by each window's fit: frame t of the overlap [a, b) of windows k and k+1 is (1 - w) x_k + w x_(k+1), w = q_(k+1) / (q_k + q_(k+1)), q_k = (1 - f) / e_k(t), q_(k+1) = f / e_(k+1)(t), f = (t - a + 1) / (b - a + 1), e the window's overlap_fit_mse at t (its model through its camera against the input frame), in linear HDR (hdr/), sharp frames (frames/) and alpha (alpha/)",
+            "join": "cross-fade over each overlap weighted by each window's fit: frame t of the overlap [a, b) of windows k and k+1 is (1 - w) x_k + w x_(k+1), w = q_(k+1) / (q_k + q_(k+1)), q_k = (1 - f) / e_k(t), q_(k+1) = f / e_(k+1)(t), f = (t - a + 1) / (b - a + 1), e the window's overlap_fit_mse at t (its model through its camera against the input frame; without them the plain fade), in linear HDR (hdr/), sharp frames (frames/) and alpha (alpha/)",
         })
         summary["hdr_gains"] = gains
         return summary
@@ -369,7 +369,6 @@ def index_plan(index: dict) -> Plan:
     """The plan a published run was joined with (its windows and their fits to the overlaps)."""
     fits = {(int(w["index"]), int(t)): float(v) for w in index["windows"] for t, v in w.get("overlap_fit_mse", {}).items()}
     return Plan([tuple(w["frames"]) for w in index["windows"]], index.get("reason", ""), fits=fits)
-
 
 
 def window_folders(run: Path, index: dict) -> list[Path]:

@@ -76,8 +76,11 @@ def _pair_diffs(frames: np.ndarray) -> np.ndarray:
     return np.array([measure_pair_ev(frames[t], frames[t + 1]) for t in range(len(frames) - 1)])
 
 
-def _measure_phase_ev(frames: np.ndarray, phase: np.ndarray, n: int) -> np.ndarray:
-    """Least-squares EV per phase (phase 0 at 0) from medians of consecutive-pair EVs."""
+def _measure_phase_ev(frames: np.ndarray, phase: np.ndarray, n: int) -> tuple[np.ndarray, float]:
+    """Least-squares EV per phase (phase 0 at 0) from medians of consecutive-pair EVs, and how far
+    the pairs stray from their phase pair's median (EV, the mean over pairs: a cycle that fits most
+    pairs but not every one strays too): near 0 where the frames do repeat every ``n`` exposures, a
+    good part of the step between exposures where they do not."""
     d = _pair_diffs(frames)
     rows, rhs = [], []
     groups: dict[tuple[int, int], list[float]] = {}
@@ -97,4 +100,5 @@ def _measure_phase_ev(frames: np.ndarray, phase: np.ndarray, n: int) -> np.ndarr
     rows.append(row0 * 10.0)
     rhs.append(0.0)
     sol, *_ = np.linalg.lstsq(np.array(rows), np.array(rhs), rcond=None)
-    return sol
+    stray = [abs(v - np.median(vals)) for vals in groups.values() for v in vals]
+    return sol, float(np.nanmean(stray)) if stray else 0.0

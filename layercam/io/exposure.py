@@ -130,7 +130,11 @@ def _alt(clip: Clip, n: int, spec: str, ev_step: float | None, force_ev_step: bo
             f"'{spec}': the selected frames cover only {len(present)} of {n} exposure phases "
             f"(frame indices {list(stride[:4])}...); use a stride that is not a multiple of {n}"
         )
-    measured = _measure_phase_ev(clip.frames, phase, n)  # EV per phase, phase 0 at 0
+    measured, stray = _measure_phase_ev(clip.frames, phase, n)  # EV per phase, phase 0 at 0
+    if stray > _EV_MIN:  # frames of the same phases differ more than two exposures must: another cycle
+        other = "alt3" if n == 2 else "alt"
+        raise LayercamError(f"'{spec}': the frames do not repeat every {n} exposures (frames of the same phases differ by {stray:.1f} EV); "
+                            f"try --exposures {other}, an EV cycle, or learn")
     order = np.argsort(measured)  # darkest first
     rank = np.empty(n, dtype=np.int64)
     rank[order] = np.arange(n)

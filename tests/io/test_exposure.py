@@ -69,6 +69,15 @@ def test_alt3_sorted_by_brightness():
     np.testing.assert_allclose(r.log2_dt[:3], [4.0, 2.0, 0.0], atol=0.4)
 
 
+@pytest.mark.parametrize("spec,n", [("alt3", 2), ("alt", 3)])
+def test_a_wrong_exposure_count_is_one_line(spec, n):
+    """A clip alternating over n exposures given the other cycle: its frames of the same phases
+    differ by the whole step, refused with what to try instead."""
+    with pytest.raises(LayercamError, match=f"do not repeat every {3 if n == 2 else 2} exposures.*try --exposures"):
+        parse_exposures(spec, alt_clip(T=12, ev=2.0, n=n))
+    parse_exposures("alt" if n == 2 else "alt3", alt_clip(T=12, ev=2.0, n=n))  # the right cycle passes
+
+
 def test_alt_respects_stride():
     clip = alt_clip(T=6)
     clip.meta["frame_indices"] = [0, 3, 6, 9, 12, 15]  # stride 3 of an alternating source

@@ -81,6 +81,15 @@ def test_a_slow_object_adds_up_over_frames():
     assert (motion.long_range_moving_share(fw, fo, reach=8) < 0.01).all()
 
 
+def test_the_floor_does_not_grow_with_the_pairs_length():
+    """0.3 px per frame: 2.4 px over 8 frames, 1.2 over 4, under the floor in neighbour pairs. The
+    flow's precision is a floor for every pair alike (a floor growing as sqrt(k) lost this object)."""
+    frames, masks = _clip(T=16, obj_speed=(0.0, 0.3), side=16)
+    fw, bw, fo, bo = _flows(frames)
+    m, _ = segment.motion_masks(fw, bw, fo, bo, segment.SegmentConfig(reach=8))
+    assert np.mean([metrics.iou(a > 0.5, b) for a, b in zip(m, masks)]) > 0.4
+
+
 def test_parallax_reaching_the_edge_is_explained_the_object_is_not():
     """A near band along the bottom edge pans 2.5 times as fast as the far background (a
     translating camera): the border shows parallax, the epipolar model explains it, the object

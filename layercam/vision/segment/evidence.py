@@ -5,7 +5,9 @@ Each pixel of frame t is followed along the chained flow to frames t +- 1, 2, 4,
 against the camera's motion read from the border (:func:`layercam.vision.segment.camera.pair_residuals`).
 A pixel moves in a pair when its residual exceeds the pair's own residual level by ``k_sigma``
 robust standard deviations (median + k_sigma * 1.4826 MAD: the pair's measured noise), and
-by never less than ``MIN_PX`` (the flow's precision; times sqrt(k) over k frames). Longer pairs see a slow
+by never less than ``MIN_PX`` (the flow's precision). The floor is the same for every pair: a
+chained displacement is set against the camera fitted to that same pair, so what its error adds
+over k frames is in the pair's measured noise already. Longer pairs see a slow
 object move farther and weigh more (sqrt(k)). The evidence is the share of pairs in which the
 pixel moves, the smaller of both directions' (twice) and their mean: a moving object disagrees in
 both directions, the background it is about to cover, or has just uncovered, in one only.
@@ -19,7 +21,7 @@ import numpy as np
 
 from layercam.vision.segment.camera import pair_residuals
 
-MIN_PX = 0.5  # the flow's precision on real footage: a residual under this (times sqrt(k) over k frames) is never motion
+MIN_PX = 0.5  # the flow's precision on real footage: a residual under this is never motion
 
 
 def offsets(reach: int) -> tuple[int, ...]:
@@ -76,7 +78,7 @@ def motion_evidence(fw, bw, fw_ok, bw_ok, reach: int = 8, k_sigma: float = 4.0) 
                     continue
                 epi.append(used)
                 wk = np.float32(np.sqrt(k))
-                acc[t, di] += wk * _moved(res, v, MIN_PX * np.sqrt(k), k_sigma)
+                acc[t, di] += wk * _moved(res, v, MIN_PX, k_sigma)
                 cnt[t, di] += wk * v
     has = cnt.reshape(T, 2, -1).max(-1) > 0
     frac = acc / np.maximum(cnt, 1.0)

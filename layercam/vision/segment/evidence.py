@@ -29,11 +29,11 @@ def offsets(reach: int) -> tuple[int, ...]:
     return tuple(2**i for i in range(int(np.log2(max(int(reach), 1))) + 1))
 
 
-def _moved(res: np.ndarray, valid: np.ndarray, floor: float, k_sigma: float) -> np.ndarray:
+def _moved(res: np.ndarray, valid: np.ndarray, k_sigma: float) -> np.ndarray:
     r = res[valid]
     med = float(np.median(r))
     mad = float(np.median(np.abs(r - med))) * 1.4826
-    return valid & (res > max(floor, med + k_sigma * mad))
+    return valid & (res > max(MIN_PX, med + k_sigma * mad))
 
 
 def _ends(ev: np.ndarray, fw: np.ndarray, bw: np.ndarray, has: np.ndarray) -> np.ndarray:
@@ -78,7 +78,7 @@ def motion_evidence(fw, bw, fw_ok, bw_ok, reach: int = 8, k_sigma: float = 4.0) 
                     continue
                 epi.append(used)
                 wk = np.float32(np.sqrt(k))
-                acc[t, di] += wk * _moved(res, v, MIN_PX, k_sigma)
+                acc[t, di] += wk * _moved(res, v, k_sigma)
                 cnt[t, di] += wk * v
     has = cnt.reshape(T, 2, -1).max(-1) > 0
     frac = acc / np.maximum(cnt, 1.0)

@@ -26,7 +26,8 @@ other tables:
   layercam bench --table hdr-video --out runs/hdr                 # hdr.mp4 on the Basler clip: cost, round trip
   layercam bench --table blur --cases shake --out runs/blur       # the blur generator on synthetic shake
   layercam bench --table blur --cases mfme-3,mfme-9 --seeds 0,1,2  # ... and on a focus x exposure stack
-  layercam bench --table joins --out runs/joins                   # two windows against one model, 96 frames"""
+  layercam bench --table joins --out runs/joins                   # two windows against one model, 96 frames
+  layercam bench --table finder --out runs/finder                 # the foreground finder's steps, each left out"""
 
 
 SIZES_DEFAULT = "128x128,256x256,512x512,1080x1920"
@@ -38,20 +39,20 @@ def register(sub) -> argparse.ArgumentParser:
     b.add_argument("--out", help="output folder (default: runs/bench, or runs/real for --suite real)")
     b.add_argument("--scenes", default="pan", help="synthetic suite: comma-separated scene names (default: pan)")
     b.add_argument("--cases", help="real suite: comma-separated case names (default: all); --table blur: shake, mfme-3, mfme-9 (the stack trained on 3 or all 9 images); --table joins: composite, basler (default: all)")
-    b.add_argument("--presets", help="comma-separated presets (default: fast,balanced,quality,paper; real suite, --table layers and scaling: fast,balanced)")
+    b.add_argument("--presets", help="comma-separated presets (default: fast,balanced,quality,paper; real suite, --table layers, finder and scaling: fast,balanced)")
     b.add_argument("--quick", action="store_true", help="tiny scenes and a few steps: a smoke test, not a measurement")
     b.add_argument("--threads", type=POSITIVE_INT, help="torch threads per job (default: 2; real suite, --table hdr-video, blur, joins: 1)")
-    b.add_argument("--table", choices=["presets", "analysis", "layers", "scaling", "length", "hdr-video", "blur", "joins"], default="presets", help="synthetic suite: presets, the speed/quality trade (default); analysis: the analysed model against the full model on each synthetic family; layers: alpha against the true masks on the real DAVIS clips, with and without --masks; scaling: cost against frame size (steps/s, stage times, peak memory, quality) -> scaling.csv, scaling.png; length: cost against the clip's length (peak memory sampled, the estimate, wall time) on a DAVIS clip played forth and back -> length.csv, length.png; hdr-video: hdr.mp4's cost and round trip per --hdr-format on the real Basler clip -> hdr_video.json, .md, .png; blur: the blur generator's variants on synthetic camera shake and a focus x exposure stack against ground truth -> shake.json, mfme.json; joins: two windows against one model on 96-frame clips (a composite with truth, the Basler clip), PSNR-mu and flicker at the join -> joins.json, .md, .png")
+    b.add_argument("--table", choices=["presets", "analysis", "layers", "finder", "scaling", "length", "hdr-video", "blur", "joins"], default="presets", help="synthetic suite: presets, the speed/quality trade (default); analysis: the analysed model against the full model on each synthetic family; layers: alpha against the true masks on the real DAVIS clips, with and without --masks; finder: the foreground finder's masks on the same clips (no training) with all its steps, each left out, and none -> finder.json, .md; scaling: cost against frame size (steps/s, stage times, peak memory, quality) -> scaling.csv, scaling.png; length: cost against the clip's length (peak memory sampled, the estimate, wall time) on a DAVIS clip played forth and back -> length.csv, length.png; hdr-video: hdr.mp4's cost and round trip per --hdr-format on the real Basler clip -> hdr_video.json, .md, .png; blur: the blur generator's variants on synthetic camera shake and a focus x exposure stack against ground truth -> shake.json, mfme.json; joins: two windows against one model on 96-frame clips (a composite with truth, the Basler clip), PSNR-mu and flicker at the join -> joins.json, .md, .png")
     b.add_argument("--lengths", default="48,192,768", help="--table length: clip lengths in frames (default: 48,192,768); the clip: the first of --clips (default cows), its size: the first of --sizes when given (HxW, e.g. 1080x1920), else its own")
     b.add_argument("--preset", help="preset for --table analysis, length, blur and joins (default: fast) and hdr-video (default: balanced, hdr-video's own)")
-    b.add_argument("--force", action="store_true", help="real suite, --table layers, hdr-video, joins: redo finished jobs (hdr-video: train the run again)")
-    b.add_argument("--data", help="real suite, --table layers, length, hdr-video, joins: the shared captures (default: $LAYERCAM_DATA or ../shared/data)")
-    b.add_argument("--max-frames", type=POSITIVE_INT, help="real suite: frames of the Basler clip (default: all 74); --table layers: the first N of each clip (default: 24)")
-    b.add_argument("--clips", help="--table layers: comma-separated clip names, e.g. libby,cows (default: every layers_davis_* clip)")
+    b.add_argument("--force", action="store_true", help="real suite, --table layers, finder, hdr-video, joins: redo finished jobs (hdr-video: train the run again)")
+    b.add_argument("--data", help="real suite, --table layers, finder, length, hdr-video, joins: the shared captures (default: $LAYERCAM_DATA or ../shared/data)")
+    b.add_argument("--max-frames", type=POSITIVE_INT, help="real suite: frames of the Basler clip (default: all 74); --table layers, finder: the first N of each clip (default: 24)")
+    b.add_argument("--clips", help="--table layers, finder: comma-separated clip names, e.g. libby,cows (default: every layers_davis_* clip)")
     b.add_argument("--variants", help="--table layers: motion (no masks: the motion bootstrap), masks (the true masks given) (default: both); --table length: masks alone gives the true masks; --table hdr-video: the --hdr-format values to export (default: none,pq,hlg); --table blur: the blur generator's variants, s5 (3x3 patch, offsets up to 5 px), s0 (fixed 3x3 patch), off, s5n5 (5x5 patch), s5nf (no flow loss) (default: s5,s0,off for shake, s5,off for mfme)")
     b.add_argument("--repeat", type=POSITIVE_INT, help="--table hdr-video: exports per --hdr-format, their median reported (default: 2; --quick: 1)")
     b.add_argument("--seeds", default="0", help="--table blur: comma-separated training seeds of the mfme cases, their PSNR-mu mean and std reported (default: 0)")
-    b.add_argument("--resize", default="0.33", help="--table layers: frame scale, as hdr-video's --resize (default: 0.33)")
+    b.add_argument("--resize", default="0.33", help="--table layers, finder: frame scale, as hdr-video's --resize (default: 0.33)")
     b.add_argument("--layers", choices=["auto", "2"], default="2", help="--table layers: 2, forced (default: alpha is scored on every clip); auto: the analysis decides (a clip where the finder finds no object runs with one layer)")
     b.add_argument("--sizes", help="--table scaling: frame sizes HxW (default: 128x128,256x256,512x512,1080x1920); --table blur: the scenes' size, the first of them (default: 64x64)")
     b.add_argument("--frames", type=POSITIVE_INT, help="--table scaling: frames per clip (default 48); --table blur: the shake clip's frames (default 8); --table joins: the clips' length, cut into two windows (default 96)")
@@ -73,6 +74,7 @@ READS = {
     "presets": {"scenes", "presets", "quick", "threads"},
     "analysis": {"preset", "quick"},
     "layers": {"clips", "variants", "presets", "resize", "layers", "max_frames", "threads", "force", "data"},
+    "finder": {"clips", "presets", "resize", "max_frames", "force", "data"},
     "scaling": {"sizes", "presets", "frames", "threads", "no_baseline"},
     "length": {"lengths", "clips", "sizes", "preset", "threads", "variants", "data"},
     "hdr-video": {"preset", "variants", "repeat", "force", "data", "quick", "threads"},
@@ -136,6 +138,13 @@ def run(args) -> int:
         rows = run_layers_table(out, data, _list(args.clips), tuple(_list(args.variants) or VARIANTS), tuple(_list(args.presets) or ("fast", "balanced")), args.resize, args.overrides, args.layers, args.max_frames or MAX_FRAMES, args.threads or 1, args.force, progress=not args.quiet)
         if not args.quiet:
             print(f"wrote {out / 'layers.md'} ({len(rows)} rows)")
+        return 0
+    if args.table == "finder":
+        from layercam.bench.finder import run_finder_table
+
+        rows = run_finder_table(out, _data(args), _list(args.clips), tuple(_list(args.presets) or ("fast", "balanced")), args.resize, args.max_frames, args.overrides, args.force, progress=not args.quiet)
+        if not args.quiet:
+            print(f"wrote {out / 'finder.md'} ({len(rows)} rows)")
         return 0
     if args.table in ("hdr-video", "blur", "joins"):
         return _run_moved(args)

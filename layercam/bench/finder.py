@@ -1,0 +1,114 @@
+"""``layercam bench --table finder``: the foreground finder's steps, each left out, on every DAVIS clip.
+
+Every ``layers_davis_*`` clip under ``--data`` (its first ``MAX_FRAMES`` frames at ``--resize``, as
+``--table layers`` reads it) gets the flow of each preset asked for (its ``flow`` section, as
+``hdr-video`` computes it; kept under ``OUT/flow/``), then :func:`layercam.vision.segment.find_foreground`'s
+masks with all of its optional steps (:data:`layercam.vision.segment.STEPS`), with each of them
+left out, and with none (the motion masks alone), scored against the true masks: per clip the mean
+IoU over its frames, its worst frame and the share of the object inside the masks; per step set the
+set's mean and its worst clip. No training: this measures the masks a two-layer run starts from and
+what each step adds to them (``--table layers`` scores the trained alpha). A finished clip leaves
+``OUT/results/finder-<clip>-<preset>.json`` and is not run again (``--force`` redoes it). Writes
+``OUT/finder.json`` and ``OUT/finder.md``.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+
+def step_sets() -> dict[str, tuple]:
+    """``{name: steps}``: all of :data:`~layercam.vision.segment.STEPS`, each left out, none."""
+    from layercam.vision.segment import STEPS
+
+    sets = {"all": STEPS}
+    for s in STEPS:  # the colour cut gates on the clean plate's residual: without the plate, no cut either
+        sets[f"without {s}" + (" (and colour)" if s == "background" else "")] = tuple(x for x in STEPS if x != s and not (s == "background" and x == "colour"))
+    sets["motion masks alone"] = ()
+    return sets
+
+
+def run_finder_clip(name: str, folder: Path, preset: str, resize: str, max_frames: int, work: Path, overrides: list[str] | None = None) -> dict:
+    """One clip at one preset's flow, in this process: ``{clip, preset, frames, size, flow_s,
+    sets: {name: {iou, iou_min, inside, seconds}}}``."""
+    from layercam.bench.layers import inside_share, mask_ious
+    from layercam.core.presets import load_config
+    from layercam.io import load_clip
+    from layercam.io.masks import load_masks
+    from layercam.vision import flow_store
+    from layercam.vision.scale import at_frame_size
+    from layercam.vision.segment import find_foreground
+
+    clip = load_clip(folder / "frames", max_frames=max_frames, resize=resize)
+    truth = load_masks(folder / "masks_gt", clip)
+    cfg = load_config(preset, list(overrides or []))
+    work.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    flow_store.compute(clip.frames, work, cfg.flow)
+    flow_s = time.perf_counter() - t0
+    fl = at_frame_size(flow_store.load(work), (clip.H, clip.W), ("fw", "bw", "fw_ok", "bw_ok"))
+    flows = {k: np.asarray(fl[k][:]) for k in ("fw", "bw", "fw_ok", "bw_ok")}
+    sets = {}
+    for label, steps in step_sets().items():
+        t0 = time.perf_counter()
+        masks, _ = find_foreground(clip.frames, flows, cfg.segment, steps=steps)
+        ious = mask_ious(masks, truth)
+        sets[label] = {"iou": round(float(np.mean(ious)), 4), "iou_min": round(float(np.min(ious)), 4),
+                       "inside": round(inside_share(masks, truth), 4), "seconds": round(time.perf_counter() - t0, 2)}
+    return {"clip": name, "preset": preset, "frames": clip.T, "size": f"{clip.W}x{clip.H}", "flow_s": round(flow_s, 1), "sets": sets}
+
+
+def summarise(rows: list[dict]) -> list[dict]:
+    """Per preset and step set: the set's mean IoU, its worst clip and the mean share inside."""
+    out = []
+    for preset in dict.fromkeys(r["preset"] for r in rows):
+        mine = [r for r in rows if r["preset"] == preset]
+        for label in step_sets():
+            vals = [(r["sets"][label]["iou"], r["clip"], r["sets"][label]["inside"]) for r in mine if label in r["sets"]]
+            if vals:
+                worst = min(vals)
+                out.append({"preset": preset, "steps": label, "clips": len(vals), "mean": round(float(np.mean([v[0] for v in vals])), 4),
+                            "worst": worst[0], "worst_clip": worst[1], "inside": round(float(np.mean([v[2] for v in vals])), 4)})
+    return out
+
+
+def finder_markdown(rows: list[dict], summary: list[dict], command: str) -> str:
+    """``finder.md``: the set's mean and worst clip per step set, then every clip."""
+    labels = list(step_sets())
+    lines = ["# The foreground finder's steps, each left out (masks against the true masks, no training)", "",
+             f"Regenerate: `{command}`", "", "| preset | steps | clips | mean IoU | worst clip | object inside (mean) |", "|---|---|---|---|---|---|"]
+    lines += [f"| `{s['preset']}` | {s['steps']} | {s['clips']} | {s['mean']:.3f} | {s['worst_clip']} {s['worst']:.3f} | {s['inside']:.3f} |" for s in summary]
+    lines += ["", "Per clip, mean IoU (worst frame):", "", "| clip | preset | " + " | ".join(labels) + " |", "|---|---|" + "---|" * len(labels)]
+    lines += [f"| {r['clip']} | `{r['preset']}` | " + " | ".join(f"{r['sets'][k]['iou']:.3f} ({r['sets'][k]['iou_min']:.2f})" for k in labels) + " |" for r in rows]
+    return "\n".join(lines) + "\n"
+
+
+def run_finder_table(out: Path, data: Path, clips: list[str] | None = None, presets: tuple = ("fast", "balanced"), resize: str = "0.33", max_frames: int | None = None,
+                     overrides: list[str] | None = None, force: bool = False, progress: bool = True) -> list[dict]:
+    """Runs (or re-uses) every preset x clip, then writes ``finder.json`` and ``finder.md``. Returns the rows."""
+    from layercam.bench.layers import MAX_FRAMES, find_clips
+    from layercam.core.progress import bar
+    from layercam.io.atomic import atomic_write
+
+    out = Path(out)
+    found = find_clips(data, clips)
+    (out / "results").mkdir(parents=True, exist_ok=True)
+    rows = []
+    jobs = [(p, c) for p in presets for c in found]
+    for preset, name in bar(jobs, desc="finder", unit="clip", enabled=progress):
+        res = out / "results" / f"finder-{name}-{preset}.json"
+        if res.exists() and not force:
+            rows.append(json.loads(res.read_text()))
+            continue
+        row = run_finder_clip(name, found[name], preset, resize, max_frames or MAX_FRAMES, out / "flow" / f"{name}-{preset}", overrides)
+        atomic_write(res, lambda p: p.write_text(json.dumps(row, indent=1)))
+        rows.append(row)
+    summary = summarise(rows)
+    command = "layercam bench --table finder" + (f" --clips {','.join(clips)}" if clips else "") + f" --presets {','.join(presets)}" + (f" --resize {resize}" if resize != "0.33" else "") + f" --out {out}"
+    atomic_write(out / "finder.json", lambda p: p.write_text(json.dumps({"summary": summary, "rows": rows}, indent=1)))
+    atomic_write(out / "finder.md", lambda p: p.write_text(finder_markdown(rows, summary, command)))
+    return rows

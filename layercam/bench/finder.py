@@ -2,7 +2,7 @@
 
 Every ``layers_davis_*`` clip under ``--data`` (its first ``MAX_FRAMES`` frames at ``--resize``, as
 ``--table layers`` reads it) gets the flow of each preset asked for (its ``flow`` section, as
-``hdr-video`` computes it; kept under ``OUT/flow/``), then :func:`layercam.vision.segment.find_foreground`'s
+``hdr-video`` computes it, in a temporary folder), then :func:`layercam.vision.segment.find_foreground`'s
 masks with all of its optional steps (:data:`layercam.vision.segment.STEPS`), with each of them
 left out, and with none (the motion masks alone), scored against the true masks: per clip the mean
 IoU over its frames, its worst frame and the share of the object inside the masks; per step set the
@@ -15,6 +15,7 @@ what each step adds to them (``--table layers`` scores the trained alpha). A fin
 from __future__ import annotations
 
 import json
+import tempfile
 import time
 from pathlib import Path
 
@@ -32,7 +33,7 @@ def step_sets() -> dict[str, tuple]:
     return sets
 
 
-def run_finder_clip(name: str, folder: Path, preset: str, resize: str, max_frames: int, work: Path, overrides: list[str] | None = None) -> dict:
+def run_finder_clip(name: str, folder: Path, preset: str, resize: str, max_frames: int, overrides: list[str] | None = None) -> dict:
     """One clip at one preset's flow, in this process: ``{clip, preset, frames, size, flow_s,
     sets: {name: {iou, iou_min, inside, seconds}}}``."""
     from layercam.bench.layers import inside_share, mask_ious
@@ -46,12 +47,12 @@ def run_finder_clip(name: str, folder: Path, preset: str, resize: str, max_frame
     clip = load_clip(folder / "frames", max_frames=max_frames, resize=resize)
     truth = load_masks(folder / "masks_gt", clip)
     cfg = load_config(preset, list(overrides or []))
-    work.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
-    flow_store.compute(clip.frames, work, cfg.flow)
+    with tempfile.TemporaryDirectory(prefix="layercam-finder-") as work:
+        flow_store.compute(clip.frames, Path(work), cfg.flow)
+        fl = at_frame_size(flow_store.load(Path(work)), (clip.H, clip.W), ("fw", "bw", "fw_ok", "bw_ok"))
+        flows = {k: np.array(fl[k][:]) for k in ("fw", "bw", "fw_ok", "bw_ok")}  # read before the folder goes
     flow_s = time.perf_counter() - t0
-    fl = at_frame_size(flow_store.load(work), (clip.H, clip.W), ("fw", "bw", "fw_ok", "bw_ok"))
-    flows = {k: np.asarray(fl[k][:]) for k in ("fw", "bw", "fw_ok", "bw_ok")}
     sets = {}
     for label, steps in step_sets().items():
         t0 = time.perf_counter()
@@ -104,7 +105,7 @@ def run_finder_table(out: Path, data: Path, clips: list[str] | None = None, pres
         if res.exists() and not force:
             rows.append(json.loads(res.read_text()))
             continue
-        row = run_finder_clip(name, found[name], preset, resize, max_frames or MAX_FRAMES, out / "flow" / f"{name}-{preset}", overrides)
+        row = run_finder_clip(name, found[name], preset, resize, max_frames or MAX_FRAMES, overrides)
         atomic_write(res, lambda p: p.write_text(json.dumps(row, indent=1)))
         rows.append(row)
     summary = summarise(rows)

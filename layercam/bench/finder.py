@@ -89,8 +89,9 @@ def finder_markdown(rows: list[dict], summary: list[dict], command: str) -> str:
 
 
 def run_finder_table(out: Path, data: Path, clips: list[str] | None = None, presets: tuple = ("fast", "balanced"), resize: str = "0.33", max_frames: int | None = None,
-                     overrides: list[str] | None = None, force: bool = False, progress: bool = True) -> list[dict]:
-    """Runs (or re-uses) every preset x clip, then writes ``finder.json`` and ``finder.md``. Returns the rows."""
+                     overrides: list[str] | None = None, force: bool = False, progress: bool = True, command: str = "layercam bench --table finder") -> list[dict]:
+    """Runs (or re-uses) every preset x clip, then writes ``finder.json`` and ``finder.md`` (``command``: the
+    line that regenerates it, as typed). Returns the rows."""
     from layercam.bench.layers import MAX_FRAMES, find_clips
     from layercam.core.progress import bar
     from layercam.io.atomic import atomic_write
@@ -109,7 +110,6 @@ def run_finder_table(out: Path, data: Path, clips: list[str] | None = None, pres
         atomic_write(res, lambda p: p.write_text(json.dumps(row, indent=1)))
         rows.append(row)
     summary = summarise(rows)
-    command = "layercam bench --table finder" + (f" --clips {','.join(clips)}" if clips else "") + f" --presets {','.join(presets)}" + (f" --resize {resize}" if resize != "0.33" else "") + f" --out {out}"
     atomic_write(out / "finder.json", lambda p: p.write_text(json.dumps({"summary": summary, "rows": rows}, indent=1)))
     atomic_write(out / "finder.md", lambda p: p.write_text(finder_markdown(rows, summary, command)))
     return rows

@@ -142,7 +142,9 @@ def run(args) -> int:
     if args.table == "finder":
         from layercam.bench.finder import run_finder_table
 
-        rows = run_finder_table(out, _data(args), _list(args.clips), tuple(_list(args.presets) or ("fast", "balanced")), args.resize, args.max_frames, args.overrides, args.force, progress=not args.quiet)
+        flags = (("--clips", args.clips), ("--presets", args.presets), ("--resize", args.resize if args.resize != "0.33" else None), ("--max-frames", args.max_frames))
+        rows = run_finder_table(out, _data(args), _list(args.clips), tuple(_list(args.presets) or ("fast", "balanced")), args.resize, args.max_frames, args.overrides, args.force,
+                                progress=not args.quiet, command=_command("layercam bench --table finder", out, flags, args.overrides))
         if not args.quiet:
             print(f"wrote {out / 'finder.md'} ({len(rows)} rows)")
         return 0
@@ -200,18 +202,20 @@ def _run_moved(args) -> int:
     return 0
 
 
-def _run_real(args) -> int:
+def _command(head: str, out: Path, flags: tuple, overrides: list[str], quick: bool = False) -> str:
+    """The command line that regenerates a table: ``head``, ``--out``, each ``(flag, value)`` given, the ``--set``\ s."""
     import shlex
 
+    cmd = f"{head} --out {shlex.quote(str(out))}" + "".join(f" {flag} {v}" for flag, v in flags if v)
+    return cmd + "".join(f" --set {s}" for s in overrides) + (" --quick" if quick else "")
+
+
+def _run_real(args) -> int:
     from layercam.bench.realsuite import run_real_suite
 
     out = Path(args.out or "runs/real")
-    cmd = "layercam bench --suite real --out " + shlex.quote(str(out))
     picks = () if args.redraw else (("--cases", args.cases), ("--presets", args.presets))  # a redraw writes every row
-    for flag, v in (*picks, ("--max-frames", args.max_frames), ("--threads", args.threads)):
-        if v:
-            cmd += f" {flag} {v}"
-    cmd += "".join(f" --set {s}" for s in args.overrides) + (" --quick" if args.quick else "")
+    cmd = _command("layercam bench --suite real", out, (*picks, ("--max-frames", args.max_frames), ("--threads", args.threads)), args.overrides, args.quick)
     rows = run_real_suite(out, _list(args.cases), _list(args.presets), args.data, args.force, args.quick, args.threads or 1, args.overrides, args.max_frames, progress=not args.quiet, command=cmd, redraw=args.redraw)
     if not args.quiet:
         print(f"wrote {out / 'real_suite.md'}, real_suite.csv and cases/*/figure.png ({len(rows)} rows)")

@@ -123,3 +123,44 @@ def test_colour_cut_pays_for_distance_from_the_mask(monkeypatch):
     free = colour.colour_cut(frames, masks, rel)
     assert free[far].mean() > 0.5
     assert paid[far].mean() < 0.2 and paid[masks].mean() > 0.95
+
+
+def test_carry_lost_carries_the_object_not_the_background_it_overlapped():
+    """``clean.carry_lost`` on masks that lost the object (no flow: it keeps its place): the
+    frame with the largest mask holds the object and a block of background; the next two hold a
+    strip of the object. The first of them is offered the whole carried mask; the second only the
+    object (the block is not of the object's colours, so it is not carried on); a frame that did
+    not lose the object is offered nothing."""
+    from layercam.vision.segment.clean import carry_lost
+
+    T, h, w = 3, 48, 64
+    obj = np.zeros((h, w), bool)
+    obj[10:30, 10:30] = True
+    block = np.zeros((h, w), bool)
+    block[10:30, 40:50] = True
+    strip = obj & (np.arange(h)[:, None] < 14)
+    masks = np.stack([obj | block, strip, strip])
+    flow = np.zeros((T - 1, h, w, 2), np.float32)
+    likely = np.stack([obj] * T)
+    extra = carry_lost(masks, flow, flow, likely)
+    assert not extra[0].any()
+    assert (extra[1] == ((obj | block) & ~strip)).all()
+    assert (extra[2] == (obj & ~strip)).all()
+    assert not carry_lost(np.stack([obj, obj, obj]), flow, flow, likely).any()
+
+
+def test_colour_cut_takes_back_what_a_frame_lost_along_the_flow():
+    """The red object moves 2 px a frame and its clean-plate residual is zero everywhere (the
+    plate holds it too); the motion masks hold all of it in the last frame and a strip of it in
+    the others. Without the flow the cut keeps the strips; with it, each frame gets the object."""
+    frames, truth = _red_object_clip(3, slice(0, 0))
+    masks = truth.copy()
+    masks[:-1, 27:, :] = False  # frames 0-2: the top 5 rows only
+    rel = np.zeros(truth.shape, np.float16)
+    fw = np.zeros((len(frames) - 1,) + truth.shape[1:] + (2,), np.float32)
+    fw[..., 0] = 2.0
+    bw = -fw
+    iou = lambda m: np.mean([metrics.iou(m[t], truth[t]) for t in range(len(m))])  # noqa: E731
+    without = colour.colour_cut(frames, masks, rel)
+    carried = colour.colour_cut(frames, masks, rel, fw, bw)
+    assert iou(without) < 0.5 < 0.9 < iou(carried), (iou(without), iou(carried))

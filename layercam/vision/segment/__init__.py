@@ -117,7 +117,7 @@ def find_foreground(frames: np.ndarray, flows: dict, cfg: SegmentConfig | None =
         if "colour" in steps:
             from layercam.vision.segment.colour import colour_cut
 
-            masks = colour_cut(frames, fill_still_frames(masks, fw, bw)[0], rel)  # frames the check emptied start again from their neighbours'
+            masks = colour_cut(frames, fill_still_frames(masks, fw, bw)[0], rel, fw, bw)  # frames the check emptied start again from their neighbours'
     masks = np.asarray(masks, np.float32)
     info["verdict"] = verdict(masks, evidence, fw)
     if masks.shape[1:] != (h, w):

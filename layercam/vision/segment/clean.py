@@ -102,3 +102,30 @@ def fill_still_frames(masks: np.ndarray, fw: np.ndarray, bw: np.ndarray, frac: f
         out[t] = m > 0.5
         filled.append(int(t))
     return out, filled
+
+
+LOST = 0.7  # a mask under this share of its neighbour's, carried along the flow, has lost part of the object
+
+
+def carry_lost(masks: np.ndarray, fw: np.ndarray, bw: np.ndarray, likely: np.ndarray) -> np.ndarray:
+    """Where frames lost part of the object: ``(T, H, W)`` bool, the pixels a neighbour's mask
+    carried along the flow adds to a frame whose own mask ``masks`` is under ``LOST`` of it (empty
+    elsewhere). Walks outward from the frame with the largest mask; what is carried on from a frame
+    is its own mask and the carried pixels of the object's colours (``likely``, ``(T, H, W)``
+    bool), so an object lost for several frames is carried through them and the background a
+    carried mask overlaps is not."""
+    m = np.asarray(masks) > 0.5
+    T = m.shape[0]
+    extra = np.zeros_like(m)
+    if T < 2 or not m.any():
+        return extra
+    chain = m.copy()
+    start = int(np.argmax(m.reshape(T, -1).sum(1)))
+    for step in (1, -1):
+        for t in range(start, T - 1 if step == 1 else 0, step):
+            n = t + step
+            carried = warp_mask(chain[t], bw[t] if step == 1 else fw[n]) > 0.5
+            if m[n].sum() < LOST * carried.sum():
+                extra[n] = carried & ~m[n]
+                chain[n] = m[n] | (extra[n] & likely[n])
+    return extra

@@ -10,7 +10,11 @@ object : background. Per frame a graph cut (:func:`graph_cut`; contrast-sensitiv
 clip's median mask area) of the mask, the mask counting +1 towards the object, and only where the
 frame differs from the clean plate (:func:`layercam.vision.segment.background.background_refine`'s
 relative residual, above ``GATE``) or the mask already is: background of the object's colours
-does not join. Each pixel pays ``DISTANCE`` per object size it lies away from the mask. Then :func:`layercam.vision.segment.clean.clean_mask` at half its radii (legs and tails 1-3 px wide),
+does not join. Each pixel pays ``DISTANCE`` per object size it lies away from the mask. A frame
+whose mask lost part of the object (under ``clean.LOST`` of its neighbour's carried along the flow,
+as when the object moves the way the camera does and no motion test can see it) may take the
+carried pixels by their colours alone, wherever the residual is (the clean plate behind it may
+hold the object too). Then :func:`layercam.vision.segment.clean.clean_mask` at half its radii (legs and tails 1-3 px wide),
 keeping parts of the object's colours within its size of the largest; a cut that leaves nothing
 keeps the mask.
 """
@@ -81,10 +85,30 @@ def colour_bins(lab: np.ndarray) -> np.ndarray:
     return (lq * b + aq) * b + bq
 
 
-def colour_cut(frames: np.ndarray, masks: np.ndarray, residual: np.ndarray) -> np.ndarray:
-    """Masks ``(T, H, W)`` bool grown to the whole object by its colours (module docstring).
-    ``residual (T, H, W)``: the relative residual against the clean plate."""
+def colour_ratio(bins: np.ndarray, masks: np.ndarray, away: np.ndarray) -> np.ndarray:
+    """Object : background colour log-likelihood ratio per bin ``(BINS**3,)``: the object's
+    histogram from ``masks`` eroded, the background's from outside ``away`` dilated (both
+    ``(T, H, W)`` bool, over every frame; ``bins`` ``(T, H, W)`` from :func:`colour_bins`)."""
     import cv2
+
+    k7 = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (7, 7))
+    nb = BINS**3
+    fg_hist, bg_hist = np.ones(nb), np.ones(nb)
+    for t in range(len(bins)):
+        fg_hist += np.bincount(bins[t][cv2.erode(masks[t].astype(np.uint8), k7) > 0], minlength=nb)
+        bg_hist += np.bincount(bins[t][cv2.dilate(away[t].astype(np.uint8), k7, iterations=3) == 0], minlength=nb)
+    return np.clip(np.log(fg_hist / fg_hist.sum()) - np.log(bg_hist / bg_hist.sum()), -4.0, 4.0).astype(np.float32)
+
+
+def colour_cut(frames: np.ndarray, masks: np.ndarray, residual: np.ndarray, fw: np.ndarray | None = None, bw: np.ndarray | None = None) -> np.ndarray:
+    """Masks ``(T, H, W)`` bool grown to the whole object by its colours (module docstring).
+    ``residual (T, H, W)``: the relative residual against the clean plate; ``fw``, ``bw``
+    ``(T-1, H, W, 2)``: the flow that carries a mask into a frame that lost part of the object
+    (:func:`layercam.vision.segment.clean.carry_lost`): the cut may add the carried pixels at no
+    distance cost and without the residual, by their colours alone (without flow nothing is carried)."""
+    import cv2
+
+    from layercam.vision.segment.clean import carry_lost
 
     m = np.asarray(masks) > 0.5
     T, h, w = m.shape
@@ -93,14 +117,10 @@ def colour_cut(frames: np.ndarray, masks: np.ndarray, residual: np.ndarray) -> n
         return m
     ref = float(np.median(area[area > 0]))
     bins = np.stack([colour_bins(equalised_lab(f)).astype(np.uint16) for f in frames])  # 2 bytes a pixel: long 1080p clips fit
-    k7 = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (7, 7))
-    nb = BINS**3
-    fg_hist, bg_hist = np.ones(nb), np.ones(nb)
-    for t in range(T):
-        u = m[t].astype(np.uint8)
-        fg_hist += np.bincount(bins[t][cv2.erode(u, k7) > 0], minlength=nb)
-        bg_hist += np.bincount(bins[t][cv2.dilate(u, k7, iterations=3) == 0], minlength=nb)
-    llr = np.clip(np.log(fg_hist / fg_hist.sum()) - np.log(bg_hist / bg_hist.sum()), -4.0, 4.0).astype(np.float32)
+    llr = colour_ratio(bins, m, m)
+    carried = np.zeros_like(m) if fw is None else carry_lost(m, fw, bw, np.stack([llr[b] > 0 for b in bins]))
+    if carried.any():  # the carried pixels are not counted as background
+        llr = colour_ratio(bins, m, m | carried)
     size = np.sqrt(ref)
     rad = max(2.0, REACH * size)
     out = m.copy()
@@ -108,8 +128,9 @@ def colour_cut(frames: np.ndarray, masks: np.ndarray, residual: np.ndarray) -> n
         prior = m[t]
         if area[t] < 16:
             continue
-        away = cv2.distanceTransform((~prior).astype(np.uint8), cv2.DIST_L2, 5)  # from the mask, px
-        region = (away <= rad) & ((np.asarray(residual[t], np.float32) > GATE) | prior)
+        may = prior | carried[t]
+        away = cv2.distanceTransform((~may).astype(np.uint8), cv2.DIST_L2, 5)  # from the mask, px
+        region = (away <= rad) & ((np.asarray(residual[t], np.float32) > GATE) | may)
         ys, xs = np.nonzero(region)
         y0, y1, x0, x1 = ys.min(), ys.max() + 1, xs.min(), xs.max() + 1
         box = (slice(y0, y1), slice(x0, x1))

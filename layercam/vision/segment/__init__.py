@@ -18,7 +18,8 @@ learned over the whole clip. One step per module:
 5. :mod:`~layercam.vision.segment.background`: the clean plate (neighbours registered by the camera's
    motion, their object left out) adds limbs the flow missed and drops background the flow smeared.
 6. :mod:`~layercam.vision.segment.colour`: a graph cut on the object's colours learned over the clip grows
-   the masks to the whole object where the frame differs from the clean plate.
+   the masks to the whole object where the frame differs from the clean plate, and where a frame's
+   mask lost part of the object its neighbour's, carried along the flow, offers it back.
 7. :mod:`~layercam.vision.segment.verdict`: masks that jump about or move like their surroundings are no
    object: the run says so.
 

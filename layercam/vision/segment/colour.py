@@ -118,7 +118,7 @@ def colour_cut(frames: np.ndarray, masks: np.ndarray, residual: np.ndarray, fw: 
     ref = float(np.median(area[area > 0]))
     bins = np.stack([colour_bins(equalised_lab(f)).astype(np.uint16) for f in frames])  # 2 bytes a pixel: long 1080p clips fit
     llr = colour_ratio(bins, m, m)
-    carried = np.zeros_like(m) if fw is None else carry_lost(m, fw, bw, np.stack([llr[b] > 0 for b in bins]))
+    carried = np.zeros_like(m) if fw is None else carry_lost(m, fw, bw, (llr > 0)[bins])
     if carried.any():  # the carried pixels are not counted as background
         llr = colour_ratio(bins, m, m | carried)
     size = np.sqrt(ref)

@@ -155,6 +155,25 @@ def test_still_object_inherits_neighbour_masks(square):
     assert metrics.iou(out[5], square["masks"][5]) > 0.4
 
 
+def test_still_frames_inherit_a_whole_object_not_the_partial_mask_beside_them(square):
+    """Frames 0-1 lost the object and frame 2 holds only a sliver of it (as where an object starts
+    moving, only its moving parts are seen): 0-1 inherit the nearest mask of the object's typical
+    size (frame 3's), not frame 2's sliver, which itself is left as it is."""
+    fw, bw = square["fw"].copy(), square["bw"].copy()
+    ev_masks = square["masks"].copy()
+    ev_masks[:2] = False
+    sliver = np.zeros_like(ev_masks[2])
+    ys, xs = np.nonzero(ev_masks[2])
+    sliver[ys, xs] = xs < xs.min() + (xs.max() - xs.min() + 1) * 0.4  # the left 40% of the square
+    ev_masks[2] = sliver
+    out, filled = fill_still_frames(ev_masks, fw, bw, 0.3)
+    assert filled == [0, 1]
+    assert (out[2] == sliver).all()
+    for t in (0, 1):
+        assert metrics.iou(out[t], square["masks"][t]) > 0.4, t  # carried over 3 and 2 frames
+        assert out[t].sum() > 2 * sliver.sum()
+
+
 def test_bad_inputs_raise():
     with pytest.raises(LayercamError):
         segment.motion_masks(np.zeros((2, 8, 8, 2)), np.zeros((3, 8, 8, 2)))

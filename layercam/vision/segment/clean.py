@@ -77,7 +77,10 @@ STILL = 0.3  # a frame whose mask is under this share of the clip's median area 
 
 def fill_still_frames(masks: np.ndarray, fw: np.ndarray, bw: np.ndarray, frac: float | None = None) -> tuple[np.ndarray, list[int]]:
     """Frames whose mask is under ``frac`` (default ``STILL``) of the clip's median area inherit the
-    nearest good neighbour's, carried along the flow."""
+    mask of the nearest frame that holds the object at its typical size (at least the median area),
+    carried along the flow. (Not the nearest frame over ``frac``: where an object starts or stops
+    moving, the frames beside the still ones see only the parts that move, and their partial masks
+    would be carried through every still frame.)"""
     frac = STILL if frac is None else frac
     T = masks.shape[0]
     area = masks.reshape(T, -1).sum(1)
@@ -85,10 +88,11 @@ def fill_still_frames(masks: np.ndarray, fw: np.ndarray, bw: np.ndarray, frac: f
     if ref <= 0:
         return masks, []
     good = area >= frac * ref
+    typical = np.flatnonzero(area >= ref)
     out = masks.copy()
     filled = []
     for t in np.flatnonzero(~good):
-        cand = [(abs(s - t), s) for s in np.flatnonzero(good)]
+        cand = [(abs(s - t), s) for s in typical]
         if not cand:
             break
         _, s = min(cand)

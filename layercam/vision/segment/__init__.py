@@ -13,7 +13,7 @@ learned over the whole clip. One step per module:
    measured noise (its robust spread) and the flow's precision.
 3. :mod:`~layercam.vision.segment.moving`: the evidence voted with its neighbours along the flow, counted
    where the frame has texture the flow can follow, one object per frame, still frames filled from
-   their neighbours.
+   the nearest frame that holds the object at its typical size.
 4. :mod:`~layercam.vision.segment.edges`: GrabCut pulls each mask to the object's colour edges.
 5. :mod:`~layercam.vision.segment.background`: the clean plate (neighbours registered by the camera's
    motion, their object left out) adds limbs the flow missed and drops background the flow smeared.

@@ -1,7 +1,7 @@
 """Step 3: the motion masks: the evidence (:mod:`layercam.vision.segment.evidence`) voted with its
 neighbours along the flow, rid of parts that lie where the frame has no texture the flow can
 follow, cleaned to one object per frame, and frames where the object stood still filled from
-their neighbours.
+the nearest frame that holds it at its typical size (``clean.fill_still_frames``).
 
 A frame's evidence counts where at least half of its pairs moved (``EVIDENCE``); it is averaged
 with that of ``WINDOW`` neighbours on each side brought into its view along the flow, and a pixel is

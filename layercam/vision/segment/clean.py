@@ -88,14 +88,11 @@ def fill_still_frames(masks: np.ndarray, fw: np.ndarray, bw: np.ndarray, frac: f
     if ref <= 0:
         return masks, []
     good = area >= frac * ref
-    typical = np.flatnonzero(area >= ref)
+    typical = np.flatnonzero(area >= ref)  # never empty: some frame reaches the median
     out = masks.copy()
     filled = []
     for t in np.flatnonzero(~good):
-        cand = [(abs(s - t), s) for s in typical]
-        if not cand:
-            break
-        _, s = min(cand)
+        s = int(typical[np.argmin(np.abs(typical - t))])  # the nearest (the earlier on a tie)
         m = masks[s].astype(np.float32)
         if s > t:
             for j in range(s - 1, t - 1, -1):

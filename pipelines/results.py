@@ -43,15 +43,13 @@ class BootstrapResult(StageResult):
     atlas's initial log2 irradiance; ``static``: the camera did not move; ``masks`` ``(T, H, W)``
     motion masks (None unless the foreground finder made them); ``foreground``: how the foreground
     was found (``how``, ``masks``: "motion segmentation" | "given" | "none", the finder's
-    ``verdict``), None for one layer; ``response``: the response curve the frames' matches measure
-    (:class:`layercam.camera.response.Response`, the tone mapper's start), None where none was measured."""
+    ``verdict``), None for one layer."""
 
     h0: np.ndarray | None = None
     init_log2: Any = None
     static: bool = False
     masks: Any = None
     foreground: dict | None = None
-    response: Any = None
 
     @property
     def verdict(self) -> dict:

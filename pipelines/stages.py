@@ -95,19 +95,9 @@ class BootstrapStage(Stage):
                 if "detector_frames" in fg["info"]:
                     ctx.say(f"[bootstrap] the detector's instances replaced the motion masks in {fg['info']['detector_frames']} of {T} frames")
         h0 = np.stack(h0)
-        resp = None
-        if cfg.model.tone_mapper == "learned" and ctx.flow is not None:  # the response the clip's matches measure
-            from layercam.camera.response import fit_response, matched_codes
-            from layercam.scene.model import WHITE_POINT
-
-            m = matched_codes(clip.frames, ctx.exposures.log2_dt, ctx.flow)
-            resp = fit_response(*m, white=WHITE_POINT) if m is not None else None
-        init_log2 = initial_log2(clip.frames, ctx.exposures.log2_dt, cfg.model.tone_mapper, response=resp)  # layercam.camera.tone
+        init_log2 = initial_log2(clip.frames, ctx.exposures.log2_dt, cfg.model.tone_mapper)  # layercam.camera.tone
         np.save(out / "h0.npy", h0)
-        res = {"how": how, "init_log2": init_log2, "layers": int(h0.shape[0]), "static": static,
-               "response": "measured from the frames' matches (Debevec-Malik)" if resp is not None else None}
-        if resp is not None:
-            np.save(out / "response.npy", np.concatenate([resp.codes[None], resp.g]))
+        res = {"how": how, "init_log2": init_log2, "layers": int(h0.shape[0]), "static": static}
         if fg:
             res["foreground"] = {"how": fg["how"], "masks": "motion segmentation" if fg["computed"] else ("given" if fg["masks"] is not None else "none"), **fg["info"]}
         return res
@@ -115,12 +105,8 @@ class BootstrapStage(Stage):
     def load(self, ctx, out, summary):
         from layercam.vision.segment import load_masks
 
-        from layercam.camera.response import Response
-
-        resp = np.load(out / "response.npy") if (out / "response.npy").exists() else None
         return BootstrapResult(summary, h0=np.load(out / "h0.npy"), init_log2=summary["init_log2"], static=bool(summary["static"]),
-                               masks=load_masks(out), foreground=summary.get("foreground"),
-                               response=Response(resp[0], resp[1:]) if resp is not None else None)
+                               masks=load_masks(out), foreground=summary.get("foreground"))
 
 
 class TrainStage(Stage):
@@ -169,7 +155,7 @@ class TrainStage(Stage):
 
             hold_camera(model, ctx.camera)
         elif cfg.model.tone_mapper == "learned":
-            fit_init_curve(model.tone, seed=cfg.train.seed, response=ctx.results["bootstrap"].response)
+            fit_init_curve(model.tone, seed=cfg.train.seed)
         masks, source = self.masks(ctx)
         fl = ctx.flow if cfg.model.flow_loss else None
         dev = device_of(cfg.train.device)

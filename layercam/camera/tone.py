@@ -103,21 +103,15 @@ def init_curve(z: torch.Tensor, slope: float = INIT_SLOPE) -> torch.Tensor:
     return torch.sigmoid(slope * math.log(2) * z)
 
 
-def initial_log2(frames: np.ndarray, log2_dt: np.ndarray, tone: str, slope: float = INIT_SLOPE, response=None) -> float:
+def initial_log2(frames: np.ndarray, log2_dt: np.ndarray, tone: str, slope: float = INIT_SLOPE) -> float:
     """The atlases' starting log2 irradiance: the median over the frames ``(T, H, W, 3)`` (grey,
     kept within 0.02..0.98) of their value through the inverse of the starting tone curve (the
-    fixed sRGB curve, the measured ``response`` (:class:`layercam.camera.response.Response`), or
-    :func:`init_curve` with ``slope``), less each frame's ``log2_dt (T,)``."""
+    fixed sRGB curve, or :func:`init_curve` with ``slope``), less each frame's ``log2_dt (T,)``."""
     dt = np.asarray(log2_dt, dtype=np.float32)
     values, counts = [], []
     for t, f in enumerate(frames):  # a frame at a time: its distinct values and their counts, not the clip's pixels
         c = np.clip(f.mean(-1), 0.02, 0.98)
-        if tone == "fixed":
-            zt = np.log2(np.maximum(srgb_decode(c), 1e-6))
-        elif response is not None:
-            zt = response.inverse(c)
-        else:
-            zt = np.log(c / (1 - c)) / (slope * math.log(2))
+        zt = np.log2(np.maximum(srgb_decode(c), 1e-6)) if tone == "fixed" else np.log(c / (1 - c)) / (slope * math.log(2))
         v, k = np.unique((zt - dt[t]).astype(np.float32), return_counts=True)
         values.append(v)
         counts.append(k)
@@ -142,16 +136,14 @@ def _weighted_median(v: np.ndarray, k: np.ndarray) -> np.float32:
     return np.mean(np.array([lo, hi], np.float32))
 
 
-def fit_init_curve(tone: ToneMapper, slope: float = INIT_SLOPE, steps: int = 300, seed: int = 0, response=None) -> float:
-    """Fit ``tone`` to :func:`init_curve` over ``[-16, 16]`` stops, or to a measured ``response``
-    (:class:`layercam.camera.response.Response`); returns the final MSE."""
+def fit_init_curve(tone: ToneMapper, slope: float = INIT_SLOPE, steps: int = 300, seed: int = 0) -> float:
+    """Fit ``tone`` to :func:`init_curve` over ``[-16, 16]`` stops; returns the final MSE."""
     g = torch.Generator().manual_seed(seed)
     opt = torch.optim.Adam(tone.parameters(), lr=1e-2)
     loss = torch.tensor(0.0)
     for _ in range(steps):
         z = (torch.rand(2048, 3, generator=g) * 32 - 16)
-        target = init_curve(z, slope) if response is None else torch.sigmoid(torch.from_numpy(response.logits(z.numpy())).float())
-        loss = ((tone(z) - target) ** 2).mean()
+        loss = ((tone(z) - init_curve(z, slope)) ** 2).mean()
         opt.zero_grad()
         loss.backward()
         opt.step()

@@ -38,7 +38,6 @@ def test_end_to_end_outputs_and_loss_falls(tiny_scene, tiny_exposures, tmp_path)
     tr = rep["train"]
     assert tr["final_loss"]["color"] < 0.5 * tr["first_loss"]["color"]
     assert rep["analysis"]["layers"] == 1 and rep["analysis"]["tone_mapper"] == "learned"
-    assert ctx.results["bootstrap"].response is not None  # the tone mapper starts on the response the frames' matches measure
     est = rep["memory"]["estimate"]  # after the analysis: the model the run built (its atlas sized by the pan); before: an upper bound
     assert est["after_analysis"]["params"] == sum(p.numel() for p in ctx.model.parameters()) < est["before"]["params"]
     if Path("/proc/self/clear_refs").exists():  # each stage's own peak resident memory, within the run's
@@ -56,7 +55,6 @@ def test_same_command_skips_changed_setting_redoes_dependents(tiny_scene, tiny_e
     trained = first.model
     ctx = _run(tiny_scene, tiny_exposures, run)
     assert all(t["cached"] for t in ctx.times.values())
-    np.testing.assert_array_equal(ctx.results["bootstrap"].response.g, first.results["bootstrap"].response.g)  # read back from the cache
     # a cached stage reports the peak memory it had when it ran
     assert all(t.get("original_peak_mb") == first.times[k].get("peak_mb") for k, t in ctx.times.items())
     # an export setting: the model is rebuilt once from the cached training, and renders what the trained one did

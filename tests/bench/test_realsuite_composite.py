@@ -46,6 +46,15 @@ def test_composite_shapes_masks_and_alternating_exposures():
     assert np.array_equal(compose(bg, fg, alpha, spec)["frames"], r["frames"])
 
 
+def test_a_still_composite_keeps_its_background_where_the_subject_is_not():
+    bg, fg, alpha = _material()
+    for still in (False, True):
+        r = compose(bg, fg, alpha, CompositeSpec(frames=4, size=(24, 32), ev_step=2.0, still=still))
+        clear = (r["alpha"][0] < 1e-3) & (r["alpha"][3] < 1e-3)
+        same = np.allclose(r["hdr"][0][clear], r["hdr"][3][clear])
+        assert same == still and clear.any()
+
+
 def test_frames_are_the_ground_truth_through_the_camera():
     bg, fg, alpha = _material(seed=1)
     clean = CompositeSpec(frames=4, size=(24, 32), ev_step=2.0, shot=0.0, read=0.0)

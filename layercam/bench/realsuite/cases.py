@@ -61,6 +61,7 @@ def _cases() -> list[Case]:
         Case("frobisher", "bracket-ref", "reference, not truth", "fuse-stack", "bracket_frobisher_exif: 3 JPEGs 1/8, 1, 8 s (EXIF), 640x426; reference: Robertson merge of the same 3 shots", {"folder": "bracket_frobisher_exif"}),
         Case("composite-2ev", "composite", "truth", "hdr-video", "parkour person over a taipei radiance map, pan, filmic curve, noise, 8 bit; 24 frames 384x256 alternating 2 EV", {"ev_step": 2.0}),
         Case("composite-3ev", "composite", "truth", "hdr-video", "as composite-2ev, alternating 3 EV", {"ev_step": 3.0}),
+        Case("composite-still", "composite", "truth", "hdr-video", "as composite-2ev, the camera held still: the export merges neighbours, as for the Basler clip", {"ev_step": 2.0, "still": True}),
         Case("basler", "video", "none", "hdr-video", "altexp_video_basler/clip_2exp_3stop.mp4: real alternating 3 EV video, 256x136, person walking", {"video": "altexp_video_basler/clip_2exp_3stop.mp4"}),
         Case("gopro-0477", "deblur", "truth", "deblur-video", "deblur_gopro0477_dev: 12 blurry frames (15 frames of real 240 fps GoPro footage averaged), hand-held, a dribbling player; --resize 0.5 (640x360)",
              {"folder": "deblur_gopro0477_dev", "resize": "0.5"}),
@@ -74,9 +75,10 @@ CASES = {c.name: c for c in _cases()}
 
 
 def composite_spec(case: Case, quick: bool) -> CompositeSpec:
+    still = bool(case.params.get("still", False))
     if quick:
-        return CompositeSpec(frames=6, size=(48, 64), ev_step=case.params["ev_step"])
-    return CompositeSpec(ev_step=case.params["ev_step"])
+        return CompositeSpec(frames=6, size=(48, 64), ev_step=case.params["ev_step"], still=still)
+    return CompositeSpec(ev_step=case.params["ev_step"], still=still)
 
 
 def shake_spec(quick: bool) -> ShakeSpec:

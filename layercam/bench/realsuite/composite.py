@@ -3,8 +3,8 @@
 The background is a real radiance map (``bracket_taipei``'s 10 shots merged with their times), the
 foreground a real non-rigid subject cut out of a DAVIS clip with its ground-truth masks (the person
 of ``layers_davis_parkour`` by default). A camera pans over the background (a window moving from its
-left edge to its right edge over the clip, rising by a tenth of the room it has) while the subject
-moves as it did in its own clip. The composite is formed in linear radiance (the ground truth per
+left edge to its right edge over the clip, rising by a tenth of the room it has; held at its middle
+with ``still``) while the subject moves as it did in its own clip. The composite is formed in linear radiance (the ground truth per
 frame), then exposed with times alternating by ``ev_step`` (frame 0 the short one), given shot and
 read noise, clipped at full well, put through a camera curve that is none of ``layercam.synth``'s
 (:func:`filmic`: Hable's filmic toe and shoulder, then gamma 1/2.2, with a different shoulder
@@ -51,6 +51,7 @@ class CompositeSpec:
     bg_level: float = 0.2
     fg_level: float = 0.3
     fg_clip: str = "layers_davis_parkour"
+    still: bool = False  # the camera held at the middle of the pan: the export merges neighbours (a static camera)
 
     def key(self) -> dict:
         return asdict(self)
@@ -91,7 +92,8 @@ def expose(hdr: np.ndarray, times: np.ndarray, rng: np.random.Generator | None, 
 def _window(bg: np.ndarray, t: int, spec: CompositeSpec) -> np.ndarray:
     """The camera's view of the background at frame ``t``: the background scaled so that its height
     is 1.25 frame heights, a frame-sized window moving linearly from the left edge to the right
-    edge and up by a tenth of its vertical room; bilinear on linear radiance. ``(H, W, 3)``."""
+    edge and up by a tenth of its vertical room (held at its middle frame's place with ``spec.still``);
+    bilinear on linear radiance. ``(H, W, 3)``."""
     import cv2
 
     h, w = spec.size
@@ -99,7 +101,7 @@ def _window(bg: np.ndarray, t: int, spec: CompositeSpec) -> np.ndarray:
     if bg.shape[1] * s < w * 1.1:
         s = 1.1 * w / bg.shape[1]
     room_x, room_y = bg.shape[1] * s - w, bg.shape[0] * s - h
-    f = t / max(spec.frames - 1, 1)
+    f = ((spec.frames - 1) // 2 if spec.still else t) / max(spec.frames - 1, 1)
     x0, y0 = f * room_x, room_y * (1.0 - 0.1 * f)
     m = np.array([[s, 0.0, -x0], [0.0, s, -y0]], np.float64)
     return cv2.warpAffine(bg, m, (w, h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)

@@ -17,8 +17,9 @@ REAL_EXAMPLES = """real suite:
   layercam bench --suite real --force --cases basler --max-frames 24
 
 Cases: ntire-000000..000003 (brackets with ground truth), taipei-3 and frobisher (brackets scored
-against a Robertson merge of all shots: a reference, not truth), composite-2ev and composite-3ev
-(a real person over a real radiance map, ground truth per frame), basler (real video, flicker).
+against a Robertson merge of all shots: a reference, not truth), composite-2ev, composite-3ev and
+composite-still (a real person over a real radiance map, the camera panning or still, ground truth
+per frame), basler (real video, flicker).
 A finished job is skipped when run again (--force redoes it); writes real_suite.csv, real_suite.md
 and cases/<case>/figure.png.
 

@@ -10,8 +10,9 @@ Groups:
 * ``bracket-ref``: ``bracket_taipei`` (3 of its 10 shots) and ``bracket_frobisher_exif`` (its 3
   shots), scored against a Robertson merge of ALL the bracket's shots: a reference, not truth
   (for frobisher the reference is made of the very shots that are scored).
-* ``composite``: :mod:`layercam.bench.realsuite.composite` clips (2 and 3 EV steps), ground truth per
-  frame, scored on the whole frame and on the foreground's own pixels.
+* ``composite``: :mod:`layercam.bench.realsuite.composite` clips (2 and 3 EV steps; one with the camera
+  held still, where the export merges neighbours), ground truth per frame, scored on the whole frame
+  and on the foreground's own pixels.
 * ``video``: the Basler clip, no ground truth: figure and flicker on static background.
 * ``deblur``: ``deblur_gopro0477_dev``, 12 blurry frames made from real 240 fps GoPro footage,
   run through ``deblur-video`` at half size (640x360) and scored (PSNR, SSIM, sRGB) against the
@@ -75,10 +76,8 @@ CASES = {c.name: c for c in _cases()}
 
 
 def composite_spec(case: Case, quick: bool) -> CompositeSpec:
-    still = bool(case.params.get("still", False))
-    if quick:
-        return CompositeSpec(frames=6, size=(48, 64), ev_step=case.params["ev_step"], still=still)
-    return CompositeSpec(ev_step=case.params["ev_step"], still=still)
+    kw = {"ev_step": case.params["ev_step"], "still": bool(case.params.get("still", False))}
+    return CompositeSpec(frames=6, size=(48, 64), **kw) if quick else CompositeSpec(**kw)
 
 
 def shake_spec(quick: bool) -> ShakeSpec:

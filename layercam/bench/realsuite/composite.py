@@ -4,8 +4,8 @@ The background is a real radiance map (``bracket_taipei``'s 10 shots merged with
 foreground a real non-rigid subject cut out of a DAVIS clip with its ground-truth masks (the person
 of ``layers_davis_parkour`` by default). A camera pans over the background (a window moving from its
 left edge to its right edge over the clip, rising by a tenth of the room it has; held at its middle
-with ``still``) while the subject moves as it did in its own clip. The composite is formed in linear radiance (the ground truth per
-frame), then exposed with times alternating by ``ev_step`` (frame 0 the short one), given shot and
+with ``still``) while the subject moves as it did in its own clip. The composite is formed in linear
+radiance (the ground truth per frame), then exposed with times alternating by ``ev_step`` (frame 0 the short one), given shot and
 read noise, clipped at full well, put through a camera curve that is none of ``layercam.synth``'s
 (:func:`filmic`: Hable's filmic toe and shoulder, then gamma 1/2.2, with a different shoulder
 per channel) and quantised to 8 bits.

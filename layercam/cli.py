@@ -98,8 +98,8 @@ def window_args(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group("long clips")
     g.add_argument("--window", type=_window, metavar="N|off", help=(
         "train the clip as overlapping windows of N frames, each its own model sharing one camera (the response "
-        "curve and exposures learned on the first window), joined by a cross-fade over their overlap weighted by how well each window "
-        "reproduces the frame; off: one "
+        "curve and exposures learned on the first window), joined by a cross-fade over their overlap weighted, pixel by pixel, by how well each window "
+        "reproduces the overlap's frames; off: one "
         "model. Default: windows where the camera's motion spans more than the atlas holds at one cell per pixel "
         "(the analysis says so); each window resumes on its own"))
     g.add_argument("--ray", metavar="auto|ADDRESS", help=(

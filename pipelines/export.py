@@ -41,10 +41,10 @@ from layercam.core.interrupts import reached
 from layercam.pipelines.runner import Context, Stage, write_json
 from layercam.io.hdr_set import HALF_MAX, HdrSet, write_hdr_set
 from layercam.pipelines.view import VIEW_MIN_DB, view_check, view_sigma
+from layercam.pipelines.window_plan import area, fit_maps
 from layercam.pipelines.export_context import _bits, _fps, _frames, _sound, audio, exposures_vary, resolve_reference
 
 CHECKPOINT_NAME = "checkpoint.pt"
-FIT_FILE = "fit_mse.npy"  # (T,) each frame's MSE of the model through its camera against it (the HDR writer's faithful step)
 
 
 # The preview's clip-wide tonemap statistics and the EXRs' type come from a first pass over every
@@ -175,14 +175,19 @@ def hdr_writer(ctx: Context, model, dest: Path, cache: Path, atlas=None) -> dict
     stats, peak = first_pass(ctx, model)
     exrs = HdrSet(ctx.resolved.settings.export.half and peak <= HALF_MAX, ctx.say)
     (dest / "hdr").mkdir(exist_ok=True)
-    infos = []
+    infos, fits = [], None
     with VideoWriter(dest / "preview.mp4", fps=_fps(ctx), audio=audio(ctx)) as preview:
         for t, hdr, info in faithful_hdr(ctx, model, _frames(ctx), None if atlas is None else atlas.add):
             exrs.add(dest / "hdr" / f"frame_{t:05d}.exr", hdr)
             preview.add(render.tonemap_display(hdr, stats)[0])
+            fit = info.pop("fit_map", None)
+            if fit is not None and ctx.window is not None:  # how well a window's model reproduces each frame, per pixel (the join's weights)
+                fits = fit_maps(cache, ctx.clip.T, fit.shape, FIRST_PASS_PIXELS) if fits is None else fits
+                fits[t] = area(fit, fits.shape[1:])
             infos.append(info)
-    if infos and "fit_mse" in infos[0]:  # how well the model reproduces each frame (a window join's weights)
-        np.save(cache / FIT_FILE, np.float32([i["fit_mse"] for i in infos]))
+    if fits is not None:
+        fits.flush()
+        del fits
     return {"frames": int(ctx.clip.T), "hdr_min": exrs.lo, "hdr_max": exrs.hi, "exr": "half" if exrs.half else "float32", "display": stats, **_faithful_summary(infos),
             "hdr_video": hdr_video(ctx, model, exrs.paths, dest), "fps": _fps(ctx), "sound": _sound(ctx, preview)}
 
@@ -352,6 +357,9 @@ class ExportStage(Stage):
 
     def output_names(self, ctx):
         return [n for n in outputs_for(ctx.task) if n != REPORT_NAME]
+
+    def options(self, ctx):
+        return {"fits": "per pixel"} if ctx.window is not None else {}  # a window's export keeps window_plan.FIT_FILE (older ones: none)
 
     def run(self, ctx, out):
         dest = out  # published to the top of the run folder when the run ends

@@ -1,7 +1,7 @@
 """Where a long clip is cut: the plan (how many windows, how long, how much overlap, and why), the
 window bounds, a window's slice of the clip, its exposures and its flow (views of the files on
 disk, nothing read), and how two windows share an overlap's frames (:meth:`Plan.weights`, from each
-window's fit to them as its export measured it, :func:`overlap_fits`)."""
+window's fit to them per pixel as its export measured it, :func:`overlap_fits`)."""
 
 from __future__ import annotations
 
@@ -18,6 +18,8 @@ from layercam.core.errors import LayercamError
 # frames): its overlap of a third is then 8 frames, a join that moves each frame 1/9 of the way from
 # one window's estimate to the other's.
 MIN_WINDOW = 24
+FIT_FILE = "fit_map.npy"  # (T, h, w) in a window's export: its squared error per pixel of its model through its camera
+                          # against each frame (the HDR writer's faithful step), area-averaged (:func:`fit_maps`): the join's weights
 
 
 @dataclass
@@ -28,7 +30,7 @@ class Plan:
     reason: str
     forced: bool = False
     atlas_px: list[float] = field(default_factory=list)  # each window's atlas extent (px), when measured
-    fits: dict = field(default_factory=dict)  # (window, frame) -> that window's fit to the overlap frame (MSE), when measured
+    fits: dict = field(default_factory=dict)  # (window, overlap j) -> (h, w): the window's error per pixel over overlap j's frames, when measured
 
     @property
     def count(self) -> int:
@@ -37,16 +39,27 @@ class Plan:
     def overlaps(self) -> list[int]:
         return [self.windows[k][1] - self.windows[k + 1][0] for k in range(self.count - 1)]
 
-    def weights(self, t: int) -> list[tuple[int, float]]:
+    def weights(self, t: int, hw: tuple[int, int] | None = None) -> list[tuple[int, float | np.ndarray]]:
         """``[(window, weight), ...]`` of frame ``t`` (one or two windows; weights sum to 1): in an
-        overlap, the linear cross-fade from one window to the next, each side divided by its window's
-        fit to the frame where :attr:`fits` has both (the error of each window's estimate taken as
-        its variance: the better-fitting window takes more of the frame; equal fits keep the fade)."""
+        overlap, the linear cross-fade from one window to the next. With the frame's size ``hw``
+        and where :attr:`fits` has both windows' errors on the overlap, per pixel ``(H, W)`` arrays:
+        each side of the fade divided by its window's error there (the error taken as its
+        variance, an inverse-variance merge: where one window fits the overlap's frames worse, as
+        one that saw that background only in its last frames, the other takes the pixel; equal
+        fits keep the fade). The errors are the windows' over all the overlap's frames, not the
+        frame's own: the weights then change with the fade alone, not from frame to frame."""
         out = self._fades(t)
-        if len(out) == 2 and all((k, t) in self.fits for k, _ in out):
-            q = [w / max(float(self.fits[k, t]), 1e-12) for k, w in out]
-            out = [(k, qk / sum(q)) for (k, _), qk in zip(out, q)]
-        return out
+        if hw is None or len(out) != 2:
+            return out
+        (k0, f0), (k1, f1) = out
+        e = [self.fits.get((k, k0)) for k in (k0, k1)]
+        if e[0] is None or e[1] is None:
+            return out
+        import cv2
+
+        q0, q1 = (f / np.maximum(cv2.resize(x, (hw[1], hw[0]), interpolation=cv2.INTER_LINEAR), 1e-12) for f, x in ((f0, e[0]), (f1, e[1])))
+        w1 = (q1 / (q0 + q1)).astype(np.float32)
+        return [(k0, 1.0 - w1), (k1, w1)]
 
     def _fades(self, t: int) -> list[tuple[int, float]]:
         out = []
@@ -250,16 +263,41 @@ def rows(x, a: int, b: int):
 
 
 def overlap_fits(p: Plan, dirs: list[Path]) -> dict:
-    """``{(window, frame): MSE}`` over the frames each window shares with a neighbour: how well the
-    window's model reproduced the frame through its camera, as its export measured it
-    (``export.FIT_FILE``, written by the HDR writer's faithful step); {} where an export has none
-    (no faithful step, or a deblurred clip): :meth:`Plan.weights` then keeps the plain fade."""
-    from layercam.pipelines.export import FIT_FILE
+    """``{(window, overlap j): (h, w)}``: each window's squared error per pixel over the frames of
+    the overlaps it shares (overlap ``j``: windows ``j`` and ``j + 1``), the mean over those frames
+    of how well its model reproduced each through its camera as its export measured it
+    (:data:`FIT_FILE`, written by the HDR writer's faithful step for a window), smoothed by the
+    faithful step's window (``faithful.WINDOW_SIGMA``); {} where an export has none (no faithful
+    step, or a deblurred clip): :meth:`Plan.weights` then keeps the plain fade."""
+    import cv2
 
+    from layercam.camera.faithful import WINDOW_SIGMA
+
+    if not all((Path(d) / FIT_FILE).is_file() for d in dirs):
+        return {}
     fits: dict = {}
-    for k, d in enumerate(dirs):
-        if not (Path(d) / FIT_FILE).is_file():
-            return {}
-        mse, a = np.load(Path(d) / FIT_FILE), p.windows[k][0]
-        fits.update({(k, t): float(mse[t - a]) for t in range(a, p.windows[k][1]) if len(p._fades(t)) == 2})
+    for j in range(p.count - 1):
+        a, b = p.windows[j + 1][0], p.windows[j][1]
+        for k in (j, j + 1):
+            maps = np.load(Path(dirs[k]) / FIT_FILE, mmap_mode="r")
+            mean = np.asarray(maps[a - p.windows[k][0]:b - p.windows[k][0]], np.float32).mean(0)
+            fits[k, j] = cv2.GaussianBlur(mean, (0, 0), WINDOW_SIGMA)
     return fits
+
+
+def fit_maps(cache: Path, T: int, hw: tuple[int, int], pixels: int) -> np.ndarray:
+    """``cache / FIT_FILE``: ``(T, h, w)`` float32 on disk, ``(h, w)`` the frame's ``hw`` scaled to at most ``pixels``."""
+    s = min(1.0, (pixels / (hw[0] * hw[1])) ** 0.5)
+    return np.lib.format.open_memmap(Path(cache) / FIT_FILE, mode="w+", dtype=np.float32, shape=(T, max(1, round(hw[0] * s)), max(1, round(hw[1] * s))))
+
+
+def area(x: np.ndarray, hw: tuple[int, int]) -> np.ndarray:
+    """``x (H, W)`` area-averaged to ``hw``."""
+    import cv2
+
+    return x if x.shape == tuple(hw) else cv2.resize(np.asarray(x, np.float32), (hw[1], hw[0]), interpolation=cv2.INTER_AREA)
+
+
+def per_pixel(w, x: np.ndarray):
+    """A join's weight ``w`` (a number, or ``(H, W)`` per pixel) shaped to multiply ``x`` (``(H, W)`` or ``(H, W, C)``)."""
+    return w[..., None] if np.ndim(w) == 2 and x.ndim == 3 else w

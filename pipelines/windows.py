@@ -14,8 +14,8 @@ one another (``--ray``: tasks on a Ray cluster, ``layercam.engine.cluster``).
 The windows' outputs are then joined by the ``windows`` stage (:class:`WindowsStage`): in the
 overlap of windows ``k`` and ``k + 1`` (frames ``a_(k+1) .. b_k - 1``) each frame is the
 cross-fade ``(1 - w) X_k + w X_(k+1)`` of the linear fade ``f = (t - a_(k+1) + 1) / (overlap + 1)``
-weighted by each window's fit to the frame (:func:`~layercam.pipelines.window_plan.overlap_fits`,
-:meth:`Plan.weights`) of the
+weighted per pixel by each window's fit to the overlap's frames (:func:`~layercam.pipelines.window_plan.overlap_fits`,
+:meth:`Plan.weights`; kept in ``windows/fits.npz`` for ``render`` and ``edit``) of the
 linear HDR (``hdr/``), the sharp frames (``frames/``, as floats before they are quantised) and the
 foreground's alpha mattes (``alpha/``); the preview is tonemapped once over the joined clip. Each
 window's own outputs for ``layercam render`` and ``edit`` (``checkpoint.pt``, ``atlases/``,
@@ -39,11 +39,12 @@ from layercam.core.errors import LayercamError
 from layercam.core.interrupts import reached
 from layercam.pipelines.results import FlowResult
 from layercam.pipelines.runner import Context, Stage, run_stages, write_json
-from layercam.pipelines.window_plan import Plan, overlap_fits, rows, sub_clip, sub_exposures, sub_flow
+from layercam.pipelines.window_plan import Plan, overlap_fits, per_pixel, rows, sub_clip, sub_exposures, sub_flow
 
 INDEX = "windows.json"
 FOLDER = "windows"  # RUN/windows/w00/: each window's checkpoint.pt, atlases/, psf.json
 PER_WINDOW = ("checkpoint.pt", "atlases", "psf.json")
+FITS = "fits.npz"  # RUN/windows/fits.npz: each window's fit to each overlap per pixel (w<k>_o<j>), the join's weights
 
 
 @dataclass
@@ -102,7 +103,7 @@ def run_window(spec: WindowSpec) -> dict:
         torch.set_num_threads(spec.threads)
     ctx = Context(run_dir=Path(spec.run_dir), clip=spec.clip, exposures=spec.exposures, cfg=spec.cfg, task=spec.task, masks=spec.masks,
                   progress=spec.progress, measures=spec.measures, resolved=spec.resolved, flow=spec.flow)
-    ctx.camera = spec.camera
+    ctx.camera, ctx.window = spec.camera, (spec.a, spec.b)
     ctx.keys["flow"] = spec.flow_key
     ctx.results["flow"] = FlowResult(dict(spec.flow_summary))
     ctx.clip_levels = spec.clip_levels
@@ -213,7 +214,7 @@ class WindowsStage(Stage):
         dirs = [Path(r["dirs"]["export"]) for r in res]
         summary: dict = {"windows": p.count}
         gains = self._gains(ctx, dirs)
-        p.fits = overlap_fits(p, dirs)  # each window's fit to the frames it shares: the join's weights
+        p.fits = overlap_fits(p, dirs)  # each window's fit to the frames it shares, per pixel: the join's weights
         if (dirs[0] / "hdr").is_dir() and ctx.task != "deblur-video":
             summary.update(self._hdr(ctx, out, dirs, gains))
         if ctx.task == "deblur-video":
@@ -229,13 +230,15 @@ class WindowsStage(Stage):
             for n in PER_WINDOW:
                 if (d / n).exists():
                     _link(d / n, sub / n)
+        if p.fits:
+            with open(out / FOLDER / FITS, "wb") as f:
+                np.savez(f, **{f"w{k}_o{j}": e for (k, j), e in p.fits.items()})
         write_json(out / INDEX, {
             "frames": ctx.clip.T,
-            "windows": [{"index": k, "frames": list(p.windows[k]), "folder": f"{FOLDER}/w{k:02d}", "hdr_gain": gains[k],
-                         "overlap_fit_mse": {str(t): v for (j, t), v in sorted(p.fits.items()) if j == k}} for k in range(p.count)],
+            "windows": [{"index": k, "frames": list(p.windows[k]), "folder": f"{FOLDER}/w{k:02d}", "hdr_gain": gains[k]} for k in range(p.count)],
             "overlaps": p.overlaps(), "reason": p.reason,
             "camera": "learned by window 0, held fixed in the others" if ctx.resolved.settings.model.tone_mapper == "learned" else "the fixed sRGB curve",
-            "join": "cross-fade over each overlap weighted by each window's fit: frame t of the overlap [a, b) of windows k and k+1 is (1 - w) x_k + w x_(k+1), w = q_(k+1) / (q_k + q_(k+1)), q_k = (1 - f) / e_k(t), q_(k+1) = f / e_(k+1)(t), f = (t - a + 1) / (b - a + 1), e the window's overlap_fit_mse at t (its model through its camera against the input frame; without them the plain fade), in linear HDR (hdr/), sharp frames (frames/) and alpha (alpha/)",
+            "join": f"cross-fade over each overlap weighted per pixel by each window's fit: frame t of the overlap [a, b) of windows k and k+1 is (1 - w) x_k + w x_(k+1), w = q_(k+1) / (q_k + q_(k+1)), q_k = (1 - f) / e_k, q_(k+1) = f / e_(k+1), f = (t - a + 1) / (b - a + 1), e the window's squared error per pixel over the overlap's frames (its model through its camera against the input frames; {FOLDER}/{FITS}: e_k of overlap j as w<k>_o<j>; without them the plain fade), in linear HDR (hdr/), sharp frames (frames/) and alpha (alpha/)",
         })
         summary["hdr_gains"] = gains
         return summary
@@ -263,12 +266,14 @@ class WindowsStage(Stage):
         return gains
 
     def _frames(self, ctx, dirs, gains, read):
-        """Each frame of the clip joined: ``(t, sum_k w_k * gain_k * read(dir_k, t - a_k))``."""
+        """Each frame of the clip joined: ``(t, sum_k w_k * gain_k * read(dir_k, t - a_k))``, ``w_k``
+        per pixel where the plan has the windows' fits (:meth:`Plan.weights`)."""
         for t in range(ctx.clip.T):
             reached("windows", t)
             acc = None
-            for k, w in self.plan.weights(t):
-                x = read(dirs[k], t - self.plan.windows[k][0]) * np.float32(w * gains[k])
+            for k, w in self.plan.weights(t, (ctx.clip.H, ctx.clip.W)):
+                x = read(dirs[k], t - self.plan.windows[k][0])
+                x = x * per_pixel(np.float32(w * gains[k]), x)
                 acc = x if acc is None else acc + x
             yield t, acc
 
@@ -365,9 +370,14 @@ def read_index(run: Path) -> dict | None:
         raise LayercamError(f"{p} is unreadable") from None
 
 
-def index_plan(index: dict) -> Plan:
-    """The plan a published run was joined with (its windows and their fits to the overlaps)."""
-    fits = {(int(w["index"]), int(t)): float(v) for w in index["windows"] for t, v in w.get("overlap_fit_mse", {}).items()}
+def index_plan(index: dict, run: Path | None = None) -> Plan:
+    """The plan a published run was joined with (its windows and, from ``run``'s ``windows/fits.npz``,
+    their fits to the overlaps)."""
+    fits = {}
+    path = Path(run) / FOLDER / FITS if run is not None else None
+    if path is not None and path.is_file():
+        with np.load(path) as z:
+            fits = {tuple(int(v) for v in n[1:].split("_o")): z[n] for n in z.files}
     return Plan([tuple(w["frames"]) for w in index["windows"]], index.get("reason", ""), fits=fits)
 
 

@@ -198,7 +198,8 @@ def correction(model, frame: np.ndarray, t: int, levels: np.ndarray | None = Non
     model's log2 irradiance, ``"delta"`` the frame's disagreement with it through the inverse camera,
     ``"weight"`` the share of it to keep (:func:`fidelity_weight`), ``"exposed"``
     (:func:`exposure_weight`), all ``(H, W, 3)``; ``"log2_dts"`` the clip's exposures, ``"levels"``,
-    ``"info"`` (with ``fit_mse``, the model through its camera against the frame); with ``geometry`` also the frame's ``"uv"`` and ``"alpha"`` from the same render
+    ``"info"`` (with ``fit_map`` ``(H, W)``, the model through its camera against the frame: its
+    squared error per pixel); with ``geometry`` also the frame's ``"uv"`` and ``"alpha"`` from the same render
     (:func:`~layercam.scene.render.render_frame`'s)."""
     import torch
 
@@ -211,7 +212,8 @@ def correction(model, frame: np.ndarray, t: int, levels: np.ndarray | None = Non
     log2_dt = float(dts[int(t)])
     levels = np.full(3, CLIP_LEVEL, np.float32) if levels is None else np.asarray(levels, np.float32)
     w, info = fidelity_weight(frame, out["ldr"], kappa, levels)
-    info["fit_mse"] = float(np.mean((np.clip(out["ldr"], 0.0, 1.0) - np.asarray(frame, np.float32)) ** 2))  # the model through its camera against the frame
+    fit = ((np.clip(out["ldr"], 0.0, 1.0) - np.asarray(frame, np.float32)) ** 2).mean(-1)  # the model through its camera against the frame
+    info["fit_map"] = fit
     delta = inverse_tone(model, frame, log2_dt) - inverse_tone(model, out["ldr"], log2_dt)
     return {"model_log2_r": out["log2_r"], "delta": delta, "weight": w, "exposed": exposure_weight(frame, levels), "log2_dts": dts, "levels": levels, "info": info,
             **{k: out[k] for k in geo}}

@@ -308,7 +308,7 @@ def _edit_windows(args, run_dir: Path, index: dict) -> int:
     from layercam.core.progress import bar as progress_bar
     from layercam.scene.render import tonemap_display
 
-    plan, folders = windows.index_plan(index), windows.window_folders(run_dir, index)
+    plan, folders = windows.index_plan(index, run_dir), windows.window_folders(run_dir, index)
     n = plan.count
     if args.window is None:
         raise LayercamError(f"{run_dir} holds a long clip as {n} windows, each with its own atlases: say which window's atlas you painted on with "
@@ -343,9 +343,10 @@ def _edit_windows(args, run_dir: Path, index: dict) -> int:
     hdrs, ldrs, cover = [], [], []
     for t in progress_bar(range(T), desc="edit", unit="frame", enabled=not args.quiet):
         reached("edit", t)
-        parts = [(w, render_edited_frame(models[k], t - plan.windows[k][0], hw, args.layer, edits[k])) for k, w in plan.weights(t)]
-        r = {key: sum(w * p[key] for w, p in parts).astype(np.float32) for key in ("ldr", "edit_alpha")}
-        r["hdr"] = sum(w * gains[k] * p["hdr"] for (k, _), (w, p) in zip(plan.weights(t), parts)).astype(np.float32)  # as the export joined it
+        ws = plan.weights(t, hw)  # as the export joined them: per pixel where the run kept the windows' fits
+        parts = [(w, render_edited_frame(models[k], t - plan.windows[k][0], hw, args.layer, edits[k])) for k, w in ws]
+        r = {key: sum(windows.per_pixel(w, p[key]) * p[key] for w, p in parts).astype(np.float32) for key in ("ldr", "edit_alpha")}
+        r["hdr"] = sum(windows.per_pixel(w * gains[k], p["hdr"]) * p["hdr"] for (k, _), (w, p) in zip(ws, parts)).astype(np.float32)
         if not np.isfinite(r["hdr"]).all():
             raise LayercamError(f"frame {t}: non-finite irradiance after the edit; nothing written for it")
         write_exr(stage / "hdr" / f"frame_{t:05d}.exr", r["hdr"])

@@ -208,7 +208,7 @@ class _Views:
         else:
             loaded = [load_run_model(f, device) for f in windows.window_folders(run, index)]
             self.models, self.metas = [m for m, _ in loaded], [m for _, m in loaded]
-            self.plan = windows.index_plan(index)
+            self.plan = windows.index_plan(index, run)
             self.T = int(index["frames"])
             gains = windows.index_gains(index)
             self.z0 = windows.clip_reference(self.models, gains)
@@ -236,8 +236,11 @@ class _Views:
 
         if self.plan is None:
             return exposure_frames(self.models[0], self.metas[0], ev, keep_blur, z0=self.z0)
+        from layercam.pipelines.windows import per_pixel
+
         per = [exposure_frames(m, meta, ev, keep_blur, z0=self.z0 + d) for m, meta, d in zip(self.models, self.metas, self.shift)]
-        return np.stack([sum(w * per[k][t - self.start(k)] for k, w in self.plan.weights(t)) for t in range(self.T)]).astype(np.float32)
+        hw = per[0].shape[1:3]
+        return np.stack([sum(per_pixel(w, x) * x for k, w in self.plan.weights(t, hw) for x in [per[k][t - self.start(k)]]) for t in range(self.T)]).astype(np.float32)
 
 
 def _render(args) -> int:

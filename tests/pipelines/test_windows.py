@@ -134,20 +134,28 @@ def test_windows_share_window_0s_camera(windowed):
     assert material["options"]["camera"] == keys[0]  # the later windows' training names window 0's
 
 
-def test_the_join_is_each_windows_hdr_cross_faded_over_the_overlap_by_their_fits(windowed):
+def test_the_join_is_each_windows_hdr_cross_faded_over_the_overlap_by_their_fits_per_pixel(windowed):
+    import cv2
+
+    from layercam.camera.faithful import WINDOW_SIGMA
+    from layercam.pipelines.window_plan import FIT_FILE
+
     rep = json.loads((windowed / "report.json").read_text())
-    index = json.loads((windowed / "windows.json").read_text())
-    fit = lambda k, t: index["windows"][k]["overlap_fit_mse"][str(t)]  # noqa: E731
     exports = [windowed / "cache" / "windows" / f"{a:05d}-{b:05d}" / "cache" / f"export-{r['keys']['export']}" for r, (a, b) in
                zip(rep["windows"]["runs"], [(0, 6), (4, 9), (7, 12)])]
     own = lambda k, i: read_exr(exports[k] / "hdr" / f"frame_{i:05d}.exr")  # noqa: E731
     joined = lambda t: read_exr(windowed / "hdr" / f"frame_{t:05d}.exr")  # noqa: E731
     assert np.array_equal(joined(2), own(0, 2)) and np.array_equal(joined(6), own(1, 2)) and np.array_equal(joined(11), own(2, 4))
-    for t, (k, i, j) in {4: (0, 4, 0), 5: (0, 5, 1)}.items():
-        f = (t - 4 + 1) / 3  # the linear fade, each side divided by its window's fit to frame t
-        w = (f / fit(1, t)) / ((1 - f) / fit(0, t) + f / fit(1, t))
-        assert 0 < w < 1 and (w > f) == (fit(1, t) < fit(0, t))
-        want = (1 - w) * own(k, i) + w * own(1, j)
+    # each window's error per pixel over the overlap's frames 4, 5 (its own frames 4, 5 and 0, 1), as its export measured it
+    fit = [cv2.GaussianBlur(np.load(exports[k] / FIT_FILE)[i:i + 2].mean(0), (0, 0), WINDOW_SIGMA) for k, i in ((0, 4), (1, 0))]
+    kept = np.load(windowed / "windows" / "fits.npz")
+    assert np.allclose(kept["w0_o0"], fit[0]) and np.allclose(kept["w1_o0"], fit[1])
+    assert not np.allclose(fit[0] / fit[1], (fit[0] / fit[1]).mean())  # the two windows' fits differ from pixel to pixel
+    for t, (i, j) in {4: (4, 0), 5: (5, 1)}.items():
+        f = (t - 4 + 1) / 3  # the linear fade, each side divided by its window's error at the pixel
+        w = ((f / fit[1]) / ((1 - f) / fit[0] + f / fit[1]))[..., None]
+        assert ((w > 0) & (w < 1)).all() and ((w > f) == (fit[1] < fit[0])[..., None]).all()
+        want = (1 - w) * own(0, i) + w * own(1, j)
         assert np.allclose(joined(t), want, rtol=2e-3, atol=1e-6)  # half floats
 
 
@@ -302,16 +310,22 @@ def test_deblur_video_windows_join_the_sharp_frames_and_alpha(long_frames, tmp_p
     assert (run / "windows" / "w02" / "atlases" / "layer1.png").is_file()
 
 
-def test_overlap_weights_follow_the_windows_fits():
-    """Equal fits keep the linear fade; a window fitting the frame four times better (a quarter of
-    the error) takes four times its fade's share; frames outside an overlap are one window's alone."""
+def test_overlap_weights_follow_the_windows_fits(tmp_path):
+    """Equal fits keep the linear fade; where a window fits the overlap four times better (a quarter
+    of the error) it takes four times its fade's share, pixel by pixel; frames outside an overlap
+    are one window's alone; without the frame's size, or without fits, the plain fade."""
     p = window_plan.Plan([(0, 6), (4, 9)], "test")
+    assert np.allclose([w for _, w in p.weights(4, (2, 3))], [2 / 3, 1 / 3])
+    e0, e1 = np.full((2, 3), 0.01, np.float32), np.full((2, 3), 0.01, np.float32)
+    e1[0, 0] = 0.0025
+    p.fits = {(0, 0): e0, (1, 0): e1}
+    w = dict(p.weights(4, (2, 3)))
+    assert np.allclose(w[0] + w[1], 1.0) and np.allclose(w[1][1:], 1 / 3) and np.allclose(w[1][0, 1:], 1 / 3)
+    assert np.isclose(w[1][0, 0] / w[0][0, 0], 4 * (1 / 3) / (2 / 3))
+    assert dict(p.weights(4, (4, 6)))[1].shape == (4, 6)  # the fits at the frame's size
     assert np.allclose([w for _, w in p.weights(4)], [2 / 3, 1 / 3])
-    p.fits = {(0, 4): 0.01, (1, 4): 0.01, (0, 5): 0.01, (1, 5): 0.0025}
-    assert np.allclose([w for _, w in p.weights(4)], [2 / 3, 1 / 3])
-    w = dict(p.weights(5))
-    assert np.isclose(w[0] + w[1], 1.0) and np.isclose(w[1] / w[0], 4 * (2 / 3) / (1 / 3))
-    assert p.weights(2) == [(0, 1.0)] and p.weights(7) == [(1, 1.0)]
-    back = windows.index_plan({"windows": [{"index": 0, "frames": [0, 6], "overlap_fit_mse": {"5": 0.01}},
-                                            {"index": 1, "frames": [4, 9], "overlap_fit_mse": {"5": 0.0025}}]})
-    assert back.weights(5) == p.weights(5)
+    assert p.weights(2, (2, 3)) == [(0, 1.0)] and p.weights(7, (2, 3)) == [(1, 1.0)]
+    (tmp_path / "windows").mkdir()
+    np.savez(tmp_path / "windows" / "fits.npz", w0_o0=e0, w1_o0=e1)
+    back = windows.index_plan({"windows": [{"index": 0, "frames": [0, 6]}, {"index": 1, "frames": [4, 9]}]}, tmp_path)
+    assert all(np.array_equal(a, b) for (_, a), (_, b) in zip(back.weights(5, (2, 3)), p.weights(5, (2, 3))))

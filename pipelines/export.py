@@ -42,6 +42,7 @@ from layercam.pipelines.runner import Context, Stage, write_json
 from layercam.io.hdr_set import HALF_MAX, HdrSet, write_hdr_set
 from layercam.pipelines.view import VIEW_MIN_DB, view_check, view_sigma
 from layercam.pipelines.window_plan import area, fit_maps
+from layercam.vision.scale import size_within
 from layercam.pipelines.export_context import _bits, _fps, _frames, _sound, audio, exposures_vary, resolve_reference
 
 CHECKPOINT_NAME = "checkpoint.pt"
@@ -62,9 +63,7 @@ def first_pass(ctx: Context, model) -> tuple[dict, float]:
     from layercam.scene import render
     from layercam.core.colour import REC709, luma
 
-    H, W = ctx.clip.H, ctx.clip.W
-    s = min(1.0, (min(FIRST_PASS_PIXELS, FIRST_PASS_TOTAL // ctx.clip.T) / (H * W)) ** 0.5)
-    hw = (max(1, round(H * s)), max(1, round(W * s)))
+    hw = size_within((ctx.clip.H, ctx.clip.W), min(FIRST_PASS_PIXELS, FIRST_PASS_TOTAL // ctx.clip.T))
     lum, peak = [], 0.0
     for t in _frames(ctx, "export (first pass)"):
         hdr = render.render_frame(model, t, hw, ("hdr",))["hdr"]
@@ -182,7 +181,7 @@ def hdr_writer(ctx: Context, model, dest: Path, cache: Path, atlas=None) -> dict
             preview.add(render.tonemap_display(hdr, stats)[0])
             fit = info.pop("fit_map", None)
             if fit is not None and ctx.window is not None:  # how well a window's model reproduces each frame, per pixel (the join's weights)
-                fits = fit_maps(cache, ctx.clip.T, fit.shape, FIRST_PASS_PIXELS) if fits is None else fits
+                fits = fit_maps(cache, ctx.clip.T, size_within(fit.shape, FIRST_PASS_PIXELS)) if fits is None else fits
                 fits[t] = area(fit, fits.shape[1:])
             infos.append(info)
     if fits is not None:

@@ -31,6 +31,7 @@ class Plan:
     forced: bool = False
     atlas_px: list[float] = field(default_factory=list)  # each window's atlas extent (px), when measured
     fits: dict = field(default_factory=dict)  # (window, overlap j) -> (h, w): the window's error per pixel over overlap j's frames, when measured
+    _sized: dict = field(default_factory=dict, repr=False, compare=False)  # a fit at a frame's size, made once (:meth:`_fit_at`)
 
     @property
     def count(self) -> int:
@@ -52,14 +53,21 @@ class Plan:
         if hw is None or len(out) != 2:
             return out
         (k0, f0), (k1, f1) = out
-        e = [self.fits.get((k, k0)) for k in (k0, k1)]
-        if e[0] is None or e[1] is None:
+        if (k0, k0) not in self.fits or (k1, k0) not in self.fits:
             return out
-        import cv2
-
-        q0, q1 = (f / np.maximum(cv2.resize(x, (hw[1], hw[0]), interpolation=cv2.INTER_LINEAR), 1e-12) for f, x in ((f0, e[0]), (f1, e[1])))
+        q0, q1 = f0 / self._fit_at(k0, k0, hw), f1 / self._fit_at(k1, k0, hw)
         w1 = (q1 / (q0 + q1)).astype(np.float32)
         return [(k0, 1.0 - w1), (k1, w1)]
+
+    def _fit_at(self, k: int, j: int, hw: tuple[int, int]) -> np.ndarray:
+        """Window ``k``'s fit to overlap ``j`` at the frame's size ``hw`` (bilinear), floored above 0;
+        made once per size (the join reads each overlap frame in several passes)."""
+        src, key = self.fits[k, j], (k, j, *hw)
+        if key not in self._sized or self._sized[key][0] is not src:  # fits given anew are sized anew
+            import cv2
+
+            self._sized[key] = (src, np.maximum(cv2.resize(src, (hw[1], hw[0]), interpolation=cv2.INTER_LINEAR), 1e-12))
+        return self._sized[key][1]
 
     def _fades(self, t: int) -> list[tuple[int, float]]:
         out = []
@@ -285,10 +293,9 @@ def overlap_fits(p: Plan, dirs: list[Path]) -> dict:
     return fits
 
 
-def fit_maps(cache: Path, T: int, hw: tuple[int, int], pixels: int) -> np.ndarray:
-    """``cache / FIT_FILE``: ``(T, h, w)`` float32 on disk, ``(h, w)`` the frame's ``hw`` scaled to at most ``pixels``."""
-    s = min(1.0, (pixels / (hw[0] * hw[1])) ** 0.5)
-    return np.lib.format.open_memmap(Path(cache) / FIT_FILE, mode="w+", dtype=np.float32, shape=(T, max(1, round(hw[0] * s)), max(1, round(hw[1] * s))))
+def fit_maps(cache: Path, T: int, hw: tuple[int, int]) -> np.ndarray:
+    """``cache / FIT_FILE``: ``(T, h, w)`` float32 on disk, ``hw = (h, w)`` the maps' size."""
+    return np.lib.format.open_memmap(Path(cache) / FIT_FILE, mode="w+", dtype=np.float32, shape=(T, *hw))
 
 
 def area(x: np.ndarray, hw: tuple[int, int]) -> np.ndarray:

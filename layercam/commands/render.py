@@ -240,7 +240,10 @@ class _Views:
 
         per = [exposure_frames(m, meta, ev, keep_blur, z0=self.z0 + d) for m, meta, d in zip(self.models, self.metas, self.shift)]
         hw = per[0].shape[1:3]
-        return np.stack([sum(per_pixel(w, x) * x for k, w in self.plan.weights(t, hw) for x in [per[k][t - self.start(k)]]) for t in range(self.T)]).astype(np.float32)
+
+        def joined(t: int):
+            return sum(per_pixel(w, per[k][t - self.start(k)]) * per[k][t - self.start(k)] for k, w in self.plan.weights(t, hw))
+        return np.stack([joined(t) for t in range(self.T)]).astype(np.float32)
 
 
 def _render(args) -> int:

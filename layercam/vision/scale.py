@@ -22,6 +22,17 @@ def working_size(hw: tuple[int, int], short_side: int | None = None) -> tuple[in
     return max(int(round(h * s)), 1), max(int(round(w * s)), 1)
 
 
+def size_within(hw: tuple[int, int], pixels: int) -> tuple[int, int]:
+    """``hw = (H, W)`` scaled down (aspect kept) to at most about ``pixels`` pixels; unchanged when within.
+
+    >>> size_within((1080, 1920), 65536)
+    (192, 341)
+    """
+    h, w = int(hw[0]), int(hw[1])
+    s = min(1.0, (pixels / (h * w)) ** 0.5)
+    return max(1, round(h * s)), max(1, round(w * s))
+
+
 def resize_frames(frames: np.ndarray, size: tuple[int, int]) -> np.ndarray:
     """``(T, H, W, 3)`` -> ``(T, h, w, 3)`` float32 (area averaging), one frame at a time."""
     import cv2

@@ -34,7 +34,8 @@ def register(sub) -> argparse.ArgumentParser:
     f.add_argument("inputs", nargs="+", metavar="IMAGES", help="two or more image files, or one folder of images")
     f.add_argument("--out", help="run folder (default: runs/<first image name>)")
     g = f.add_argument_group("input")
-    g.add_argument("--exposures", default="auto", help="auto (EXIF times when every image has one, else one exposure) | times.txt | exif | learn | none (default: auto)")
+    g.add_argument("--exposures", default="auto", help="auto (EXIF times when every image has one, else one exposure) | times.txt (one time per image) | "
+                   "EVs, one per image in order, like 0,-2,2 | exif | learn | none (default: auto)")
     g.add_argument("--resize", help="scale factor (0.5) or size WxH")
     g.add_argument("--reference", help="the view to fuse into: middle, first, last or an image index (default: middle; export.reference)")
     common_model_args(f)
@@ -42,8 +43,12 @@ def register(sub) -> argparse.ArgumentParser:
 
 
 def pick_exposures(spec: str, clip):
-    """``auto``: EXIF times when every image has one, else a single exposure; anything else as
-    :func:`layercam.io.parse_exposures`."""
+    """``auto``: EXIF times when every image has one, else a single exposure; a list of EVs must
+    give one per image (a stack has no cycle: a shorter list is a mistake, a one-line error);
+    anything else as :func:`layercam.io.parse_exposures`."""
+    import re
+
+    from layercam.core.errors import LayercamError
     from layercam.io import parse_exposures
 
     if (spec or "").strip().lower() == "auto":
@@ -53,6 +58,11 @@ def pick_exposures(spec: str, clip):
         e = parse_exposures("none", clip)
         e.reason = "auto: no EXIF exposure times, one exposure assumed (pass --exposures times.txt or learn otherwise)"
         return e
+    s = (spec or "").strip()
+    if "," in s and not Path(s).expanduser().is_file():
+        n = len([t for t in re.split(r"[,\s]+", s) if t])
+        if n != clip.T:
+            raise LayercamError(f"--exposures {s!r} gives {n} EVs for {clip.T} images; a stack needs one per image, in order")
     return parse_exposures(spec, clip)
 
 

@@ -81,6 +81,7 @@ CORPUS = [
     ("deblur-one-frame", ["deblur-video", "{video}", "--max-frames", "1", "--out", "{fresh}"], "2 frames"),
     # fuse-stack
     ("fuse-one-image", ["fuse-stack", "{frames}/frame_000.png", "--out", "{fresh}"], "2 images"),
+    ("fuse-ev-list-short", ["fuse-stack", "{frames}", "--exposures", "0,2", "--out", "{fresh}"], "one per image"),  # a stack has no EV cycle
     ("fuse-bad-reference", ["fuse-stack", "{frames}", "--reference", "7", "--out", "{fresh}"], "reference"),
     # render
     ("render-nothing", ["render", "{run}"], "nothing to render"),

@@ -43,12 +43,8 @@ def register(sub) -> argparse.ArgumentParser:
 
 
 def pick_exposures(spec: str, clip):
-    """``auto``: EXIF times when every image has one, else a single exposure; a list of EVs must
-    give one per image (a stack has no cycle: a shorter list is a mistake, a one-line error);
-    anything else as :func:`layercam.io.parse_exposures`."""
-    import re
-
-    from layercam.core.errors import LayercamError
+    """``auto``: EXIF times when every image has one, else a single exposure; anything else as
+    :func:`layercam.io.parse_exposures`, a list of EVs giving one per image (a stack has no cycle)."""
     from layercam.io import parse_exposures
 
     if (spec or "").strip().lower() == "auto":
@@ -58,12 +54,7 @@ def pick_exposures(spec: str, clip):
         e = parse_exposures("none", clip)
         e.reason = "auto: no EXIF exposure times, one exposure assumed (pass --exposures times.txt or learn otherwise)"
         return e
-    s = (spec or "").strip()
-    if "," in s and not Path(s).expanduser().is_file():
-        n = len([t for t in re.split(r"[,\s]+", s) if t])
-        if n != clip.T:
-            raise LayercamError(f"--exposures {s!r} gives {n} EVs for {clip.T} images; a stack needs one per image, in order")
-    return parse_exposures(spec, clip)
+    return parse_exposures(spec, clip, each=True)
 
 
 def run(args) -> int:

@@ -242,7 +242,11 @@ class _Views:
         hw = per[0].shape[1:3]
 
         def joined(t: int):
-            return sum(per_pixel(w, per[k][t - self.start(k)]) * per[k][t - self.start(k)] for k, w in self.plan.weights(t, hw))
+            out = 0.0
+            for k, w in self.plan.weights(t, hw):
+                x = per[k][t - self.start(k)]
+                out = out + per_pixel(w, x) * x
+            return out
         return np.stack([joined(t) for t in range(self.T)]).astype(np.float32)
 
 

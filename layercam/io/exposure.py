@@ -172,7 +172,7 @@ def _alt(clip: Clip, n: int, spec: str, ev_step: float | None, force_ev_step: bo
     )
 
 
-def _cycle(clip: Clip, spec: str) -> Exposures:
+def _cycle(clip: Clip, spec: str, each: bool = False) -> Exposures:
     toks = [t for t in re.split(r"[,\s]+", spec.strip()) if t]
     evs = []
     for t in toks:
@@ -188,6 +188,8 @@ def _cycle(clip: Clip, spec: str) -> Exposures:
     if not evs:
         raise LayercamError(f"empty exposure cycle {spec!r}")
     n = len(evs)
+    if each and 1 < n != clip.T:
+        raise LayercamError(f"--exposures {spec!r} gives {n} EVs for {clip.T} images; a stack needs one per image, in order")
     if n > clip.T:
         raise LayercamError(f"exposure cycle {spec!r} has {n} entries for {clip.T} frames (at most one per frame)")
     phase = _frame_phase(clip, n)
@@ -324,7 +326,7 @@ def _read_time_file(path: Path, clip: Clip, spec: str) -> Exposures:
     )
 
 
-def parse_exposures(spec: str | None, clip: Clip, ev_step: float | None = None, force_ev_step: bool = False) -> Exposures:
+def parse_exposures(spec: str | None, clip: Clip, ev_step: float | None = None, force_ev_step: bool = False, each: bool = False) -> Exposures:
     """Decide the exposure of each frame of ``clip`` from ``spec``.
 
     spec:
@@ -334,7 +336,8 @@ def parse_exposures(spec: str | None, clip: Clip, ev_step: float | None = None, 
           ``ev_step`` is given (learn="none"; checked against the measured gaps by
           :func:`check_ev_step`, ``force_ev_step`` skips the refusal), else measured gaps clamped to [0.5, 12] EV and
           learn="ratio".
-      ``"0,3"``, ``"-2,0,2"``: explicit EV cycle, frame t uses entry t mod n (learn="none").
+      ``"0,3"``, ``"-2,0,2"``: explicit EV cycle, frame t uses entry t mod n (learn="none");
+          with ``each`` (a photo stack, which has no cycle) a list must give one EV per frame.
       a text file: one exposure time per line in seconds (``0.01`` or ``1/125``; ``#``
           comments), or lines ``name time ...`` (e.g. ``DSC_0058.png 32 0.03125``) matched to
           frame names; a list covering the whole source is subset by frame index.
@@ -381,7 +384,7 @@ def parse_exposures(spec: str | None, clip: Clip, ev_step: float | None = None, 
     if p.is_dir():
         raise LayercamError(f"exposure spec {s!r} is a folder; expected a text file of times")
     if "," in s or re.fullmatch(r"[+-]?\d+(\.\d*)?", s):
-        return _cycle(clip, s)
+        return _cycle(clip, s, each)
     if "/" in s or os.sep in s or p.suffix:
         raise LayercamError(f"exposure file not found: {s}")
     raise LayercamError(

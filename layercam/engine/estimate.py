@@ -40,9 +40,8 @@ MIB = 2**20 / 1e6
 BASE = 700e6 * MIB       # python, torch, OpenCV and layercam imported, a clip opened (VmRSS 680-700 MiB on this machine)
 FLOW_PER_PX = 180.0 * MIB      # per working-grid pixel of a pair: the two frames, flows, checks, DIS
 ANALYSIS_PER_PX = 28.0 * MIB   # per working-grid pixel of each pair measured (flow in float32, residuals, chains)
-SEG_PER_PX = 93.0 * MIB        # two layers, a clip segmented whole: per pixel of the flow's grid of each frame (70 of it the
-                               # colour cut's graph over the clip: 215-275 MiB for DAVIS cows / libby, 30 / 48 frames 427x240)
-SEG_WORK_PER_PX = 140.0 * MIB  # two layers, a clip segmented in windows: per pixel of the finder's working size of each window frame
+SEG_PER_PX = 23.0 * MIB        # two layers, a clip segmented whole: per pixel of the flow's grid of each frame
+SEG_WORK_PER_PX = 70.0 * MIB   # two layers, a clip segmented in windows: per pixel of the finder's working size of each window frame
 BOOT_PER_PX = 24.0 * MIB       # one layer: per frame pixel (a frame and its temporaries)
 EXPORT_PER_PX = 455.0 * MIB    # per frame pixel: the faithful export's arrays for a frame and its two neighbours and their
 EXPORT_FIXED = 240e6 * MIB     # geometry kept for the atlases, and what it holds at any frame size (the writers, the atlases'

@@ -9,7 +9,7 @@ from layercam.vision.segment import colour
 from layercam.vision.segment.background import background_refine
 
 
-_RED, _GREY, _BLUE = [0.8, 0.2, 0.1], [0.55, 0.3, 0.3], [0.2, 0.3, 0.7]
+_RED, _GREY = [0.8, 0.2, 0.1], [0.55, 0.3, 0.3]
 
 
 def test_graph_cut_finds_the_least_energy_labelling():
@@ -33,65 +33,6 @@ def test_graph_cut_finds_the_least_energy_labelling():
         got = colour.graph_cut(unary, guide, 0.7)
         assert got.shape == (3, 4) and got.dtype == bool
         assert energy(got) <= best + 0.05, (trial, energy(got), best)  # capacities are rounded to 1/100
-
-
-def test_graph_cut_over_frames_finds_the_least_energy_labelling_with_its_links():
-    """Two 2x3 frames labelled together, joined pixel to pixel by ``links``: the labelling costs what
-    the cheapest of all 4096 costs (each frame's unaries and smoothness plus the links' Potts terms)."""
-    import itertools
-
-    rng = np.random.default_rng(1)
-    for trial in range(4):
-        unaries = [rng.normal(0, 1, (2, 3)).astype(np.float32) for _ in range(2)]
-        guides = [rng.uniform(0, 1, (2, 3, 3)).astype(np.float32) for _ in range(2)]
-        ia, ib = np.array([0, 2, 4, 5]), np.array([1, 2, 3, 5])
-        lw = rng.uniform(0.2, 1.5, 4)
-        pairs = [((y, x), (y, x + 1)) for y in range(2) for x in range(2)] + [((0, x), (1, x)) for x in range(3)]
-        wgts = []
-        for g in guides:
-            d = np.array([((g[a] - g[b]) ** 2).sum() for a, b in pairs])
-            wgts.append(0.7 * np.exp(-d / (2 * d.mean())))
-
-        def energy(labs):
-            e = sum(np.where(lab, np.maximum(-u, 0), np.maximum(u, 0)).sum() for lab, u in zip(labs, unaries))
-            e += sum(wk for lab, wg in zip(labs, wgts) for wk, (a, b) in zip(wg, pairs) if lab[a] != lab[b])
-            return e + sum(wk for wk, a, b in zip(lw, ia, ib) if labs[0].ravel()[a] != labs[1].ravel()[b])
-
-        best = min(energy([np.array(bits[:6], bool).reshape(2, 3), np.array(bits[6:], bool).reshape(2, 3)]) for bits in itertools.product((0, 1), repeat=12))
-        got = colour.graph_cut(unaries, guides, 0.7, links=[(0, ia, 1, ib, lw)])
-        assert len(got) == 2 and all(g.shape == (2, 3) and g.dtype == bool for g in got)
-        assert energy(got) <= best + 0.05, (trial, energy(got), best)
-        free = [rng.uniform(size=(2, 3)) < 0.7 for _ in range(2)]  # the rest fixed to background: as a unary forbidding it
-        fixed = colour.graph_cut(unaries, guides, 0.7, links=[(0, ia, 1, ib, lw)], free=free)
-        forbid = colour.graph_cut([np.where(f, u, -50.0) for f, u in zip(free, unaries)], guides, 0.7, links=[(0, ia, 1, ib, lw)])
-        assert not any(g[~f].any() for g, f in zip(fixed, free))
-        assert abs(energy(fixed) - energy(forbid)) < 0.05, (trial, energy(fixed), energy(forbid))
-
-
-def test_colour_cut_joins_the_frames_along_the_flow():
-    """A still object whose lower half has the background's colour; its mask in the middle frame
-    lost that half, the two frames before and after hold all of it. Cut frame by frame, the middle
-    frame keeps its half (so did the cut before the frames were joined, which offered it the
-    neighbours' carried pixels and let their colour, the background's, decide); cut as one clip
-    joined along the flow (Papazoglou & Ferrari's temporal edges), it takes the object as its
-    neighbours hold it."""
-    T, h, w = 5, 96, 96
-    frames = np.empty((T, h, w, 3), np.float32)
-    frames[:] = _BLUE
-    frames[:, :, ::2] = _GREY         # the background: half of it the lower half's colour
-    frames[:, 24:48, 24:72] = _RED    # the object's upper half: a colour of its own
-    frames[:, 48:72, 24:72] = _BLUE   # its lower half: the background's colour
-    truth = np.zeros((T, h, w), bool)
-    truth[:, 24:72, 24:72] = True
-    masks = truth.copy()
-    masks[2, 48:] = False
-    rel = np.ones((T, h, w), np.float16)  # the clean plate differs everywhere: the gate lets the cut look anywhere
-    fw = np.zeros((T - 1, h, w, 2), np.float32)
-    iou = lambda m: float(metrics.iou(m[2], truth[2]))  # noqa: E731
-    alone = colour.colour_cut(frames, masks, rel)
-    joined = colour.colour_cut(frames, masks, rel, fw, fw, np.ones((T - 1, h, w), bool))
-    assert iou(alone) < 0.7 < 0.9 < iou(joined), (iou(alone), iou(joined))
-    assert all(metrics.iou(joined[t], truth[t]) > 0.9 for t in (0, 1, 3, 4))
 
 
 def test_colour_cut_grows_a_half_mask_to_the_object_not_to_its_colours_elsewhere(monkeypatch):

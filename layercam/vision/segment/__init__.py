@@ -17,10 +17,9 @@ learned over the whole clip. One step per module:
 4. :mod:`~layercam.vision.segment.edges`: GrabCut pulls each mask to the object's colour edges.
 5. :mod:`~layercam.vision.segment.background`: the clean plate (neighbours registered by the camera's
    motion, their object left out) adds limbs the flow missed and drops background the flow smeared.
-6. :mod:`~layercam.vision.segment.colour`: a spatio-temporal graph cut (the frames joined along the flow)
-   on the object's colours learned over the clip grows the masks to the whole object where the frame
-   differs from the clean plate, and where a frame's mask lost part of the object its neighbour's,
-   carried along the flow, offers it back.
+6. :mod:`~layercam.vision.segment.colour`: a graph cut on the object's colours learned over the clip grows
+   the masks to the whole object where the frame differs from the clean plate, and where a frame's
+   mask lost part of the object its neighbour's, carried along the flow, offers it back.
 7. :mod:`~layercam.vision.segment.verdict`: masks that jump about or move like their surroundings are no
    object: the run says so.
 
@@ -119,7 +118,7 @@ def find_foreground(frames: np.ndarray, flows: dict, cfg: SegmentConfig | None =
         if "colour" in steps:
             from layercam.vision.segment.colour import colour_cut
 
-            masks = colour_cut(frames, fill_still_frames(masks, fw, bw)[0], rel, fw, bw, fo)  # frames the check emptied start again from their neighbours'
+            masks = colour_cut(frames, fill_still_frames(masks, fw, bw)[0], rel, fw, bw)  # frames the check emptied start again from their neighbours'
     masks = np.asarray(masks, np.float32)
     info["verdict"] = verdict(masks, evidence, fw)
     if masks.shape[1:] != (h, w):

@@ -301,6 +301,30 @@ def test_the_verdict_rejects_masks_that_jump_or_sit_on_the_background():
     assert v["found"] and 0.7 < v["consistency"] < 0.8, v
 
 
+def test_the_verdict_counts_each_frame_once_not_each_pixel():
+    """An object small and moving in its first frames that fills most of its last ones, where the
+    camera's fit locks onto it and no motion test sees it (a rider coming at the camera): pooled
+    over pixels its evidence reads under the rest's, but each frame is one sighting of it."""
+    from layercam.vision.segment.verdict import evidence_contrast, verdict
+
+    T, h, w = 10, 48, 48
+    fw = np.zeros((T - 1, h, w, 2), np.float32)
+    masks = np.zeros((T, h, w), bool)
+    evidence = np.full((T, h, w), 0.05, np.float32)
+    for t in range(T):
+        if t < T // 2:
+            masks[t, 20:26, 20:26] = True
+            evidence[t][masks[t]] = 1.0
+        else:
+            masks[t, 4:44, 4:44] = True
+            evidence[t][masks[t]] = 0.0
+    pooled = evidence[masks].mean() / evidence[~masks].mean()
+    assert pooled < 1.0  # the pixels' count alone would call it the background's motion
+    assert abs(evidence_contrast(masks, evidence) - 0.5 / 0.05) < 1e-3
+    v = verdict(masks, evidence, fw)
+    assert v["found"], v
+
+
 def test_a_large_clip_is_segmented_at_the_working_size(monkeypatch):
     """Frames larger than ``WORK_SHORT`` on the short side are segmented at that size: the masks
     come back at the frame's size and find the same object."""

@@ -7,7 +7,7 @@ masks made from a flow cannot be compared more finely than that, and a small per
 more than a plain IoU forgives; the median over the pairs that hold a mask on either side, and a
 frame without mask counts as a jump)? Do they cover what moves against the camera
 (:mod:`layercam.vision.segment.evidence`) more than what lies around them: the motion evidence inside the
-masks over that outside? Masks that jump about, or that sit where nothing moves more than the
+masks over that outside, each a mean over frames (:func:`evidence_contrast`)? Masks that jump about, or that sit where nothing moves more than the
 background, are not an object: the run says so and, without ``--layers``, the analysis chooses one
 layer (:func:`layercam.vision.analyse.decide`).
 """
@@ -42,6 +42,17 @@ def temporal_iou(masks: np.ndarray, fw: np.ndarray) -> np.ndarray:
     return out
 
 
+def evidence_contrast(masks: np.ndarray, evidence: np.ndarray) -> float:
+    """The masks' mean motion evidence over the rest's, each a mean over frames (of the frames that
+    hold a mask, and of those with pixels outside it): every frame is one sighting of the object,
+    so an object filling half of its last frames, where the camera's fit has locked onto it and no
+    motion test sees it, does not outweigh its small, moving first frames by its area."""
+    ev = np.asarray(evidence, np.float32)
+    held = [float(ev[t][masks[t]].mean()) for t in range(len(masks)) if masks[t].any()]
+    rest = [float(ev[t][~masks[t]].mean()) for t in range(len(masks)) if not masks[t].all()]
+    return float(np.mean(held)) / max(float(np.mean(rest)) if rest else 0.0, 1e-3)
+
+
 def verdict(masks: np.ndarray, evidence: np.ndarray, fw: np.ndarray) -> dict:
     """``{"found": bool, "reason": str, "consistency": float, "contrast": float}`` for masks
     ``(T, H, W)`` with the motion evidence ``(T, H, W)`` they came from and the forward flows."""
@@ -50,9 +61,7 @@ def verdict(masks: np.ndarray, evidence: np.ndarray, fw: np.ndarray) -> dict:
         return {"found": False, "reason": "no part of any frame moves against the camera", "consistency": 0.0, "contrast": 0.0}
     ious = temporal_iou(m, fw)
     cons = float(np.median(np.nan_to_num(ious[~np.isnan(ious)], nan=0.0))) if (~np.isnan(ious)).any() else 0.0
-    ev = np.asarray(evidence, np.float32)
-    inside, outside = float(ev[m].mean()), float(ev[~m].mean()) if (~m).any() else 0.0
-    contrast = inside / max(outside, 1e-3)
+    contrast = evidence_contrast(m, evidence)
     info = {"consistency": round(cons, 3), "contrast": round(contrast, 2)}
     if cons < CONSISTENT:
         return {"found": False, "reason": f"the candidate masks jump between frames (median overlap {cons:.2f} with their neighbours along the flow, < {CONSISTENT})", **info}

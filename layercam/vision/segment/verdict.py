@@ -6,10 +6,11 @@ frame along the flow overlaps that frame's mask (the share of either mask's pixe
 masks made from a flow cannot be compared more finely than that, and a small person's legs move
 more than a plain IoU forgives; the median over the pairs that hold a mask on either side, and a
 frame without mask counts as a jump)? Do they cover what moves against the camera
-(:mod:`layercam.vision.segment.evidence`) more than what lies around them: the motion evidence inside the
-masks over that outside, each a mean over frames (:func:`evidence_contrast`)? Masks that jump about, or that sit where nothing moves more than the
-background, are not an object: the run says so and, without ``--layers``, the analysis chooses one
-layer (:func:`layercam.vision.analyse.decide`).
+(:mod:`layercam.vision.segment.evidence`) more than what lies around them: the motion evidence
+inside the masks over that outside, each a mean over frames (:func:`evidence_contrast`)? Masks
+that jump about, or that sit where nothing moves more than the background, are not an object: the
+run says so and, without ``--layers``, the analysis chooses one layer
+(:func:`layercam.vision.analyse.decide`).
 """
 
 from __future__ import annotations
@@ -44,13 +45,14 @@ def temporal_iou(masks: np.ndarray, fw: np.ndarray) -> np.ndarray:
 
 def evidence_contrast(masks: np.ndarray, evidence: np.ndarray) -> float:
     """The masks' mean motion evidence over the rest's, each a mean over frames (of the frames that
-    hold a mask, and of those with pixels outside it): every frame is one sighting of the object,
-    so an object filling half of its last frames, where the camera's fit has locked onto it and no
-    motion test sees it, does not outweigh its small, moving first frames by its area."""
+    hold a mask, and of those with pixels outside it); ``masks (T, H, W)`` bool, at least one pixel
+    set, ``evidence (T, H, W)``. Every frame is one sighting of the object, so an object filling
+    half of its last frames, where the camera's fit has locked onto it and no motion test sees it,
+    does not outweigh its small, moving first frames by its area."""
     ev = np.asarray(evidence, np.float32)
-    held = [float(ev[t][masks[t]].mean()) for t in range(len(masks)) if masks[t].any()]
-    rest = [float(ev[t][~masks[t]].mean()) for t in range(len(masks)) if not masks[t].all()]
-    return float(np.mean(held)) / max(float(np.mean(rest)) if rest else 0.0, 1e-3)
+    inside = np.mean([ev[t][m].mean() for t, m in enumerate(masks) if m.any()])
+    outside = np.mean([ev[t][~m].mean() for t, m in enumerate(masks) if not m.all()] or [0.0])
+    return float(inside) / max(float(outside), 1e-3)
 
 
 def verdict(masks: np.ndarray, evidence: np.ndarray, fw: np.ndarray) -> dict:

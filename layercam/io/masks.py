@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from layercam.core.errors import LayercamError
-from layercam.io.clip import Clip, natural_key
+from layercam.io.clip import Clip, _resize, natural_key
 
 __all__ = ["MASK_SUFFIXES", "list_masks", "load_masks"]
 
@@ -74,36 +74,28 @@ def load_masks(folder: str | os.PathLike, clip: Clip) -> np.ndarray:
 
     One image per frame, natural order. With exactly ``T`` masks they are taken in order; with more,
     the ones at ``clip.meta["frame_indices"]`` (the source index of each kept frame, so strided
-    or truncated clips still match), else the first ``T``. Each mask is resized to ``(H, W)`` with
-    nearest neighbour; colour channels are combined (any non-zero channel); a pixel is foreground
-    when its level is > 0.5 x the largest level over all the selected masks (0/1 and 0/255 masks
-    alike; all-zero masks stay empty). Problems raise ``LayercamError`` with a one-line message.
+    or truncated clips still match), else the first ``T``. Colour channels are combined (any non-zero
+    channel); each mask, as a share of the largest level over all the selected masks (0/1 and 0/255
+    masks alike; all-zero masks stay empty), is resized to ``(H, W)`` as the frames are (area average
+    when shrinking, bilinear when growing: the same pixel grid, and a pixel's share of the object), and a
+    pixel is foreground when that share is > 0.5. Problems raise ``LayercamError`` with a one-line message.
     For a clip kept on disk (``load_clip(..., cache=...)``: ``clip.meta["frames_cache"]``) the masks
     are a uint8 :class:`~layercam.io.frames.DiskArray` of 0 and 1 in an unlinked file beside its
     frames, read as needed: their memory does not grow with the clip.
     """
-    import cv2
-
     paths = _select(list_masks(folder), clip, Path(folder).expanduser())
     h, w = clip.H, clip.W
+    peak = max(float(_read_mask(p).max()) for p in paths)  # a first pass: the largest level over all
 
-    def read(p):
-        m = _read_mask(p)
-        return cv2.resize(m, (w, h), interpolation=cv2.INTER_NEAREST) if m.shape != (h, w) else m
+    def read(p) -> np.ndarray:  # the mask's share of the object at the clip's pixels, > 0.5
+        return _resize(_read_mask(p) / peak, (w, h)) > 0.5 if peak > 0 else np.zeros((h, w), bool)
 
     cache = (clip.meta or {}).get("frames_cache")
-    if cache:  # a clip kept on disk: its masks too, a mask read at a time (twice: the largest level first)
+    if cache:  # a clip kept on disk: its masks too, a mask read at a time
         from layercam.io.frames import TempArray
 
-        peak = max(float(read(p).max()) for p in paths)
         out = TempArray(np.uint8, (clip.T, h, w), cache)
         for i, p in enumerate(paths):
-            out[i] = read(p) > 0.5 * peak if peak > 0 else 0
+            out[i] = read(p)
         return out
-    raw = np.empty((clip.T, h, w), np.float32)
-    for i, p in enumerate(paths):
-        raw[i] = read(p)
-    peak = float(raw.max())
-    if peak <= 0:
-        return np.zeros_like(raw)
-    return (raw > 0.5 * peak).astype(np.float32)
+    return np.stack([read(p) for p in paths]).astype(np.float32)

@@ -74,12 +74,28 @@ def test_colour_and_alpha_masks(tmp_path):
     assert m[1].sum() == 4 and m[1][2, 5] == 1
 
 
-def test_resize_nearest(tmp_path):
+def test_resize_keeps_the_layout(tmp_path):
     big = np.kron(square(2), np.ones((4, 4), np.uint8))  # 24x32, same layout
     write(tmp_path, ["0.png"], [big])
     m = load_masks(tmp_path, clip_of(1))
     assert m.shape == (1, 6, 8)
     assert np.array_equal(m[0], (square(2) > 0).astype(np.float32))
+
+
+def test_masks_land_on_the_frames_pixels(tmp_path):
+    """A shrunk mask is resampled as the frames are: a pixel is object where most of its area is (nearest
+    neighbour takes each cell's top-left source pixel, a third of a pixel off at 1/3, and keeps lines
+    thinner than a pixel whole wherever one crosses that pixel)."""
+    src = np.zeros((36, 48), np.uint8)
+    src[6:30, 13:22] = 255  # columns 13-21: two thirds of cell 4 (12-14), all of 5-6, one third of 7 (21-23)
+    src[:, 30] = 255  # a line one source pixel wide, on the top-left pixel of cell 10
+    frame = np.repeat(src[..., None], 3, axis=2)
+    write(tmp_path / "frames", ["0.png"], [frame])
+    write(tmp_path / "masks", ["0.png"], [src])
+    clip = load_clip(tmp_path / "frames", resize="16x12")
+    m = load_masks(tmp_path / "masks", clip)[0] > 0
+    assert np.array_equal(m, clip.frames[0, :, :, 0] > 0.5)  # the frame's own pixels, at 0.5 of its level
+    assert m[5, 4:7].all() and not m[5, 7] and not m[:, 10].any()
 
 
 def test_jpeg_masks_threshold_noise(tmp_path):
@@ -144,6 +160,6 @@ def test_davis_libby_masks():
     frac = m.mean(axis=(1, 2))
     assert ((frac > 0.005) & (frac < 0.5)).all()  # the dog: present, not the whole frame
     ref = cv2.imread(str(LIBBY / "masks_gt" / "00004.png"), cv2.IMREAD_GRAYSCALE)  # frame index 4
-    ref = cv2.resize(ref, (clip.W, clip.H), interpolation=cv2.INTER_NEAREST) > 127
+    ref = cv2.resize(ref / 255.0, (clip.W, clip.H), interpolation=cv2.INTER_AREA) > 0.5  # as the frames are
     assert np.array_equal(m[2] > 0, ref)
     assert not np.array_equal(m[0], m[2])  # the dog moves

@@ -11,7 +11,8 @@ so an interrupted benchmark resumes.
 
 Per run: the layers; the foreground alpha's IoU against the true masks (alpha > 0.5, per frame, then
 the mean) and its worst frame; the share of the object inside alpha (true mask pixels under alpha >
-0.5, over the clip); the bootstrap masks' IoU and the finder's verdict (variant "motion"); the
+0.5, over the clip), both at the clip's working size (the masks resampled as the frames are) and, as
+DAVIS scores, at the masks' own size (the mattes upsampled bilinearly); the bootstrap masks' IoU and the finder's verdict (variant "motion"); the
 reconstruction PSNR (every frame re-rendered through the learned camera against the input frame);
 wall time (flow + bootstrap + training + export). Writes ``OUT/layers.json``, ``OUT/layers.md`` (the
 table, and per preset and variant the set's mean and worst clip) and one figure per run,
@@ -61,6 +62,25 @@ def inside_share(pred: np.ndarray, truth: np.ndarray) -> float:
     over every frame (1 when the truth holds none)."""
     g = np.asarray(truth) > 0.5
     return float(np.count_nonzero((np.asarray(pred) > 0.5) & g) / max(np.count_nonzero(g), 1)) if g.any() else 1.0
+
+
+def source_scores(alpha: np.ndarray, masks: Path, clip) -> dict:
+    """``alpha (T, H, W)`` scored as DAVIS scores, at the true masks' own resolution: each matte
+    upsampled bilinearly to the masks' size and > 0.5, against the masks there. Returns
+    ``{"iou_source", "iou_min_source", "inside_source", "source_size"}``."""
+    import cv2
+
+    from layercam.io.masks import list_masks, load_masks
+
+    first = cv2.imread(str(list_masks(masks)[0]), cv2.IMREAD_UNCHANGED)
+    hw = first.shape[:2]
+    truth = load_masks(masks, clip, size=hw)
+    up = [cv2.resize(np.asarray(a, np.float32), (hw[1], hw[0]), interpolation=cv2.INTER_LINEAR) for a in alpha]
+    ious = mask_ious(up, truth)
+    hit = sum(int(np.count_nonzero((u > 0.5) & (g > 0.5))) for u, g in zip(up, truth))
+    total = int(np.count_nonzero(np.asarray(truth) > 0.5))
+    return {"iou_source": round(float(np.mean(ious)), 4), "iou_min_source": round(float(np.min(ious)), 4),
+            "inside_source": round(hit / total, 4) if total else 1.0, "source_size": f"{hw[1]}x{hw[0]}"}
 
 
 def read_alpha(run: Path, T: int, hw: tuple[int, int]) -> np.ndarray:
@@ -123,7 +143,7 @@ def run_layer_job(job: dict) -> dict:
         "steps": ctx.results["train"].steps, "per_frame_iou": [round(v, 4) for v in ious],
         "per_frame_bootstrap_iou": None if boot_ious is None else [round(v, 4) for v in boot_ious],
         "per_frame_psnr": [round(v, 3) for v in psnrs], "overrides": job.get("overrides", []),
-        "threads": job.get("threads", 1),
+        "threads": job.get("threads", 1), **source_scores(alpha, folder / "masks_gt", clip),
     }
     draw_run(Path(job["figure"]), run, clip.frames, alpha, truth, boot, row)
     return row
@@ -156,6 +176,17 @@ def _job_main() -> None:  # entry of the per-job subprocess
     atomic_write(Path(job["result"]), lambda p: p.write_text(json.dumps(row, indent=1)))
 
 
+def _score_at_source(job: dict, row: dict, res: Path) -> dict:
+    """``row`` with :func:`source_scores` of its run's mattes, written back to ``res``."""
+    from layercam.io import load_clip
+    from layercam.io.atomic import atomic_write
+
+    clip = load_clip(Path(job["folder"]) / "frames", max_frames=job.get("max_frames"), resize=job["resize"])
+    row = {**row, **source_scores(read_alpha(Path(job["run"]), clip.T, (clip.H, clip.W)), Path(job["folder"]) / "masks_gt", clip)}
+    atomic_write(res, lambda p: p.write_text(json.dumps(row, indent=1)))
+    return row
+
+
 def run_layers_table(out: Path, data: Path, clips: list[str] | None = None, variants: tuple = VARIANTS, presets: tuple = ("fast", "balanced"), resize: str = "0.33", overrides: list[str] | None = None, layers: str = "2", max_frames: int | None = MAX_FRAMES, threads: int = 1, force: bool = False, progress: bool = True) -> list[dict]:
     """Runs (or re-uses) every preset x clip x variant job, then writes the table. Returns the rows."""
     from layercam.io.atomic import ensure_writable_dir
@@ -184,6 +215,8 @@ def run_layers_table(out: Path, data: Path, clips: list[str] | None = None, vari
                 tail = (p.stderr or p.stdout).strip().splitlines()[-1:] or ["?"]
                 raise LayercamError(f"layers bench job {name}/{v} failed: {tail[0]}")
         r = json.loads(res.read_text())
+        if "iou_source" not in r and (Path(job["run"]) / "alpha").is_dir():  # a job finished before the truth's own size was scored
+            r = _score_at_source(job, r, res)
         rows.append(r)
         boot = "" if r["bootstrap_iou"] is None else f" (bootstrap {r['bootstrap_iou']:.3f})"
         say(f"{name:>18} {v:>6} {preset:>8}: {r['layers']} layers, alpha IoU {r['iou']:.3f}, inside {r.get('inside', float('nan')):.3f}{boot}, PSNR {r['psnr']:.2f} dB, {r['wall_s']:.0f} s")
@@ -201,6 +234,11 @@ def summaries(rows: list[dict]) -> list[dict]:
         out.append({"preset": key[0], "variant": key[1], "clips": len(rs), "iou_mean": round(float(np.mean([r["iou"] for r in rs])), 4),
                     "inside_mean": round(float(np.mean(inside)), 4) if inside else None, "inside_min": round(float(np.min(inside)), 4) if inside else None,
                     "worst_clip": worst["clip"], "worst_iou": worst["iou"]})
+        src = [r for r in rs if r.get("iou_source") is not None]
+        if len(src) == len(rs):  # scored at the masks' own size too
+            out[-1].update({"iou_source_mean": round(float(np.mean([r["iou_source"] for r in src])), 4),
+                            "inside_source_min": round(float(np.min([r["inside_source"] for r in src])), 4),
+                            "worst_iou_source": round(float(np.min([r["iou_source"] for r in src])), 4)})
     return out
 
 
@@ -211,15 +249,17 @@ def write_layers_table(out: Path, rows: list[dict]) -> None:
 
     sums = summaries(rows)
     atomic_write(out / "layers.json", lambda p: p.write_text(json.dumps({"rows": rows, "summary": sums}, indent=1)))
-    md = ["| clip | preset | frames | size | masks | layers | alpha IoU (mean) | alpha IoU (worst frame) | object inside alpha | bootstrap IoU | found | PSNR dB | wall s |", "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    md = ["| clip | preset | frames | size | masks | layers | alpha IoU (mean) | alpha IoU (worst frame) | object inside alpha | at the masks' own size: IoU / inside | bootstrap IoU | found | PSNR dB | wall s |", "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         boot = "" if r["bootstrap_iou"] is None else f"{r['bootstrap_iou']:.3f}"
         inside = "" if r.get("inside") is None else f"{r['inside']:.3f}"
         found = "" if r.get("found") is None else ("yes" if r["found"] else "no")
-        md.append(f"| {r['clip']} | {r.get('preset', '')} | {r['frames']} | {r['size']} | {'given' if r['variant'] == 'masks' else 'none (motion)'} | {r['layers']} | {r['iou']:.3f} | {r['iou_min']:.3f} | {inside} | {boot} | {found} | {r['psnr']:.2f} | {r['wall_s']:.0f} |")
-    md += ["", "| preset | masks | clips | mean alpha IoU | mean share inside | least share inside | worst clip |", "|---|---|---|---|---|---|---|"]
+        src = "" if r.get("iou_source") is None else f"{r['iou_source']:.3f} / {r['inside_source']:.3f} ({r['source_size']})"
+        md.append(f"| {r['clip']} | {r.get('preset', '')} | {r['frames']} | {r['size']} | {'given' if r['variant'] == 'masks' else 'none (motion)'} | {r['layers']} | {r['iou']:.3f} | {r['iou_min']:.3f} | {inside} | {src} | {boot} | {found} | {r['psnr']:.2f} | {r['wall_s']:.0f} |")
+    md += ["", "| preset | masks | clips | mean alpha IoU | mean share inside | least share inside | worst clip | at the masks' own size: mean IoU / least inside / worst clip's IoU |", "|---|---|---|---|---|---|---|---|"]
     for sm in sums:
         ins = "" if sm["inside_mean"] is None else f"{sm['inside_mean']:.3f}"
         least = "" if sm["inside_min"] is None else f"{sm['inside_min']:.3f}"
-        md.append(f"| {sm['preset']} | {'given' if sm['variant'] == 'masks' else 'none (motion)'} | {sm['clips']} | {sm['iou_mean']:.3f} | {ins} | {least} | {sm['worst_clip']} {sm['worst_iou']:.3f} |")
+        src = f"{sm['iou_source_mean']:.3f} / {sm['inside_source_min']:.3f} / {sm['worst_iou_source']:.3f}" if "iou_source_mean" in sm else ""
+        md.append(f"| {sm['preset']} | {'given' if sm['variant'] == 'masks' else 'none (motion)'} | {sm['clips']} | {sm['iou_mean']:.3f} | {ins} | {least} | {sm['worst_clip']} {sm['worst_iou']:.3f} | {src} |")
     atomic_write(out / "layers.md", lambda p: p.write_text("\n".join(md) + "\n"))

@@ -69,8 +69,9 @@ def _select(paths: list[Path], clip: Clip, folder) -> list[Path]:
     return [paths[i] for i in idx]
 
 
-def load_masks(folder: str | os.PathLike, clip: Clip) -> np.ndarray:
-    """Foreground masks for ``clip``: ``(T, H, W)`` float32 in {0, 1} at the clip's size.
+def load_masks(folder: str | os.PathLike, clip: Clip, size: tuple[int, int] | None = None) -> np.ndarray:
+    """Foreground masks for ``clip``: ``(T, H, W)`` float32 in {0, 1} at the clip's size (or at
+    ``size = (H, W)``: the masks' own, for scoring at the truth's resolution).
 
     One image per frame, natural order. With exactly ``T`` masks they are taken in order; with more,
     the ones at ``clip.meta["frame_indices"]`` (the source index of each kept frame, so strided
@@ -84,7 +85,7 @@ def load_masks(folder: str | os.PathLike, clip: Clip) -> np.ndarray:
     frames, read as needed: their memory does not grow with the clip.
     """
     paths = _select(list_masks(folder), clip, Path(folder).expanduser())
-    h, w = clip.H, clip.W
+    h, w = size or (clip.H, clip.W)
     peak = max(float(_read_mask(p).max()) for p in paths)  # a first pass: the largest level over all
 
     def read(p) -> np.ndarray:  # the mask's share of the object at the clip's pixels, > 0.5

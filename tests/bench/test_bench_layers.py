@@ -37,15 +37,16 @@ def test_find_clips_and_table(tmp_path):
     assert list(bench_layers.find_clips(tmp_path, ["b"])) == ["b"]
     with pytest.raises(LayercamError, match="unknown clip 'c'"):
         bench_layers.find_clips(tmp_path, ["c"])
-    row = {"clip": "a", "variant": "motion", "preset": "fast", "frames": 3, "size": "8x8", "layers": 2, "iou": 0.5, "iou_min": 0.25, "inside": 0.9, "bootstrap_iou": 0.4, "found": True, "psnr": 30.0, "wall_s": 12.0}
+    row = {"clip": "a", "variant": "motion", "preset": "fast", "frames": 3, "size": "8x8", "layers": 2, "iou": 0.5, "iou_min": 0.25, "inside": 0.9, "bootstrap_iou": 0.4, "found": True, "psnr": 30.0, "wall_s": 12.0,
+           "iou_source": 0.45, "iou_min_source": 0.2, "inside_source": 0.85, "source_size": "16x16"}
     rows = [row, {**row, "clip": "b", "iou": 0.7, "inside": 0.7, "found": False}, {**row, "variant": "masks", "bootstrap_iou": None, "found": None, "iou": 0.9}]
     bench_layers.write_layers_table(tmp_path, rows)
     md = (tmp_path / "layers.md").read_text().splitlines()
-    assert "| a | fast | 3 | 8x8 | none (motion) | 2 | 0.500 | 0.250 | 0.900 | 0.400 | yes | 30.00 | 12 |" in md
-    assert "| b | fast | 3 | 8x8 | none (motion) | 2 | 0.700 | 0.250 | 0.700 | 0.400 | no | 30.00 | 12 |" in md
+    assert "| a | fast | 3 | 8x8 | none (motion) | 2 | 0.500 | 0.250 | 0.900 | 0.450 / 0.850 (16x16) | 0.400 | yes | 30.00 | 12 |" in md
+    assert "| b | fast | 3 | 8x8 | none (motion) | 2 | 0.700 | 0.250 | 0.700 | 0.450 / 0.850 (16x16) | 0.400 | no | 30.00 | 12 |" in md
     # the set: the mean over the clips, the least share inside, the worst clip, per preset and variant
-    assert "| fast | none (motion) | 2 | 0.600 | 0.800 | 0.700 | a 0.500 |" in md
-    assert "| fast | given | 1 | 0.900 | 0.900 | 0.900 | a 0.900 |" in md
+    assert "| fast | none (motion) | 2 | 0.600 | 0.800 | 0.700 | a 0.500 | 0.450 / 0.850 / 0.450 |" in md
+    assert "| fast | given | 1 | 0.900 | 0.900 | 0.900 | a 0.900 | 0.450 / 0.850 / 0.450 |" in md
     assert json.loads((tmp_path / "layers.json").read_text())["summary"][0]["worst_clip"] == "a"
 
 
@@ -59,6 +60,27 @@ def test_inside_share_is_the_object_under_alpha():
     assert bench_layers.inside_share(pred, np.zeros_like(truth)) == 1.0
 
 
+def test_source_scores_are_at_the_masks_own_size(tmp_path):
+    """Scored as DAVIS scores: a matte at a third of the size, upsampled, against the masks at theirs;
+    a line one source pixel wide is object there, though no pixel of the matte's size is mostly line."""
+    import cv2
+
+    from layercam.io import Clip
+
+    src = np.zeros((24, 24), np.uint8)
+    src[3:15, 3:15] = 255  # cells 1-4 of the 8x8 grid, whole
+    src[18, :] = 255  # a line: a third of row 6's cells
+    (tmp_path / "m").mkdir()
+    assert cv2.imwrite(str(tmp_path / "m" / "0.png"), src)
+    clip = Clip(frames=np.zeros((1, 8, 8, 3), np.float32), source="test", names=["0"], meta={})
+    alpha = np.zeros((1, 8, 8), np.float32)
+    alpha[0, 1:5, 1:5] = 1.0
+    sc = bench_layers.source_scores(alpha, tmp_path / "m", clip)
+    assert sc["source_size"] == "24x24"
+    assert abs(sc["inside_source"] - 144 / 168) < 0.03  # the block inside (to its upsampled edge), the line not
+    assert 0.8 < sc["iou_source"] < 0.9 and sc["iou_min_source"] == sc["iou_source"]
+
+
 @pytest.mark.data
 def test_layer_job_on_a_real_clip_and_resume(shared_data, tmp_path):
     folder = shared_data / "layers_davis_cows"
@@ -70,6 +92,7 @@ def test_layer_job_on_a_real_clip_and_resume(shared_data, tmp_path):
     assert row["layers"] == 2 and row["frames"] == 4 and row["size"] == "85x48"
     assert len(row["per_frame_iou"]) == 4 and 0.0 <= row["iou"] <= 1.0 and 0.0 <= row["bootstrap_iou"] <= 1.0 and 0.0 <= row["inside"] <= 1.0
     assert row["found"] in (True, False) and row["verdict"]
+    assert row["source_size"] == "854x480" and 0.0 <= row["iou_source"] <= 1.0 and 0.0 <= row["inside_source"] <= 1.0
     assert np.isfinite(row["psnr"]) and row["psnr"] > 10
     assert (tmp_path / "cows-motion.png").stat().st_size > 10_000
     # a finished job's result is re-used, not re-run (no subprocess is started for it)

@@ -70,11 +70,10 @@ def source_scores(alpha: np.ndarray, masks: Path, clip) -> dict:
     ``{"iou_source", "iou_min_source", "inside_source", "source_size"}``."""
     import cv2
 
-    from layercam.io.masks import list_masks, load_masks
+    from layercam.io.masks import load_masks
 
-    first = cv2.imread(str(list_masks(masks)[0]), cv2.IMREAD_UNCHANGED)
-    hw = first.shape[:2]
-    truth = load_masks(masks, clip, size=hw)
+    truth = load_masks(masks, clip, own_size=True)
+    hw = truth.shape[1:3]
     up = [cv2.resize(np.asarray(a, np.float32), (hw[1], hw[0]), interpolation=cv2.INTER_LINEAR) for a in alpha]
     ious = mask_ious(up, truth)
     hit = sum(int(np.count_nonzero((u > 0.5) & (g > 0.5))) for u, g in zip(up, truth))
@@ -176,17 +175,6 @@ def _job_main() -> None:  # entry of the per-job subprocess
     atomic_write(Path(job["result"]), lambda p: p.write_text(json.dumps(row, indent=1)))
 
 
-def _score_at_source(job: dict, row: dict, res: Path) -> dict:
-    """``row`` with :func:`source_scores` of its run's mattes, written back to ``res``."""
-    from layercam.io import load_clip
-    from layercam.io.atomic import atomic_write
-
-    clip = load_clip(Path(job["folder"]) / "frames", max_frames=job.get("max_frames"), resize=job["resize"])
-    row = {**row, **source_scores(read_alpha(Path(job["run"]), clip.T, (clip.H, clip.W)), Path(job["folder"]) / "masks_gt", clip)}
-    atomic_write(res, lambda p: p.write_text(json.dumps(row, indent=1)))
-    return row
-
-
 def run_layers_table(out: Path, data: Path, clips: list[str] | None = None, variants: tuple = VARIANTS, presets: tuple = ("fast", "balanced"), resize: str = "0.33", overrides: list[str] | None = None, layers: str = "2", max_frames: int | None = MAX_FRAMES, threads: int = 1, force: bool = False, progress: bool = True) -> list[dict]:
     """Runs (or re-uses) every preset x clip x variant job, then writes the table. Returns the rows."""
     from layercam.io.atomic import ensure_writable_dir
@@ -215,8 +203,6 @@ def run_layers_table(out: Path, data: Path, clips: list[str] | None = None, vari
                 tail = (p.stderr or p.stdout).strip().splitlines()[-1:] or ["?"]
                 raise LayercamError(f"layers bench job {name}/{v} failed: {tail[0]}")
         r = json.loads(res.read_text())
-        if "iou_source" not in r and (Path(job["run"]) / "alpha").is_dir():  # a job finished before the truth's own size was scored
-            r = _score_at_source(job, r, res)
         rows.append(r)
         boot = "" if r["bootstrap_iou"] is None else f" (bootstrap {r['bootstrap_iou']:.3f})"
         say(f"{name:>18} {v:>6} {preset:>8}: {r['layers']} layers, alpha IoU {r['iou']:.3f}, inside {r.get('inside', float('nan')):.3f}{boot}, PSNR {r['psnr']:.2f} dB, {r['wall_s']:.0f} s")

@@ -69,9 +69,9 @@ def _select(paths: list[Path], clip: Clip, folder) -> list[Path]:
     return [paths[i] for i in idx]
 
 
-def load_masks(folder: str | os.PathLike, clip: Clip, size: tuple[int, int] | None = None) -> np.ndarray:
-    """Foreground masks for ``clip``: ``(T, H, W)`` float32 in {0, 1} at the clip's size (or at
-    ``size = (H, W)``: the masks' own, for scoring at the truth's resolution).
+def load_masks(folder: str | os.PathLike, clip: Clip, own_size: bool = False) -> np.ndarray:
+    """Foreground masks for ``clip``: ``(T, H, W)`` float32 in {0, 1} at the clip's size (with
+    ``own_size``, at the first mask's own size: the truth's resolution, for scoring there).
 
     One image per frame, natural order. With exactly ``T`` masks they are taken in order; with more,
     the ones at ``clip.meta["frame_indices"]`` (the source index of each kept frame, so strided
@@ -85,8 +85,11 @@ def load_masks(folder: str | os.PathLike, clip: Clip, size: tuple[int, int] | No
     frames, read as needed: their memory does not grow with the clip.
     """
     paths = _select(list_masks(folder), clip, Path(folder).expanduser())
-    h, w = size or (clip.H, clip.W)
-    peak = max(float(_read_mask(p).max()) for p in paths)  # a first pass: the largest level over all
+    shape, peak = None, 0.0
+    for p in paths:  # a first pass: the largest level over all (and the first mask's size)
+        m = _read_mask(p)
+        shape, peak = shape or m.shape[:2], max(peak, float(m.max()))
+    h, w = shape if own_size else (clip.H, clip.W)
 
     def read(p) -> np.ndarray:  # the mask's share of the object at the clip's pixels, > 0.5
         return _resize(_read_mask(p) / peak, (w, h)) > 0.5 if peak > 0 else np.zeros((h, w), bool)

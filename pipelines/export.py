@@ -10,8 +10,9 @@ writer                writes
                       (HDR10 or HLG from the EXRs, ``export.hdr_format``,
                       :mod:`layercam.io.hdr_video`)
 ``sharp``             ``frames/frame_00000.png`` and ``deblurred.mp4``: the tone mapper at each
-                      frame's own exposure, blur generator dropped; ``hdr/`` when exposures vary;
-                      a frame that misses its input's view (:mod:`.view`) is written as the input
+                      frame's own exposure, blur generator dropped, kept per pixel where the model
+                      re-blurred reproduces the input, the input elsewhere (``trust/``: the mask;
+                      :mod:`.sharp`, :mod:`.view`); ``hdr/`` when exposures vary
 ``fused``             ``fused.exr`` (the scene for the reference view, camera dropped, faithful
                       to the reference image like ``hdr``) and
                       ``fused.png`` (tonemapped; with the fixed sRGB curve, the input's tonality)
@@ -40,10 +41,10 @@ from layercam.core.errors import LayercamError
 from layercam.core.interrupts import reached
 from layercam.pipelines.runner import Context, Stage, write_json
 from layercam.io.hdr_set import HALF_MAX, HdrSet, write_hdr_set
-from layercam.pipelines.view import VIEW_MIN_DB, view_check, view_sigma
 from layercam.pipelines.window_plan import area, fit_maps
 from layercam.vision.scale import size_within
-from layercam.pipelines.export_context import _bits, _fps, _frames, _sound, audio, exposures_vary, resolve_reference
+from layercam.pipelines.export_context import _bits, _fps, _frames, _sound, audio, resolve_reference
+from layercam.pipelines.sharp import sharp_writer
 
 CHECKPOINT_NAME = "checkpoint.pt"
 
@@ -219,44 +220,6 @@ def hdr_video(ctx: Context, model, paths: list[Path], dest: Path) -> dict:
     return {**info, "input_primaries": prim, "anchor": ANCHOR}
 
 
-def sharp_writer(ctx: Context, model, dest: Path, cache: Path) -> dict:
-    from layercam.scene import render
-    from layercam.io import VideoWriter, write_png
-
-    T, hw = ctx.clip.T, (ctx.clip.H, ctx.clip.W)
-    with_hdr = exposures_vary(ctx)
-    exrs = HdrSet(ctx.resolved.settings.export.half, ctx.say)
-    (dest / "frames").mkdir(exist_ok=True)
-    if with_hdr:
-        (dest / "hdr").mkdir(exist_ok=True)
-    kept = np.lib.format.open_memmap(cache / "deblurred.npy", mode="w+", dtype=np.float32, shape=(T, *hw, 3))  # for the evaluation, on disk
-    sigma, held, fell = view_sigma(ctx), [], []
-    with VideoWriter(dest / "deblurred.mp4", fps=_fps(ctx), audio=audio(ctx)) as video:
-        for t in _frames(ctx):
-            reached("export", t)
-            out = render.render_frame(model, t, hw, ("ldr", "hdr") if with_hdr else ("ldr",))
-            ldr = out["ldr"]
-            if not np.isfinite(ldr).all():
-                raise LayercamError(f"frame {t}: the model rendered non-finite values; not writing it")
-            held.append(round(view_check(ldr, ctx.clip.frames[t], sigma), 2))
-            if held[-1] < VIEW_MIN_DB:  # in another view: the input, not a wrong frame
-                fell.append(t)
-                ldr = np.asarray(ctx.clip.frames[t], np.float32)
-            write_png(dest / "frames" / f"frame_{t:05d}.png", ldr, bit_depth=_bits(ctx))
-            kept[t] = ldr
-            video.add(ldr)
-            if with_hdr:
-                exrs.add(dest / "hdr" / f"frame_{t:05d}.exr", out["hdr"])
-    kept.flush()
-    del kept
-    if fell:
-        ctx.warn(f"frame(s) {', '.join(map(str, fell))} of {T}: the sharp render missed the input's view (low-pass PSNR "
-                 f"{', '.join(f'{held[t]:.1f}' for t in fell)} dB, under {VIEW_MIN_DB:g}); the input is written for them"
-                 + (" (frames/ and deblurred.mp4; hdr/ keeps the render)" if with_hdr else ""))
-    view = {"lowpass_sigma_px": sigma, "min_db": VIEW_MIN_DB, "lowpass_psnr_db": held}
-    return {"frames": int(T), "fallback_frames": fell, "view_check": view, "hdr": with_hdr, "hdr_max": exrs.hi if with_hdr else 0.0, "png_bits": _bits(ctx), "fps": _fps(ctx), "sound": _sound(ctx, video)}
-
-
 def fused_writer(ctx: Context, model, dest: Path, cache: Path) -> dict:
     from layercam.scene import render
     from layercam.io import write_png
@@ -324,7 +287,7 @@ def checkpoint_writer(ctx: Context, model, dest: Path, cache: Path) -> dict:
 # writer name -> (function, what it may write at the top of the run folder)
 WRITERS = {
     "hdr": (hdr_writer, ["hdr", "preview.mp4", "hdr.mp4"]),
-    "sharp": (sharp_writer, ["frames", "deblurred.mp4", "hdr"]),
+    "sharp": (sharp_writer, ["frames", "trust", "deblurred.mp4", "hdr"]),
     "fused": (fused_writer, ["fused.exr", "fused.png"]),
     "atlases": (atlas_writer, ["atlases", "alpha"]),
     "crf": (crf_writer, ["crf.json", "crf.png"]),
@@ -352,13 +315,14 @@ class ExportStage(Stage):
 
     name = "export"
     deps = ("train",)
-    reads = ("export", "task", "static", "model.blur", "blur.max_offset")  # the last two: the sharp frames' view check
+    reads = ("export", "task", "static", "model.blur", "blur.max_offset")  # the last two: the sharp frames' trust window
 
     def output_names(self, ctx):
         return [n for n in outputs_for(ctx.task) if n != REPORT_NAME]
 
     def options(self, ctx):
-        return {"fits": "per pixel"} if ctx.window is not None else {}  # a window's export keeps window_plan.FIT_FILE (older ones: none)
+        fits = {"fits": "per pixel"} if ctx.window is not None else {}  # a window's export keeps window_plan.FIT_FILE (older ones: none)
+        return fits | ({"sharp": "trusted per pixel"} if "sharp" in writers_for(ctx.task) else {})  # (older ones: a check per frame)
 
     def run(self, ctx, out):
         dest = out  # published to the top of the run folder when the run ends

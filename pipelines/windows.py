@@ -306,6 +306,7 @@ class WindowsStage(Stage):
     def _sharp(self, ctx, out, dirs, gains, with_hdr: bool) -> dict:
         from layercam.io import VideoWriter, read_exr, write_png
         from layercam.pipelines.export_context import _bits, _fps
+        from layercam.pipelines.sharp import join_trust
         from layercam.io.hdr_set import HdrSet
 
         sharp = [np.load(d / "deblurred.npy", mmap_mode="r") for d in dirs]
@@ -321,7 +322,7 @@ class WindowsStage(Stage):
                 video.add(ldr)
         kept.flush()
         del kept, sharp
-        res = {"frames": int(T), "hdr": with_hdr, "png_bits": _bits(ctx)}
+        res = {"frames": int(T), "hdr": with_hdr, "png_bits": _bits(ctx), **join_trust(out, dirs, lambda read: self._frames(ctx, dirs, [1.0] * len(dirs), read))}
         if with_hdr:
             exrs = HdrSet(ctx.resolved.settings.export.half, ctx.say)
             (out / "hdr").mkdir(exist_ok=True)

@@ -217,8 +217,9 @@ class BlurGenerator(nn.Module):
             feats.append(depth.float())
         return torch.cat(feats, dim=1)
 
-    def _kernel(self, xy, t, depth=None, t_blur=None) -> tuple[torch.Tensor, torch.Tensor]:
-        """``(displacements px (N, K, 2), log weights (N, K))``, float32."""
+    def _kernel(self, xy, t, depth=None, t_blur=None, centre: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
+        """``(displacements px (N, K, 2), log weights (N, K))``, float32; ``centre``: each PSF's
+        weighted centre moved onto its pixel as ``centre_exact`` does, whatever it says."""
         h = self._inputs(xy, t, depth, t_blur)
         disp = self.base.expand(h.shape[0], -1, -1)
         if self.offset_net is not None:
@@ -227,7 +228,7 @@ class BlurGenerator(nn.Module):
                 off = off - off.mean(1, keepdim=True)
             disp = disp + off
         log_w = torch.log_softmax(self.weight_net(h).float().clamp(-LOGIT_BOUND, LOGIT_BOUND), dim=1)
-        if self.centre_exact:  # every PSF's weighted centre on its pixel
+        if self.centre_exact or centre:  # every PSF's weighted centre on its pixel
             disp = disp - (log_w.exp()[:, :, None] * disp).sum(1, keepdim=True)
         return disp, log_w
 
@@ -251,6 +252,7 @@ class BlurGenerator(nn.Module):
         *,
         depth: torch.Tensor | None = None,
         t_blur: torch.Tensor | None = None,
+        centre: bool = False,
     ) -> torch.Tensor:
         """Blurry ``log2 r' (N, 3)`` at patch centres ``xy (N, 2)`` of frames ``t (N,)``.
 
@@ -258,12 +260,15 @@ class BlurGenerator(nn.Module):
         ``N * K`` sample positions. ``out`` (the scene's output at ``xy``) is reused for the centre
         sample when the patch is fixed (``max_offset == 0``). ``t_blur (N,)`` (float) replaces ``t``
         for the blur nets only (focus interpolation); ``depth (N, 1)`` when built ``use_depth``.
+        ``centre``: the PSFs' shape without their shift (each weighted centre on its pixel; the
+        sharp export's check, :mod:`layercam.pipelines.view`).
         """
         n = xy.shape[0]
-        disp, log_w = self._kernel(xy, t, depth, t_blur)
+        disp, log_w = self._kernel(xy, t, depth, t_blur, centre)
         pos = sample_positions(xy.float(), disp, self.frame_hw)  # (N, K, 2)
         c = self.K // 2
-        if self.offset_net is None and out is not None and self.K > 1:
+        fixed = self.offset_net is None and not (self.centre_exact or centre)  # the centre sample on its pixel
+        if fixed and out is not None and self.K > 1:
             keep = torch.arange(self.K, device=xy.device) != c  # centre already rendered in `out`
             others = pos[:, keep].reshape(-1, 2)
             lr = scene(others, t.repeat_interleave(self.K - 1))["log2_r"].float().view(n, self.K - 1, -1)

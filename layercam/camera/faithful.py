@@ -92,16 +92,16 @@ def frame_noise(frame: np.ndarray, exposed: np.ndarray, floor: float = NOISE_FLO
     return np.maximum(np.array([noise_sigma(frame[..., c], exposed[..., c] > 0.5) for c in range(3)], np.float32), floor)
 
 
-def disagreement(frame: np.ndarray, pred: np.ndarray, sigma: np.ndarray, exposed: np.ndarray) -> np.ndarray:
-    """``(H, W)``: the local mean (Gaussian window ``WINDOW_SIGMA``, over the exposed pixels only)
+def disagreement(frame: np.ndarray, pred: np.ndarray, sigma: np.ndarray, exposed: np.ndarray, window: float = WINDOW_SIGMA) -> np.ndarray:
+    """``(H, W)``: the local mean (Gaussian window of ``window`` px, over the exposed pixels only)
     of the squared residual ``frame - pred`` in units of the noise ``sigma (3,)``, averaged over the
     channels: about 1 where the model explains the frame within its noise."""
     import cv2
 
     r2 = ((np.asarray(frame, np.float32) - np.asarray(pred, np.float32)) / sigma) ** 2
     w = np.asarray(exposed, np.float32)
-    num = cv2.GaussianBlur((r2 * w).sum(-1), (0, 0), WINDOW_SIGMA)
-    den = cv2.GaussianBlur(w.sum(-1), (0, 0), WINDOW_SIGMA)
+    num = cv2.GaussianBlur((r2 * w).sum(-1), (0, 0), window)
+    den = cv2.GaussianBlur(w.sum(-1), (0, 0), window)
     return num / np.maximum(den, 1e-3)
 
 

@@ -14,10 +14,13 @@ FRAME_OUTPUTS = ("hdr", "log2_r", "layers", "ldr", "uv", "alpha")
 
 
 @torch.no_grad()
-def render_frame(model, t: int, hw: tuple[int, int], what=("hdr",), *, log2_dt: float | None = None, blur: bool = False, t_blur: float | None = None, chunk: int = 65536) -> dict:
+def render_frame(model, t: int, hw: tuple[int, int], what=("hdr",), *, log2_dt: float | None = None, blur: bool = False, t_blur: float | None = None, centred: bool = False,
+                 stride: int = 1, chunk: int = 65536) -> dict:
     """Frame ``t`` of a trained model at ``hw = (H, W)``, rendered in chunks of ``chunk`` pixels on
     the model's device (``chunk / K`` with a ``K``-sample blur patch); the one full-frame renderer of
-    the exports, ``render``, ``edit``, the notebook and the benchmark's probe.
+    the exports, ``render``, ``edit``, the notebook and the benchmark's probe. ``stride``: every
+    ``stride``-th pixel of every ``stride``-th row only, from pixel (0, 0) (outputs of
+    ``(ceil(H / stride), ceil(W / stride))``).
 
     ``what`` names the outputs, returned as float32 numpy arrays:
 
@@ -26,7 +29,8 @@ def render_frame(model, t: int, hw: tuple[int, int], what=("hdr",), *, log2_dt: 
       :func:`composite_layers`);
     * ``"ldr"``: ``(H, W, 3)`` through the tone mapper at the frame's own exposure, or at
       ``log2_dt``; ``blur`` applies the blur generator first, with the blur of the fractional image
-      index ``t_blur`` when given (focus between training images);
+      index ``t_blur`` when given (focus between training images), each PSF moved onto its pixel
+      with ``centred`` (its shape without its shift: the sharp export's check);
     * ``"uv"``: each layer's atlas coordinates ``[L x (H, W, 2)]``; ``"alpha"``: the foreground's
       opacity ``(H, W)`` (None for one layer). Asked for alone, they skip the atlases and camera.
     """
@@ -40,6 +44,9 @@ def render_frame(model, t: int, hw: tuple[int, int], what=("hdr",), *, log2_dt: 
     use_blur = "ldr" in what and blur and model.blur is not None
     step = max(1, chunk // model.blur.K) if use_blur else chunk
     xy_all = pixel_grid(h, w, dev)
+    if stride > 1:
+        xy_all = xy_all.view(h, w, 2)[::stride, ::stride].reshape(-1, 2)
+        h, w = -(-h // stride), -(-w // stride)
     parts: dict = {k: [] for k in what}
     for s in range(0, xy_all.shape[0], step):
         xy = xy_all[s : s + step]
@@ -47,7 +54,7 @@ def render_frame(model, t: int, hw: tuple[int, int], what=("hdr",), *, log2_dt: 
         out = model.scene.mappings(xy, tt) if geometry_only else model.scene(xy, tt)
         got = {"uv": lambda: torch.stack(out["uv"], 0), "alpha": lambda: out["alpha"], "log2_r": lambda: out["log2_r"],
                "hdr": lambda: torch.exp2(out["log2_r"]), "layers": lambda: torch.stack(out["layer_log2_r"], 0),
-               "ldr": lambda: _through_camera(model, xy, tt, out, log2_dt, use_blur, t_blur)}
+               "ldr": lambda: _through_camera(model, xy, tt, out, log2_dt, use_blur, t_blur, centred)}
         for k in what:
             v = got[k]()
             if v is not None:
@@ -63,12 +70,12 @@ def render_frame(model, t: int, hw: tuple[int, int], what=("hdr",), *, log2_dt: 
     return res
 
 
-def _through_camera(model, xy, t, out: dict, log2_dt: float | None, blur: bool, t_blur: float | None) -> torch.Tensor:
+def _through_camera(model, xy, t, out: dict, log2_dt: float | None, blur: bool, t_blur: float | None, centred: bool = False) -> torch.Tensor:
     """The scene output ``out`` at ``xy, t`` as the camera records it: ``(N, 3)``."""
     log2_r = out["log2_r"]
     if blur:
         tb = None if t_blur is None else torch.full((xy.shape[0],), float(t_blur), device=xy.device)
-        log2_r = model.blur(model.scene, xy, t, out, t_blur=tb)
+        log2_r = model.blur(model.scene, xy, t, out, t_blur=tb, centre=centred)
     dt = model.exposure(t) if log2_dt is None else torch.full_like(log2_r[:, :1], float(log2_dt))
     return model.tone_map(log2_r, dt)
 

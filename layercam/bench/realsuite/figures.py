@@ -73,13 +73,15 @@ def _label(r: dict) -> str:
     return name
 
 
-def case_figure(case, case_dir: Path, rows: list[dict], frames: np.ndarray, truth: dict | None, preds: dict[str, np.ndarray], path: Path) -> None:
+def case_figure(case, case_dir: Path, rows: list[dict], frames: np.ndarray, truth: dict | None, preds: dict[str, np.ndarray], path: Path,
+                masks: dict[str, np.ndarray] | None = None) -> None:
     """Draw ``case``'s figure into ``path``. ``rows``: the case's table rows; ``preds``: method
-    label ("layercam fast", "debevec", ...) -> linear HDR; ``frames``: the inputs as loaded."""
+    label ("layercam fast", "debevec", ...) -> linear HDR; ``frames``: the inputs as loaded;
+    ``masks``: a deblurring run's trust masks ``(T, H, W)`` by the same labels."""
     by_label = {r["method"] + (f" {r['preset']}" if r.get("preset") else ""): r for r in rows}
     labelled = [(_label(by_label[k]) if k in by_label else k, v) for k, v in preds.items()]
     if case.task == "deblur-video":
-        fig, plt = _deblur(case, frames, truth, labelled)
+        fig, plt = _deblur(case, frames, truth, labelled, masks or {})
     elif case.task == "fuse-stack":
         fig, plt = _bracket(case, case_dir, frames, truth, labelled)
     elif truth is not None:
@@ -138,9 +140,10 @@ def _video(case, case_dir: Path, frames, labelled):
 DIFF_GAIN = 3.0  # deblurring figures: |frame - truth| times this
 
 
-def _deblur(case, frames, truth, labelled):
+def _deblur(case, frames, truth, labelled, masks: dict):
     """Two frames (the one the input scores worst on, and the middle one): the input, each method,
-    the truth; under each its |difference| from the truth times ``DIFF_GAIN``."""
+    the truth; under each its |difference| from the truth times ``DIFF_GAIN``, then each layercam
+    run's trust mask (white: the sharp render written, black: the input)."""
     sharp = truth["sharp"]
     floor = [float(np.mean((f - g) ** 2)) for f, g in zip(frames, sharp)]
     shown = sorted({int(np.argmax(floor)), len(frames) // 2})
@@ -149,6 +152,7 @@ def _deblur(case, frames, truth, labelled):
     for t in shown:
         panels = [("input", frames[t])] + [(lab, p[t]) for lab, p in labelled]
         rows.append([(f"{lab.splitlines()[0]} frame {t}", np.clip(im, 0, 1)) for lab, im in panels] + [(f"sharp (truth) frame {t}", sharp[t])])
-        rows.append([(f"|{lab.splitlines()[0]} - truth| x{DIFF_GAIN:g}", diff(im, t)) for lab, im in panels])
+        rows.append([(f"|{lab.splitlines()[0]} - truth| x{DIFF_GAIN:g}", diff(im, t)) for lab, im in panels]
+                    + [(f"trust mask {k} frame {t}\n(white: sharp, black: input)", np.repeat(m[t][..., None], 3, -1)) for k, m in masks.items()])
     rows.insert(0, [(lab, None) for lab, _ in labelled])  # the scores, once, as titles of an empty row
     return _grid([r for r in rows if any(im is not None for _, im in r)], f"{case.name}: {case.about}\n" + "; ".join(lab.replace(chr(10), ": ") for lab, _ in labelled), cell=3.2)

@@ -197,9 +197,9 @@ def job_layercam(job: dict) -> dict:
         from layercam.bench.realsuite.measures import score_deblur
 
         row.update(score_deblur(pred, truth["sharp"], score_deblur(frames, truth["sharp"])["psnr_frames"]))
-        fell = (report.get("export") or {}).get("fallback_frames")
-        if fell:
-            row["note"] = f"input written for frame(s) {', '.join(map(str, fell))}: the render missed them"
+        share = ((report.get("export") or {}).get("trust") or {}).get("kept_share")
+        if share:  # pipelines/view.py: where the sharp render is kept, the input elsewhere
+            row.update(kept_share=float(np.mean(share)), note=f"sharp render kept on {np.mean(share):.0%} of the pixels (frames {min(share):.0%}-{max(share):.0%})")
     else:
         row.update(_scores(case, pred, truth, frames))
     if case.group == "video":

@@ -167,6 +167,7 @@ def _figure(out: Path, name: str, rows: list[dict], data: Path, quick: bool, max
 
     from layercam.bench.realsuite.cases import case_inputs, load_inputs, load_truth, read_prediction
     from layercam.bench.realsuite.figures import case_figure
+    from layercam.io import read_image
 
     case, case_dir = CASES[name], out / "cases" / name
     if not _done(case_dir / "prepare"):
@@ -174,14 +175,16 @@ def _figure(out: Path, name: str, rows: list[dict], data: Path, quick: bool, max
     ci = case_inputs(case, case_dir, data, quick, max_frames)
     frames, times, _ = load_inputs(case, ci)
     truth = load_truth(case, case_dir, data, frames, times)
-    preds = {}
+    preds, masks = {}, {}
     for r in rows:
         if r.get("failed") or r["method"] == "input":  # the input: a panel of its own
             continue
         if r["method"] == "layercam":
             run_dir = case_dir / f"layercam-{preset_tag(r['preset'])}" / "run"
             preds[f"layercam {r['preset']}"] = read_prediction(case, run_dir, len(frames))
+            if (run_dir / "trust").is_dir():  # a deblurring run's trust masks
+                masks[r["preset"]] = np.stack([read_image(run_dir / "trust" / f"frame_{t:05d}.png")[..., 0] for t in range(len(frames))])
         else:
             preds[r["method"]] = np.load(case_dir / "classical" / f"{r['method']}.npy")
     if preds:
-        case_figure(case, case_dir, rows, frames, truth, preds, case_dir / "figure.png")
+        case_figure(case, case_dir, rows, frames, truth, preds, case_dir / "figure.png", masks)

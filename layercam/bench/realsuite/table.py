@@ -13,14 +13,14 @@ __all__ = ["CSV_FIELDS", "collect_rows", "write_table"]
 
 CSV_FIELDS = [
     "case", "truth", "method", "preset", "psnr_mu", "psnr_mu_recov", "psnr_mu_fg", "clipped_pct", "psnr_t", "psnr_l_t", "ssim_t",
-    "psnr_l", "ssim_mu", "channels", "flicker", "static_pct", "psnr", "ssim", "gain_db", "worst_gain_db", "frames_below", "psnr_aligned", "psnr_frames", "wall_s", "train_s", "steps", "peak_mem_mb", "load", "analysis", "code", "note", "failed",
+    "psnr_l", "ssim_mu", "channels", "flicker", "static_pct", "psnr", "ssim", "gain_db", "worst_gain_db", "frames_below", "psnr_aligned", "kept_share", "psnr_frames", "wall_s", "train_s", "steps", "peak_mem_mb", "load", "analysis", "code", "note", "failed",
 ]
 PRESET_ORDER = {"": 0, "fast": 1, "balanced": 2, "quality": 3, "paper": 4}
 _COLS = {  # group -> (title, [(header, field)])
     "bracket-gt": ("Brackets with ground truth (PSNR-mu against the ground truth's radiance, in the medium shot's view)", ["psnr_mu", "psnr_mu_recov", "clipped_pct", "psnr_t", "psnr_l_t", "ssim_t", "channels"]),
     "bracket-ref": ("Brackets without ground truth (scored against a Robertson merge of all shots: a reference, not truth)", ["psnr_mu", "psnr_mu_recov", "clipped_pct", "psnr_t", "ssim_t"]),
     "composite": ("Composites of real material with ground truth (whole frame and the foreground's own pixels)", ["psnr_mu", "psnr_mu_fg", "psnr_mu_recov", "clipped_pct", "psnr_t", "ssim_t"]),
-    "deblur": ("Real blurry video with sharp ground truth (PSNR / SSIM of the sharp frames, sRGB, whole frame; gain: over the blurry input, mean and worst frame)", ["psnr", "ssim", "gain_db", "worst_gain_db", "frames_below", "psnr_aligned"]),
+    "deblur": ("Real blurry video with sharp ground truth (PSNR / SSIM of the sharp frames, sRGB, whole frame; gain: over the blurry input, mean and worst frame)", ["psnr", "ssim", "gain_db", "worst_gain_db", "frames_below", "psnr_aligned", "kept_share"]),
     "video": ("Real video without ground truth (flicker: mean frame-to-frame change of the tonemapped output on static pixels, 8-bit codes)", ["flicker", "static_pct", "clipped_pct"]),
 }
 HOW = [
@@ -33,7 +33,8 @@ HOW = [
     "* Composites: PSNR-mu over all frames, and on the foreground's own pixels (coverage above 0.5 in the composite's masks), alignment from the whole frame.",
     "* Deblurring (GoPro clip): each method's sharp frames against the sharp ground truth, PSNR and SSIM (`layercam.core.metrics.ldr_metrics`) on the sRGB frames as written, "
     "whole frame, no shift; per frame in real_suite.csv (psnr_frames). The `input` row scores the blurry frames themselves: every method's floor. "
-    "PSNR at the best shift: each frame first moved by the shift within 3 px that fits the truth best (an 8 px border left out), the sharpness apart from which instant of the exposure a frame shows.",
+    "PSNR at the best shift: each frame first moved by the shift within 3 px that fits the truth best (an 8 px border left out), the sharpness apart from which instant of the exposure a frame shows. "
+    "Share kept sharp: layercam's trust mask (`trust/`), the mean share of the sharp render in the written pixels, the input the rest.",
     "* Flicker (Basler clip): each method's HDR tonemapped with one global operator for the whole clip (as `preview.mp4`); frames t+1 warped into frame t's view "
     "(homographies from layercam's exposure-invariant DIS flow of the input); static pixels: where the input frames t and t+2 (same exposure), registered, differ by under 8/255 "
     "in every channel after a 3x3 blur, more than 4 px from any pixel that does not, seen by frame t or t+1; flicker = mean |D_t - D_(t+1)| there, in 8-bit codes.",
@@ -42,6 +43,7 @@ _HEAD = {
     "psnr_mu": "PSNR-mu", "psnr_mu_recov": "PSNR-mu recoverable", "psnr_mu_fg": "PSNR-mu foreground", "clipped_pct": "clipped everywhere %",
     "psnr_t": "PSNR-T", "psnr_l_t": "PSNR-L", "ssim_t": "SSIM-T", "flicker": "flicker", "static_pct": "static %", "channels": "scored channels",
     "psnr": "PSNR", "ssim": "SSIM", "gain_db": "gain dB", "worst_gain_db": "worst frame's gain dB", "frames_below": "frames below input", "psnr_aligned": "PSNR, each frame at its best shift",
+    "kept_share": "share kept sharp",
 }
 
 
@@ -69,7 +71,7 @@ def collect_rows(out: Path, cases: dict) -> list[dict]:
 
 
 _DIGITS = {"clipped_pct": 2, "static_pct": 1, "flicker": 2, "peak_mem_mb": 0, "psnr_mu": 2, "psnr_mu_recov": 2, "psnr_mu_fg": 2, "psnr_t": 2, "psnr_l_t": 2, "psnr_l": 2,
-           "psnr": 2, "gain_db": 2, "worst_gain_db": 2, "psnr_aligned": 2}
+           "psnr": 2, "gain_db": 2, "worst_gain_db": 2, "psnr_aligned": 2, "kept_share": 2}
 
 
 def _cell(v, field: str = "") -> str:

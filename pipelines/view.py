@@ -15,8 +15,9 @@ of the squared residual ``I - B0`` in units of the input's own noise (measured o
 :func:`layercam.camera.faithful.frame_noise`, per channel, over its well-exposed pixels): about 1
 where the model explains the frame within its noise. The trust is ``min(1, 1 / rho)``: the share
 of the residual that noise explains; 1 where the model reproduces the input, falling as its error
-grows beyond the noise. The written frame is ``m S + (1 - m) I``: the sharp render where it is
-trusted, the input where it is not, blended as smoothly as the window makes ``rho`` (no seam).
+grows beyond the noise; feathered by the same window, so that it ramps over at least the window's
+width wherever the model's error rises. The written frame is ``m S + (1 - m) I``: the sharp render
+where it is trusted, the input where it is not, with no seam between them.
 
 Frames are ``(H, W, 3)`` float in [0, 1], in the input's tonality.
 """
@@ -71,7 +72,9 @@ def trust(reblurred: np.ndarray, frame: np.ndarray, sigma: float, stride: int = 
         h, w = f.shape[:2]
         gx, gy = np.meshgrid(np.arange(w, dtype=np.float32) / stride, np.arange(h, dtype=np.float32) / stride)
         rho = cv2.remap(rho.astype(np.float32), gx, gy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-    m = (1.0 / np.maximum(rho, 1.0)).astype(np.float32)
+    # feathered over the same window: the mask's slope stays under 1 / (sigma sqrt(2 pi)) per px, however
+    # sharply the model's error rises (1 / rho alone steps by up to half its range a pixel there)
+    m = np.clip(cv2.GaussianBlur((1.0 / np.maximum(rho, 1.0)).astype(np.float32), (0, 0), sigma), 0.0, 1.0)
     return m, {"noise": [round(float(v) * 255, 3) for v in noise], "kept": round(float(m.mean()), 4)}
 
 

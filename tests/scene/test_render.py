@@ -81,3 +81,31 @@ def test_tone_mapping_in_chunks_is_the_tone_mapping():
         direct = model.tone_map(torch.as_tensor(z.reshape(-1, 3)), torch.ones(37 * 11, 1)).numpy().reshape(z.shape)
     np.testing.assert_allclose(tone_map_log2(model, z, 1.0, chunk=50), whole, rtol=0, atol=1e-6)  # the products' blocking
     np.testing.assert_allclose(whole, direct, rtol=1e-6, atol=1e-7)
+
+
+def test_render_frame_centred_blur_and_stride():
+    """``centred``: the learned PSFs with their weighted centres moved onto their pixels (the sharp
+    export's check), as a generator built ``centre_exact`` renders them; ``stride``: every k-th
+    pixel of every k-th row of the full render, exactly."""
+    import torch
+
+    from layercam.scene.render import render_frame
+
+    model = _two_layer_blur_model()
+    torch.manual_seed(1)
+    with torch.no_grad():  # a scene with detail, and PSFs off their pixels: more weight on one side of the patch
+        for p in model.scene.atlases.parameters():
+            p.add_(torch.randn_like(p))
+        model.blur.weight_net.last.bias.copy_(torch.linspace(-2.0, 2.0, model.blur.K))
+    as_learned = render_frame(model, 1, (6, 5), "ldr", blur=True)["ldr"]
+    centred = render_frame(model, 1, (6, 5), "ldr", blur=True, centred=True)["ldr"]
+    assert not np.allclose(centred, as_learned, atol=1e-4)
+    model.blur.centre_exact = True
+    np.testing.assert_allclose(render_frame(model, 1, (6, 5), "ldr", blur=True)["ldr"], centred, rtol=1e-6, atol=1e-7)
+    model.blur.centre_exact = False
+    full = render_frame(model, 2, (6, 5), ("ldr", "hdr"), blur=True, centred=True)
+    for k in (2, 4):
+        part = render_frame(model, 2, (6, 5), ("ldr", "hdr"), blur=True, centred=True, stride=k)
+        assert part["ldr"].shape == (-(-6 // k), -(-5 // k), 3)
+        for name in ("ldr", "hdr"):
+            np.testing.assert_allclose(part[name], full[name][::k, ::k], rtol=1e-6, atol=1e-7)

@@ -15,8 +15,10 @@ def register(sub) -> argparse.ArgumentParser:
         help="blurry, shaky video -> sharp frames (PNG + mp4), HDR EXR too when exposures vary",
         description=(
             "Fits the scene with the blur generator explaining each frame's blur, then renders every frame "
-            "through the learned tone mapper at the frame's own exposure with the blur generator dropped: "
-            "frames/frame_00000.png, deblurred.mp4, hdr/frame_00000.exr (only when exposures vary), "
+            "through the learned tone mapper at the frame's own exposure with the blur generator dropped, "
+            "kept pixel by pixel where the model re-blurred reproduces the input within the input's noise, "
+            "the input elsewhere: frames/frame_00000.png, trust/frame_00000.png (white: the sharp render kept), "
+            "deblurred.mp4, hdr/frame_00000.exr (the render, only when exposures vary), "
             "crf.json/png, psf.json (learned blur per frame), report.json, checkpoint.pt. The video keeps the input's "
             "frame rate and sound."
         ),

@@ -109,8 +109,10 @@ def test_single_frame_is_refused(tmp_path, capsys):
 
 @pytest.mark.slow
 def test_blur_generator_deblurs_shake_clip(tmp_path):
-    """On a camera-shake clip the deblurred frames are closer to the sharp ground truth than the
-    blurry input (shift-aligned PSNR), and the learned PSF is wider where the blur is longer."""
+    """On a camera-shake clip the blur generator's sharp frames are closer to the sharp ground truth
+    than the blurry input (shift-aligned PSNR), and so are the frames written (the render where its
+    re-blur reproduces the input within the input's noise, pipelines/view.py); the learned PSF is
+    wider where the blur is longer."""
     from layercam import synth
     from layercam.core.presets import load_config
     from layercam.io import Exposures
@@ -121,7 +123,13 @@ def test_blur_generator_deblurs_shake_clip(tmp_path):
     e = Exposures(np.zeros(6), "none", None, "none", "single")
     cfg = load_config("fast", ["train.batch=2048", "model.layers=1"])  # with a blur generator, at most one grid cell per pixel
     ctx = run_task("deblur-video", sc.clip, e, cfg, tmp_path / "run", progress=False, extra_stages=[EvaluateStage(sc)])
+    from layercam.core.frame_metrics import score_frames
+    from layercam.scene.render import render_frame
+
     res = ctx.results["evaluate"].summary["aligned"]
-    assert res["deblurred"]["psnr"] > res["input"]["psnr"] + 1.0, res
+    sharp = np.stack([render_frame(ctx.model, t, (48, 48), "ldr")["ldr"] for t in range(6)])
+    rendered = float(np.mean([r["psnr"] for r in score_frames(sharp, sc.sharp_ldr, 4, align=True)]))
+    assert rendered > res["input"]["psnr"] + 1.0, (rendered, res)
+    assert res["deblurred"]["psnr"] > res["input"]["psnr"] + 0.5, res
     spread = ctx.results["export"].summary["psf"]["spread_px"]
     assert np.corrcoef(spread, sc.meta["blur_length"])[0, 1] > 0.7

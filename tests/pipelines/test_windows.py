@@ -307,6 +307,8 @@ def test_deblur_video_windows_join_the_sharp_frames_and_alpha(long_frames, tmp_p
     export = run / rep["windows"]["runs"][1]["folder"] / "cache" / f"export-{rep['windows']['runs'][1]['keys']['export']}"
     assert np.array_equal(read_image(run / "frames" / "frame_00006.png"), read_image(export / "frames" / "frame_00002.png"))  # window 1's alone
     assert np.array_equal(read_image(run / "alpha" / "frame_00006.png"), read_image(export / "alpha" / "frame_00002.png"))
+    assert np.array_equal(read_image(run / "trust" / "frame_00006.png"), read_image(export / "trust" / "frame_00002.png"))  # the trust masks too
+    assert len(list((run / "trust").glob("*.png"))) == FRAMES
     assert (run / "windows" / "w02" / "atlases" / "layer1.png").is_file()
 
 

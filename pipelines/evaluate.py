@@ -45,7 +45,7 @@ def score_hdr(ctx: Context, ev: "EvaluateStage") -> dict:
     res = {"metrics": {**metrics.hdr_metrics(read_hdr_frames(ctx.dirs["export"], ctx.clip.T), gt), "wall_s": model_wall_s(ctx)}, "baselines": {}}
     if "debevec" in ev.baselines and ctx.clip.T > 1 and ctx.exposures.count_distinct > 1:
         from layercam.bench.baselines import debevec_video
-        from layercam.vision.scale import at_frame_size
+        from layercam.vision.flow_store import at_frame_size
 
         fl = at_frame_size(ctx.flow, (ctx.clip.H, ctx.clip.W), ("fw", "bw"))
         t0 = time.perf_counter()

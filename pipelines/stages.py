@@ -44,25 +44,26 @@ class BootstrapStage(Stage):
 
     def options(self, ctx):
         """A long clip, or one larger than the flow's grid, is segmented in windows on that grid
-        (:func:`layercam.vision.segment.foreground_bootstrap_long`): their size (other clips keep their key)."""
-        from layercam.vision import segment
+        (:func:`layercam.vision.segment.long.foreground_bootstrap_long`): their size (other clips keep their key)."""
+        from layercam.vision.segment import long as seg_long
 
-        if ctx.resolved.settings.model.layers > 1 and ctx.flow is not None and segment.windowed(ctx.clip.T, (ctx.clip.H, ctx.clip.W), ctx.flow.grid):
-            return {"windows": [segment.long.SEG_FRAMES, segment.long.SEG_MARGIN]}
+        if ctx.resolved.settings.model.layers > 1 and ctx.flow is not None and seg_long.windowed(ctx.clip.T, (ctx.clip.H, ctx.clip.W), ctx.flow.grid):
+            return {"windows": [seg_long.SEG_FRAMES, seg_long.SEG_MARGIN]}
         return {}
 
     def run(self, ctx, out):
         from layercam.camera.tone import initial_log2
         from layercam.core.geometry import atlas_mappings, chain_homographies, middle_frame
 
-        from layercam.vision.scale import at_frame_size
+        from layercam.vision.flow_store import at_frame_size
 
         from layercam.vision import segment
+        from layercam.vision.segment import long as seg_long
 
         clip = ctx.clip
         T, H, W = clip.T, clip.H, clip.W
         r = ctx.resolved
-        long = r.settings.model.layers > 1 and ctx.flow is not None and segment.windowed(T, (H, W), ctx.flow.grid)  # on the flow's grid, in windows
+        long = r.settings.model.layers > 1 and ctx.flow is not None and seg_long.windowed(T, (H, W), ctx.flow.grid)  # on the flow's grid, in windows
         fl = at_frame_size(ctx.flow, (H, W), None if r.settings.model.layers > 1 and not long else ("homs",))  # the motion segmentation reads the flows too
         ref = middle_frame(T)
         static = r.static  # the flow's chained homographies move no corner by STATIC_CORNER_PX (layercam.engine.resolve)
@@ -82,10 +83,10 @@ class BootstrapStage(Stage):
             ctx.say(f"[bootstrap] segment.detector unused: {'one layer, no foreground' if cfg.model.layers == 1 else '--masks given'}")
         if cfg.model.layers > 1:  # foreground: user masks, else motion segmentation of the flow
             if long:
-                fg = segment.foreground_bootstrap_long(clip.frames, ctx.flow, out, ctx.masks, cfg.segment, progress=ctx.progress)
+                fg = seg_long.foreground_bootstrap_long(clip.frames, ctx.flow, out, ctx.masks, cfg.segment, progress=ctx.progress)
                 if fg["computed"]:
                     g = fg["info"]["grid"]
-                    ctx.say(f"[bootstrap] motion segmentation on the flow's {g[1]}x{g[0]} grid, in {fg['info']['windows']} window(s) of at most {segment.long.SEG_FRAMES} frames overlapping by {segment.long.SEG_MARGIN}")
+                    ctx.say(f"[bootstrap] motion segmentation on the flow's {g[1]}x{g[0]} grid, in {fg['info']['windows']} window(s) of at most {seg_long.SEG_FRAMES} frames overlapping by {seg_long.SEG_MARGIN}")
             else:
                 fg = segment.foreground_bootstrap(clip.frames, fl, ctx.masks, cfg.segment, progress=ctx.progress)
             h0.append(fg["h0"])

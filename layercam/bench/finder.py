@@ -41,7 +41,7 @@ def run_finder_clip(name: str, folder: Path, preset: str, resize: str, max_frame
     from layercam.io import load_clip
     from layercam.io.masks import load_masks
     from layercam.vision import flow_store
-    from layercam.vision.scale import at_frame_size
+    from layercam.vision.flow_store import at_frame_size
     from layercam.vision.segment import find_foreground
 
     clip = load_clip(folder / "frames", max_frames=max_frames, resize=resize)

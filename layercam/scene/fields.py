@@ -113,14 +113,13 @@ class Deformation(nn.Module):
         return uv + self.residual_scale * torch.tanh(res)
 
 
+ALPHA_GRID_MAX = 512  # cells across the alpha grid's finest level at most (T x 512^2 x 2 floats)
 ALPHA_GRID_CELLS = 1 << 24  # cells of each alpha grid level at most (64 frames at 512 x 512; a longer clip's frames share slices)
 
 
 def alpha_grid_capped(cfg: SceneConfig, n_frames: int, frame_hw: tuple[int, int]) -> bool:
     """Whether ``ALPHA_GRID_CELLS`` shapes the alpha grid of a clip of ``n_frames`` (its finest level,
     :func:`layercam.scene.layered.derived_sizes`, over the frames)."""
-    from layercam.scene.layered import ALPHA_GRID_MAX
-
     r = int(min(max(frame_hw), ALPHA_GRID_MAX))
     return cfg.alpha_encoding == "grid" and n_frames * r * r > ALPHA_GRID_CELLS
 

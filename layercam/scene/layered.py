@@ -13,10 +13,9 @@ import math
 
 import numpy as np
 
-from layercam.scene.fields import LOG2_R_BOUND, AlphaField, AtlasField, Deformation
+from layercam.scene.fields import ALPHA_GRID_MAX, LOG2_R_BOUND, AlphaField, AtlasField, Deformation
 
 GRID_RES_RANGE = (32, 2048)  # the atlas grid's finest level, cells across, at least / at most
-ALPHA_GRID_MAX = 512         # cells across the alpha grid's finest level at most (T x 512^2 x 2 floats)
 
 
 def derived_sizes(h0, frame_hw: tuple[int, int], fine: bool) -> dict:

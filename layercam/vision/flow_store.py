@@ -22,6 +22,7 @@ import numpy as np
 
 from layercam.core.interrupts import reached
 from layercam.io.frames import DiskArray
+from layercam.vision import scale
 
 ARRAYS = {"fw": (np.float16, 2), "bw": (np.float16, 2), "fw_ok": (np.bool_, 0), "bw_ok": (np.bool_, 0), "vis": (np.bool_, 0)}
 
@@ -33,7 +34,7 @@ class FlowArrays(Mapping):
     consistency, ``vis`` ``(N, h, w)`` both frames see the pixel well, ``homs`` ``(N, 3, 3)`` each
     pair's global homography. The arrays are anything that indexes like an ndarray (the flow
     stage's :class:`~layercam.io.frames.DiskArray`, or arrays in memory); a field may be None where a
-    reader left it out (:func:`layercam.vision.scale.at_frame_size`'s ``keys``).
+    reader left it out (:func:`at_frame_size`'s ``keys``).
 
     Also a read-only mapping of the arrays present (``fl["fw"]``), the contract of the vision
     functions that take any mapping of flows (``layercam.vision.flow.compute_flow``'s dict)."""
@@ -90,7 +91,7 @@ def compute(frames, out: Path, cfg, progress: bool = False) -> dict:
     over the pairs, OpenCV's RNG seeded once for the homographies."""
     import cv2
 
-    from layercam.vision import flow, raft, scale
+    from layercam.vision import flow, raft
     from layercam.core.progress import bar
     from layercam.core.visibility import visible
 
@@ -153,3 +154,25 @@ def load(out: Path) -> FlowArrays | None:
     h, w = info["working_size"]
     fl = {k: DiskArray(out / f"{k}.raw", dt, (n, h, w, 2) if c else (n, h, w)) for k, (dt, c) in info["arrays"].items()}
     return FlowArrays.of({**fl, "homs": np.load(out / "homs.npy")})
+
+
+def at_frame_size(fl, hw: tuple[int, int], keys: tuple | None = None):
+    """The flow stage's arrays (flows ``fw``/``bw``, masks ``fw_ok``/``bw_ok``/``vis``, homographies
+    ``homs``), computed at a working size, at the frames' size ``hw``: flows upsampled (in frame
+    pixels), masks by nearest pixel, homographies rescaled. ``keys``: only these (the others are
+    left out); ``fl`` itself when the sizes agree. A :class:`~layercam.vision.flow_store.FlowArrays`
+    gives one (the left-out arrays None), any other mapping a dict."""
+    if fl is None:
+        return None
+    work = tuple(fl["fw"].shape[1:3])
+    if work == tuple(hw):
+        return fl
+    out = {}
+    for k in keys or tuple(fl):
+        if k in ("fw", "bw"):
+            out[k] = scale.upsample_flow(fl[k], hw)
+        elif k in ("fw_ok", "bw_ok", "vis"):
+            out[k] = scale.upsample_mask(fl[k], hw)
+        elif k == "homs":
+            out[k] = scale.rescale_homographies(fl[k], work, hw)
+    return FlowArrays.of(out) if isinstance(fl, FlowArrays) else out

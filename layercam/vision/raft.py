@@ -7,7 +7,7 @@ import os
 import numpy as np
 
 from layercam.core.errors import LayercamError
-from layercam.vision.flow import _check_frames, _progress, normalise_for_flow
+from layercam.vision.flow_input import check_frames, normalise_for_flow, pair_progress
 
 
 def raft_flow(
@@ -25,12 +25,12 @@ def raft_flow(
     downloaded. Frames are normalised with ``normalise_for_flow`` (rank) and replicated to RGB,
     padded (replicate) to multiples of 8, at least 128.
     """
-    f = _check_frames(frames)
+    f = check_frames(frames)
     t, h, w = f.shape[:3]
     fw = np.zeros((max(t - 1, 0), h, w, 2), np.float32)
     bw = np.zeros_like(fw)
     model = raft_model(weights_path, variant, device)
-    for i, (a, b) in enumerate(_progress(raft_pairs(iter(f), model, iters), t - 1, progress, "flow (raft)")):
+    for i, (a, b) in enumerate(pair_progress(raft_pairs(iter(f), model, iters), t - 1, progress, "flow (raft)")):
         fw[i], bw[i] = a, b
     return fw, bw
 

@@ -178,7 +178,7 @@ def test_the_alpha_grid_of_a_long_clip_stops_growing_and_old_grids_load():
 def test_a_long_two_layer_clip_is_segmented_in_windows_and_resumes(tmp_path, monkeypatch):
     """More frames than ``segment.long.SEG_FRAMES``: masks on disk, per window; the run finishes, and
     again (cached) gives the same outputs."""
-    from layercam.vision import segment
+    from layercam.vision.segment import long as seg_long
     from layercam import synth
     from layercam.core.presets import load_config
     from layercam.io import Exposures
@@ -186,8 +186,8 @@ def test_a_long_two_layer_clip_is_segmented_in_windows_and_resumes(tmp_path, mon
 
     from conftest import TINY
 
-    monkeypatch.setattr(segment.long, "SEG_FRAMES", 6)
-    monkeypatch.setattr(segment.long, "SEG_MARGIN", 1)
+    monkeypatch.setattr(seg_long, "SEG_FRAMES", 6)
+    monkeypatch.setattr(seg_long, "SEG_MARGIN", 1)
     scene = synth.moving_object(frames=10, size=(40, 40), seed=0)
     ex = Exposures(np.zeros(10), "none", None, "none", "test")
     cfg = load_config("fast", TINY + ["model.layers=2", "train.steps=20"])

@@ -39,7 +39,6 @@ from layercam.vision.segment.clean import clean_mask
 from layercam.vision.segment.mapping import foreground_mappings, object_motion
 from layercam.vision.segment.evidence import offsets as motion_offsets
 from layercam.vision.segment.moving import motion_masks
-from layercam.vision.segment.long import foreground_bootstrap_long, segment_windows, windowed
 from layercam.vision.segment.store import load_masks, mask_coverage, save_masks, sure_pixels
 
 __all__ = ["SegmentConfig", "STEPS", "foreground_bootstrap", "motion_masks", "motion_offsets", "clean_mask", "object_motion", "foreground_mappings", "sure_pixels", "load_masks", "save_masks"]
@@ -143,7 +142,7 @@ def foreground_bootstrap(frames: np.ndarray, flows: dict | None, masks: np.ndarr
     "computed": bool, "how": str, "info": dict}``.
 
     ``masks`` given by the user win; otherwise, with flow (``flows`` holds ``fw``, ``bw``,
-    ``fw_ok``, ``bw_ok`` at the frames' size, as :func:`layercam.vision.scale.at_frame_size` gives them),
+    ``fw_ok``, ``bw_ok`` at the frames' size, as :func:`layercam.vision.flow_store.at_frame_size` gives them),
     :func:`find_foreground`'s masks (``info["verdict"]`` says whether they hold one object), then,
     with ``cfg.detector``, a local Mask R-CNN's instances that lie in them (:mod:`layercam.vision.segment.detect`);
     with neither (one frame), no masks and the identity mapping.

@@ -70,10 +70,10 @@ def equalised_lab(frame: np.ndarray, samples: int = 1 << 17) -> np.ndarray:
     another exposure through any camera curve gives the same colours up to clipping), in CIELAB."""
     import cv2
 
-    from layercam.vision.flow import _midrank
+    from layercam.vision.flow_input import midrank
 
     f = np.asarray(frame, np.float32)
-    out = np.stack([np.clip(_midrank(f[..., c], samples), 0, 1) for c in range(3)], -1).astype(np.float32)
+    out = np.stack([np.clip(midrank(f[..., c], samples), 0, 1) for c in range(3)], -1).astype(np.float32)
     return cv2.cvtColor(out, cv2.COLOR_RGB2Lab)
 
 

@@ -47,7 +47,7 @@ class Context:
     measures: dict | None = None    # what the analysis measured (layercam.vision.analyse.measure)
     resolved: Any = None            # the run's settings, resolved once after the flow (layercam.engine.resolve.Resolved)
     flow: Any = None                # the flow stage's arrays (layercam.vision.flow_store.FlowArrays: on disk), opened once; None for one frame
-    model: Any = None               # the trained model (layercam.scene.model.ImplicitCameraModel), built once
+    model: Any = None               # the trained model (layercam.engine.model.ImplicitCameraModel), built once
     camera: dict | None = None      # a long clip's window after the first: the camera it holds fixed (pipelines/windows.py)
     window: tuple | None = None     # a long clip's window: its frames [a, b) of the clip (its export keeps its fit per pixel for the join)
     results: dict = field(default_factory=dict)   # stage name -> layercam.pipelines.results.StageResult (or its subclass)

@@ -41,7 +41,7 @@ __all__ = ["patch_offsets_base", "sample_positions", "apply_patch_blur", "BlurGe
 _LN2 = math.log(2.0)
 LOGIT_BOUND = 1e4  # weight logits are clamped to +-this before the softmax
 _TINY = 1e-30  # floor on weights before their log (gradients stay finite where a weight is 0)
-# how the model builds and trains it (layercam.scene.model)
+# how the model builds and trains it (layercam.engine.model)
 INIT_CENTRE_WEIGHT = 0.2  # the PSFs start blurry: a near-sharp start (0.9) lets the scene absorb the blur
 WARMUP = 0.2  # share of training with the PSFs held at their start while the scene takes shape: trained from
               # step 0, every PSF collapsed to a delta within 25 steps

@@ -129,7 +129,7 @@ class BlurConfig(Section):
 
 @dataclass
 class LossConfig(Section):
-    """Loss terms whose weight a preset or a clip changes (the paper's fixed weights: :mod:`layercam.scene.model`)."""
+    """Loss terms whose weight a preset or a clip changes (the paper's fixed weights: :mod:`layercam.engine.model`)."""
 
     robust: float | Literal["auto"] = setting(AUTO, 0.0, 1.0)  # colour error: 0 MSE (paper); c > 0 Cauchy
                                                  # c^2 ln(1 + (e / c)^2), errors past c (pixel value) count less: a bracket's

@@ -23,7 +23,7 @@ FORMAT = 3
 def build_model(resolved, meta: dict):
     """The (untrained) model that ``resolved`` (:class:`layercam.engine.resolve.Resolved`) and ``meta``
     describe (``meta["sizes"]``, when there, are the derived sizes it was trained with)."""
-    from layercam.scene.model import ImplicitCameraModel
+    from layercam.engine.model import ImplicitCameraModel
 
     return ImplicitCameraModel(
         resolved, torch.as_tensor(np.asarray(meta["h0"]), dtype=torch.float32), np.asarray(meta["log2_dt"], dtype=np.float32),

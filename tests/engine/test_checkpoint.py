@@ -15,7 +15,7 @@ from layercam.engine.checkpoint import FORMAT, load_run_model, save_run_model
 from layercam.cli import main
 from layercam.core.presets import load_config
 from layercam.core.errors import LayercamError
-from layercam.scene.model import ImplicitCameraModel
+from layercam.engine.model import ImplicitCameraModel
 
 from conftest import decided, scaled_h0
 

@@ -45,7 +45,7 @@ def test_a_run_says_where_it_trains(tiny_scene, tiny_exposures, tmp_path):
 
 def _tiny_trainer(device: str, autocast: str = "none", steps: int = 30):
     from layercam.engine.sampler import PixelSampler
-    from layercam.scene.model import ImplicitCameraModel
+    from layercam.engine.model import ImplicitCameraModel
     from layercam.synth import pan_hdr
     from layercam.engine.train import Trainer
 

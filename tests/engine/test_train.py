@@ -266,7 +266,7 @@ def test_pipeline_divergence_writes_failed_report_keeps_checkpoint_and_resumes(t
 def test_mask_taper_decays_to_its_floor():
     from types import SimpleNamespace
 
-    from layercam.scene.model import LossWeights
+    from layercam.engine.model import LossWeights
     from layercam.engine.train import MaskTaper
 
     for floor, last in ((0.0, 0.0), (1.0, 2.0), (0.25, 0.5)):

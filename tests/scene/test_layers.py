@@ -121,7 +121,7 @@ def test_one_layer_atlas_export_has_no_alpha(tmp_path):
 
 
 def test_flow_loss_counts_each_layer_where_it_is_seen():
-    from layercam.scene.model import ImplicitCameraModel
+    from layercam.engine.model import ImplicitCameraModel
 
     ok = torch.tensor([True, True, False])
     alpha = torch.tensor([[0.0], [0.75], [1.0]])

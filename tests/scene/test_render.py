@@ -27,7 +27,7 @@ def _two_layer_blur_model():
     import torch
 
     from layercam.core.presets import load_config
-    from layercam.scene.model import ImplicitCameraModel
+    from layercam.engine.model import ImplicitCameraModel
 
     from conftest import TINY, decided
 

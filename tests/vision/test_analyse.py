@@ -13,7 +13,7 @@ from layercam.core.config import AUTO
 from layercam.core.presets import load_config, model_overrides
 from layercam.core.geometry import atlas_pixels
 from layercam.io import Clip, Exposures
-from layercam.scene.model import ImplicitCameraModel
+from layercam.engine.model import ImplicitCameraModel
 
 from conftest import decided, scaled_h0
 

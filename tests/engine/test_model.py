@@ -11,7 +11,7 @@ from hypothesis import given, strategies as st
 
 from layercam.core.presets import load_config
 from layercam.core.errors import LayercamError
-from layercam.scene.model import ALPHA_FLOW, ImplicitCameraModel, LossWeights
+from layercam.engine.model import ALPHA_FLOW, ImplicitCameraModel, LossWeights
 
 from conftest import TINY, decided, scaled_h0
 from props import EV, _autocast, _finite, _grads_finite, props
@@ -141,7 +141,7 @@ def test_blur_group_carries_the_warmup():
 )
 def test_model_loss_terms_and_gradients_finite(ev, layers, robust, blur, target, autocast):
     from layercam.core.presets import load_config
-    from layercam.scene.model import ImplicitCameraModel
+    from layercam.engine.model import ImplicitCameraModel
 
     from conftest import decided
 

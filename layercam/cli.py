@@ -109,6 +109,16 @@ def window_args(p: argparse.ArgumentParser) -> None:
         "Needs pip install 'layercam[ray]'"))
 
 
+def nproc_args(p: argparse.ArgumentParser) -> None:
+    """``--nproc`` for a command that supports data-parallel training (:func:`layercam.engine.distributed.launch`)."""
+    p.add_argument(
+        "--nproc", type=number(int, 1), default=1, metavar="N",
+        help="train with N data-parallel processes on this machine (torch.distributed: gloo on CPU, nccl "
+        "with --device cuda, one GPU each); or start the command under torchrun (multi-node) instead. "
+        "Default 1: one process, which on a few CPU cores is as fast",
+    )
+
+
 COMMAND_MODULES = ["hdr_video", "demo", "bench", "deblur_video", "fuse_stack", "render", "batch", "edit"]  # each layercam/commands/<name>.py has register(sub) and run(args)
 
 

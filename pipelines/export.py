@@ -347,6 +347,11 @@ def outputs_for(task: str) -> list[str]:
     return list(dict.fromkeys(names + [REPORT_NAME]))
 
 
+def all_output_names() -> list[str]:
+    """Every name an export may publish to the top of a run folder, for any task."""
+    return list(dict.fromkeys(n for task in TASK_WRITERS for n in outputs_for(task) if n != REPORT_NAME))
+
+
 class ExportStage(Stage):
     """Writes the run folder with the task's writers (this module's docstring)."""
 

@@ -55,7 +55,7 @@ def read_manifest(run: Path) -> dict | None:
         if not _manifest_ok(m):
             raise LayercamError(f"{run / MANIFEST} is not a layercam outputs list (corrupt?); move it away (the outputs it describes stay)")
         return m
-    from layercam.pipelines.tasks import all_output_names
+    from layercam.pipelines.export import all_output_names
 
     names = [n for n in all_output_names() + [REPORT, LEGACY_KEY] if (run / n).exists()]
     legacy = run / LEGACY_KEY

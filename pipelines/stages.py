@@ -152,8 +152,6 @@ class TrainStage(Stage):
         torch.manual_seed(cfg.train.seed)
         model = self.build(ctx)
         if getattr(ctx, "camera", None) is not None:  # pipelines/windows.py: window 0's camera, held fixed
-            from layercam.pipelines.windows import hold_camera
-
             hold_camera(model, ctx.camera)
         elif cfg.model.tone_mapper == "learned":
             fit_init_curve(model.tone, seed=cfg.train.seed)
@@ -213,6 +211,45 @@ class TrainStage(Stage):
         if ctx.model is None:
             ctx.model = self.trained(ctx, out)
         return TrainResult(summary)
+
+
+def hold_camera(model, camera: dict) -> None:
+    """``model``'s tone mapper (and learned exposure offsets) set to ``camera``'s and held fixed:
+    no gradient, and the terms that only shape the tone curve (white balance, monotonicity) off."""
+    missing = [k for k in camera["state"] if k not in model.state_dict()]
+    if missing:
+        raise LayercamError(f"the shared camera does not fit this window's model ({', '.join(missing[:3])})")
+    model.load_state_dict(camera["state"], strict=False)
+    for name, p in model.named_parameters():
+        if name in camera["state"]:
+            p.requires_grad_(False)
+    model.loss_weights.white_balance = 0.0
+    model.loss_weights.gradient = 0.0
+
+
+FADED_SHARE = 0.25  # the foreground's alpha over less than this share of its masks' area: it lost the object
+FADED = "the foreground layer faded in training"  # how the warning begins (layercam edit repeats it)
+
+
+def faded_foreground(ctx: Context) -> str | None:
+    """A warning when a two-layer run's foreground layer lost its object in training: the trained
+    alpha (> 0.5, ``export["atlas"]["foreground_share"]``) covers less than ``FADED_SHARE`` of the
+    area the masks it was fitted to cover (given or motion masks; a share of the frames,
+    over the clip). Alpha that is 0 everywhere satisfies the flow terms, and the plain mask term
+    pulls a small object towards the background (docs/measurements.md). None when it did not, or without masks or
+    the atlas export (one layer, a run exported before the share was kept)."""
+    share = (ctx.results["export"].atlas or {}).get("foreground_share") if "export" in ctx.results else None
+    masks, source = TrainStage.masks(ctx)
+    if share is None or masks is None:
+        return None
+    from layercam.vision.segment import mask_coverage
+
+    ref = float(mask_coverage(masks).mean())  # a frame at a time (a long clip's masks are on disk)
+    if ref <= 0 or share >= FADED_SHARE * ref:
+        return None
+    hint = "" if source == "given" else "; --masks gives masks"
+    return (f"{FADED}: its alpha holds {share:.2%} of the frames, the {source} masks it started from "
+            f"{ref:.2%}; alpha/, the atlases and `layercam edit` miss the object{hint}")
 
 
 def device_of(name: str) -> str:

@@ -21,14 +21,7 @@ from layercam.pipelines import publish
 from layercam.pipelines.export import ExportStage
 from layercam.pipelines.results import TrainResult
 from layercam.pipelines.runner import Context, output_sources, run_stages, write_json
-from layercam.pipelines.stages import BootstrapStage, FlowStage, TrainStage
-
-
-def all_output_names() -> list[str]:
-    """Every name an export may publish to the top of a run folder, for any task."""
-    from layercam.pipelines.export import TASK_WRITERS, outputs_for
-
-    return list(dict.fromkeys(n for task in TASK_WRITERS for n in outputs_for(task) if n != publish.REPORT))
+from layercam.pipelines.stages import BootstrapStage, FlowStage, TrainStage, faded_foreground
 
 
 def stages_for(task: str) -> list:
@@ -133,31 +126,6 @@ def _estimate(ctx: Context, cfg, what: str, plan=None) -> dict:
     ctx.say(cost.summary_line(est) + what)
     cost.check(est, ctx.run_dir, cost.disk_used(ctx.run_dir / "cache"))
     return {k: est[k] for k in ("memory", "disk", "stages", "disk_parts", "assumed", "windows")} | {"params": int(sum(est["params"].values()))}
-
-
-FADED_SHARE = 0.25  # the foreground's alpha over less than this share of its masks' area: it lost the object
-FADED = "the foreground layer faded in training"  # how the warning begins (layercam edit repeats it)
-
-
-def faded_foreground(ctx: Context) -> str | None:
-    """A warning when a two-layer run's foreground layer lost its object in training: the trained
-    alpha (> 0.5, ``export["atlas"]["foreground_share"]``) covers less than ``FADED_SHARE`` of the
-    area the masks it was fitted to cover (given or motion masks; a share of the frames,
-    over the clip). Alpha that is 0 everywhere satisfies the flow terms, and the plain mask term
-    pulls a small object towards the background (docs/measurements.md). None when it did not, or without masks or
-    the atlas export (one layer, a run exported before the share was kept)."""
-    share = (ctx.results["export"].atlas or {}).get("foreground_share") if "export" in ctx.results else None
-    masks, source = TrainStage.masks(ctx)
-    if share is None or masks is None:
-        return None
-    from layercam.vision.segment import mask_coverage
-
-    ref = float(mask_coverage(masks).mean())  # a frame at a time (a long clip's masks are on disk)
-    if ref <= 0 or share >= FADED_SHARE * ref:
-        return None
-    hint = "" if source == "given" else "; --masks gives masks"
-    return (f"{FADED}: its alpha holds {share:.2%} of the frames, the {source} masks it started from "
-            f"{ref:.2%}; alpha/, the atlases and `layercam edit` miss the object{hint}")
 
 
 def write_report(ctx: Context, wall: float, name: str | None = "report.json", extra: dict | None = None) -> dict:

@@ -8,7 +8,7 @@ clip's flow, with the model the analysis decided once for the whole clip. The ca
 once: window 0 trains as a single model would, and the others start from its tone mapper (and
 its learned exposure ratios, ``--exposures alt`` without ``--ev-step``) and hold them fixed, so
 that every window renders through the same response curve and exposures (the train stage's key
-names window 0's training, :func:`hold_camera`). Window 0 runs first; the others do not depend on
+names window 0's training, :func:`layercam.pipelines.stages.hold_camera`). Window 0 runs first; the others do not depend on
 one another (``--ray``: tasks on a Ray cluster, ``layercam.engine.cluster``).
 
 The windows' outputs are then joined by the ``windows`` stage (:class:`WindowsStage`): in the
@@ -95,7 +95,7 @@ def run_window(spec: WindowSpec) -> dict:
     returns what the joining stage and the report need (JSON-able)."""
     from layercam.pipelines.export import ExportStage
     from layercam.pipelines.stages import BootstrapStage, TrainStage
-    from layercam.pipelines.tasks import faded_foreground
+    from layercam.pipelines.stages import faded_foreground
 
     if spec.threads:
         import torch
@@ -128,20 +128,6 @@ def camera_from(result: dict, learn: str) -> dict:
     state = torch.load(Path(result["dirs"]["train"]) / "ckpt.pt", map_location="cpu", weights_only=False)["model"]
     keep = {k: v for k, v in state.items() if k.startswith("tone.") or (learn == "ratio" and k == "exposure.delta")}
     return {"state": keep, "key": result["keys"]["train"]}
-
-
-def hold_camera(model, camera: dict) -> None:
-    """``model``'s tone mapper (and learned exposure offsets) set to ``camera``'s and held fixed:
-    no gradient, and the terms that only shape the tone curve (white balance, monotonicity) off."""
-    missing = [k for k in camera["state"] if k not in model.state_dict()]
-    if missing:
-        raise LayercamError(f"the shared camera does not fit this window's model ({', '.join(missing[:3])})")
-    model.load_state_dict(camera["state"], strict=False)
-    for name, p in model.named_parameters():
-        if name in camera["state"]:
-            p.requires_grad_(False)
-    model.loss_weights.white_balance = 0.0
-    model.loss_weights.gradient = 0.0
 
 
 # -- all windows ----------------------------------------------------------------------------------------

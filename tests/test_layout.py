@@ -133,7 +133,6 @@ def test_layers_are_those_of_the_architecture():
     assert " < ".join(LAYERS) in (ROOT / "docs" / "architecture.md").read_text()
 
 
-@pytest.mark.xfail(strict=True, reason="a circle of 15 modules and four small ones (issue 69)")
 def test_no_import_cycles():
     found = cycles(_graph())
     assert not found, "import cycles (every import, in functions too):\n" + "\n".join(" <-> ".join(c) for c in found)

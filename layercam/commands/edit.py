@@ -230,7 +230,7 @@ def _say_faded(run_dir: Path) -> None:
     of that layer shows only where alpha is left."""
     import sys
 
-    from layercam.pipelines.tasks import FADED
+    from layercam.pipelines.stages import FADED
 
     try:
         warnings = json.loads((run_dir / "report.json").read_text()).get("warnings") or []

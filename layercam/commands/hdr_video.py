@@ -7,7 +7,7 @@ from pathlib import Path
 
 from layercam.core.presets import settings_help
 from layercam.engine import distributed
-from layercam.cli import EPILOG, before_stages, common_model_args, default_out, finish, input_args, load_cfg, number, open_clip, window_args
+from layercam.cli import EPILOG, before_stages, common_model_args, default_out, finish, input_args, load_cfg, nproc_args, number, open_clip, window_args
 
 
 def register(sub) -> argparse.ArgumentParser:
@@ -16,7 +16,7 @@ def register(sub) -> argparse.ArgumentParser:
     hdr_video_args(h)
     common_model_args(h)
     window_args(h)
-    distributed.add_args(h)
+    nproc_args(h)
     return h
 
 

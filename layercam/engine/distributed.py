@@ -183,19 +183,7 @@ def loss_fn(model):
     return _Losses(ddp)
 
 
-# -- `--nproc N`: local workers through torch's elastic launcher -----------------------------------
-def add_args(p) -> None:
-    """``--nproc`` for a command that supports data-parallel training."""
-    from layercam.cli import number
-
-    p.add_argument(
-        "--nproc", type=number(int, 1), default=1, metavar="N",
-        help="train with N data-parallel processes on this machine (torch.distributed: gloo on CPU, nccl "
-        "with --device cuda, one GPU each); or start the command under torchrun (multi-node) instead. "
-        "Default 1: one process, which on a few CPU cores is as fast",
-    )
-
-
+# -- `--nproc N` (layercam.cli.nproc_args): local workers through torch's elastic launcher --------
 def launch_requested(args) -> bool:
     n = getattr(args, "nproc", 1) or 1
     if n < 1:

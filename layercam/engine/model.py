@@ -104,12 +104,10 @@ class ImplicitCameraModel(nn.Module):
         class-balanced (a small object takes its shape fast); given masks only during the bootstrap
         steps, since balanced all through it keeps a halo around a thin object. Motion masks stay
         balanced: they miss parts of the object, which the halo partly covers."""
-        from layercam.engine.train import BootstrapPhase, FlowDecay, MaskTaper
-
         c = self.cfg
         if masks and self.scene.alpha is not None:
             self.loss_weights.alpha_mask = 1.0
-        return [FlowDecay(FLOW_DECAY_END), FlowDecay(FLOW_DECAY_END, keys=("alpha_flow",), floor=c.loss.alpha_flow_keep), BootstrapPhase(c.train.bootstrap_steps, keys=("bootstrap", "mask_balance") if given else ("bootstrap",)), MaskTaper(c.train.bootstrap_steps, FLOW_DECAY_END, MASK_GIVEN if given else MASK_MOTION)]
+        return [losses.FlowDecay(FLOW_DECAY_END), losses.FlowDecay(FLOW_DECAY_END, keys=("alpha_flow",), floor=c.loss.alpha_flow_keep), losses.BootstrapPhase(c.train.bootstrap_steps, keys=("bootstrap", "mask_balance") if given else ("bootstrap",)), losses.MaskTaper(c.train.bootstrap_steps, FLOW_DECAY_END, MASK_GIVEN if given else MASK_MOTION)]
 
     # -- rendering ---------------------------------------------------------------------------
     def irradiance(self, xy: torch.Tensor, t: torch.Tensor) -> dict:

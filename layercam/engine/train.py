@@ -1,9 +1,8 @@
 """One training loop for every task. It knows no model: it sums ``model.loss_dict(batch)``.
 
-Schedules are callbacks (nerfstudio's shape), called before each step with the step index; the
-model says which it needs (``model.training_callbacks``). Those here change named fields of the
-model's ``loss_weights``: :class:`FlowDecay` (the paper's flow weight decaying to 0),
-:class:`BootstrapPhase` and :class:`MaskTaper`.
+Schedules are callbacks (nerfstudio's shape, :class:`Callback`), called before each step with the
+step index; the model says which it needs (``model.training_callbacks``: the schedules of its loss
+weights, :mod:`layercam.engine.losses`).
 Guards: a non-finite loss or gradient (or a gradient norm that overflows) skips the step, halves
 the learning rate and logs an event in the history (``report.json`` "train.events"); after
 ``MAX_BAD_STEPS`` in a row training stops with a clear error, keeping the last good checkpoint.
@@ -36,68 +35,6 @@ MAX_BAD_STEPS = 20  # non-finite steps in a row (each halving the learning rate)
 class Callback:
     def on_step(self, trainer: "Trainer", step: int) -> None:  # pragma: no cover - interface
         pass
-
-
-class WeightSchedule(Callback):
-    """Sets the model's loss weights named in ``keys`` to their starting values (read at the first
-    step) times :meth:`factor` of the step."""
-
-    keys: tuple = ()
-
-    def factor(self, trainer: "Trainer", step: int) -> float:  # pragma: no cover - interface
-        raise NotImplementedError
-
-    def on_step(self, trainer, step):
-        w = trainer.model.loss_weights
-        starts = self.__dict__.setdefault("_starts", {})
-        k = self.factor(trainer, step)
-        for key in self.keys:
-            setattr(w, key, starts.setdefault(key, getattr(w, key)) * k)
-
-
-@dataclass
-class FlowDecay(WeightSchedule):
-    """The ``keys`` weights decay linearly from their start to ``floor`` (a share of it) at ``end``
-    (a fraction of training): the flow's to 0, the alpha flow term's (its own instance) to
-    ``loss.alpha_flow_keep``."""
-
-    end: float
-    keys: tuple = ("flow",)
-    floor: float = 0.0
-
-    def factor(self, trainer, step):
-        frac = step / max(trainer.cfg.steps, 1)
-        k = max(0.0, 1.0 - frac / max(self.end, 1e-9)) if self.end > 0 else 1.0
-        return self.floor + (1.0 - self.floor) * k
-
-
-@dataclass
-class BootstrapPhase(WeightSchedule):
-    """During the first ``steps``, fit the deformation to its bootstrap mapping (and masks to alpha)."""
-
-    steps: int
-    keys: tuple = ("bootstrap", "alpha_mask")
-
-    def factor(self, trainer, step):
-        return 1.0 if step < self.steps else 0.0
-
-
-@dataclass
-class MaskTaper(WeightSchedule):
-    """Alpha against its bootstrap masks: full weight during the first ``steps``, then decaying
-    linearly to ``floor`` (a share of the start) at ``end`` (a fraction of training, the flow
-    decay's end), instead of stopping at once: on DAVIS libby the alpha field had not yet taken the
-    mask's shape after 100 steps."""
-
-    steps: int
-    end: float
-    floor: float = 0.0
-    keys: tuple = ("alpha_mask",)
-
-    def factor(self, trainer, step):
-        stop = max(int(self.end * trainer.cfg.steps), self.steps + 1)
-        k = 1.0 if step < self.steps else max(0.0, 1.0 - (step - self.steps) / (stop - self.steps))
-        return max(k, self.floor)
 
 
 @dataclass

@@ -122,7 +122,7 @@ def test_interrupted_edit_leaves_no_partial_edit_and_is_redone(two_layer_run, tm
 def test_edit_of_a_faded_foreground_repeats_the_runs_warning(two_layer_run, tmp_path, capsys):
     """A run whose report says its foreground faded: editing layer 1 says it again (the edit shows
     only where alpha is left); editing the background does not, nor does a run without it."""
-    from layercam.pipelines.tasks import FADED
+    from layercam.pipelines.stages import FADED
 
     run = tmp_path / "run"
     shutil.copytree(two_layer_run["run"], run)

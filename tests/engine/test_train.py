@@ -267,7 +267,7 @@ def test_mask_taper_decays_to_its_floor():
     from types import SimpleNamespace
 
     from layercam.engine.model import LossWeights
-    from layercam.engine.train import MaskTaper
+    from layercam.engine.losses import MaskTaper
 
     for floor, last in ((0.0, 0.0), (1.0, 2.0), (0.25, 0.5)):
         trainer = SimpleNamespace(model=SimpleNamespace(loss_weights=LossWeights(alpha_mask=2.0)), cfg=SimpleNamespace(steps=100))

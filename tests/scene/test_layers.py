@@ -46,7 +46,7 @@ def test_a_foreground_that_faded_in_training_is_said(two_layer_run):
     from types import SimpleNamespace
 
     from layercam.pipelines.results import BootstrapResult, ExportResult
-    from layercam.pipelines.tasks import FADED_SHARE, faded_foreground
+    from layercam.pipelines.stages import FADED_SHARE, faded_foreground
 
     masks = np.zeros((4, 10, 10), np.float32)
     masks[:, :2, :2] = 1  # 4% of the frames

@@ -58,7 +58,7 @@ from layercam import synth
 from layercam.bench import viz
 from layercam.core.geometry import middle_frame
 from layercam.engine import checkpoint
-from layercam.engine.sampler import normalise_xy
+from layercam.scene.coords import normalise_xy
 from layercam.pipelines.atlas_export import atlas_resolution
 from layercam.scene import render
 

@@ -289,13 +289,13 @@ def crf_writer(ctx: Context, model, dest: Path, cache: Path) -> dict:
     """``crf.json`` (z = log2 r + log2 dt in stops -> value per channel) and ``crf.png``."""
     import torch
 
-    from layercam.bench import viz
     from layercam.io.atomic import atomic_write
+    from layercam.io.figures import crf_figure
 
     z = torch.linspace(-12, 12, 241)
     curve = model.tone.curve(z.to(next(model.parameters()).device)).float().cpu().numpy()
     write_json(dest / "crf.json", {"z_stops": z.tolist(), "r": curve[:, 0].tolist(), "g": curve[:, 1].tolist(), "b": curve[:, 2].tolist(), "kind": model.cfg.model.tone_mapper, "exposures_log2": model.exposure.values().detach().cpu().tolist()})
-    fig = viz.crf_figure(z.numpy(), curve)
+    fig = crf_figure(z.numpy(), curve)
     atomic_write(dest / "crf.png", lambda p: fig.savefig(p, format="png"))
     return {}
 

@@ -285,7 +285,7 @@ def psf_summary(blur: "BlurGenerator", hw: tuple[int, int], grid: int = 24) -> d
     length of the PSF's weighted centre). The lattice leaves out a border as wide as the patch can
     reach (``n // 2 + 2 s`` px, at most a quarter of the frame): there samples fall outside the
     frame and nothing constrains the PSF."""
-    from layercam.engine.sampler import normalise_xy
+    from layercam.scene.coords import normalise_xy
 
     h, w = hw
     reach = blur.n // 2 + 2 * blur.max_offset

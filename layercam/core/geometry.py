@@ -7,7 +7,7 @@ centre of the pixel in column ``i``, row ``j`` at ``(i, j)``, as OpenCV, flow ve
 H - 0.5]`` (:func:`frame_corners`), and the same image at another size maps by
 :func:`layercam.vision.scale.pixel_scaling`. **Normalised frame coordinates** are ``[-1, 1]`` over
 the frame's edges (x along the width): ``x_n = (2 x + 1) / W - 1`` (:func:`normalised_frame_matrix`,
-:func:`layercam.engine.sampler.normalise_xy`, ``grid_sample(align_corners=False)``). Atlas
+:func:`layercam.scene.coords.normalise_xy`, ``grid_sample(align_corners=False)``). Atlas
 coordinates ``uv`` live in ``[-1, 1]^2``. Homographies are ``(3, 3)`` float64 arrays acting on
 column vectors ``(x, y, 1)`` of pixel coordinates.
 

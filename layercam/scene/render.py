@@ -7,7 +7,7 @@ import numpy as np
 import torch
 
 from layercam.core.colour import REC709, luma, srgb_encode
-from layercam.engine.sampler import pixel_grid
+from layercam.scene.coords import pixel_grid
 
 
 FRAME_OUTPUTS = ("hdr", "log2_r", "layers", "ldr", "uv", "alpha")

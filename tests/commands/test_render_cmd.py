@@ -74,7 +74,7 @@ def test_focus_interpolation_between_training_images(stack_run):
     import torch
 
     from layercam.commands.render import exposure_at, focus_sweep
-    from layercam.engine.sampler import pixel_grid
+    from layercam.scene.coords import pixel_grid
 
     run, clip = stack_run
     model, meta = _load(run)

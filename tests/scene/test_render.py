@@ -41,7 +41,7 @@ def test_render_frame_outputs_agree_with_each_other_and_the_model():
     import pytest
     import torch
 
-    from layercam.engine.sampler import pixel_grid
+    from layercam.scene.coords import pixel_grid
     from layercam.scene.render import composite_layers, render_frame
 
     model = _two_layer_blur_model()

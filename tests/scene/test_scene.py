@@ -109,7 +109,7 @@ def test_dense_grid_3d_levels_and_frame_slices():
 
 def _fit_alpha(encoding: str, steps: int = 150) -> float:
     """IoU of an alpha field fitted (BCE, every pixel) to a thin moving cross (2 px wide) on 64x64 x 3 frames."""
-    from layercam.engine.sampler import pixel_grid
+    from layercam.scene.coords import pixel_grid
     from layercam.scene.fields import AlphaField
 
     torch.manual_seed(0)

@@ -41,7 +41,7 @@ def shake(out: Path, variants: list[str], preset: str, overrides: list[str], siz
     from layercam import synth
     from layercam.core.presets import load_config, model_overrides
     from layercam.io import Exposures
-    from layercam.pipelines.evaluate import EvaluateStage
+    from layercam.bench.evaluate import EvaluateStage
     from layercam.pipelines.tasks import run_task
 
     say = print if progress else (lambda *a, **k: None)
@@ -70,7 +70,7 @@ def mfme(out: Path, subsets: list[str], variants: list[str], seeds: list[int], p
     from layercam.core.presets import load_config, model_overrides
     from layercam.io import Exposures
     from layercam.io.clip import Clip
-    from layercam.pipelines.evaluate import EvaluateStage
+    from layercam.bench.evaluate import EvaluateStage
     from layercam.pipelines.tasks import run_task
 
     say = print if progress else (lambda *a, **k: None)

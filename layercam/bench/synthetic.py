@@ -94,7 +94,7 @@ def run_job(job: dict) -> dict:
     import torch
 
     from layercam.core.presets import load_config
-    from layercam.pipelines.evaluate import EvaluateStage
+    from layercam.bench.evaluate import EvaluateStage
     from layercam.pipelines.tasks import run_task
 
     torch.set_num_threads(job.get("threads", 2))
@@ -323,7 +323,7 @@ def analysis_job(name: str, variant: str, out: Path, preset: str, quick: bool, o
     from layercam import synth
     from layercam.vision.analyse import model_summary
     from layercam.core.presets import load_config, model_overrides
-    from layercam.pipelines.evaluate import EvaluateStage
+    from layercam.bench.evaluate import EvaluateStage
     from layercam.pipelines.tasks import run_task
 
     fam, kw, qkw, task = ANALYSIS_FAMILIES[name]

@@ -23,7 +23,7 @@ def run(args) -> int:
 
     from layercam import synth
     from layercam.io import Exposures
-    from layercam.pipelines.evaluate import EvaluateStage
+    from layercam.bench.evaluate import EvaluateStage
     from layercam.pipelines.tasks import run_task
 
     cfg = load_cfg(args)

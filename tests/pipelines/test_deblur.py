@@ -123,7 +123,7 @@ def test_blur_generator_deblurs_shake_clip(tmp_path):
     from layercam import synth
     from layercam.core.presets import load_config
     from layercam.io import Exposures
-    from layercam.pipelines.evaluate import EvaluateStage
+    from layercam.bench.evaluate import EvaluateStage
     from layercam.pipelines.tasks import run_task
 
     sc = synth.shake_blur(frames=6, size=(48, 48), max_blur_px=6.0, seed=0)

@@ -63,7 +63,7 @@ def test_mfme_with_times_file_learns_tone_and_scores(tmp_path):
     from layercam.core.presets import load_config
     from layercam.io import Exposures
     from layercam.io.clip import Clip
-    from layercam.pipelines.evaluate import EvaluateStage
+    from layercam.bench.evaluate import EvaluateStage
     from layercam.pipelines.tasks import run_task
 
     sc = synth.mfme_stack(size=(24, 24), focus_settings=3, exposures_ev=(0.0, 2.0, 4.0), planes=3, seed=1)

@@ -138,7 +138,6 @@ def test_no_import_cycles():
     assert not found, "import cycles (every import, in functions too):\n" + "\n".join(" <-> ".join(c) for c in found)
 
 
-@pytest.mark.xfail(strict=True, reason="scene/model, scene/render, camera/blur, engine/distributed, pipelines -> bench, bench -> cli (issue 69)")
 def test_no_upward_imports():
     found = upward(_graph())
     assert not found, "imports from a later layer (LAYERS, docs/architecture.md):\n" + "\n".join(found)

@@ -54,7 +54,7 @@ def _spawn(fn: str, job: dict, result: Path) -> dict:
 
 
 def _finish(job: dict, res: dict) -> None:
-    res["peak_mem_mb"] = round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1)
+    res.setdefault("peak_mem_mb", round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1))  # this job's, or its run's
     Path(job["result"]).write_text(json.dumps(res))
 
 
@@ -68,21 +68,17 @@ def clip_job(job: dict) -> None:
 
 
 def run_job(job: dict) -> None:
-    """``layercam hdr-video`` on the clip's frames, in this process (its peak memory is the run's)."""
-    import torch
+    """``layercam hdr-video`` on the clip's frames, in a process of its own (its peak memory is the run's)."""
+    from layercam.bench.command import run_layercam
 
-    from layercam.cli import main
-
-    torch.set_num_threads(job["threads"])
     clip = Path(job["clip"])
     argv = ["hdr-video", str(clip / "frames"), "--exposures", str(clip / "times.txt"), "--preset", job["preset"], "--out", job["out"], "--quiet"]
     for s in job["overrides"]:
         argv += ["--set", s]
-    t0 = time.perf_counter()
-    code = main(argv)
-    if code != 0:
-        raise SystemExit(code)
-    _finish(job, {"wall_s": round(time.perf_counter() - t0, 2)})
+    ran = run_layercam(argv, job["threads"])
+    if ran["returncode"] != 0:
+        raise SystemExit(ran["returncode"])
+    _finish(job, {"wall_s": round(ran["wall_s"], 2), "peak_mem_mb": ran["peak_mem_mb"]})
 
 
 def score_job(job: dict) -> None:

@@ -3,7 +3,7 @@ that its peak memory (``ru_maxrss``) and wall time are its own.
 
 Kinds: ``prepare`` (render a composite's frames, compute the ground truth or the reference),
 ``classical`` (OpenCV's merges, scored) and ``layercam`` (the command line a user would type, run
-in this process through ``layercam.cli.main``, then scored). Each writes ``result.json`` into its
+as ``python -m layercam`` by :func:`layercam.bench.command.run_layercam`, then scored). Each writes ``result.json`` into its
 folder: ``{"rows": [table rows], ...}``; a row that failed carries ``"failed"``.
 """
 
@@ -171,22 +171,19 @@ def job_classical(job: dict) -> dict:
 
 
 def job_layercam(job: dict) -> dict:
-    """Run ``layercam <task> <inputs> --preset P --out DIR`` in this process, then score it."""
-    import torch
-
-    from layercam.cli import main
+    """Run ``layercam <task> <inputs> --preset P --out DIR`` (in a process of its own, whose wall
+    time and peak memory the row keeps), then score it."""
+    from layercam.bench.command import run_layercam
 
     case, case_dir, ci = _context(job)
-    torch.set_num_threads(int(job.get("threads", 1)))
     run_dir = Path(job["dir"]) / "run"
     argv = [case.task, *ci["argv"], "--preset", job["preset"], "--out", str(run_dir), "--quiet"]
     for s in job.get("overrides", []):
         argv += ["--set", s]
     load0 = _load()
-    t0 = time.perf_counter()
-    rc = main(argv)
-    wall = time.perf_counter() - t0
-    row = {"method": "layercam", "preset": job["preset"], "wall_s": round(wall, 2), "peak_mem_mb": _peak_mb(), "load": f"{load0:.1f}-{_load():.1f}", "command": "layercam " + " ".join(argv)}
+    ran = run_layercam(argv, int(job.get("threads", 1)))
+    rc = ran["returncode"]
+    row = {"method": "layercam", "preset": job["preset"], "wall_s": round(ran["wall_s"], 2), "peak_mem_mb": ran["peak_mem_mb"], "load": f"{load0:.1f}-{_load():.1f}", "command": "layercam " + " ".join(argv)}
     if rc != 0:
         return {"rows": [{**row, "failed": f"exit {rc}"}]}
     report = json.loads((run_dir / "report.json").read_text())

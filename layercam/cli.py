@@ -9,6 +9,7 @@ import math
 import sys
 from pathlib import Path
 
+from layercam.core.config import DEFAULT_PRESET
 from layercam.core.errors import LayercamError
 
 EPILOG = """examples:
@@ -56,7 +57,7 @@ FPS = number(float, 0, strict=True, high=1000)
 
 def common_model_args(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group("settings")
-    g.add_argument("--preset", default="balanced", help="speed/quality preset: fast, balanced, quality, paper, or a .toml file (default: balanced)")
+    g.add_argument("--preset", default=DEFAULT_PRESET, help=f"speed/quality preset: fast, balanced, quality, paper, or a .toml file (default: {DEFAULT_PRESET})")
     g.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE", help="override one setting, e.g. train.steps=500 (repeatable)")
     g.add_argument("--steps", type=POSITIVE_INT, help="shortcut for --set train.steps=N")
     g.add_argument("--device", choices=["cpu", "cuda", "auto"], help="where to train and render: auto (default: CUDA when torch sees a GPU, else the CPU), cpu or cuda")

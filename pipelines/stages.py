@@ -1,5 +1,6 @@
 """The stages every task is built from: flow -> bootstrap -> train (-> export, in export.py). Between
-flow and bootstrap the task runs the analysis (``layercam.vision.analyse``), which decides the model."""
+flow and bootstrap the task measures the clip (``layercam.vision.analyse``) and resolves the settings once
+(``layercam.engine.resolve``), which decides the model."""
 
 from __future__ import annotations
 
@@ -21,9 +22,11 @@ class FlowStage(Stage):
     reads = ("flow",)
 
     def run(self, ctx, out):
+        from layercam.engine.resolve import device_of
         from layercam.vision import flow_store
 
-        return flow_store.compute(ctx.clip.frames, out, ctx.cfg.flow, progress=ctx.progress)
+        raft = ctx.cfg.flow.method.startswith("raft")  # a network: where the run trains (before the settings are resolved)
+        return flow_store.compute(ctx.clip.frames, out, ctx.cfg.flow, progress=ctx.progress, device=device_of(ctx.cfg.train.device) if raft else "cpu")
 
     def load(self, ctx, out, summary):
         """The summary; the arrays opened once into ``ctx.flow`` (None for a single frame)."""
@@ -144,6 +147,7 @@ class TrainStage(Stage):
 
         from layercam.engine import distributed
         from layercam.camera.tone import fit_init_curve
+        from layercam.engine.resolve import device_of
         from layercam.engine.sampler import PixelSampler
         from layercam.engine.train import Trainer
 
@@ -250,18 +254,6 @@ def faded_foreground(ctx: Context) -> str | None:
     hint = "" if source == "given" else "; --masks gives masks"
     return (f"{FADED}: its alpha holds {share:.2%} of the frames, the {source} masks it started from "
             f"{ref:.2%}; alpha/, the atlases and `layercam edit` miss the object{hint}")
-
-
-def device_of(name: str) -> str:
-    """A resolved ``train.device`` (or a command's ``--device``; "auto": CUDA when torch sees a GPU,
-    else the CPU) checked against what torch sees."""
-    import torch
-
-    if name == "auto":
-        return "cuda" if torch.cuda.is_available() else "cpu"
-    if name.startswith("cuda") and not torch.cuda.is_available():
-        raise LayercamError(f"--device {name} asked for, but torch sees no CUDA device")
-    return name
 
 
 def device_line(asked: str, dev: str) -> str:

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
+from layercam.engine import decide
 from layercam.vision import analyse
 
 from layercam.core.heap import process_peak_bytes
@@ -90,7 +91,7 @@ def _run(ctx: Context, stages: list, t0: float, window=None, ray: str | None = N
             extra = {"windows": {**plan.to_dict(), "runs": runs, "ray": ctx.ray}}
         else:
             run_stages(ctx, stages[1:2])  # the bootstrap: motion masks for two layers
-            unfound = analyse.unfound_foreground(cfg, ctx.results["bootstrap"].foreground)
+            unfound = decide.unfound_foreground(cfg, ctx.results["bootstrap"].foreground)
             if unfound:  # the analysis chose two layers and the finder found no object: one layer, saying why
                 ctx.measures.update(foreground_found=False, foreground_reason=unfound)
                 again = resolve(cfg, clip, exposures, task, ctx.measures)
@@ -138,7 +139,7 @@ def write_report(ctx: Context, wall: float, name: str | None = "report.json", ex
         "input": {"source": str(ctx.clip.source), "frames": ctx.clip.T, "width": ctx.clip.W, "height": ctx.clip.H, "fps": ctx.clip.fps, "bit_depth": ctx.clip.bit_depth,
                   **{k: ctx.clip.meta[k] for k in ("primaries", "audio", "video") if k in ctx.clip.meta}},  # video: what the input's header says (frame rate, variable, sound)
         "exposures": {"spec": ctx.exposures.spec, "reason": ctx.exposures.reason, "log2_dt_given": ctx.exposures.log2_dt.tolist(), "learn": ctx.exposures.learn},
-        "analysis": {**(analyse.model_summary(ctx.resolved.settings) if ctx.resolved is not None else {}), "reasons": dict(ctx.resolved.reasons) if ctx.resolved is not None else {}, "measures": ctx.measures},
+        "analysis": {**(decide.model_summary(ctx.resolved.settings) if ctx.resolved is not None else {}), "reasons": dict(ctx.resolved.reasons) if ctx.resolved is not None else {}, "measures": ctx.measures},
         "settings": ctx.resolved.to_dict() if ctx.resolved is not None else ctx.cfg.to_dict(),
         "stages": ctx.times,
         "wall_seconds": round(wall, 2),

@@ -321,7 +321,7 @@ FULL_MODEL = {"layers": 2, "tone_mapper": "learned", "blur": "3x3", "max_offset"
 def analysis_job(name: str, variant: str, out: Path, preset: str, quick: bool, overrides_cfg: list[str]) -> dict:
     """Train ``name`` with the analysed model (variant "chosen") or the full model ("full")."""
     from layercam import synth
-    from layercam.vision.analyse import model_summary
+    from layercam.engine.decide import model_summary
     from layercam.core.presets import load_config, model_overrides
     from layercam.bench.evaluate import EvaluateStage
     from layercam.pipelines.tasks import run_task

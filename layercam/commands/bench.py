@@ -204,7 +204,7 @@ def _run_moved(args) -> int:
 
 
 def _command(head: str, out: Path, flags: tuple, overrides: list[str], quick: bool = False) -> str:
-    """The command line that regenerates a table: ``head``, ``--out``, each ``(flag, value)`` given, the ``--set``\ s."""
+    """The command line that regenerates a table: ``head``, ``--out``, each ``(flag, value)`` given, each ``--set``."""
     import shlex
 
     cmd = f"{head} --out {shlex.quote(str(out))}" + "".join(f" {flag} {v}" for flag, v in flags if v)

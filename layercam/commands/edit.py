@@ -247,7 +247,7 @@ def _edit(args, run_dir: Path) -> int:
     from layercam.io import write_exr, write_video
     from layercam.io.atomic import commit_staged, ensure_writable_dir, staging_dir
     from layercam.pipelines.runner import write_json
-    from layercam.pipelines.stages import device_of
+    from layercam.engine.resolve import device_of
     from layercam.core.progress import bar as progress_bar
     from layercam.scene.render import tonemap_display
 
@@ -304,7 +304,7 @@ def _edit_windows(args, run_dir: Path, index: dict) -> int:
     from layercam.io.atomic import commit_staged, ensure_writable_dir, staging_dir
     from layercam.pipelines import windows
     from layercam.pipelines.runner import write_json
-    from layercam.pipelines.stages import device_of
+    from layercam.engine.resolve import device_of
     from layercam.core.progress import bar as progress_bar
     from layercam.scene.render import tonemap_display
 

@@ -41,7 +41,7 @@ def hdr_overrides(args) -> list[str]:
 def run(args) -> int:
     from layercam.io import parse_exposures
     from layercam.io.masks import load_masks
-    from layercam.pipelines.stages import device_of
+    from layercam.engine.resolve import device_of
     from layercam.pipelines.tasks import run_task
 
     args.overrides = hdr_overrides(args) + list(args.overrides)

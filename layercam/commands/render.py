@@ -257,7 +257,7 @@ def _render(args) -> int:
     from layercam.io import write_png, write_video
     from layercam.io.atomic import commit_staged, ensure_writable_dir, staging_dir
     from layercam.pipelines.runner import write_json
-    from layercam.pipelines.stages import device_of
+    from layercam.engine.resolve import device_of
 
     v = _Views(Path(args.run), device_of(args.device))
     T = v.T

@@ -31,6 +31,7 @@ from layercam.core.errors import LayercamError
 from layercam.core.values import check_value
 
 AUTO = "auto"
+DEFAULT_PRESET = "balanced"  # the preset a command and a Config start from when none is named
 
 
 class Section:
@@ -213,7 +214,7 @@ class ExportConfig(Section):
 
 @dataclass
 class Config(Section):
-    preset: str = "balanced"
+    preset: str = DEFAULT_PRESET
     model: ModelConfig = field(default_factory=ModelConfig)
     scene: SceneConfig = field(default_factory=SceneConfig)
     tone: ToneConfig = field(default_factory=ToneConfig)

@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from layercam.core.errors import LayercamError
-from layercam.core.config import SECTIONS, Config, validate
+from layercam.core.config import DEFAULT_PRESET, SECTIONS, Config, validate
 
 
 def model_overrides(layers=None, tone_mapper=None, blur=None, max_offset=None, flow_loss=None) -> list[str]:
@@ -77,7 +77,7 @@ def preset_tag(preset: str) -> str:
     return Path(preset).stem if preset.endswith(".toml") else preset
 
 
-def load_config(preset: str = "balanced", overrides: list[str] | None = None) -> Config:
+def load_config(preset: str = DEFAULT_PRESET, overrides: list[str] | None = None) -> Config:
     """Defaults, then the preset file's values, then each ``section.field=value`` override; checked."""
     cfg = Config(preset=preset_tag(preset))
     data = _read_preset(preset)

@@ -31,6 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
+from layercam.core.config import AUTO
 from layercam.core.errors import LayercamError
 
 # measured costs, see docs/measurements.md: this process after its imports, and per pixel / per sample
@@ -69,8 +70,6 @@ def _fmt(b: float) -> str:
 def costliest(cfg, task: str, frames: int, hw: tuple[int, int] = (2, 2)):
     """A copy of ``cfg`` with each model ``auto`` at its costliest plausible choice (see the module;
     two layers need frames of 2 pixels or more across: a 1x1 clip is one layer)."""
-    from layercam.core.config import AUTO
-
     c = cfg.copy()
     m, b = c.model, c.blur
     if m.layers == AUTO:
@@ -88,15 +87,24 @@ def costliest(cfg, task: str, frames: int, hw: tuple[int, int] = (2, 2)):
     return c
 
 
-def _resolved(cfg, task: str, frames: int, hw: tuple[int, int]):
-    """``cfg`` as the run's :class:`~layercam.engine.resolve.Resolved`: itself when resolved already (after
-    the analysis), else with its ``auto`` at their costliest (:func:`costliest`) and resolved for a
-    clip of ``frames`` frames of ``hw`` with nothing measured."""
-    from layercam.engine.resolve import Resolved, resolve
+def bound(cfg, task: str, frames: int, hw: tuple[int, int]):
+    """``cfg`` as the settings the estimate costs: the run's resolution itself when given one (after
+    the analysis: :class:`~layercam.engine.resolve.Resolved`), else (before it) the costliest model
+    :func:`costliest` allows, under the step cap that :func:`layercam.engine.resolve.cap` puts on a
+    clip of ``frames`` frames of ``hw`` (fewer grid levels, a smaller batch at its floor) and with
+    nothing measured (the camera not static; the colour loss's scale as given, else MSE; the
+    device and precision leave no trace in the cost). Nothing is resolved here: the run resolves
+    once, after the analysis."""
+    from layercam.core.config import freeze
+    from layercam.engine.resolve import ClipShape, Resolved, cap
 
     if isinstance(cfg, Resolved):
         return cfg
-    return resolve(costliest(cfg, task, frames, hw), frames=frames, hw=hw, task=task)
+    c = costliest(cfg, task, frames, hw)
+    cap(c, ClipShape(frames, *hw), {})
+    if c.loss.robust == AUTO:
+        c.loss.robust = 0.0
+    return Resolved(freeze(c))
 
 
 def _identity_meta(r, frames: int, hw: tuple[int, int], extent: float | None = None) -> dict:
@@ -276,7 +284,7 @@ def estimate(info: dict, cfg, task: str = "hdr-video", windows: list | None = No
     H, W = int(info["height"]), int(info["width"])
     px = H * W
     spans = [int(b) - int(a) for a, b in windows] if windows and len(windows) > 1 else [T]
-    r = _resolved(cfg, task, T, (H, W))
+    r = bound(cfg, task, T, (H, W))
     rc = r.settings
     params = _model_parts(r, max(spans), (H, W), widest_atlas(max(spans), (H, W)) if extent is None else extent)
     n_params = sum(params.values())

@@ -84,9 +84,9 @@ _NAMES = tuple(f.name for f in fields(FlowArrays))
 
 
 
-def compute(frames, out: Path, cfg, progress: bool = False) -> dict:
+def compute(frames, out: Path, cfg, progress: bool = False, device: str = "cpu") -> dict:
     """Flow of the clip ``frames`` (``(T,H,W,3)``, read a frame at a time) with the ``flow``
-    settings ``cfg`` into ``out``; returns the stage's summary. Pair for pair the arrays the
+    settings ``cfg`` into ``out`` (RAFT on ``device``); returns the stage's summary. Pair for pair the arrays the
     whole-clip functions give (``flow.compute_flow``, ``flow.pair_arrays``): the same DIS object
     over the pairs, OpenCV's RNG seeded once for the homographies."""
     import cv2
@@ -112,7 +112,7 @@ def compute(frames, out: Path, cfg, progress: bool = False) -> dict:
             yield f
 
     if cfg.method.startswith("raft"):
-        model = raft.raft_model(cfg.raft_weights, None if cfg.method == "raft" else cfg.method[5:])
+        model = raft.raft_model(cfg.raft_weights, None if cfg.method == "raft" else cfg.method[5:], device)
         pairs = raft.raft_pairs(feed(), model)
     else:
         pairs = flow.dis_pairs(feed(), cfg.method)

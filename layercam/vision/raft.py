@@ -36,7 +36,7 @@ def raft_flow(
 
 
 def raft_model(weights_path: str, variant: str | None = None, device: str | None = None):
-    """A torchvision RAFT (eval mode, on ``device``: CUDA when torch sees one by default) from a
+    """A torchvision RAFT (eval mode, on ``device``, the CPU by default: a run passes its own) from a
     local state dict (see :func:`raft_flow`); one-line ``LayercamError`` for a missing or wrong file."""
     if not weights_path or not os.path.isfile(weights_path):
         raise LayercamError(f"RAFT weights file not found: {weights_path!r}")
@@ -63,7 +63,7 @@ def raft_model(weights_path: str, variant: str | None = None, device: str | None
     if model is None:
         raise LayercamError(f"{weights_path!r} is not a torchvision RAFT "
                             f"{variant or 'large/small'} state dict")
-    dev = torch.device(device or ("cuda" if torch.cuda.is_available() else "cpu"))
+    dev = torch.device(device or "cpu")
     return model.eval().to(dev)
 
 

@@ -12,7 +12,8 @@ import torch
 
 from layercam.core.presets import load_config
 from layercam.core.errors import LayercamError
-from layercam.pipelines.stages import device_line, device_of
+from layercam.engine.resolve import device_of
+from layercam.pipelines.stages import device_line
 from layercam.pipelines.tasks import run_task
 
 from conftest import TINY, decided

@@ -7,6 +7,7 @@ from types import SimpleNamespace
 import numpy as np
 import torch
 
+from layercam.engine import decide
 from layercam.vision import analyse, flow
 from layercam.engine.checkpoint import load_run_model
 from layercam.core.config import AUTO
@@ -42,9 +43,9 @@ def _decide(frames, exposures=None, task="hdr-video", overrides=None, method="di
     clip = Clip(frames.astype(np.float32), "test", [f"{i:05d}" for i in range(len(frames))])
     ex = exposures or _single(len(frames))
     m = analyse.measure(clip, ex, _flow(clip.frames, method))
-    cfg, reasons = analyse.decide(load_config("fast", model_overrides(**(overrides or {}))), clip, ex, task, m)
+    cfg, reasons = decide.decide(load_config("fast", model_overrides(**(overrides or {}))), clip, ex, task, m)
     assert AUTO not in list(vars(cfg.model).values()) + [cfg.blur.n, cfg.blur.max_offset]
-    return SimpleNamespace(**analyse.model_summary(cfg), reasons=reasons), m
+    return SimpleNamespace(**decide.model_summary(cfg), reasons=reasons), m
 
 
 def test_static_sharp_single_exposure_gets_the_minimal_model():
@@ -85,8 +86,8 @@ def test_object_moving_on_its_own_gets_two_layers():
 
 def test_slow_object_gets_two_layers_from_pairs_eight_frames_apart():
     spec, m = _decide(_panning_square(16, lambda t: (20, 24 + t - int(round(0.5 * t)))))  # drifts 0.5 px/frame against the pan
-    assert m["independent_pairs"] < analyse.IND_MOTION_PAIRS  # neighbours: too slow to tell
-    assert spec.layers == 2 and m["moving_pairs_long"] >= analyse.LONG_MIN_PAIRS, m
+    assert m["independent_pairs"] < decide.IND_MOTION_PAIRS  # neighbours: too slow to tell
+    assert spec.layers == 2 and m["moving_pairs_long"] >= decide.LONG_MIN_PAIRS, m
     assert "8 frames apart" in spec.reasons["layers"]
     still, m = _decide(np.stack([np.roll(_texture(64, 64, 0), t, axis=1) for t in range(16)]))  # a pan alone
     assert still.layers == 1 and m["moving_pairs_long"] == 0, m
@@ -94,7 +95,7 @@ def test_slow_object_gets_two_layers_from_pairs_eight_frames_apart():
 
 def test_given_masks_mean_two_layers():
     clip = Clip(np.stack([_texture(16, 16)] * 3), "test", ["0", "1", "2"])
-    cfg, reasons = analyse.decide(load_config("fast"), clip, _single(3), "hdr-video", {"masks_given": True})
+    cfg, reasons = decide.decide(load_config("fast"), clip, _single(3), "hdr-video", {"masks_given": True})
     assert cfg.model.layers == 2 and "masks" in reasons["layers"]
 
 
@@ -224,9 +225,9 @@ def test_robust_colour_loss_only_for_an_exposure_bracket():
     m = analyse.measure(clip, ex, _flow(clip.frames, "dis_fast"))
 
     def robust(task, *sets):
-        return analyse.decide(load_config("fast", list(sets)), clip, ex, task, m)[0].loss.robust
+        return decide.decide(load_config("fast", list(sets)), clip, ex, task, m)[0].loss.robust
 
-    assert robust("fuse-stack") == analyse.ROBUST_STACK > 0
+    assert robust("fuse-stack") == decide.ROBUST_STACK > 0
     assert robust("fuse-stack", "model.blur=on") == 0.0
     assert robust("hdr-video") == 0.0 and robust("deblur-video") == 0.0
     assert robust("fuse-stack", "loss.robust=0") == 0.0 and robust("hdr-video", "loss.robust=0.1") == 0.1
@@ -241,7 +242,7 @@ def test_a_pair_with_few_comparable_tiles_says_nothing_about_blur(monkeypatch):
     monkeypatch.setattr(sharpness, "pair_relative_blur", lambda a, b, h, m: tiles[int(a[0, 0, 0])])
     frames = np.arange(4, dtype=np.float32)[:, None, None, None] * np.ones((4, 8, 8, 3), np.float32)
     b = analyse._blur(frames, None, None)
-    assert b["blur_tile_share"] == [0.0, None, 0.0] and b["max_blur_tile_share"] < analyse.BLUR_TILE_SHARE
+    assert b["blur_tile_share"] == [0.0, None, 0.0] and b["max_blur_tile_share"] < decide.BLUR_TILE_SHARE
     b = analyse._blur(frames[1:3], None, None)
     assert b["max_blur_tile_share"] > 0.8
 
@@ -262,7 +263,7 @@ def test_blur_in_few_pairs_of_many_is_not_a_blur_generator(monkeypatch):
 
     def decided(fr):
         m = {**analyse.measure(Clip(fr, "t", [str(i) for i in range(len(fr))]), _single(len(fr)), None), **analyse._blur(fr, None, None)}
-        return analyse.decide(load_config("fast"), clip, _single(len(fr)), "deblur-video", m)
+        return decide.decide(load_config("fast"), clip, _single(len(fr)), "deblur-video", m)
 
     cfg, reasons = decided(frames)
     assert cfg.model.blur == "off" and "only 1 of 4 pairs" in reasons["blur"], reasons["blur"]
@@ -289,65 +290,11 @@ def test_one_pair_of_motion_is_not_a_layer():
     assert m["moving_pairs"] <= 1 and spec.layers == 1, m
 
 
-def test_static_camera_holds_the_background_still():
-    """A static camera (``Resolved.static``) holds the background layer still when there are two
-    layers; a moving camera leaves it free; one layer keeps no residual warp instead."""
-    from layercam.engine.resolve import resolve
-
-    two = load_config("fast", ["model.layers=2"])
-    assert resolve(two, frames=24, hw=(64, 64), measures={"corner_shift_px": 0.2}).still_background
-    assert not resolve(two, frames=24, hw=(64, 64), measures={"corner_shift_px": 3.0}).still_background
-    one = resolve(load_config("fast", ["model.layers=1"]), frames=24, hw=(64, 64), measures={"corner_shift_px": 0.2})
-    assert not one.still_background and not one.residual and one.blur_centre
-    paper = resolve(load_config("paper", ["model.layers=1"]), frames=24, hw=(64, 64), measures={"corner_shift_px": 0.2})
-    assert not paper.static  # the paper's identity bootstrap: nothing registered by the flow
-
-
-def _cap(preset, sets, frames, hw):
-    from layercam.engine.resolve import resolve
-
-    return resolve(load_config(preset, ["model.layers=1", "model.blur=off"] + list(sets)), frames=frames, hw=hw).settings
-
-
-def test_short_stack_trains_fewer_steps():
-    """A 3-shot 256x256 stack: balanced's 2000 steps x 8192 capped to the floor (300 steps) and
-    the floor's model (analyse.FLOOR) whatever the preset; a 48-frame clip keeps its steps;
-    train.passes_per_frame=0 turns the cap off (paper's default); a larger stack is capped above
-    the floor and keeps the preset's batch."""
-    from layercam.engine.resolve import resolve
-
-    cfg = _cap("balanced", [], 3, (256, 256))
-    assert (cfg.train.steps, cfg.train.bootstrap_steps, cfg.train.batch) == (300, 150, 4096)
-    assert _cap("balanced", [], 48, (144, 256)).train.steps == 2000
-    assert _cap("balanced", ["train.passes_per_frame=0"], 3, (256, 256)).train.steps == 2000
-    # at the floor every preset trains the floor's model: quality's 8 levels and width 128, fast's 5 levels
-    for p in ("fast", "balanced", "quality"):
-        c = _cap(p, [], 3, (256, 256))
-        assert (c.train.steps, c.train.batch, c.scene.grid_levels, c.scene.atlas_width) == (300, 4096, 6, 64)
-    # above the floor the cap keeps the preset's batch and width, at most 6 grid levels
-    big = _cap("quality", [], 3, (510, 768))
-    assert (big.train.steps, big.train.batch, big.scene.grid_levels, big.scene.atlas_width) == (861, 8192, analyse.FLOOR_GRID_LEVELS, 128)
-    assert _cap("quality", [], 48, (144, 256)).scene.grid_levels == 8
-    assert _cap("fast", [], 3, (510, 768)).scene.grid_levels == 5
-    # with a blur generator the floor is MIN_SAMPLES in the preset's own model and batch
-    for p, want in (("fast", (600, 4096, 5)), ("balanced", (300, 8192, 6)), ("quality", (300, 8192, 6))):
-        c = resolve(load_config(p, ["model.layers=1", "model.blur=on"]), frames=3, hw=(256, 256)).settings
-        assert (c.train.steps, c.train.batch, c.scene.grid_levels) == want, p
-    # the paper trains the paper's steps (no cap) unless the user caps it; capped, its positional
-    # encoding keeps its own width and batch at the floor
-    r = resolve(load_config("paper", ["model.layers=1", "model.blur=off"]), frames=3, hw=(256, 256))
-    assert r.settings.train.steps == 150000 and "no cap" in r.reasons["train.steps"]
-    paper = _cap("paper", ["train.passes_per_frame=4"], 3, (256, 256))
-    assert (paper.train.steps, paper.train.batch, paper.scene.atlas_width) == (300, 30000, 512)
-    # a smaller batch asked for is kept at the floor
-    assert _cap("balanced", ["train.batch=1024"], 3, (64, 64)).train.batch == 1024
-
-
 def test_no_foreground_found_means_one_layer_and_says_why():
     """The analysis chose two layers from the flow; the foreground finder found no consistent
     object: deciding again with its verdict gives one layer, with the finder's reason. A layer
     count the user set, or masks the user gave, are kept."""
-    from layercam.vision.analyse import unfound_foreground
+    from layercam.engine.decide import unfound_foreground
     from layercam.core.presets import load_config
 
     cfg = load_config("fast")
@@ -360,7 +307,7 @@ def test_no_foreground_found_means_one_layer_and_says_why():
     clip = SimpleNamespace(T=8, H=32, W=32)
     measures = {"independent_pairs": 1.0, "moving_pairs": 7, "independent_motion_frac": 0.1}
     exposures = SimpleNamespace(count_distinct=1, learn="none", reason="given")
-    two, r2 = analyse.decide(cfg, clip, exposures, "hdr-video", measures)
+    two, r2 = decide.decide(cfg, clip, exposures, "hdr-video", measures)
     assert two.model.layers == 2
-    one, r1 = analyse.decide(cfg, clip, exposures, "hdr-video", {**measures, "foreground_found": False, "foreground_reason": why})
+    one, r1 = decide.decide(cfg, clip, exposures, "hdr-video", {**measures, "foreground_found": False, "foreground_reason": why})
     assert one.model.layers == 1 and why in r1["layers"] and "no consistent" in r1["layers"]

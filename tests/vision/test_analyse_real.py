@@ -6,6 +6,7 @@ from types import SimpleNamespace
 
 import pytest
 
+from layercam.engine import decide
 from layercam.vision import analyse
 from layercam.core.presets import load_config
 
@@ -19,8 +20,8 @@ def _real(paths, exposures, resize=None):
     ex = parse_exposures(exposures, clip)
     fl = _flow(clip.frames, "dis_medium")
     m = analyse.measure(clip, ex, fl)
-    cfg, reasons = analyse.decide(load_config("balanced"), clip, ex, "fuse-stack", m)
-    return SimpleNamespace(**analyse.model_summary(cfg), reasons=reasons, homs=fl["homs"], hw=clip.frames.shape[1:3]), m
+    cfg, reasons = decide.decide(load_config("balanced"), clip, ex, "fuse-stack", m)
+    return SimpleNamespace(**decide.model_summary(cfg), reasons=reasons, homs=fl["homs"], hw=clip.frames.shape[1:3]), m
 
 
 @pytest.mark.data
@@ -59,5 +60,5 @@ def test_real_moving_person_keeps_two_layers(shared_data):
     clip = load_clip(str(shared_data / "layers_davis_parkour" / "frames"), resize="0.33", max_frames=12)
     ex = _single(clip.T)
     m = analyse.measure(clip, ex, _flow(clip.frames, "dis_medium"))
-    cfg, reasons = analyse.decide(load_config("balanced"), clip, ex, "hdr-video", m)
+    cfg, reasons = decide.decide(load_config("balanced"), clip, ex, "hdr-video", m)
     assert cfg.model.layers == 2 and cfg.model.blur == "off", (m, reasons)

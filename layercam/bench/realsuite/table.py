@@ -7,6 +7,7 @@ import csv
 import json
 from pathlib import Path
 
+from layercam.core.config import DEFAULT_PRESET
 from layercam.io.atomic import atomic_write
 
 __all__ = ["CSV_FIELDS", "collect_rows", "write_table"]
@@ -157,7 +158,7 @@ def _targets(rows: list[dict], cases: dict) -> list[str]:
                 b = base["flow+debevec"]["flicker"]
                 out.append((name, r["preset"], "flicker no higher than flow + Debevec", f"{r['flicker']:.2f} vs {b:.2f}", r["flicker"] <= b))
             if case.group == "deblur" and r.get("gain_db") is not None:
-                out.append((name, r["preset"], "above the blurry input" + (" by 2 dB (the default)" if r["preset"] == "balanced" else ""), f"{r['psnr']:.2f} dB ({r['gain_db']:+.2f} dB)", r["gain_db"] >= (2.0 if r["preset"] == "balanced" else 0.0) and r["gain_db"] > 0))
+                out.append((name, r["preset"], "above the blurry input" + (" by 2 dB (the default)" if r["preset"] == DEFAULT_PRESET else ""), f"{r['psnr']:.2f} dB ({r['gain_db']:+.2f} dB)", r["gain_db"] >= (2.0 if r["preset"] == DEFAULT_PRESET else 0.0) and r["gain_db"] > 0))
                 out.append((name, r["preset"], "no frame below its input", f"worst frame {r['worst_gain_db']:+.2f} dB, {r['frames_below']} below", r["frames_below"] == 0))
         key = "psnr" if case.group == "deblur" else "psnr_mu"
         dial = sorted((r for r in mine if r.get(key) is not None and r["preset"] in PRESET_ORDER), key=lambda r: PRESET_ORDER[r["preset"]])

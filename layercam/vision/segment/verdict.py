@@ -10,7 +10,7 @@ frame without mask counts as a jump)? Do they cover what moves against the camer
 inside the masks over that outside, each a mean over frames (:func:`evidence_contrast`)? Masks
 that jump about, or that sit where nothing moves more than the background, are not an object: the
 run says so and, without ``--layers``, the analysis chooses one layer
-(:func:`layercam.vision.analyse.decide`).
+(:func:`layercam.engine.decide.decide`).
 """
 
 from __future__ import annotations

@@ -71,7 +71,7 @@ def test_a_slow_object_adds_up_over_frames():
     fw, bw, fo, bo = _flows(frames)
     iou = {}
     for reach in (1, 8):
-        m, _ = segment.motion_masks(fw, bw, fo, bo, segment.SegmentConfig(reach=reach))
+        m, _ = segment.motion_masks(fw, bw, fo, bo, cfg=segment.SegmentConfig(reach=reach))
         iou[reach] = np.mean([metrics.iou(a > 0.5, b) for a, b in zip(m, masks)])
     assert iou[8] > 0.45 and iou[1] < 0.1, iou
     share = motion.long_range_moving_share(fw, fo, reach=8)
@@ -86,7 +86,7 @@ def test_the_floor_does_not_grow_with_the_pairs_length():
     flow's precision is a floor for every pair alike (a floor growing as sqrt(k) lost this object)."""
     frames, masks = _clip(T=16, obj_speed=(0.0, 0.3), side=16)
     fw, bw, fo, bo = _flows(frames)
-    m, _ = segment.motion_masks(fw, bw, fo, bo, segment.SegmentConfig(reach=8))
+    m, _ = segment.motion_masks(fw, bw, fo, bo, cfg=segment.SegmentConfig(reach=8))
     assert np.mean([metrics.iou(a > 0.5, b) for a, b in zip(m, masks)]) > 0.4
 
 
@@ -96,7 +96,7 @@ def test_parallax_reaching_the_edge_is_explained_the_object_is_not():
     moving across the epipolar lines stays."""
     frames, masks = _clip(T=10, pan=(1.5, 0.0), band=20, obj_speed=(0.0, 2.0))
     fw, bw, fo, bo = _flows(frames)
-    m, info = segment.motion_masks(fw, bw, fo, bo)
+    m, info = segment.motion_masks(fw, bw, fo, bo, cfg=segment.SegmentConfig())
     assert info["epipolar_pairs"] >= 0.5
     band = np.zeros(masks.shape[1:], bool)
     band[-20:] = True

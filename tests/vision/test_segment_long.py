@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from layercam.core.config import SegmentConfig
 from layercam.vision import flow, segment
 from layercam.vision.segment.long import foreground_bootstrap_long, window_at_work
 
@@ -42,7 +43,7 @@ def test_a_clip_of_one_window_gets_the_whole_clip_bootstrap(tmp_path, monkeypatc
     frames = _square_clip(T=8)[0]
     fl = _flows(frames)
     whole = segment.foreground_bootstrap(frames, fl)
-    long = foreground_bootstrap_long(frames, fl, tmp_path)
+    long = foreground_bootstrap_long(frames, fl, tmp_path, None, SegmentConfig())
     assert long["computed"] and long["info"]["windows"] == 1 and (tmp_path / "masks.raw").exists()
     assert np.array_equal(np.asarray(long["masks"]) > 0, whole["masks"] > 0.5) and whole["masks"].any()
     assert np.array_equal(long["h0"], whole["h0"]) and long["how"] == whole["how"]

@@ -84,7 +84,7 @@ def _working(frames: np.ndarray, flows: dict) -> tuple[np.ndarray, dict]:
     return resize_frames(frames, work), out
 
 
-def find_foreground(frames: np.ndarray, flows: dict, cfg: SegmentConfig | None = None, steps: tuple = STEPS) -> tuple[np.ndarray, dict]:
+def find_foreground(frames: np.ndarray, flows: dict, cfg: SegmentConfig, steps: tuple = STEPS) -> tuple[np.ndarray, dict]:
     """The finder itself (module docstring): masks ``(T, H, W)`` float32 in {0, 1} and an info
     dict whose ``"verdict"`` says whether one consistent moving object was found. ``flows`` holds
     ``fw``, ``bw`` (and optionally ``fw_ok``, ``bw_ok``) at the frames' size; ``steps``: the
@@ -97,13 +97,12 @@ def find_foreground(frames: np.ndarray, flows: dict, cfg: SegmentConfig | None =
 
     import cv2
 
-    cfg = cfg or SegmentConfig()
     T, h, w = frames.shape[:3]
     check_flows(flows["fw"], flows["bw"])
     frames, flows = _working(frames, flows)
     fw, bw = check_flows(flows["fw"], flows["bw"])
     fo, bo = flow_checks(fw, bw, flows.get("fw_ok"), flows.get("bw_ok"))
-    masks, info = motion_masks(fw, bw, fo, bo, cfg, frames=frames)
+    masks, info = motion_masks(fw, bw, fo, bo, cfg=cfg, frames=frames)
     evidence = info.pop("evidence")
     if "grabcut" in steps:
         from layercam.vision.segment.edges import grabcut_refine
@@ -145,7 +144,9 @@ def foreground_bootstrap(frames: np.ndarray, flows: dict | None, masks: np.ndarr
     ``fw_ok``, ``bw_ok`` at the frames' size, as :func:`layercam.vision.flow_store.at_frame_size` gives them),
     :func:`find_foreground`'s masks (``info["verdict"]`` says whether they hold one object), then,
     with ``cfg.detector``, a local Mask R-CNN's instances that lie in them (:mod:`layercam.vision.segment.detect`);
-    with neither (one frame), no masks and the identity mapping.
+    with neither (one frame), no masks and the identity mapping. ``cfg``: the finder's settings
+    (``segment``); None: their defaults (the one place the finder builds them; every function below
+    takes the settings it is given).
     """
     cfg = cfg or SegmentConfig()
     T, h, w = frames.shape[:3]
@@ -160,7 +161,7 @@ def foreground_bootstrap(frames: np.ndarray, flows: dict | None, masks: np.ndarr
     fw = flows["fw"].astype(np.float32) if flows is not None and T > 1 else None
     fw_ok = flows.get("fw_ok") if flows is not None else None
     if masks is None:
-        h0, desc = foreground_mappings(h, w, np.zeros((T, h, w), np.float32), how="identity")
+        h0, desc = foreground_mappings(h, w, np.zeros((T, h, w), np.float32), margin=cfg.margin, how="identity")
     else:
-        h0, desc = foreground_mappings(h, w, masks, fw, fw_ok, cfg.margin, how=cfg.foreground)
+        h0, desc = foreground_mappings(h, w, masks, fw, fw_ok, margin=cfg.margin, how=cfg.foreground)
     return {"h0": h0, "masks": masks, "computed": computed, "how": desc, "info": info}

@@ -48,7 +48,7 @@ def load_detector(path: str, device=None):
     raise LayercamError(f"segment.detector: {path!r} is a Mask R-CNN of neither torchvision architecture (maskrcnn_resnet50_fpn, _v2)")
 
 
-def detect_instances(frames: np.ndarray, path: str, score: float = 0.5, size: int = 800, progress: bool = False) -> list[dict]:
+def detect_instances(frames: np.ndarray, path: str, score: float, size: int, progress: bool = False) -> list[dict]:
     """Per frame of ``frames`` ``(T, H, W, 3)`` in [0, 1], the instances scoring at least ``score``:
     ``{"masks": (N, H, W) bool, "scores": (N,), "labels": (N,)}``. Each frame is scaled to the
     clip's mean brightness first (alternating exposures), and the detector sees it with its short
@@ -78,7 +78,7 @@ def detect_instances(frames: np.ndarray, path: str, score: float = 0.5, size: in
     return out
 
 
-def pick_instances(instances: list[dict], motion: np.ndarray, overlap: float = 0.3) -> tuple[np.ndarray, dict]:
+def pick_instances(instances: list[dict], motion: np.ndarray, overlap: float) -> tuple[np.ndarray, dict]:
     """Each frame's mask: the union of its instances of which at least ``overlap`` of the area lies
     in that frame's motion mask; a frame without such an instance keeps its motion mask. Returns
     the masks ``(T, H, W)`` float32 and ``{"detector_frames": frames taken from the detector,

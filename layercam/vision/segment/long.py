@@ -59,7 +59,7 @@ def window_at_work(frames, flows: dict, a0: int, b0: int, grid: tuple[int, int])
     return fr, fl
 
 
-def foreground_bootstrap_long(frames, flows: dict, out, masks=None, cfg: SegmentConfig | None = None, progress: bool = False) -> dict:
+def foreground_bootstrap_long(frames, flows: dict, out, masks, cfg: SegmentConfig, progress: bool = False) -> dict:
     """:func:`foreground_bootstrap` for a long clip or one larger than the flow's working grid
     (:func:`windowed`), with the memory of a ``SEG_FRAMES``-frame clip at the finder's working size:
     each window of :func:`segment_windows` is read at that size (:func:`window_at_work`) and
@@ -81,7 +81,6 @@ def foreground_bootstrap_long(frames, flows: dict, out, masks=None, cfg: Segment
     from layercam.vision.segment import find_foreground
     from layercam.core.progress import bar
 
-    cfg = cfg or SegmentConfig()
     T, H, W = frames.shape[:3]
     h, w = flows["fw"].shape[1:3]
     info: dict = {}
@@ -115,5 +114,5 @@ def foreground_bootstrap_long(frames, flows: dict, out, masks=None, cfg: Segment
         info = {"windows": len(wins), "window_frames": SEG_FRAMES, "window_margin": SEG_MARGIN, "grid": [h, w], "models": models,
                 "coverage_mean": float(cover.mean()), "coverage_min": float(cover.min()), "coverage_max": float(cover.max()), "empty_frames": int((cover == 0).sum())}
     fw, fw_ok = AtFrameSize(flows["fw"], (H, W)), AtFrameSize(flows["fw_ok"], (H, W))
-    h0, desc = foreground_mappings(H, W, masks, fw, fw_ok, cfg.margin, how=cfg.foreground)
+    h0, desc = foreground_mappings(H, W, masks, fw, fw_ok, margin=cfg.margin, how=cfg.foreground)
     return {"h0": h0, "masks": masks, "computed": computed, "how": desc, "info": info}

@@ -58,7 +58,7 @@ def object_motion(fw, masks, fw_ok=None, min_points: int = 12, seed: int = 0) ->
 MAX_MAPPED_POINTS = 1 << 23  # foreground_mappings: mask pixels mapped into the atlas for its extent (every k-th beyond)
 
 
-def foreground_mappings(h: int, w: int, masks: np.ndarray, fw=None, fw_ok=None, margin: float = 0.6, how: str = "object") -> tuple[np.ndarray, str]:
+def foreground_mappings(h: int, w: int, masks: np.ndarray, fw=None, fw_ok=None, *, margin: float, how: str) -> tuple[np.ndarray, str]:
     """The foreground layer's ``h0`` ``(T, 3, 3)``: normalised frame coordinates -> atlas uv.
 
     how "object": the object's own chained motion (:func:`object_motion`) to the frame where the

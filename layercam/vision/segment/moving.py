@@ -70,20 +70,18 @@ def temporal_vote(ev: np.ndarray, fw: np.ndarray, bw: np.ndarray, window: int) -
     return acc / cnt[:, None, None]
 
 
-def motion_masks(fw, bw, fw_ok=None, bw_ok=None, cfg=None, frames=None) -> tuple[np.ndarray, dict]:
+def motion_masks(fw, bw, fw_ok=None, bw_ok=None, *, cfg, frames=None) -> tuple[np.ndarray, dict]:
     """Foreground masks of whatever moves on its own: ``(T, H, W)`` float32 in {0, 1}, and an info
     dict (coverage per frame, frames filled from neighbours, and ``evidence``: the motion evidence
     ``(T, H, W)`` the masks came from). ``fw_ok``, ``bw_ok`` ``(T-1, H, W)``: the flows'
     forward-backward checks (computed when None); ``cfg``: a :class:`layercam.core.config.SegmentConfig`
     (``reach``, ``k_sigma``). With the ``frames`` ``(T, H, W[, C])``, evidence counts only where
     the frame has texture."""
-    from layercam.core.config import SegmentConfig
     from layercam.vision.segment.evidence import motion_evidence
     from layercam.core.visibility import textured
 
     f, b = check_flows(fw, bw)
     fo, bo = flow_checks(f, b, fw_ok, bw_ok)
-    cfg = cfg or SegmentConfig()
     soft, info = motion_evidence(f, b, fo, bo, cfg.reach, cfg.k_sigma)
     tex = None
     if frames is not None:

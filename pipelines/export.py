@@ -41,7 +41,7 @@ from layercam.core.interrupts import reached
 from layercam.pipelines.runner import Context, Stage, write_json
 from layercam.io.hdr_set import HALF_MAX, HdrSet, write_hdr_set
 from layercam.pipelines.view import VIEW_MIN_DB, view_check, view_sigma
-from layercam.pipelines.window_plan import area, fit_maps
+from layercam.pipelines.windows.plan import area, fit_maps
 from layercam.vision.scale import size_within
 from layercam.pipelines.export_context import _bits, _fps, _frames, _sound, audio, exposures_vary, resolve_reference
 

@@ -61,7 +61,7 @@ def run_task(task: str, clip, exposures, cfg, run_dir: Path, masks=None, progres
 
 
 def _run(ctx: Context, stages: list, t0: float, window=None, ray: str | None = None) -> None:
-    from layercam.pipelines import window_plan, windows
+    from layercam.pipelines.windows.join import join as windows, plan as window_plan
 
     clip, exposures, task, cfg = ctx.clip, ctx.exposures, ctx.task, ctx.cfg
     publish.check_folder(ctx.run_dir, [n for st in stages + [windows.WindowsStage()] for n in st.output_names(ctx)])  # before any work
@@ -119,7 +119,7 @@ def _estimate(ctx: Context, cfg, what: str, plan=None) -> dict:
     in one line and checked against the memory available and the disk free (less what the run
     folder's cache holds)."""
     from layercam.engine import estimate as cost
-    from layercam.pipelines.window_plan import extent
+    from layercam.pipelines.windows.plan import extent
 
     clip = ctx.clip
     est = cost.estimate({"frames": clip.T, "width": clip.W, "height": clip.H, "bit_depth": clip.bit_depth}, cfg, ctx.task,

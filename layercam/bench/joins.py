@@ -46,9 +46,9 @@ QUICK = ["train.steps=20", "train.bootstrap_steps=2", "train.batch=512"]
 
 def two_windows(T: int, cycle: int = 2) -> int:
     """The shortest window length that cuts ``T`` frames (exposures repeating every ``cycle``) into
-    two windows overlapping by :func:`layercam.pipelines.window_plan.overlap_for` (57 for 96: windows
+    two windows overlapping by :func:`layercam.pipelines.windows.plan.overlap_for` (57 for 96: windows
     of 57 frames overlapping by 18)."""
-    from layercam.pipelines.window_plan import overlap_for
+    from layercam.pipelines.windows.plan import overlap_for
 
     n = (T + 1) // 2
     while 2 * n - overlap_for(n, cycle) < T:

@@ -199,7 +199,7 @@ def run(args) -> int:
 
     from layercam.io.atomic import partials_removed_on_error
     from layercam.io.lock import run_lock
-    from layercam.pipelines.windows import INDEX
+    from layercam.pipelines.windows.join import INDEX
 
     run_dir = Path(args.run)
     finished = (run_dir / "checkpoint.pt").is_file() or (run_dir / INDEX).is_file()
@@ -251,7 +251,7 @@ def _edit(args, run_dir: Path) -> int:
     from layercam.core.progress import bar as progress_bar
     from layercam.scene.render import tonemap_display
 
-    from layercam.pipelines import windows
+    from layercam.pipelines.windows import join as windows
 
     index = windows.read_index(run_dir)
     if index is not None:
@@ -302,7 +302,7 @@ def _edit_windows(args, run_dir: Path, index: dict) -> int:
     from layercam.core.interrupts import reached
     from layercam.io import write_exr, write_video
     from layercam.io.atomic import commit_staged, ensure_writable_dir, staging_dir
-    from layercam.pipelines import windows
+    from layercam.pipelines.windows import join as windows
     from layercam.pipelines.runner import write_json
     from layercam.engine.resolve import device_of
     from layercam.core.progress import bar as progress_bar

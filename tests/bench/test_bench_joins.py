@@ -9,7 +9,7 @@ import pytest
 
 from layercam.bench.joins import centred, forth_and_back, pair_flicker, per_frame_psnr_mu, two_windows
 from layercam.cli import main
-from layercam.pipelines.window_plan import overlap_for, split
+from layercam.pipelines.windows.plan import overlap_for, split
 
 
 def test_two_windows_cut_any_length_in_two():

@@ -46,7 +46,7 @@ def test_the_estimate_counts_the_atlas_the_camera_pans_over():
     from layercam.core.geometry import atlas_mappings, chain_homographies, middle_frame
     from layercam.engine import estimate as E
     from layercam.engine.checkpoint import build_model
-    from layercam.pipelines.window_plan import extent
+    from layercam.pipelines.windows.plan import extent
     from layercam.scene.layered import derived_sizes
 
     T, hw = 8, (64, 64)

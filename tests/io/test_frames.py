@@ -58,8 +58,8 @@ def test_a_window_of_a_clip_on_disk_reads_nothing(tmp_path):
     """A long clip's window (pipelines/windows.py) holds its frames, masks and flow as views of the
     whole clip's files."""
     from layercam.io import load_clip
-    from layercam.pipelines.window_plan import rows
-    from layercam.pipelines.window_plan import sub_clip, sub_flow
+    from layercam.pipelines.windows.plan import rows
+    from layercam.pipelines.windows.plan import sub_clip, sub_flow
     from layercam.vision.flow_store import FlowArrays
 
     v = _video(tmp_path / "v.mp4", n=5)

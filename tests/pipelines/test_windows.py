@@ -16,7 +16,7 @@ from hypothesis import strategies as st
 
 from layercam.cli import main
 from layercam.io import read_exr
-from layercam.pipelines import window_plan, windows
+from layercam.pipelines.windows.join import join as windows, plan as window_plan
 
 from conftest import tiny_argv
 
@@ -138,7 +138,7 @@ def test_the_join_is_each_windows_hdr_cross_faded_over_the_overlap_by_their_fits
     import cv2
 
     from layercam.camera.faithful import WINDOW_SIGMA
-    from layercam.pipelines.window_plan import FIT_FILE
+    from layercam.pipelines.windows.plan import FIT_FILE
 
     rep = json.loads((windowed / "report.json").read_text())
     exports = [windowed / "cache" / "windows" / f"{a:05d}-{b:05d}" / "cache" / f"export-{r['keys']['export']}" for r, (a, b) in

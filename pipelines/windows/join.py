@@ -14,7 +14,7 @@ one another (``--ray``: tasks on a Ray cluster, ``layercam.engine.cluster``).
 The windows' outputs are then joined by the ``windows`` stage (:class:`WindowsStage`): in the
 overlap of windows ``k`` and ``k + 1`` (frames ``a_(k+1) .. b_k - 1``) each frame is the
 cross-fade ``(1 - w) X_k + w X_(k+1)`` of the linear fade ``f = (t - a_(k+1) + 1) / (overlap + 1)``
-weighted per pixel by each window's fit to the overlap's frames (:func:`~layercam.pipelines.window_plan.overlap_fits`,
+weighted per pixel by each window's fit to the overlap's frames (:func:`~layercam.pipelines.windows.plan.overlap_fits`,
 :meth:`Plan.weights`; kept in ``windows/fits.npz`` for ``render`` and ``edit``) of the
 linear HDR (``hdr/``), the sharp frames (``frames/``, as floats before they are quantised) and the
 foreground's alpha mattes (``alpha/``); the preview is tonemapped once over the joined clip. Each
@@ -39,7 +39,7 @@ from layercam.core.errors import LayercamError
 from layercam.core.interrupts import reached
 from layercam.pipelines.results import FlowResult
 from layercam.pipelines.runner import Context, Stage, run_stages, write_json
-from layercam.pipelines.window_plan import Plan, overlap_fits, per_pixel, rows, sub_clip, sub_exposures, sub_flow
+from layercam.pipelines.windows.plan import Plan, overlap_fits, per_pixel, rows, sub_clip, sub_exposures, sub_flow
 
 INDEX = "windows.json"
 FOLDER = "windows"  # RUN/windows/w00/: each window's checkpoint.pt, atlases/, psf.json

@@ -1,0 +1,1 @@
+"""Long clips as overlapping windows (docs: join.py until the split)."""

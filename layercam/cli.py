@@ -95,7 +95,7 @@ _window.__name__ = "window"
 
 
 def window_args(p: argparse.ArgumentParser) -> None:
-    """``--window`` and ``--ray``: a long clip as windows of frames (``pipelines/windows.py``)."""
+    """``--window`` and ``--ray``: a long clip as windows of frames (``layercam.pipelines.windows``)."""
     g = p.add_argument_group("long clips")
     g.add_argument("--window", type=_window, metavar="N|off", help=(
         "train the clip as overlapping windows of N frames, each its own model sharing one camera (the response "
@@ -210,7 +210,7 @@ def finish(ctx) -> None:
     """One closing line: where the outputs are and how training ended."""
     if ctx.progress:
         tr = ctx.results["train"]
-        if tr.windows is not None:  # a long clip's windows (pipelines/windows.py)
+        if tr.windows is not None:  # a long clip's windows (layercam.pipelines.windows)
             losses = ", ".join(f"{(w.get('final_loss') or {}).get('total', float('nan')):.4g}" for w in tr.windows)
             print(f"done: {ctx.run_dir}  ({len(tr.windows)} windows, train {tr.steps} steps in all, final losses {losses})")
             return

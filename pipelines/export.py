@@ -363,7 +363,7 @@ class ExportStage(Stage):
         return [n for n in outputs_for(ctx.task) if n != REPORT_NAME]
 
     def options(self, ctx):
-        return {"fits": "per pixel"} if ctx.window is not None else {}  # a window's export keeps window_plan.FIT_FILE (older ones: none)
+        return {"fits": "per pixel"} if ctx.window is not None else {}  # a window's export keeps windows.plan.FIT_FILE (older ones: none)
 
     def run(self, ctx, out):
         dest = out  # published to the top of the run folder when the run ends

@@ -48,11 +48,11 @@ class Context:
     resolved: Any = None            # the run's settings, resolved once after the flow (layercam.engine.resolve.Resolved)
     flow: Any = None                # the flow stage's arrays (layercam.vision.flow_store.FlowArrays: on disk), opened once; None for one frame
     model: Any = None               # the trained model (layercam.engine.model.ImplicitCameraModel), built once
-    camera: dict | None = None      # a long clip's window after the first: the camera it holds fixed (pipelines/windows.py)
+    camera: dict | None = None      # a long clip's window after the first: the camera it holds fixed (layercam.pipelines.windows)
     window: tuple | None = None     # a long clip's window: its frames [a, b) of the clip (its export keeps its fit per pixel for the join)
     results: dict = field(default_factory=dict)   # stage name -> layercam.pipelines.results.StageResult (or its subclass)
     clip_levels: Any = None         # the clip's clipping levels (pipelines.stages.ctx_clip_levels), measured once
-    ray: dict | None = None         # the Ray cluster a long clip's windows ran on (pipelines/windows.py), None without --ray
+    ray: dict | None = None         # the Ray cluster a long clip's windows ran on (layercam.pipelines.windows), None without --ray
     dirs: dict = field(default_factory=dict)
     keys: dict = field(default_factory=dict)
     times: dict = field(default_factory=dict)

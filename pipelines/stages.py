@@ -155,7 +155,7 @@ class TrainStage(Stage):
         cfg = r.settings
         torch.manual_seed(cfg.train.seed)
         model = self.build(ctx)
-        if getattr(ctx, "camera", None) is not None:  # pipelines/windows.py: window 0's camera, held fixed
+        if getattr(ctx, "camera", None) is not None:  # layercam.pipelines.windows: window 0's camera, held fixed
             hold_camera(model, ctx.camera)
         elif cfg.model.tone_mapper == "learned":
             fit_init_curve(model.tone, seed=cfg.train.seed)

@@ -37,7 +37,7 @@ def run_task(task: str, clip, exposures, cfg, run_dir: Path, masks=None, progres
     (:func:`layercam.engine.resolve.resolve`: each ``auto`` decided from what the analysis measured, values
     set are kept: ``--layers`` etc.) into ``ctx.resolved``, which every later stage reads.
     ``train_callbacks``: functions of the model that return more trainer callbacks (the benchmark's
-    quality probe). ``window``: a video's windows (``pipelines/windows.py``): None as the analysis
+    quality probe). ``window``: a video's windows (``layercam.pipelines.windows``): None as the analysis
     decides, 0 none, N frames each; ``ray``: a Ray cluster (``auto`` or an address) that trains the
     windows (``layercam.engine.cluster``)."""
     t0 = time.perf_counter()
@@ -61,10 +61,11 @@ def run_task(task: str, clip, exposures, cfg, run_dir: Path, masks=None, progres
 
 
 def _run(ctx: Context, stages: list, t0: float, window=None, ray: str | None = None) -> None:
-    from layercam.pipelines.windows.join import join as windows, plan as window_plan
+    from layercam.pipelines.windows import plan as window_plan, run as window_run
+    from layercam.pipelines.windows.join import WindowsStage
 
     clip, exposures, task, cfg = ctx.clip, ctx.exposures, ctx.task, ctx.cfg
-    publish.check_folder(ctx.run_dir, [n for st in stages + [windows.WindowsStage()] for n in st.output_names(ctx)])  # before any work
+    publish.check_folder(ctx.run_dir, [n for st in stages + [WindowsStage()] for n in st.output_names(ctx)])  # before any work
     extra = {}
     try:
         # flow first: the analysis reads it to decide what the model needs
@@ -80,13 +81,13 @@ def _run(ctx: Context, stages: list, t0: float, window=None, ray: str | None = N
         ctx.say("model chosen:\n" + format_table(ctx.resolved, plan.count))
         ctx.estimate["after_analysis"] = _estimate(ctx, ctx.resolved, " (the model chosen)", plan)
         if plan.count > 1:  # a long clip: windows of the stages below, then joined
-            results = windows.run_all(ctx, plan, ray)
+            results = window_run.run_all(ctx, plan, ray)
             for r in results:
                 for w in r["warnings"]:
                     ctx.warn(f"window {r['index']} (frames {r['frames'][0]}..{r['frames'][1] - 1}): {w}")
-            stages = [stages[0], windows.WindowsStage(plan, results)]
+            stages = [stages[0], WindowsStage(plan, results)]
             run_stages(ctx, stages[1:])
-            ctx.results["train"] = TrainResult(windows.train_summary(results))
+            ctx.results["train"] = TrainResult(window_run.train_summary(results))
             runs = [{**{k: r[k] for k in ("index", "frames", "keys", "times")}, "folder": str(Path(r["folder"]).relative_to(ctx.run_dir))} for r in results]
             extra = {"windows": {**plan.to_dict(), "runs": runs, "ray": ctx.ray}}
         else:

@@ -199,7 +199,7 @@ def run(args) -> int:
 
     from layercam.io.atomic import partials_removed_on_error
     from layercam.io.lock import run_lock
-    from layercam.pipelines.windows.join import INDEX
+    from layercam.pipelines.windows.index import INDEX
 
     run_dir = Path(args.run)
     finished = (run_dir / "checkpoint.pt").is_file() or (run_dir / INDEX).is_file()
@@ -251,7 +251,7 @@ def _edit(args, run_dir: Path) -> int:
     from layercam.core.progress import bar as progress_bar
     from layercam.scene.render import tonemap_display
 
-    from layercam.pipelines.windows import join as windows
+    from layercam.pipelines.windows import index as windows
 
     index = windows.read_index(run_dir)
     if index is not None:
@@ -302,7 +302,8 @@ def _edit_windows(args, run_dir: Path, index: dict) -> int:
     from layercam.core.interrupts import reached
     from layercam.io import write_exr, write_video
     from layercam.io.atomic import commit_staged, ensure_writable_dir, staging_dir
-    from layercam.pipelines.windows import join as windows
+    from layercam.pipelines.windows import index as windows
+    from layercam.pipelines.windows.plan import per_pixel
     from layercam.pipelines.runner import write_json
     from layercam.engine.resolve import device_of
     from layercam.core.progress import bar as progress_bar
@@ -345,8 +346,8 @@ def _edit_windows(args, run_dir: Path, index: dict) -> int:
         reached("edit", t)
         ws = plan.weights(t, hw)  # as the export joined them: per pixel where the run kept the windows' fits
         parts = [(w, render_edited_frame(models[k], t - plan.windows[k][0], hw, args.layer, edits[k])) for k, w in ws]
-        r = {key: sum(windows.per_pixel(w, p[key]) * p[key] for w, p in parts).astype(np.float32) for key in ("ldr", "edit_alpha")}
-        r["hdr"] = sum(windows.per_pixel(w * gains[k], p["hdr"]) * p["hdr"] for (k, _), (w, p) in zip(ws, parts)).astype(np.float32)
+        r = {key: sum(per_pixel(w, p[key]) * p[key] for w, p in parts).astype(np.float32) for key in ("ldr", "edit_alpha")}
+        r["hdr"] = sum(per_pixel(w * gains[k], p["hdr"]) * p["hdr"] for (k, _), (w, p) in zip(ws, parts)).astype(np.float32)
         if not np.isfinite(r["hdr"]).all():
             raise LayercamError(f"frame {t}: non-finite irradiance after the edit; nothing written for it")
         write_exr(stage / "hdr" / f"frame_{t:05d}.exr", r["hdr"])

@@ -167,7 +167,7 @@ def _products(args, out: Path) -> dict:
 
 def run(args) -> int:
     from layercam.io.lock import run_lock
-    from layercam.pipelines.windows.join import INDEX
+    from layercam.pipelines.windows.index import INDEX
 
     if args.nits_white is not None and args.hdr_format is None:
         raise LayercamError("--nits-white sets the HDR video's diffuse white: give --hdr-format pq|hlg with it")
@@ -196,7 +196,7 @@ class _Views:
         import numpy as np
 
         from layercam.engine.checkpoint import load_run_model
-        from layercam.pipelines.windows import join as windows
+        from layercam.pipelines.windows import index as windows
 
         index = windows.read_index(run)
         if index is None:
@@ -236,7 +236,7 @@ class _Views:
 
         if self.plan is None:
             return exposure_frames(self.models[0], self.metas[0], ev, keep_blur, z0=self.z0)
-        from layercam.pipelines.windows.join import per_pixel
+        from layercam.pipelines.windows.plan import per_pixel
 
         per = [exposure_frames(m, meta, ev, keep_blur, z0=self.z0 + d) for m, meta, d in zip(self.models, self.metas, self.shift)]
         hw = per[0].shape[1:3]

@@ -271,10 +271,10 @@ def estimate(info: dict, cfg, task: str = "hdr-video", windows: list | None = No
     :class:`~layercam.engine.resolve.Resolved`): ``{"memory": bytes, "disk": bytes, "stages": {stage:
     bytes}, "disk_parts": {...}, "params": {...}, "largest": str, "settings": str}``; ``largest``
     names the costliest stage or part and ``settings`` what sizes it. ``windows``: a long clip's
-    windows ``[(a, b), ...]`` (``pipelines/windows.py``): one model of the longest window at a time
+    windows ``[(a, b), ...]`` (``layercam.pipelines.windows``): one model of the longest window at a time
     in memory; on disk each window's masks, checkpoints and outputs, besides the joined outputs.
     ``extent``: how many frame pixels the widest window's frames span across its atlas, as the flow
-    measured it (``pipelines.window_plan.extent``); None: the widest it can be (:func:`widest_atlas`)."""
+    measured it (``layercam.pipelines.windows.plan.extent``); None: the widest it can be (:func:`widest_atlas`)."""
     from layercam.vision.analyse import MOTION_PAIRS
     from layercam.vision.scale import working_size
     from layercam.vision.segment import WORK_SHORT

@@ -234,7 +234,7 @@ TABLE_KEYS = ("window", "static", "train.steps", "scene.grid_levels", "export.me
 def format_table(r: Resolved, windows: int = 1) -> str:
     """The analysis table a run prints: the model's components, then every other resolved setting
     that has a reason, one line each: name, value, why (``window``: a long clip's ``windows``,
-    ``pipelines/windows.py``)."""
+    ``layercam.pipelines.windows``)."""
     from layercam.engine.decide import MODEL_KEYS, model_summary
 
     summary = model_summary(r.settings)

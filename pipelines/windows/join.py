@@ -1,180 +1,23 @@
-"""Long clips as overlapping windows, each its own model, sharing one camera.
-
-A clip longer than one model holds (:func:`plan`: the analysis's rule, or ``--window N``) is cut
-into overlapping windows of frames. Each window is a run of the ordinary stages (bootstrap,
-train, export) in its own folder ``RUN/cache/windows/<first>-<end>/``
-(its own stage cache: each window resumes on its own), on its slice of the clip and of the whole
-clip's flow, with the model the analysis decided once for the whole clip. The camera is learned
-once: window 0 trains as a single model would, and the others start from its tone mapper (and
-its learned exposure ratios, ``--exposures alt`` without ``--ev-step``) and hold them fixed, so
-that every window renders through the same response curve and exposures (the train stage's key
-names window 0's training, :func:`layercam.pipelines.stages.hold_camera`). Window 0 runs first; the others do not depend on
-one another (``--ray``: tasks on a Ray cluster, ``layercam.engine.cluster``).
-
-The windows' outputs are then joined by the ``windows`` stage (:class:`WindowsStage`): in the
-overlap of windows ``k`` and ``k + 1`` (frames ``a_(k+1) .. b_k - 1``) each frame is the
-cross-fade ``(1 - w) X_k + w X_(k+1)`` of the linear fade ``f = (t - a_(k+1) + 1) / (overlap + 1)``
-weighted per pixel by each window's fit to the overlap's frames (:func:`~layercam.pipelines.windows.plan.overlap_fits`,
-:meth:`Plan.weights`; kept in ``windows/fits.npz`` for ``render`` and ``edit``) of the
-linear HDR (``hdr/``), the sharp frames (``frames/``, as floats before they are quantised) and the
-foreground's alpha mattes (``alpha/``); the preview is tonemapped once over the joined clip. Each
-window's own outputs for ``layercam render`` and ``edit`` (``checkpoint.pt``, ``atlases/``,
-``psf.json``) are published under ``windows/w00/``, ... and ``windows.json`` says which frames
-each window holds and how they are joined. The top of the run folder stays one set (the blend
-stage's folder, published as every run's).
-"""
+"""The ``windows`` stage: the windows' outputs joined into the clip's (the package's docstring:
+a cross-fade over each overlap weighted per pixel by each window's fit), each window's own outputs
+published under ``windows/w00/``, ... and ``windows.json`` written."""
 
 from __future__ import annotations
 
-import json
 import math
 import shutil
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from layercam.core.config import config_hash
-from layercam.core.errors import LayercamError
 from layercam.core.interrupts import reached
-from layercam.pipelines.results import FlowResult
-from layercam.pipelines.runner import Context, Stage, run_stages, write_json
-from layercam.pipelines.windows.plan import Plan, overlap_fits, per_pixel, rows, sub_clip, sub_exposures, sub_flow
-
-INDEX = "windows.json"
-FOLDER = "windows"  # RUN/windows/w00/: each window's checkpoint.pt, atlases/, psf.json
-PER_WINDOW = ("checkpoint.pt", "atlases", "psf.json")
-FITS = "fits.npz"  # RUN/windows/fits.npz: each window's fit to each overlap per pixel (w<k>_o<j>), the join's weights
+from layercam.pipelines.runner import Stage, write_json
+from layercam.pipelines.windows.index import FITS, FOLDER, INDEX, PER_WINDOW
+from layercam.pipelines.windows.plan import Plan, overlap_fits, per_pixel
 
 
-@dataclass
-class WindowSpec:
-    """What one window's run needs (picklable: a Ray task receives it)."""
-
-    index: int
-    a: int
-    b: int
-    run_dir: str
-    task: str
-    clip: object
-    exposures: object
-    cfg: object
-    resolved: object
-    masks: object
-    flow: object                    # the window's layercam.vision.flow_store.FlowArrays (views), None for one frame
-    flow_key: str
-    flow_summary: dict
-    measures: dict
-    clip_levels: object
-    camera: dict | None = None
-    progress: bool = False
-    threads: int = 0  # torch threads in a task of its own (0: as the process has them)
-
-
-def window_dir(run_dir: Path, a: int, b: int) -> Path:
-    return Path(run_dir) / "cache" / "windows" / f"{a:05d}-{b:05d}"
-
-
-def specs(ctx: Context, p: Plan) -> list[WindowSpec]:
-    from layercam.pipelines.stages import ctx_clip_levels
-
-    lv = ctx_clip_levels(ctx)
-    out = []
-    for k, (a, b) in enumerate(p.windows):
-        out.append(WindowSpec(
-            k, a, b, str(window_dir(ctx.run_dir, a, b)), ctx.task, sub_clip(ctx.clip, a, b), sub_exposures(ctx.exposures, a, b), ctx.cfg, ctx.resolved,
-            None if ctx.masks is None else rows(ctx.masks, a, b), sub_flow(ctx.flow, a, b),
-            config_hash({"flow": ctx.keys["flow"], "window": [a, b]})[:12], ctx.results["flow"].summary,
-            ctx.measures, lv, progress=ctx.progress,
-        ))
-    return out
-
-
-def run_window(spec: WindowSpec) -> dict:
-    """One window's stages (bootstrap, train, export) in its own folder;
-    returns what the joining stage and the report need (JSON-able)."""
-    from layercam.pipelines.export import ExportStage
-    from layercam.pipelines.stages import BootstrapStage, TrainStage
-    from layercam.pipelines.stages import faded_foreground
-
-    if spec.threads:
-        import torch
-
-        torch.set_num_threads(spec.threads)
-    ctx = Context(run_dir=Path(spec.run_dir), clip=spec.clip, exposures=spec.exposures, cfg=spec.cfg, task=spec.task, masks=spec.masks,
-                  progress=spec.progress, measures=spec.measures, resolved=spec.resolved, flow=spec.flow)
-    ctx.camera, ctx.window = spec.camera, (spec.a, spec.b)
-    ctx.keys["flow"] = spec.flow_key
-    ctx.results["flow"] = FlowResult(dict(spec.flow_summary))
-    ctx.clip_levels = spec.clip_levels
-    ctx.say(f"[window {spec.index}] frames {spec.a}..{spec.b - 1} in {ctx.run_dir}")
-    run_stages(ctx, [BootstrapStage()])
-    run_stages(ctx, [TrainStage(), ExportStage()])
-    faded = faded_foreground(ctx)
-    return {
-        "index": spec.index, "frames": [spec.a, spec.b], "folder": spec.run_dir,
-        "keys": dict(ctx.keys), "dirs": {k: str(v) for k, v in ctx.dirs.items()}, "times": ctx.times,
-        "train": ctx.results["train"].report(), "export": ctx.results["export"].report(),
-        "warnings": list(ctx.warnings) + ([faded] if faded else []), "static": ctx.results["bootstrap"].static,
-    }
-
-
-# -- the shared camera ---------------------------------------------------------------------------------
-def camera_from(result: dict, learn: str) -> dict:
-    """Window 0's camera from its training's final checkpoint: the tone mapper's parameters and,
-    where the exposures are learned per phase, their offsets. ``key``: window 0's training."""
-    import torch
-
-    state = torch.load(Path(result["dirs"]["train"]) / "ckpt.pt", map_location="cpu", weights_only=False)["model"]
-    keep = {k: v for k, v in state.items() if k.startswith("tone.") or (learn == "ratio" and k == "exposure.delta")}
-    return {"state": keep, "key": result["keys"]["train"]}
-
-
-# -- all windows ----------------------------------------------------------------------------------------
-def run_all(ctx: Context, p: Plan, ray: str | None = None) -> list[dict]:
-    """Window 0, then the others (in sequence, or as Ray tasks with ``ray``), each with window 0's
-    camera. Returns each window's :func:`run_window` summary, in order."""
-    todo = specs(ctx, p)
-    runner = None
-    if ray:
-        from layercam.engine import cluster
-
-        runner = cluster.Runner(ray, ctx.say)
-        ctx.ray = runner.describe
-        from layercam.io.frames import TempArray
-
-        for s in todo:
-            s.progress, s.threads = False, runner.threads
-            if isinstance(s.masks, TempArray):  # an unlinked file no other process can open: the window's masks sent as they are
-                s.masks = np.asarray(s.masks)
-    first = runner.map(_in_turn, todo[:1])[0] if runner else _in_turn(todo[0])
-    camera = camera_from(first, ctx.exposures.learn) if ctx.resolved.settings.model.tone_mapper == "learned" else None
-    for s in todo[1:]:
-        s.camera = camera
-    rest = runner.map(_in_turn, todo[1:]) if runner else [_in_turn(s) for s in todo[1:]]
-    return [first, *rest]
-
-
-def _in_turn(spec: WindowSpec) -> dict:
-    """:func:`run_window`, then what it freed given back (its objects' cycles collected, the heap
-    trimmed), so that the memory held does not grow window after window in this process or in a
-    Ray worker that runs several windows."""
-    from layercam.core.heap import give_back_freed_memory
-
-    out = run_window(spec)
-    give_back_freed_memory()
-    return out
-
-
-def train_summary(results: list[dict]) -> dict:
-    """The report's ``train``: each window's, and their steps together."""
-    tr = [r["train"] for r in results]
-    return {"steps": int(sum(t.get("steps", 0) for t in tr)), "windows": tr, "final_loss": None, "resumed_from": [t.get("resumed_from") for t in tr]}
-
-
-# -- joining --------------------------------------------------------------------------------------------
 class WindowsStage(Stage):
-    """Joins the windows' outputs into the clip's (this module's docstring)."""
+    """Joins the windows' outputs into the clip's (the package's docstring)."""
 
     name = "windows"
     deps = ("flow",)
@@ -344,42 +187,3 @@ def _link(src: Path, dst: Path) -> None:
         _link_or_copy(str(src), str(dst))
 
 
-# -- reading a windowed run (render, edit) -------------------------------------------------------------
-def read_index(run: Path) -> dict | None:
-    """A published run's ``windows.json`` (None for a run of one model)."""
-    p = Path(run) / INDEX
-    if not p.is_file():
-        return None
-    try:
-        return json.loads(p.read_text())
-    except (OSError, ValueError):
-        raise LayercamError(f"{p} is unreadable") from None
-
-
-def index_plan(index: dict, run: Path | None = None) -> Plan:
-    """The plan a published run was joined with (its windows and, from ``run``'s ``windows/fits.npz``,
-    their fits to the overlaps)."""
-    fits = {}
-    path = Path(run) / FOLDER / FITS if run is not None else None
-    if path is not None and path.is_file():
-        with np.load(path) as z:
-            fits = {tuple(int(v) for v in n[1:].split("_o")): z[n] for n in z.files}
-    return Plan([tuple(w["frames"]) for w in index["windows"]], index.get("reason", ""), fits=fits)
-
-
-def window_folders(run: Path, index: dict) -> list[Path]:
-    return [Path(run) / w["folder"] for w in index["windows"]]
-
-
-def index_gains(index: dict) -> list[float]:
-    """Each window's HDR scale relative to window 0's (``hdr_gain``: 1 where the camera is shared)."""
-    return [float(w.get("hdr_gain", 1.0)) for w in index["windows"]]
-
-
-def clip_reference(models, gains: list[float] | None = None) -> float:
-    """The clip's reference exposure over windows (each frame once), in window 0's scale: the
-    median of every frame's log2 exposure, as ``ExposureField.reference`` is for a single model.
-    A window whose irradiance is ``gain`` times window 0's sees its frames at ``log2 gain`` more."""
-    gains = gains or [1.0] * len(models)
-    vals = [m.exposure.values().detach().float().cpu().numpy() + np.log2(g) for m, g in zip(models, gains)]
-    return float(np.median(np.concatenate(vals)))

@@ -55,7 +55,7 @@ def test_rows_of_a_disk_array_are_a_view_that_reads_and_travels(tmp_path):
 
 
 def test_a_window_of_a_clip_on_disk_reads_nothing(tmp_path):
-    """A long clip's window (pipelines/windows.py) holds its frames, masks and flow as views of the
+    """A long clip's window (layercam.pipelines.windows) holds its frames, masks and flow as views of the
     whole clip's files."""
     from layercam.io import load_clip
     from layercam.pipelines.windows.plan import rows

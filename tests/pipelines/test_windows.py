@@ -1,4 +1,4 @@
-"""A long clip as overlapping windows (pipelines/windows.py): the plan, the shared camera, the join,
+"""A long clip as overlapping windows (layercam.pipelines.windows): the plan, the shared camera, the join,
 render and edit on a windowed run, and a windowed run interrupted anywhere (SIGKILL, Ctrl-C) that
 finishes as if never interrupted."""
 
@@ -16,7 +16,7 @@ from hypothesis import strategies as st
 
 from layercam.cli import main
 from layercam.io import read_exr
-from layercam.pipelines.windows.join import join as windows, plan as window_plan
+from layercam.pipelines.windows import index as windows, plan as window_plan
 
 from conftest import tiny_argv
 

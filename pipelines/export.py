@@ -196,7 +196,7 @@ def hdr_video(ctx: Context, model, paths: list[Path], dest: Path) -> dict:
     diffuse white (:func:`layercam.scene.render.white_radiance`) at ``export.nits_white``; with an ffmpeg
     that cannot write one, a warning naming what it lacks, and none (as ``hdr_format=none``)."""
     from layercam.io import read_exr
-    from layercam.io.clip import primaries_of
+    from layercam.io.inputs import primaries_of
     from layercam.io.hdr_video import ANCHOR, MIN_SIDE, missing_for_hdr, write_hdr_video
     from layercam.io.video import ffmpeg_exe
     from layercam.scene.render import white_radiance

@@ -41,7 +41,7 @@ def _fps(ctx: Context) -> float:
 
 def audio(ctx: Context) -> dict | None:
     """The sound the run's videos carry over from the input (``clip.meta["audio"]``,
-    :func:`layercam.io.clip.audio_plan`); None without."""
+    :func:`layercam.io.inputs.audio_plan`); None without."""
     return ctx.clip.meta.get("audio")
 
 

@@ -291,7 +291,7 @@ def model_meta(ctx: Context) -> dict:
         "n_frames": ctx.clip.T,
         "names": list(ctx.clip.names),
         "fps": float(ctx.clip.fps or 24.0),
-        "audio": ctx.clip.meta.get("audio"),  # the sound `render` and `edit` carry over (layercam.io.clip.audio_plan)
+        "audio": ctx.clip.meta.get("audio"),  # the sound `render` and `edit` carry over (layercam.io.inputs.audio_plan)
         "primaries": (ctx.clip.meta.get("primaries") or {}).get("name", "bt709"),
         "task": ctx.task,
         "source": str(ctx.clip.source),

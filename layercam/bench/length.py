@@ -78,7 +78,7 @@ def long_clip(frames_dir: Path, n: int, out: Path, size: tuple[int, int] | None 
     import cv2
 
     from layercam.io import VideoWriter
-    from layercam.io.clip import natural_key
+    from layercam.io.inputs import natural_key
 
     out = Path(out)
     if out.exists():
@@ -102,7 +102,7 @@ def long_masks(masks_dir: Path, n: int, out: Path, size: tuple[int, int] | None 
     folder of ``n`` PNGs (nearest-neighbour resized to ``size = (W, H)``), for ``--masks``."""
     import cv2
 
-    from layercam.io.clip import natural_key
+    from layercam.io.inputs import natural_key
 
     out = Path(out)
     if out.is_dir() and len(list(out.glob("*.png"))) == n:

@@ -135,7 +135,7 @@ def _check_ev(ev: float | None) -> None:
 
 def run_audio(meta: dict, fps: float) -> dict | None:
     """The sound a video of the run's frames at ``fps`` carries over: the run's (its checkpoint's
-    ``audio``, :func:`layercam.io.clip.audio_plan`) when ``fps`` is the input's, else None."""
+    ``audio``, :func:`layercam.io.inputs.audio_plan`) when ``fps`` is the input's, else None."""
     a = meta.get("audio")
     return a if a and abs(float(fps) - float(meta.get("fps") or 24.0)) < 1e-6 else None
 

@@ -43,7 +43,7 @@ from layercam.io.hdr_set import HALF_MAX, HdrSet, write_hdr_set
 from layercam.pipelines.view import VIEW_MIN_DB, view_check, view_sigma
 from layercam.pipelines.windows.plan import area, fit_maps
 from layercam.vision.scale import size_within
-from layercam.pipelines.export_context import _bits, _fps, _frames, _sound, audio, exposures_vary, resolve_reference
+from layercam.pipelines.media import _bits, _fps, _frames, _sound, audio, exposures_vary, resolve_reference
 
 CHECKPOINT_NAME = "checkpoint.pt"
 

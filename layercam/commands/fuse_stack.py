@@ -60,7 +60,7 @@ def pick_exposures(spec: str, clip):
 def run(args) -> int:
     from layercam.core.errors import LayercamError
     from layercam.cli import before_stages, open_clip
-    from layercam.pipelines.export_context import resolve_reference
+    from layercam.pipelines.media import resolve_reference
     from layercam.pipelines.tasks import run_task
 
     if args.reference is not None:

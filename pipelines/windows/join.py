@@ -37,7 +37,7 @@ class WindowsStage(Stage):
         return {"plan": self.plan.to_dict()["windows"], "exports": [r["keys"]["export"] for r in self.results]}
 
     def run(self, ctx, out):
-        from layercam.pipelines.export_context import exposures_vary
+        from layercam.pipelines.media import exposures_vary
 
         p, res = self.plan, self.results
         dirs = [Path(r["dirs"]["export"]) for r in res]
@@ -111,7 +111,7 @@ class WindowsStage(Stage):
         from layercam.core.colour import REC709, luma
         from layercam.io import VideoWriter, read_exr
         from layercam.pipelines.export import FIRST_PASS_PIXELS
-        from layercam.pipelines.export_context import _fps
+        from layercam.pipelines.media import _fps
         from layercam.io.hdr_set import HALF_MAX, HdrSet
 
         def read(d, i):
@@ -134,7 +134,7 @@ class WindowsStage(Stage):
 
     def _sharp(self, ctx, out, dirs, gains, with_hdr: bool) -> dict:
         from layercam.io import VideoWriter, read_exr, write_png
-        from layercam.pipelines.export_context import _bits, _fps
+        from layercam.pipelines.media import _bits, _fps
         from layercam.io.hdr_set import HdrSet
 
         sharp = [np.load(d / "deblurred.npy", mmap_mode="r") for d in dirs]

@@ -22,7 +22,7 @@ writer                writes
 ====================  ======================================================================
 
 Every video keeps the input's frame rate and carries its sound over
-(:func:`audio`). Every writer is ``writer(ctx, model, dest, cache) -> dict`` (its part of the export summary): it
+(:func:`layercam.pipelines.media.audio`). Every writer is ``writer(ctx, model, dest, cache) -> dict`` (its part of the export summary): it
 writes its outputs into ``dest`` and what the evaluate stage reads into ``cache``. Both are the
 stage's cache folder: an interrupted export is redone there, and the finished outputs are published
 to the top of the run folder with the report, as one set, when the run ends
@@ -37,13 +37,14 @@ from pathlib import Path
 import numpy as np
 
 from layercam.core.errors import LayercamError
+from layercam.core.geometry import reference_index
 from layercam.core.interrupts import reached
 from layercam.pipelines.runner import Context, Stage, write_json
 from layercam.io.hdr_set import HALF_MAX, HdrSet, write_hdr_set
 from layercam.pipelines.view import VIEW_MIN_DB, view_check, view_sigma
 from layercam.pipelines.windows.plan import area, fit_maps
 from layercam.vision.scale import size_within
-from layercam.pipelines.media import _bits, _fps, _frames, _sound, audio, exposures_vary, resolve_reference
+from layercam.pipelines import media
 
 CHECKPOINT_NAME = "checkpoint.pt"
 
@@ -65,7 +66,7 @@ def first_pass(ctx: Context, model) -> tuple[dict, float]:
 
     hw = size_within((ctx.clip.H, ctx.clip.W), min(FIRST_PASS_PIXELS, FIRST_PASS_TOTAL // ctx.clip.T))
     lum, peak = [], 0.0
-    for t in _frames(ctx, "export (first pass)"):
+    for t in ctx.frames_bar("export (first pass)"):
         hdr = render.render_frame(model, t, hw, ("hdr",))["hdr"]
         if not np.isfinite(hdr).all():
             raise LayercamError(f"frame_{t:05d}.exr: the model rendered non-finite irradiance; not writing it")
@@ -175,8 +176,8 @@ def hdr_writer(ctx: Context, model, dest: Path, cache: Path, atlas=None) -> dict
     exrs = HdrSet(ctx.resolved.settings.export.half and peak <= HALF_MAX, ctx.say)
     (dest / "hdr").mkdir(exist_ok=True)
     infos, fits = [], None
-    with VideoWriter(dest / "preview.mp4", fps=_fps(ctx), audio=audio(ctx)) as preview:
-        for t, hdr, info in faithful_hdr(ctx, model, _frames(ctx), None if atlas is None else atlas.add):
+    with VideoWriter(dest / "preview.mp4", fps=media.fps(ctx), audio=media.audio(ctx)) as preview:
+        for t, hdr, info in faithful_hdr(ctx, model, ctx.frames_bar(), None if atlas is None else atlas.add):
             exrs.add(dest / "hdr" / f"frame_{t:05d}.exr", hdr)
             preview.add(render.tonemap_display(hdr, stats)[0])
             fit = info.pop("fit_map", None)
@@ -188,7 +189,7 @@ def hdr_writer(ctx: Context, model, dest: Path, cache: Path, atlas=None) -> dict
         fits.flush()
         del fits
     return {"frames": int(ctx.clip.T), "hdr_min": exrs.lo, "hdr_max": exrs.hi, "exr": "half" if exrs.half else "float32", "display": stats, **_faithful_summary(infos),
-            "hdr_video": hdr_video(ctx, model, exrs.paths, dest), "fps": _fps(ctx), "sound": _sound(ctx, preview)}
+            "hdr_video": hdr_video(ctx, model, exrs.paths, dest), "fps": media.fps(ctx), "sound": media.sound(ctx, preview)}
 
 
 def hdr_video(ctx: Context, model, paths: list[Path], dest: Path) -> dict:
@@ -213,7 +214,7 @@ def hdr_video(ctx: Context, model, paths: list[Path], dest: Path) -> dict:
         return {"format": "none", "why": f"frames below {MIN_SIDE} px"}
     prim = ctx.clip.meta.get("primaries") or primaries_of(None)
     white = white_radiance(model)
-    info = write_hdr_video(dest / "hdr.mp4", lambda: (read_exr(p) for p in paths), _fps(ctx), fmt, white, ctx.resolved.settings.export.nits_white, prim["name"], audio=audio(ctx), progress=ctx.progress)
+    info = write_hdr_video(dest / "hdr.mp4", lambda: (read_exr(p) for p in paths), media.fps(ctx), fmt, white, ctx.resolved.settings.export.nits_white, prim["name"], audio=media.audio(ctx), progress=ctx.progress)
     if info["audio"] and not info["audio"]["kept"]:
         ctx.warn(f"hdr.mp4 is written without the input's sound: {info['audio']['why']}")
     return {**info, "input_primaries": prim, "anchor": ANCHOR}
@@ -224,15 +225,15 @@ def sharp_writer(ctx: Context, model, dest: Path, cache: Path) -> dict:
     from layercam.io import VideoWriter, write_png
 
     T, hw = ctx.clip.T, (ctx.clip.H, ctx.clip.W)
-    with_hdr = exposures_vary(ctx)
+    with_hdr = ctx.exposures.varies
     exrs = HdrSet(ctx.resolved.settings.export.half, ctx.say)
     (dest / "frames").mkdir(exist_ok=True)
     if with_hdr:
         (dest / "hdr").mkdir(exist_ok=True)
     kept = np.lib.format.open_memmap(cache / "deblurred.npy", mode="w+", dtype=np.float32, shape=(T, *hw, 3))  # for the evaluation, on disk
     sigma, held, fell = view_sigma(ctx), [], []
-    with VideoWriter(dest / "deblurred.mp4", fps=_fps(ctx), audio=audio(ctx)) as video:
-        for t in _frames(ctx):
+    with VideoWriter(dest / "deblurred.mp4", fps=media.fps(ctx), audio=media.audio(ctx)) as video:
+        for t in ctx.frames_bar():
             reached("export", t)
             out = render.render_frame(model, t, hw, ("ldr", "hdr") if with_hdr else ("ldr",))
             ldr = out["ldr"]
@@ -242,7 +243,7 @@ def sharp_writer(ctx: Context, model, dest: Path, cache: Path) -> dict:
             if held[-1] < VIEW_MIN_DB:  # in another view: the input, not a wrong frame
                 fell.append(t)
                 ldr = np.asarray(ctx.clip.frames[t], np.float32)
-            write_png(dest / "frames" / f"frame_{t:05d}.png", ldr, bit_depth=_bits(ctx))
+            write_png(dest / "frames" / f"frame_{t:05d}.png", ldr, bit_depth=media.png_bits(ctx))
             kept[t] = ldr
             video.add(ldr)
             if with_hdr:
@@ -254,7 +255,7 @@ def sharp_writer(ctx: Context, model, dest: Path, cache: Path) -> dict:
                  f"{', '.join(f'{held[t]:.1f}' for t in fell)} dB, under {VIEW_MIN_DB:g}); the input is written for them"
                  + (" (frames/ and deblurred.mp4; hdr/ keeps the render)" if with_hdr else ""))
     view = {"lowpass_sigma_px": sigma, "min_db": VIEW_MIN_DB, "lowpass_psnr_db": held}
-    return {"frames": int(T), "fallback_frames": fell, "view_check": view, "hdr": with_hdr, "hdr_max": exrs.hi if with_hdr else 0.0, "png_bits": _bits(ctx), "fps": _fps(ctx), "sound": _sound(ctx, video)}
+    return {"frames": int(T), "fallback_frames": fell, "view_check": view, "hdr": with_hdr, "hdr_max": exrs.hi if with_hdr else 0.0, "png_bits": media.png_bits(ctx), "fps": media.fps(ctx), "sound": media.sound(ctx, video)}
 
 
 def fused_writer(ctx: Context, model, dest: Path, cache: Path) -> dict:
@@ -262,7 +263,7 @@ def fused_writer(ctx: Context, model, dest: Path, cache: Path) -> dict:
     from layercam.io import write_png
 
     hw = (ctx.clip.H, ctx.clip.W)
-    ref = resolve_reference(ctx.resolved.settings.export.reference, ctx.clip.T)
+    ref = reference_index(ctx.resolved.settings.export.reference, ctx.clip.T)
     _, hdr, info = next(faithful_hdr(ctx, model, [ref]))
     write_hdr_set([dest / "fused.exr"], [hdr], ctx.resolved.settings.export.half, ctx.say)
     np.save(cache / "fused.npy", hdr.astype(np.float32))
@@ -272,7 +273,7 @@ def fused_writer(ctx: Context, model, dest: Path, cache: Path) -> dict:
     else:
         png, stats = render.tonemap_display(hdr)
         how = "Reinhard global tonemap + sRGB"
-    write_png(dest / "fused.png", png, bit_depth=_bits(ctx))
+    write_png(dest / "fused.png", png, bit_depth=media.png_bits(ctx))
     return {"reference": ref, "reference_name": ctx.clip.names[ref], "png": how, "display": stats, "hdr_min": float(hdr.min()), "hdr_max": float(hdr.max()), **_faithful_summary([info])}
 
 
@@ -282,7 +283,7 @@ def atlas_writer(ctx: Context, model, dest: Path, cache: Path, atlas=None) -> di
 
     if atlas is not None:
         return {"atlas": atlas.close()}
-    return {"atlas": export_atlases(model, dest, ctx.clip.frames, fps=_fps(ctx), progress=ctx.progress)}
+    return {"atlas": export_atlases(model, dest, ctx.clip.frames, fps=media.fps(ctx), progress=ctx.progress)}
 
 
 def crf_writer(ctx: Context, model, dest: Path, cache: Path) -> dict:
@@ -316,7 +317,7 @@ def checkpoint_writer(ctx: Context, model, dest: Path, cache: Path) -> dict:
 
     meta = model_meta(ctx)
     if ctx.task == "fuse-stack":
-        meta["reference"] = resolve_reference(ctx.resolved.settings.export.reference, ctx.clip.T)
+        meta["reference"] = reference_index(ctx.resolved.settings.export.reference, ctx.clip.T)
     save_run_model(dest / CHECKPOINT_NAME, model, meta)
     return {}
 
@@ -375,7 +376,7 @@ class ExportStage(Stage):
         if SHARING[0] in names and SHARING[1] in names:  # the HDR frames' renders give the atlases their geometry
             from layercam.pipelines.atlas_export import AtlasSink
 
-            atlas = AtlasSink(model, dest, ctx.clip.frames, fps=_fps(ctx))
+            atlas = AtlasSink(model, dest, ctx.clip.frames, fps=media.fps(ctx))
         try:
             for name in names:
                 if name == "crf":

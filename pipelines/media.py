@@ -1,41 +1,13 @@
-"""What the export's writers read of a run's context: the frames' range with a progress bar, the
-frame rate, the sound, the bit depth of the PNGs, whether exposures vary, and a stack's reference view."""
+"""What a run's outputs keep of the input's media: its frame rate, its sound and the bit depth of
+its PNGs."""
 
 from __future__ import annotations
 
-from layercam.core.errors import LayercamError
 from layercam.pipelines.runner import Context
 
 
-def exposures_vary(ctx: Context) -> bool:
-    return ctx.exposures.count_distinct > 1 or ctx.exposures.learn != "none"
-
-
-def resolve_reference(ref, n: int) -> int:
-    """The image a stack is fused into (``export.reference``): "middle" (default,
-    :func:`layercam.core.geometry.middle_frame`), "first", "last" or an index (negative counts from the
-    end) among ``n`` images."""
-    from layercam.core.geometry import middle_frame
-
-    named = {"middle": middle_frame(n), "first": 0, "last": n - 1}
-    if isinstance(ref, str) and ref.strip().lower() in named:
-        return named[ref.strip().lower()]
-    try:
-        i = int(ref)
-    except (TypeError, ValueError):
-        raise LayercamError(f"reference must be middle, first, last or an image index, got {ref!r}") from None
-    if not -n <= i < n:
-        raise LayercamError(f"reference image {i} is out of range for {n} images")
-    return i % n
-
-
-def _frames(ctx: Context, desc: str = "export"):
-    from layercam.core.progress import bar
-
-    return bar(range(ctx.clip.T), desc=desc, unit="frame", enabled=ctx.progress)
-
-
-def _fps(ctx: Context) -> float:
+def fps(ctx: Context) -> float:
+    """The frame rate of every video a run writes: the input's (24 where it has none)."""
     return float(ctx.clip.fps or 24.0)
 
 
@@ -45,7 +17,7 @@ def audio(ctx: Context) -> dict | None:
     return ctx.clip.meta.get("audio")
 
 
-def _sound(ctx: Context, video) -> dict:
+def sound(ctx: Context, video) -> dict:
     """What became of the sound in ``video`` (a finished :class:`VideoWriter`), for the summary;
     a sound that could not be kept is said."""
     info = video.audio_info
@@ -56,5 +28,6 @@ def _sound(ctx: Context, video) -> dict:
     return {video.path.name: info}
 
 
-def _bits(ctx: Context) -> int:
+def png_bits(ctx: Context) -> int:
+    """The bit depth of the PNGs a run writes: 16 for an input of more than 8 bits, else 8."""
     return 16 if ctx.clip.bit_depth > 8 else 8

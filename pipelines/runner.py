@@ -71,6 +71,12 @@ class Context:
         if distributed.is_main():
             print(f"warning: {msg}", file=sys.stderr, flush=True)
 
+    def frames_bar(self, desc: str = "export"):
+        """The clip's frame indices, with a progress bar when the run shows progress."""
+        from layercam.core.progress import bar
+
+        return bar(range(self.clip.T), desc=desc, unit="frame", enabled=self.progress)
+
 
 class Stage:
     """A named, cached step. Subclasses set ``name``, ``deps``, ``reads`` (what of the resolved

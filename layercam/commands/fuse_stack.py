@@ -60,7 +60,7 @@ def pick_exposures(spec: str, clip):
 def run(args) -> int:
     from layercam.core.errors import LayercamError
     from layercam.cli import before_stages, open_clip
-    from layercam.pipelines.media import resolve_reference
+    from layercam.core.geometry import reference_index
     from layercam.pipelines.tasks import run_task
 
     if args.reference is not None:
@@ -71,7 +71,7 @@ def run(args) -> int:
         clip = open_clip(args, cfg, out, "fuse-stack", args.resize)
         if clip.T < 2:
             raise LayercamError(f"fuse-stack needs at least 2 images, got {clip.T}")
-        resolve_reference(cfg.export.reference, clip.T)  # a bad --reference fails now, not after training
+        reference_index(cfg.export.reference, clip.T)  # a bad --reference fails now, not after training
         exposures = pick_exposures(args.exposures, clip)
     ctx = run_task("fuse-stack", clip, exposures, cfg, out, progress=not args.quiet)
     finish(ctx)

@@ -70,6 +70,23 @@ def middle_frame(n: int) -> int:
     return int(n) // 2
 
 
+def reference_index(ref, n: int) -> int:
+    """The image a stack is fused into (``export.reference``) among ``n``: "middle" (the default,
+    :func:`middle_frame`), "first", "last" or an index (negative counts from the end)."""
+    from layercam.core.errors import LayercamError
+
+    named = {"middle": middle_frame(n), "first": 0, "last": n - 1}
+    if isinstance(ref, str) and ref.strip().lower() in named:
+        return named[ref.strip().lower()]
+    try:
+        i = int(ref)
+    except (TypeError, ValueError):
+        raise LayercamError(f"reference must be middle, first, last or an image index, got {ref!r}") from None
+    if not -n <= i < n:
+        raise LayercamError(f"reference image {i} is out of range for {n} images")
+    return i % n
+
+
 def normalised_frame_matrix(h: int, w: int) -> np.ndarray:
     """Pixel coordinates -> normalised ``[-1, 1]`` coordinates (this module's conventions)."""
     return np.array([[2.0 / w, 0, 1.0 / w - 1], [0, 2.0 / h, 1.0 / h - 1], [0, 0, 1]], dtype=np.float64)

@@ -78,6 +78,11 @@ class Exposures:
             return 0
         return int(1 + np.count_nonzero(np.diff(vals) > 0.1))
 
+    @property
+    def varies(self) -> bool:
+        """The frames' exposures differ, given or to be learned (a sharp clip then has an HDR too)."""
+        return self.count_distinct > 1 or self.learn != "none"
+
 
 # ----------------------------------------------------------------------------- measurement
 

@@ -37,8 +37,6 @@ class WindowsStage(Stage):
         return {"plan": self.plan.to_dict()["windows"], "exports": [r["keys"]["export"] for r in self.results]}
 
     def run(self, ctx, out):
-        from layercam.pipelines.media import exposures_vary
-
         p, res = self.plan, self.results
         dirs = [Path(r["dirs"]["export"]) for r in res]
         summary: dict = {"windows": p.count}
@@ -47,7 +45,7 @@ class WindowsStage(Stage):
         if (dirs[0] / "hdr").is_dir() and ctx.task != "deblur-video":
             summary.update(self._hdr(ctx, out, dirs, gains))
         if ctx.task == "deblur-video":
-            summary.update(self._sharp(ctx, out, dirs, gains, exposures_vary(ctx)))
+            summary.update(self._sharp(ctx, out, dirs, gains, ctx.exposures.varies))
         if (dirs[0] / "alpha").is_dir():
             self._alpha(ctx, out, dirs)
         for n in ("crf.json", "crf.png"):
@@ -111,7 +109,7 @@ class WindowsStage(Stage):
         from layercam.core.colour import REC709, luma
         from layercam.io import VideoWriter, read_exr
         from layercam.pipelines.export import FIRST_PASS_PIXELS
-        from layercam.pipelines.media import _fps
+        from layercam.pipelines import media
         from layercam.io.hdr_set import HALF_MAX, HdrSet
 
         def read(d, i):
@@ -126,7 +124,7 @@ class WindowsStage(Stage):
         stats = render.display_stats(np.concatenate(lum))
         exrs = HdrSet(ctx.resolved.settings.export.half and peak <= HALF_MAX, ctx.say)
         (out / "hdr").mkdir(exist_ok=True)
-        with VideoWriter(out / "preview.mp4", fps=_fps(ctx)) as preview:
+        with VideoWriter(out / "preview.mp4", fps=media.fps(ctx)) as preview:
             for t, hdr in self._frames(ctx, dirs, gains, read):
                 exrs.add(out / "hdr" / f"frame_{t:05d}.exr", hdr)
                 preview.add(render.tonemap_display(hdr, stats)[0])
@@ -134,7 +132,7 @@ class WindowsStage(Stage):
 
     def _sharp(self, ctx, out, dirs, gains, with_hdr: bool) -> dict:
         from layercam.io import VideoWriter, read_exr, write_png
-        from layercam.pipelines.media import _bits, _fps
+        from layercam.pipelines import media
         from layercam.io.hdr_set import HdrSet
 
         sharp = [np.load(d / "deblurred.npy", mmap_mode="r") for d in dirs]
@@ -142,15 +140,15 @@ class WindowsStage(Stage):
         (out / "frames").mkdir(exist_ok=True)
         kept = np.lib.format.open_memmap(out / "deblurred.npy", mode="w+", dtype=np.float32, shape=(T, *hw, 3))
         index = {d: k for k, d in enumerate(dirs)}
-        with VideoWriter(out / "deblurred.mp4", fps=_fps(ctx)) as video:
+        with VideoWriter(out / "deblurred.mp4", fps=media.fps(ctx)) as video:
             for t, ldr in self._frames(ctx, dirs, [1.0] * len(dirs), lambda d, i: np.asarray(sharp[index[d]][i], np.float32)):
                 ldr = np.clip(ldr, 0.0, 1.0)
-                write_png(out / "frames" / f"frame_{t:05d}.png", ldr, bit_depth=_bits(ctx))
+                write_png(out / "frames" / f"frame_{t:05d}.png", ldr, bit_depth=media.png_bits(ctx))
                 kept[t] = ldr
                 video.add(ldr)
         kept.flush()
         del kept, sharp
-        res = {"frames": int(T), "hdr": with_hdr, "png_bits": _bits(ctx)}
+        res = {"frames": int(T), "hdr": with_hdr, "png_bits": media.png_bits(ctx)}
         if with_hdr:
             exrs = HdrSet(ctx.resolved.settings.export.half, ctx.say)
             (out / "hdr").mkdir(exist_ok=True)

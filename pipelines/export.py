@@ -199,7 +199,7 @@ def hdr_video(ctx: Context, model, paths: list[Path], dest: Path) -> dict:
     from layercam.io import read_exr
     from layercam.io.inputs import primaries_of
     from layercam.io.hdr_video import ANCHOR, MIN_SIDE, missing_for_hdr, write_hdr_video
-    from layercam.io.video import ffmpeg_exe
+    from layercam.io.ffmpeg import ffmpeg_exe
     from layercam.scene.render import white_radiance
 
     fmt = ctx.resolved.settings.export.hdr_format

@@ -63,7 +63,8 @@ def round_trip(run: Path, video: Path) -> dict:
     """hdr.mp4 (or an HLG one) back to radiance against the run's EXRs: median relative errors."""
     from layercam.core.bt2100 import eetf, primaries_matrix
     from layercam.io import read_exr
-    from layercam.io.hdr_video import HdrMapping, read_hdr_video
+    from layercam.io.hdr_video import HdrMapping
+    from layercam.io.hdr_video_read import read_hdr_video
 
     info = json.loads((run / "report.json").read_text())["export"]["hdr_video"] if video.name == "hdr.mp4" else json.loads(video.with_suffix(".json").read_text())
     exr = np.stack([read_exr(p) for p in sorted((run / "hdr").glob("frame_*.exr"))])
@@ -90,7 +91,7 @@ def figure(run: Path, out: Path, frame: int) -> None:
 
     from layercam.io import read_video
     from layercam.io.atomic import atomic_write
-    from layercam.io.hdr_video import read_hdr_video, sdr_view
+    from layercam.io.hdr_video_read import read_hdr_video, sdr_view
 
     previews = read_video(run / "preview.mp4")[0]
     frame = min(frame, len(previews) - 1)

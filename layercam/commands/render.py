@@ -293,7 +293,7 @@ def _render(args) -> int:
         if len(hdr_frames) != T:
             raise LayercamError(f"{args.run}: --hdr-format needs the run's linear HDR frames, hdr/frame_*.exr ({T}); found {len(hdr_frames)} (hdr-video runs have them)")
         from layercam.io.hdr_video import missing_for_hdr
-        from layercam.io.video import ffmpeg_exe
+        from layercam.io.ffmpeg import ffmpeg_exe
 
         missing = missing_for_hdr()
         if missing:

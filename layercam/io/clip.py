@@ -39,7 +39,7 @@ class Clip:
         colour primaries of the frames' RGB, ffmpeg's name, and whether the input said so or it is
         assumed), ``notes`` (lines said once when a run starts: a dropped alpha channel, a
         variable frame rate, sound dropped), ``paths`` for images; for videos ``video`` (what the
-        input's header says, :func:`layercam.io.video.parse_header`) and ``audio`` (the sound the
+        input's header says, :func:`layercam.io.ffmpeg.parse_header`) and ``audio`` (the sound the
         videos written carry over, :func:`audio_plan`; None without).
     """
 

@@ -2,7 +2,7 @@
 decodes back to the EXRs' radiance; and the input's sound and frame rate kept in every video.
 
 Real encodes and decodes through the bundled ffmpeg (which has no ffprobe: the stream properties are
-read from ``ffmpeg -i`` and the first frame's side data, :func:`layercam.io.hdr_video.probe_video`).
+read from ``ffmpeg -i`` and the first frame's side data, :func:`layercam.io.hdr_video_read.probe_video`).
 """
 
 from __future__ import annotations
@@ -16,8 +16,8 @@ import pytest
 
 from layercam.cli import main
 from layercam.io import read_exr, write_video
-from layercam.io.hdr_video import probe_video, read_hdr_video
-from layercam.io.video import ffmpeg_exe
+from layercam.io.hdr_video_read import probe_video, read_hdr_video
+from layercam.io.ffmpeg import ffmpeg_exe
 
 from conftest import TINY
 

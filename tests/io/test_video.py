@@ -88,7 +88,7 @@ def test_mp4_complete_tells_a_whole_video_from_a_truncated_one(tmp_path):
 def _ffmpeg(*args: str) -> None:
     import subprocess
 
-    from layercam.io.video import ffmpeg_exe
+    from layercam.io.ffmpeg import ffmpeg_exe
 
     subprocess.run([ffmpeg_exe(), "-nostdin", "-hide_banner", "-loglevel", "error", "-y", *args], check=True)
 
@@ -97,7 +97,7 @@ def _tone(path: Path) -> tuple[np.ndarray, int]:
     """The first audio stream of ``path`` decoded to mono float32 at 48 kHz."""
     import subprocess
 
-    from layercam.io.video import ffmpeg_exe
+    from layercam.io.ffmpeg import ffmpeg_exe
 
     pcm = subprocess.run([ffmpeg_exe(), "-nostdin", "-hide_banner", "-loglevel", "error", "-i", str(path), "-map", "0:a:0", "-f", "f32le", "-ac", "1", "-ar", "48000", "-"],
                          capture_output=True, check=True).stdout
@@ -105,14 +105,14 @@ def _tone(path: Path) -> tuple[np.ndarray, int]:
 
 
 def test_rate_text_is_exact_for_ntsc_rates_and_read_video_keeps_them(tmp_path):
-    from layercam.io.video import rate_text
+    from layercam.io.ffmpeg import rate_text
 
     assert rate_text(24.0) == "24" and rate_text(12.5) == "25/2" and rate_text(30000 / 1001) == "30000/1001" and rate_text(24000 / 1001) == "24000/1001"
     _ffmpeg("-f", "lavfi", "-i", "testsrc2=size=32x32:rate=30000/1001", "-frames:v", "5", "-pix_fmt", "yuv420p", str(tmp_path / "ntsc.mp4"))
     frames, fps = read_video(tmp_path / "ntsc.mp4")
     assert fps == pytest.approx(30000 / 1001, abs=1e-9)  # not ffmpeg's printed 29.97
     write_video(tmp_path / "back.mp4", frames, fps=fps)
-    from layercam.io.hdr_video import probe_video
+    from layercam.io.hdr_video_read import probe_video
 
     assert "30000/1001" == rate_text(read_video(tmp_path / "back.mp4")[1]) and probe_video(tmp_path / "back.mp4")["tbr"] == pytest.approx(29.97)
 

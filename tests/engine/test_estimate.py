@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from layercam.core.presets import load_config
-from layercam.engine.estimate import bound, estimate, kept_for_backward
+from layercam.engine.estimate import bound, estimate
+from layercam.engine.model_cost import identity_meta, kept_for_backward
 
 
 def test_kept_for_backward_follows_the_networks_width():
@@ -44,7 +45,6 @@ def test_the_estimate_counts_the_atlas_the_camera_pans_over():
     import torch
 
     from layercam.core.geometry import atlas_mappings, chain_homographies, middle_frame
-    from layercam.engine import estimate as E
     from layercam.engine.checkpoint import build_model
     from layercam.pipelines.windows.plan import extent
     from layercam.scene.layered import derived_sizes
@@ -57,11 +57,11 @@ def test_the_estimate_counts_the_atlas_the_camera_pans_over():
     r = bound(cfg, "hdr-video", T, hw)
     maps = atlas_mappings(*hw, chain_homographies(homs, middle_frame(T)))
     h0 = np.stack([maps] * int(r.settings.model.layers))
-    meta = {**E._identity_meta(r, T, hw), "h0": h0, "sizes": derived_sizes(h0, hw, fine=False)}  # as the run's model derives them
+    meta = {**identity_meta(r, T, hw), "h0": h0, "sizes": derived_sizes(h0, hw, fine=False)}  # as the run's model derives them
     with torch.device("meta"):
         built = sum(p.numel() for p in build_model(r, meta).parameters())
     info = {"frames": T, "width": 64, "height": 64}
     counted = lambda **k: sum(estimate(info, cfg, **k)["params"].values())  # noqa: E731
     with torch.device("meta"):
-        still = sum(p.numel() for p in build_model(r, E._identity_meta(r, T, hw)).parameters())
+        still = sum(p.numel() for p in build_model(r, identity_meta(r, T, hw)).parameters())
     assert counted(extent=px) == built > still and counted() >= built

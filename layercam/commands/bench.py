@@ -103,7 +103,8 @@ def run(args) -> int:
     check_options(args, getattr(args, "bench_defaults", {}))
     if args.suite == "real":
         return _run_real(args)
-    from layercam.bench.synthetic import run_analysis_table, run_bench
+    from layercam.bench.analysis import run_analysis_table
+    from layercam.bench.synthetic import run_bench
 
     out = Path(args.out or "runs/bench")
     if args.table == "scaling":

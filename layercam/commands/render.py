@@ -66,55 +66,6 @@ def register(sub) -> argparse.ArgumentParser:
     return r
 
 
-# -- rendering functions (used by the command and the tests) ----------------------------------------
-def exposure_at(model, f: float) -> float:
-    """log2 exposure at a fractional frame index (linear between neighbouring frames)."""
-    import numpy as np
-
-    v = model.exposure.values().detach().cpu().numpy().astype(np.float64)
-    return float(np.interp(f, np.arange(len(v)), v))
-
-
-def exposure_frames(model, meta: dict, ev: float, keep_blur: bool = False, chunk: int = 65536, z0: float | None = None):
-    """Every frame at ``ev`` stops from the reference exposure (``z0``, default the model's):
-    ``(T, H, W, 3)``."""
-    import numpy as np
-
-    from layercam.scene.render import render_frame
-
-    hw = tuple(meta["frame_hw"])
-    z = (model.exposure.reference() if z0 is None else z0) + ev
-    return np.stack([render_frame(model, t, hw, "ldr", log2_dt=z, blur=keep_blur, chunk=chunk)["ldr"] for t in range(int(meta["n_frames"]))])
-
-
-def exposure_sweep(model, meta: dict, evs, frame: int, keep_blur: bool = False, z0: float | None = None):
-    """One view at each of ``evs`` (stops from the reference exposure, ``z0`` or the model's):
-    ``(N, H, W, 3)``."""
-    import numpy as np
-
-    from layercam.scene.render import render_frame
-
-    hw = tuple(meta["frame_hw"])
-    z0 = model.exposure.reference() if z0 is None else z0
-    return np.stack([render_frame(model, frame, hw, "ldr", log2_dt=z0 + float(e), blur=keep_blur)["ldr"] for e in evs])
-
-
-def focus_sweep(model, meta: dict, fs, frame: int, ev: float | None = None, z0: float | None = None):
-    """One view with the blur of each fractional image index in ``fs``: ``(N, H, W, 3)``; at the
-    exposure interpolated at each ``f``, or at ``ev`` stops from the reference (``z0`` or the
-    model's) when given."""
-    import numpy as np
-
-    from layercam.scene.render import render_frame
-
-    hw = tuple(meta["frame_hw"])
-    out = []
-    for f in fs:
-        z = exposure_at(model, float(f)) if ev is None else (model.exposure.reference() if z0 is None else z0) + ev
-        out.append(render_frame(model, frame, hw, "ldr", log2_dt=z, t_blur=float(f), blur=True)["ldr"])
-    return np.stack(out)
-
-
 # -- command -------------------------------------------------------------------------------------
 def _range(text: str | None, default: tuple[float, float]) -> tuple[float, float]:
     if text is None:
@@ -234,6 +185,8 @@ class _Views:
         joined with its neighbour's by the export's cross-fade."""
         import numpy as np
 
+        from layercam.scene.render import exposure_frames
+
         if self.plan is None:
             return exposure_frames(self.models[0], self.metas[0], ev, keep_blur, z0=self.z0)
         from layercam.pipelines.windows.plan import per_pixel
@@ -258,6 +211,7 @@ def _render(args) -> int:
     from layercam.io.atomic import commit_staged, ensure_writable_dir, staging_dir
     from layercam.pipelines.runner import write_json
     from layercam.engine.resolve import device_of
+    from layercam.scene.render import exposure_sweep, focus_sweep
 
     v = _Views(Path(args.run), device_of(args.device))
     T = v.T

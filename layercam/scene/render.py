@@ -223,3 +223,38 @@ def inverse_tone(model, rgb: np.ndarray, log2_dt: float, z_range: float = 24.0, 
         lo, hi = max(cv[0], 1.0 / 255), min(cv[-1], 254.0 / 255)
         out[..., c] = np.interp(np.clip(rgb[..., c], lo, hi), cv, zs) - float(log2_dt)
     return out
+
+
+# -- the clip again with new camera settings (layercam render) ---------------------------------------
+def exposure_at(model, f: float) -> float:
+    """log2 exposure at a fractional frame index (linear between neighbouring frames)."""
+    v = model.exposure.values().detach().cpu().numpy().astype(np.float64)
+    return float(np.interp(f, np.arange(len(v)), v))
+
+
+def exposure_frames(model, meta: dict, ev: float, keep_blur: bool = False, chunk: int = 65536, z0: float | None = None):
+    """Every frame at ``ev`` stops from the reference exposure (``z0``, default the model's):
+    ``(T, H, W, 3)``."""
+    hw = tuple(meta["frame_hw"])
+    z = (model.exposure.reference() if z0 is None else z0) + ev
+    return np.stack([render_frame(model, t, hw, "ldr", log2_dt=z, blur=keep_blur, chunk=chunk)["ldr"] for t in range(int(meta["n_frames"]))])
+
+
+def exposure_sweep(model, meta: dict, evs, frame: int, keep_blur: bool = False, z0: float | None = None):
+    """One view at each of ``evs`` (stops from the reference exposure, ``z0`` or the model's):
+    ``(N, H, W, 3)``."""
+    hw = tuple(meta["frame_hw"])
+    z0 = model.exposure.reference() if z0 is None else z0
+    return np.stack([render_frame(model, frame, hw, "ldr", log2_dt=z0 + float(e), blur=keep_blur)["ldr"] for e in evs])
+
+
+def focus_sweep(model, meta: dict, fs, frame: int, ev: float | None = None, z0: float | None = None):
+    """One view with the blur of each fractional image index in ``fs``: ``(N, H, W, 3)``; at the
+    exposure interpolated at each ``f``, or at ``ev`` stops from the reference (``z0`` or the
+    model's) when given."""
+    hw = tuple(meta["frame_hw"])
+    out = []
+    for f in fs:
+        z = exposure_at(model, float(f)) if ev is None else (model.exposure.reference() if z0 is None else z0) + ev
+        out.append(render_frame(model, frame, hw, "ldr", log2_dt=z, t_blur=float(f), blur=True)["ldr"])
+    return np.stack(out)

@@ -108,7 +108,7 @@ class WindowsStage(Stage):
         from layercam.scene import render
         from layercam.core.colour import REC709, luma
         from layercam.io import VideoWriter, read_exr
-        from layercam.pipelines.export import FIRST_PASS_PIXELS
+        from layercam.pipelines.hdr_frames import FIRST_PASS_PIXELS
         from layercam.pipelines import media
         from layercam.io.hdr_set import HALF_MAX, HdrSet
 

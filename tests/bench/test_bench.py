@@ -10,7 +10,8 @@ import json
 import numpy as np
 import pytest
 
-from layercam.bench.synthetic import run_analysis_table, speedups, time_to_reach
+from layercam.bench.analysis import run_analysis_table
+from layercam.bench.synthetic import speedups, time_to_reach
 from layercam.cli import main
 
 

@@ -40,7 +40,7 @@ def _load(run):
 
 
 def test_exposure_sweep_is_monotone_per_pixel(stack_run):
-    from layercam.commands.render import exposure_sweep
+    from layercam.scene.render import exposure_sweep
 
     run, _ = stack_run
     model, meta = _load(run)
@@ -73,7 +73,7 @@ def test_focus_interpolation_between_training_images(stack_run):
     between two indices the render moves smoothly from one to the other."""
     import torch
 
-    from layercam.commands.render import exposure_at, focus_sweep
+    from layercam.scene.render import exposure_at, focus_sweep
     from layercam.scene.coords import pixel_grid
 
     run, clip = stack_run

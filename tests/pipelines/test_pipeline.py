@@ -48,7 +48,7 @@ def test_end_to_end_outputs_and_loss_falls(tiny_scene, tiny_exposures, tmp_path)
 
 
 def test_same_command_skips_changed_setting_redoes_dependents(tiny_scene, tiny_exposures, tmp_path):
-    from layercam.pipelines.export import faithful_hdr
+    from layercam.pipelines.hdr_frames import faithful_hdr
 
     run = tmp_path / "run"
     first = _run(tiny_scene, tiny_exposures, run)

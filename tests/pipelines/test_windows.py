@@ -161,7 +161,7 @@ def test_the_join_is_each_windows_hdr_cross_faded_over_the_overlap_by_their_fits
 
 def test_render_on_a_windowed_run(windowed):
     from layercam.engine.checkpoint import load_run_model
-    from layercam.commands.render import exposure_frames
+    from layercam.scene.render import exposure_frames
     from layercam.io import read_image
 
     assert main(["render", str(windowed), "--exposure", "1", "--quiet"]) == 0

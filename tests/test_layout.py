@@ -126,7 +126,6 @@ def test_the_import_reader_sees_every_import(tmp_path):
     assert upward(graph) == ["layercam.scene.a:3 -> layercam.engine.train"]
 
 
-@pytest.mark.xfail(strict=True, reason="docs/architecture.md states the order once the layers hold")
 def test_layers_are_those_of_the_architecture():
     """Every package of layercam is a layer, and docs/architecture.md states them in this order."""
     assert {layer(m) for m in _modules()} == set(LAYERS)

@@ -1,7 +1,8 @@
 """Wrap every source line longer than MAX (120) characters into lines of at most WIDTH (100), the
 rest of the file as it is: ``python .ci/wrap_lines.py [PATH ...]`` (default: layercam pipelines
-configs tests). CI holds the limit with ruff's E501 at 120 (``.ci/run``); this is what makes a tree
-hold it, and it can be run again after a merge (it leaves lines of at most 120 alone).
+configs tests notebooks .ci; a notebook's ``.py`` twin wrapped, ``jupytext --sync`` it). CI holds the
+limit with ruff's E501 at 120 (``.ci/run``); this is what makes a tree hold it, and it can be run
+again after a merge (it leaves lines of at most 120 alone).
 
 Compact, not a formatter's one item per line: a line is split where its outermost brackets allow,
 at commas first (a call's arguments, a literal's items, a signature's parameters), else before
@@ -28,7 +29,8 @@ MAX = 120  # lines longer than this are wrapped ...
 WIDTH = 100  # ... into lines of at most this many characters
 FAR = 40  # a bracket closer than this to WIDTH: its items start on the next line, four spaces in
 OPEN, CLOSE = "([{", ")]}"
-TIERS = (("if", "else", "for"), ("or",), ("and",), ("+", "-"), ("*", "/", "//", "%", "@"), ("**",))  # split before, loosest first
+# split before, loosest first
+TIERS = (("if", "else", "for"), ("or",), ("and",), ("+", "-"), ("*", "/", "//", "%", "@"), ("**",))
 OPERAND_END = (tokenize.NAME, tokenize.NUMBER, tokenize.STRING)
 SKIP = (tokenize.NL, tokenize.NEWLINE, tokenize.INDENT, tokenize.DEDENT, tokenize.ENDMARKER)
 
@@ -172,7 +174,8 @@ def layout(text: str, toks: list[Tok], col: int, cont: int, indent: int) -> list
     return None
 
 
-def _pack(text: str, toks: list[Tok], cuts: list[tuple[int, str]], col: int, cont: int, indent: int) -> list[str] | None:
+def _pack(text: str, toks: list[Tok], cuts: list[tuple[int, str]], col: int, cont: int,
+          indent: int) -> list[str] | None:
     bounds = [0] + [c for c, _ in cuts] + [len(text)]
     joins = [""] + [j for _, j in cuts]
     lines: list[str] = []
@@ -207,8 +210,10 @@ def _pack(text: str, toks: list[Tok], cuts: list[tuple[int, str]], col: int, con
 
 
 def _comment(text: str, indent: int) -> list[str]:
-    body = text.lstrip("#").strip()
-    return [" " * indent + "# " + s for s in textwrap.wrap(body, WIDTH - indent - 2, break_long_words=False, break_on_hyphens=False)]
+    body = text.strip().removeprefix("#").strip()
+    return [" " * indent + "# " + s
+            for s in textwrap.wrap(body, WIDTH - indent - 2, break_long_words=False,
+                                   break_on_hyphens=False)]
 
 
 def _bracketed(body: str, toks: list[Tok]) -> tuple[str, list[Tok]] | None:
@@ -219,11 +224,15 @@ def _bracketed(body: str, toks: list[Tok]) -> tuple[str, list[Tok]] | None:
         start = next((i + 1 for i, t in enumerate(toks) if t.string == "import"), None)
     else:
         start = next((i + 1 for i, t in enumerate(toks)
-                      if t.depth == 0 and (t.string in ("=", "+=", "-=", "|=", ":=") or i == 0 and t.string in heads)), None)
+                      if t.depth == 0
+                      and (t.string in ("=", "+=", "-=", "|=", ":=")
+                           or i == 0 and t.string in heads)), None)
     if start is None or start >= len(toks) or toks[start].string in OPEN and toks[-1].string in CLOSE:
         return None
     end = len(toks) - (1 if toks[-1].string == ":" else 0)
-    end = next((k for k in range(start, end) if toks[k].depth == 0 and toks[k].string == "from" and toks[0].string == "raise"), end)
+    end = next((k for k in range(start, end)
+                if toks[k].depth == 0 and toks[k].string == "from" and toks[0].string == "raise"),
+               end)
     if toks[0].string == "assert":  # its condition or its message, never both (a tuple is always true)
         comma = next((k for k in range(start, end) if toks[k].depth == 0 and toks[k].string == ","), None)
         if comma is not None:
@@ -233,7 +242,8 @@ def _bracketed(body: str, toks: list[Tok]) -> tuple[str, list[Tok]] | None:
     out = [t if k < start else t.moved(1 if k < end else 2) for k, t in enumerate(toks)]
     for t in out[start:end]:
         t.depth += 1
-    out = out[:start] + [Tok(tokenize.OP, "(", a, a + 1, 0)] + out[start:end] + [Tok(tokenize.OP, ")", b + 1, b + 2, 0)] + out[end:]
+    out = out[:start] + [Tok(tokenize.OP, "(", a, a + 1, 0)] + out[start:end] + [Tok(tokenize.OP,
+                             ")", b + 1, b + 2, 0)] + out[end:]
     return body[:a] + "(" + body[a:b] + ")" + body[b:], out
 
 
@@ -248,7 +258,8 @@ def wrap_line(line: str, toks: list[Tok], depth0: int) -> list[str] | None:
     rel = [t.moved(-indent) for t in code]
     lines = [line[: code[-1].b]]
     if len(lines[0]) > WIDTH:
-        block = depth0 == 0 and rel[-1].string == ":" and rel[0].string in ("if", "elif", "while", "for", "with", "def", "class", "async")
+        block = depth0 == 0 and rel[-1].string == ":" and rel[0].string in ("if", "elif", "while",
+            "for", "with", "def", "class", "async")
         cont = indent + (8 if block else 4) if depth0 == 0 else indent
         sub = layout(body, rel, indent, cont, indent)
         if sub is None and depth0 == 0 and (made := _bracketed(body, rel)) is not None:
@@ -287,7 +298,8 @@ def _docstring_rows(src: str) -> set[int]:
     for node in ast.walk(ast.parse(src)):
         if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef, ast.Module)) and node.body:
             first = node.body[0]
-            if isinstance(first, ast.Expr) and isinstance(first.value, ast.Constant) and isinstance(first.value.value, str):
+            if isinstance(first, ast.Expr) and isinstance(first.value,
+                          ast.Constant) and isinstance(first.value.value, str):
                 rows.update(range(first.lineno, first.end_lineno + 1))
     lines, doctest = src.split("\n"), False
     for r, line in enumerate(lines, 1):
@@ -314,7 +326,8 @@ def _normalised(tree: ast.AST) -> str:
     for node in ast.walk(tree):
         if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef, ast.Module)) and node.body:
             first = node.body[0]
-            if isinstance(first, ast.Expr) and isinstance(first.value, ast.Constant) and isinstance(first.value.value, str):
+            if isinstance(first, ast.Expr) and isinstance(first.value,
+                          ast.Constant) and isinstance(first.value.value, str):
                 first.value.value = " ".join(first.value.value.split())
     return ast.dump(tree)
 
@@ -331,10 +344,14 @@ def wrap_file(path: Path) -> list[str]:
         out, left = [], []
         for r, line in enumerate(lines, 1):
             new = None
-            joined = line.rstrip().endswith("\\") or r > 1 and lines[r - 2].rstrip().endswith("\\")  # a backslash: by hand
+            # a backslash: by hand
+            joined = line.rstrip().endswith("\\") or r > 1 and lines[r - 2].rstrip().endswith("\\")
             if len(line) > MAX and r in docs and r in multi:
                 nxt = lines[r] if r < len(lines) else ""
-                new = split_text(line, " " * (len(nxt) - len(nxt.lstrip()) if nxt.strip() else len(line) - len(line.lstrip())))
+                new = split_text(line,
+                                 " "
+                                 * (len(nxt) - len(nxt.lstrip()) if nxt.strip()
+                                    else len(line) - len(line.lstrip())))
             elif len(line) > MAX and r not in multi and not joined:
                 new = docstring(line) or wrap_line(line, rows.get(r, []), starts.get(r, 0))
             if len(line) > MAX and (new is None or any(len(s) > MAX for s in new)):
@@ -357,7 +374,7 @@ def wrap_file(path: Path) -> list[str]:
 
 
 def main(argv: list[str]) -> int:
-    roots = [Path(a) for a in (argv or ["layercam", "pipelines", "configs", "tests"])]
+    roots = [Path(a) for a in (argv or ["layercam", "pipelines", "configs", "tests", "notebooks", ".ci"])]
     files = [p for r in roots for p in (sorted(r.rglob("*.py")) if r.is_dir() else [r])]
     left = [x for p in files for x in wrap_file(p)]
     for x in left:

@@ -24,7 +24,8 @@ from pathlib import Path
 
 from layercam.core.errors import LayercamError
 
-MANIFEST_HELP = """manifest: a CSV file, one job per line (a header line is optional; lines starting with # are comments):
+MANIFEST_HELP = """manifest: a CSV file, one job per line (a header line is optional; lines starting with # are
+comments):
 
   command,input,output,options
   hdr-video,clips/beach.mp4,runs/beach,--preset fast --ev-step 3

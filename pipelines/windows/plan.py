@@ -217,8 +217,11 @@ def plan(clip, exposures, flow, task: str, window=None) -> Plan:
     cap = max(float(GRID_MAX_RES), max(hw) / 0.9)  # geometry.atlas_mappings: a frame fills 0.9 of the atlas
     whole = atlas_px(homs, 0, T, hw)
     if whole <= cap or T < 2 * MIN_WINDOW:
-        why = f"needs {whole:.0f} px across the atlas at one cell per pixel, within the {cap:.0f} it holds" if whole <= cap else \
-              f"needs {whole:.0f} px across the atlas, more than the {cap:.0f} it holds, but is shorter than two windows of {MIN_WINDOW} frames"
+        if whole <= cap:
+            why = f"needs {whole:.0f} px across the atlas at one cell per pixel, within the {cap:.0f} it holds"
+        else:
+            why = (f"needs {whole:.0f} px across the atlas, more than the {cap:.0f} it holds, but is shorter than two "
+                   f"windows of {MIN_WINDOW} frames")
         return Plan([(0, T)], f"one model: the camera's motion over the {T} frames {why} (--window N cuts it)", atlas_px=[whole])
     out, sizes, a = [], [], 0
     while True:

@@ -205,7 +205,8 @@ def test_bad_input_is_one_line_and_changes_nothing(corpus, tmp_path, capsys, cas
 def test_rgba_frames_say_once_that_alpha_is_dropped(corpus):
     """Issue 18 item 12: RGBA frames (alpha dropped) are said once, in the report too."""
     lines = [l for l in corpus["rgba_stderr"].splitlines() if "alpha" in l]
-    assert len(lines) == 1 and lines[0].startswith("warning: 4 of 4 frames have an alpha channel"), corpus["rgba_stderr"]
+    assert len(lines) == 1, corpus["rgba_stderr"]
+    assert lines[0].startswith("warning: 4 of 4 frames have an alpha channel"), corpus["rgba_stderr"]
     assert "2% of the pixels transparent" in lines[0]
     rep = json.loads((corpus["run"] / "report.json").read_text())
     assert rep["warnings"] == [lines[0].removeprefix("warning: ")]

@@ -99,7 +99,8 @@ def load_config(preset: str = DEFAULT_PRESET, overrides: list[str] | None = None
 
 def describe_settings() -> list[tuple[str, Any, str]]:
     """Every setting as ``(section.field, default, comment)``: the comment beside its field in
-    :mod:`layercam.core.config` (what it trades), continued on the comment-only lines under it."""
+    :mod:`layercam.core.config` (what it trades; on any line of a field written over several),
+    continued on the comment-only lines under it."""
     import ast
     import inspect
 
@@ -110,8 +111,8 @@ def describe_settings() -> list[tuple[str, Any, str]]:
         for n in ast.parse("\n".join(src)).body[0].body:
             if not isinstance(n, ast.AnnAssign):
                 continue
-            i = n.lineno - 1
-            words = [src[i].split("#", 1)[1].strip()] if "#" in src[i] else []
+            words = [src[i].split("#", 1)[1].strip() for i in range(n.lineno - 1, n.end_lineno) if "#" in src[i]]
+            i = n.end_lineno - 1
             while i + 1 < len(src) and src[i + 1].strip().startswith("#"):
                 i += 1
                 words.append(src[i].strip()[1:].strip())

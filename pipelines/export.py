@@ -22,7 +22,8 @@ writer                writes
 ====================  ======================================================================
 
 Every video keeps the input's frame rate and carries its sound over
-(:func:`layercam.pipelines.media.audio`). Every writer is ``writer(ctx, model, dest, cache) -> dict`` (its part of the export summary): it
+(:func:`layercam.pipelines.media.audio`). Every writer is ``writer(ctx, model, dest, cache) ->
+dict`` (its part of the export summary): it
 writes its outputs into ``dest`` and what the evaluate stage reads into ``cache``. Both are the
 stage's cache folder: an interrupted export is redone there, and the finished outputs are published
 to the top of the run folder with the report, as one set, when the run ends
@@ -64,15 +65,19 @@ def hdr_writer(ctx: Context, model, dest: Path, cache: Path, atlas=None) -> dict
             exrs.add(dest / "hdr" / f"frame_{t:05d}.exr", hdr)
             preview.add(render.tonemap_display(hdr, stats)[0])
             fit = info.pop("fit_map", None)
-            if fit is not None and ctx.window is not None:  # how well a window's model reproduces each frame, per pixel (the join's weights)
+            if fit is not None and ctx.window is not None:  # how well a window's model reproduces
+                                                            # each frame, per pixel (the join's
+                                                            # weights)
                 fits = fit_maps(cache, ctx.clip.T, size_within(fit.shape, FIRST_PASS_PIXELS)) if fits is None else fits
                 fits[t] = area(fit, fits.shape[1:])
             infos.append(info)
     if fits is not None:
         fits.flush()
         del fits
-    return {"frames": int(ctx.clip.T), "hdr_min": exrs.lo, "hdr_max": exrs.hi, "exr": "half" if exrs.half else "float32", "display": stats, **faithful_summary(infos),
-            "hdr_video": hdr_video(ctx, model, exrs.paths, dest), "fps": media.fps(ctx), "sound": media.sound(ctx, preview)}
+    return {"frames": int(ctx.clip.T), "hdr_min": exrs.lo, "hdr_max": exrs.hi,
+            "exr": "half" if exrs.half else "float32", "display": stats, **faithful_summary(infos),
+            "hdr_video": hdr_video(ctx, model, exrs.paths, dest), "fps": media.fps(ctx),
+            "sound": media.sound(ctx, preview)}
 
 
 def hdr_video(ctx: Context, model, paths: list[Path], dest: Path) -> dict:
@@ -90,14 +95,18 @@ def hdr_video(ctx: Context, model, paths: list[Path], dest: Path) -> dict:
         return {"format": "none"}
     missing = missing_for_hdr()
     if missing:
-        ctx.warn(f"ffmpeg ({ffmpeg_exe()}) has no {missing}: hdr.mp4 is not written (as with --hdr-format none); imageio-ffmpeg >= 0.8 ships an ffmpeg with it")
+        ctx.warn(f"ffmpeg ({ffmpeg_exe()}) has no {missing}: hdr.mp4 is not written (as with "
+                 "--hdr-format none); imageio-ffmpeg >= 0.8 ships an ffmpeg with it")
         return {"format": "none", "why": f"ffmpeg has no {missing}"}
     if min(ctx.clip.H, ctx.clip.W) < MIN_SIDE:
-        ctx.warn(f"hdr.mp4 is not written: libx265 encodes frames of at least {MIN_SIDE} px a side, these are {ctx.clip.W}x{ctx.clip.H}")
+        ctx.warn(f"hdr.mp4 is not written: libx265 encodes frames of at least {MIN_SIDE} px a "
+                 f"side, these are {ctx.clip.W}x{ctx.clip.H}")
         return {"format": "none", "why": f"frames below {MIN_SIDE} px"}
     prim = ctx.clip.meta.get("primaries") or primaries_of(None)
     white = white_radiance(model)
-    info = write_hdr_video(dest / "hdr.mp4", lambda: (read_exr(p) for p in paths), media.fps(ctx), fmt, white, ctx.resolved.settings.export.nits_white, prim["name"], audio=media.audio(ctx), progress=ctx.progress)
+    info = write_hdr_video(dest / "hdr.mp4", lambda: (read_exr(p) for p in paths), media.fps(ctx),
+                           fmt, white, ctx.resolved.settings.export.nits_white, prim["name"],
+                           audio=media.audio(ctx), progress=ctx.progress)
     if info["audio"] and not info["audio"]["kept"]:
         ctx.warn(f"hdr.mp4 is written without the input's sound: {info['audio']['why']}")
     return {**info, "input_primaries": prim, "anchor": ANCHOR}
@@ -113,7 +122,8 @@ def sharp_writer(ctx: Context, model, dest: Path, cache: Path) -> dict:
     (dest / "frames").mkdir(exist_ok=True)
     if with_hdr:
         (dest / "hdr").mkdir(exist_ok=True)
-    kept = np.lib.format.open_memmap(cache / "deblurred.npy", mode="w+", dtype=np.float32, shape=(T, *hw, 3))  # for the evaluation, on disk
+    kept = np.lib.format.open_memmap(cache / "deblurred.npy", mode="w+", dtype=np.float32,
+                                     shape=(T, *hw, 3))  # for the evaluation, on disk
     sigma, held, fell = view_sigma(ctx), [], []
     with VideoWriter(dest / "deblurred.mp4", fps=media.fps(ctx), audio=media.audio(ctx)) as video:
         for t in ctx.frames_bar():
@@ -134,11 +144,15 @@ def sharp_writer(ctx: Context, model, dest: Path, cache: Path) -> dict:
     kept.flush()
     del kept
     if fell:
-        ctx.warn(f"frame(s) {', '.join(map(str, fell))} of {T}: the sharp render missed the input's view (low-pass PSNR "
-                 f"{', '.join(f'{held[t]:.1f}' for t in fell)} dB, under {VIEW_MIN_DB:g}); the input is written for them"
+        ctx.warn(f"frame(s) {', '.join(map(str, fell))} of {T}: the sharp render missed the "
+                 "input's view (low-pass PSNR "
+                 f"{', '.join(f'{held[t]:.1f}' for t in fell)} dB, under {VIEW_MIN_DB:g}); the "
+                 "input is written for them"
                  + (" (frames/ and deblurred.mp4; hdr/ keeps the render)" if with_hdr else ""))
     view = {"lowpass_sigma_px": sigma, "min_db": VIEW_MIN_DB, "lowpass_psnr_db": held}
-    return {"frames": int(T), "fallback_frames": fell, "view_check": view, "hdr": with_hdr, "hdr_max": exrs.hi if with_hdr else 0.0, "png_bits": media.png_bits(ctx), "fps": media.fps(ctx), "sound": media.sound(ctx, video)}
+    return {"frames": int(T), "fallback_frames": fell, "view_check": view, "hdr": with_hdr,
+            "hdr_max": exrs.hi if with_hdr else 0.0, "png_bits": media.png_bits(ctx),
+            "fps": media.fps(ctx), "sound": media.sound(ctx, video)}
 
 
 def fused_writer(ctx: Context, model, dest: Path, cache: Path) -> dict:
@@ -150,14 +164,16 @@ def fused_writer(ctx: Context, model, dest: Path, cache: Path) -> dict:
     _, hdr, info = next(faithful_hdr(ctx, model, [ref]))
     write_hdr_set([dest / "fused.exr"], [hdr], ctx.resolved.settings.export.half, ctx.say)
     np.save(cache / "fused.npy", hdr.astype(np.float32))
-    if ctx.resolved.settings.model.tone_mapper == "fixed":  # one exposure: the sharp image as the camera would have recorded it
+    if ctx.resolved.settings.model.tone_mapper == "fixed":  # one exposure: the sharp image as the
+                                                            # camera would have recorded it
         png = render.render_frame(model, ref, hw, ("ldr",))["ldr"]
         how, stats = "fixed sRGB tone curve at the stack's exposure (input tonality)", None
     else:
         png, stats = render.tonemap_display(hdr)
         how = "Reinhard global tonemap + sRGB"
     write_png(dest / "fused.png", png, bit_depth=media.png_bits(ctx))
-    return {"reference": ref, "reference_name": ctx.clip.names[ref], "png": how, "display": stats, "hdr_min": float(hdr.min()), "hdr_max": float(hdr.max()), **faithful_summary([info])}
+    return {"reference": ref, "reference_name": ctx.clip.names[ref], "png": how, "display": stats,
+            "hdr_min": float(hdr.min()), "hdr_max": float(hdr.max()), **faithful_summary([info])}
 
 
 def atlas_writer(ctx: Context, model, dest: Path, cache: Path, atlas=None) -> dict:
@@ -178,7 +194,10 @@ def crf_writer(ctx: Context, model, dest: Path, cache: Path) -> dict:
 
     z = torch.linspace(-12, 12, 241)
     curve = model.tone.curve(z.to(next(model.parameters()).device)).float().cpu().numpy()
-    write_json(dest / "crf.json", {"z_stops": z.tolist(), "r": curve[:, 0].tolist(), "g": curve[:, 1].tolist(), "b": curve[:, 2].tolist(), "kind": model.cfg.model.tone_mapper, "exposures_log2": model.exposure.values().detach().cpu().tolist()})
+    write_json(dest / "crf.json",
+               {"z_stops": z.tolist(), "r": curve[:, 0].tolist(), "g": curve[:, 1].tolist(),
+                "b": curve[:, 2].tolist(), "kind": model.cfg.model.tone_mapper,
+                "exposures_log2": model.exposure.values().detach().cpu().tolist()})
     fig = crf_figure(z.numpy(), curve)
     atomic_write(dest / "crf.png", lambda p: fig.savefig(p, format="png"))
     return {}
@@ -217,7 +236,8 @@ WRITERS = {
 }
 TASK_WRITERS = {"hdr-video": ("hdr",), "demo": ("hdr",), "deblur-video": ("sharp",), "fuse-stack": ("fused",)}
 SHARING = ("hdr", "atlases")  # the first renders every frame and hands the second each frame's geometry
-COMMON_WRITERS = ("atlases", "crf", "psf", "checkpoint")  # render writers run on the training device, these on the CPU from "crf" on
+COMMON_WRITERS = ("atlases", "crf", "psf", "checkpoint")  # render writers run on the training
+                                                          # device, these on the CPU from "crf" on
 REPORT_NAME = "report.json"  # written by the task after its stages; set aside with the outputs it describes
 
 
@@ -247,7 +267,8 @@ class ExportStage(Stage):
         return [n for n in outputs_for(ctx.task) if n != REPORT_NAME]
 
     def options(self, ctx):
-        return {"fits": "per pixel"} if ctx.window is not None else {}  # a window's export keeps windows.plan.FIT_FILE (older ones: none)
+        # a window's export keeps windows.plan.FIT_FILE (older ones: none)
+        return {"fits": "per pixel"} if ctx.window is not None else {}
 
     def run(self, ctx, out):
         dest = out  # published to the top of the run folder when the run ends
@@ -280,4 +301,5 @@ class ExportStage(Stage):
 
 def kept_arrays(out: Path) -> dict:
     """The arrays an export keeps in ``out`` for a scorer (:class:`~layercam.pipelines.results.ExportResult`)."""
-    return {k: (out / f"{n}.npy" if (out / f"{n}.npy").exists() else None) for k, n in (("frames", "deblurred"), ("fused", "fused"))}
+    return {k: (out / f"{n}.npy" if (out / f"{n}.npy").exists() else None) for k,
+            n in (("frames", "deblurred"), ("fused", "fused"))}

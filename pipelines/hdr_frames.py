@@ -66,7 +66,9 @@ def faithful_hdr(ctx: Context, model, ts, geometry=None) -> Iterator[tuple[int, 
     kept: dict[int, dict] = {}
     # auto: a video from a static camera; not moved along the flow, nor for a bracket's fused view
     # (docs/measurements.md)
-    merging = ctx.resolved.settings.export.merge_neighbours == "on"  # auto: a video from a static camera (layercam.engine.resolve)
+    merging = ctx.resolved.settings.export.merge_neighbours == "on"  # auto: a video from a static
+                                                                     # camera
+                                                                     # (layercam.engine.resolve)
 
     # auto: a stack's fused view; not videos, whose short and long frames, filtered by their own
     # different noise, flicker (docs/measurements.md)
@@ -74,7 +76,8 @@ def faithful_hdr(ctx: Context, model, ts, geometry=None) -> Iterator[tuple[int, 
 
     from layercam.camera.faithful import stack_extremes
 
-    extremes = stack_extremes(frames, lv) if static else None  # once, a frame at a time (it was the whole clip, per frame)
+    extremes = stack_extremes(frames, lv) if static else None  # once, a frame at a time (it was the
+                                                               # whole clip, per frame)
 
     def corr(t: int) -> dict:
         if t not in kept:
@@ -90,9 +93,15 @@ def faithful_hdr(ctx: Context, model, ts, geometry=None) -> Iterator[tuple[int, 
                 c = corr(n)
                 neighbours.append((c["weight"] * c["delta"], c["weight"], fl))
                 if merging:
-                    still = np.zeros_like(fl) if static else fl  # a static camera: the same scene point, whatever the flow says
-                    merge.append((c["model_log2_r"] + c["weight"] * c["delta"], merge_weight(c["exposed"], c["log2_dts"][n], c["log2_dts"]), still))
-        res = faithful_log2(model, frames[t], t, lv, extremes if static else None, corr=corr(t), fill=neighbour_fill(neighbours), merge=merge, clipped=ctx.resolved.settings.export.clipped_everywhere, denoise=denoise)
+                    still = np.zeros_like(fl) if static else fl  # a static camera: the same scene
+                                                                 # point, whatever the flow says
+                    merge.append((c["model_log2_r"] + c["weight"] * c["delta"],
+                                  merge_weight(c["exposed"], c["log2_dts"][n], c["log2_dts"]),
+                                  still))
+        res = faithful_log2(model, frames[t], t, lv, extremes if static else None, corr=corr(t),
+                            fill=neighbour_fill(neighbours), merge=merge,
+                            clipped=ctx.resolved.settings.export.clipped_everywhere,
+                            denoise=denoise)
         if geo:
             geometry(t, kept[t].pop("uv"), kept[t].pop("alpha"))
         for k in [k for k in kept if k < t]:
@@ -127,5 +136,7 @@ def _flow_to(ctx: Context, t: int, n: int) -> np.ndarray | None:
 def faithful_summary(infos: list[dict]) -> dict:
     if not infos or not infos[0]:
         return {"faithful": None}
-    return {"faithful": {"mean_weight": round(float(np.mean([i["mean_weight"] for i in infos])), 4), "unseen_share": round(float(np.mean([i["unseen_share"] for i in infos])), 4),
+    return {"faithful": {"mean_weight": round(float(np.mean([i["mean_weight"] for i in infos])), 4),
+                         "unseen_share": round(float(np.mean([i["unseen_share"] for i in infos])),
+                                               4),
                          "merged_neighbours": any(i.get("merged", False) for i in infos)}}

@@ -25,8 +25,10 @@ class FlowStage(Stage):
         from layercam.engine.resolve import device_of
         from layercam.vision import flow_store
 
-        raft = ctx.cfg.flow.method.startswith("raft")  # a network: where the run trains (before the settings are resolved)
-        return flow_store.compute(ctx.clip.frames, out, ctx.cfg.flow, progress=ctx.progress, device=device_of(ctx.cfg.train.device) if raft else "cpu")
+        raft = ctx.cfg.flow.method.startswith("raft")  # a network: where the run trains (before the
+                                                       # settings are resolved)
+        return flow_store.compute(ctx.clip.frames, out, ctx.cfg.flow, progress=ctx.progress,
+                                  device=device_of(ctx.cfg.train.device) if raft else "cpu")
 
     def load(self, ctx, out, summary):
         """The summary; the arrays opened once into ``ctx.flow`` (None for a single frame)."""
@@ -50,7 +52,8 @@ class BootstrapStage(Stage):
         (:func:`layercam.vision.segment.long.foreground_bootstrap_long`): their size (other clips keep their key)."""
         from layercam.vision.segment import long as seg_long
 
-        if ctx.resolved.settings.model.layers > 1 and ctx.flow is not None and seg_long.windowed(ctx.clip.T, (ctx.clip.H, ctx.clip.W), ctx.flow.grid):
+        if ctx.resolved.settings.model.layers > 1 and ctx.flow is not None and seg_long.windowed(
+            ctx.clip.T, (ctx.clip.H, ctx.clip.W), ctx.flow.grid):
             return {"windows": [seg_long.SEG_FRAMES, seg_long.SEG_MARGIN]}
         return {}
 
@@ -66,10 +69,14 @@ class BootstrapStage(Stage):
         clip = ctx.clip
         T, H, W = clip.T, clip.H, clip.W
         r = ctx.resolved
-        long = r.settings.model.layers > 1 and ctx.flow is not None and seg_long.windowed(T, (H, W), ctx.flow.grid)  # on the flow's grid, in windows
-        fl = at_frame_size(ctx.flow, (H, W), None if r.settings.model.layers > 1 and not long else ("homs",))  # the motion segmentation reads the flows too
+        long = r.settings.model.layers > 1 and ctx.flow is not None and seg_long.windowed(T, (H, W),
+            ctx.flow.grid)  # on the flow's grid, in windows
+        # the motion segmentation reads the flows too
+        fl = at_frame_size(ctx.flow, (H, W),
+                           None if r.settings.model.layers > 1 and not long else ("homs",))
         ref = middle_frame(T)
-        static = r.static  # the flow's chained homographies move no corner by STATIC_CORNER_PX (layercam.engine.resolve)
+        static = r.static  # the flow's chained homographies move no corner by STATIC_CORNER_PX
+                           # (layercam.engine.resolve)
         if static:
             bg = np.stack([np.eye(3)] * T)
             how = f"identity: {r.reasons.get('static', 'a static camera')}"
@@ -83,33 +90,43 @@ class BootstrapStage(Stage):
         fg = {}
         cfg = r.settings
         if cfg.segment.detector and (cfg.model.layers == 1 or ctx.masks is not None):
-            ctx.say(f"[bootstrap] segment.detector unused: {'one layer, no foreground' if cfg.model.layers == 1 else '--masks given'}")
+            ctx.say("[bootstrap] segment.detector unused: "
+                    f"{'one layer, no foreground' if cfg.model.layers == 1 else '--masks given'}")
         if cfg.model.layers > 1:  # foreground: user masks, else motion segmentation of the flow
             if long:
-                fg = seg_long.foreground_bootstrap_long(clip.frames, ctx.flow, out, ctx.masks, cfg.segment, progress=ctx.progress)
+                fg = seg_long.foreground_bootstrap_long(clip.frames, ctx.flow, out, ctx.masks,
+                                                        cfg.segment, progress=ctx.progress)
                 if fg["computed"]:
                     g = fg["info"]["grid"]
-                    ctx.say(f"[bootstrap] motion segmentation on the flow's {g[1]}x{g[0]} grid, in {fg['info']['windows']} window(s) of at most {seg_long.SEG_FRAMES} frames overlapping by {seg_long.SEG_MARGIN}")
+                    ctx.say(f"[bootstrap] motion segmentation on the flow's {g[1]}x{g[0]} grid, in "
+                            f"{fg['info']['windows']} window(s) of at most {seg_long.SEG_FRAMES} "
+                            f"frames overlapping by {seg_long.SEG_MARGIN}")
             else:
                 fg = segment.foreground_bootstrap(clip.frames, fl, ctx.masks, cfg.segment, progress=ctx.progress)
             h0.append(fg["h0"])
             if fg["computed"]:
                 segment.save_masks(out, fg["masks"])
-                ctx.say(f"[bootstrap] motion masks (no --masks given): mean coverage {segment.mask_coverage(fg['masks']).mean():.3f}, saved in {out / 'masks'}")
+                ctx.say("[bootstrap] motion masks (no --masks given): mean coverage "
+                        f"{segment.mask_coverage(fg['masks']).mean():.3f}, saved in {out / 'masks'}")
                 if "detector_frames" in fg["info"]:
-                    ctx.say(f"[bootstrap] the detector's instances replaced the motion masks in {fg['info']['detector_frames']} of {T} frames")
+                    ctx.say("[bootstrap] the detector's instances replaced the motion masks in "
+                            f"{fg['info']['detector_frames']} of {T} frames")
         h0 = np.stack(h0)
         init_log2 = initial_log2(clip.frames, ctx.exposures.log2_dt, cfg.model.tone_mapper)  # layercam.camera.tone
         np.save(out / "h0.npy", h0)
         res = {"how": how, "init_log2": init_log2, "layers": int(h0.shape[0]), "static": static}
         if fg:
-            res["foreground"] = {"how": fg["how"], "masks": "motion segmentation" if fg["computed"] else ("given" if fg["masks"] is not None else "none"), **fg["info"]}
+            res["foreground"] = {"how": fg["how"],
+                                 "masks": "motion segmentation" if fg["computed"]
+                                 else ("given" if fg["masks"] is not None else "none"),
+                                 **fg["info"]}
         return res
 
     def load(self, ctx, out, summary):
         from layercam.vision.segment import load_masks
 
-        return BootstrapResult(summary, h0=np.load(out / "h0.npy"), init_log2=summary["init_log2"], static=bool(summary["static"]),
+        return BootstrapResult(summary, h0=np.load(out / "h0.npy"), init_log2=summary["init_log2"],
+                               static=bool(summary["static"]),
                                masks=load_masks(out), foreground=summary.get("foreground"))
 
 
@@ -122,7 +139,8 @@ class TrainStage(Stage):
     all_ranks = True  # data-parallel under torch.distributed (layercam/engine/distributed.py)
 
     def options(self, ctx):
-        """A long clip's alpha grid with slices shared by neighbouring frames (:data:`layercam.scene.fields.ALPHA_GRID_CELLS`;
+        """A long clip's alpha grid with slices shared by neighbouring frames
+        (:data:`layercam.scene.fields.ALPHA_GRID_CELLS`;
         clips where it changes nothing keep their key); a long clip's later window: the key of
         window 0's camera, held fixed."""
         from layercam.scene.fields import ALPHA_GRID_CELLS, alpha_grid_capped
@@ -171,7 +189,8 @@ class TrainStage(Stage):
         )
         callbacks += [make(model) for make in ctx.train_callbacks]  # e.g. the benchmark's quality probe
         tcfg = dataclasses.replace(cfg.train, batch=distributed.rank_batch(cfg.train.batch))  # each rank's share
-        trainer = Trainer(model, sampler, tcfg, out / "ckpt.pt", callbacks, progress=ctx.progress, desc=f"{ctx.task} {self.name}")
+        trainer = Trainer(model, sampler, tcfg, out / "ckpt.pt", callbacks, progress=ctx.progress,
+                          desc=f"{ctx.task} {self.name}")
         if (out / "ckpt.pt").exists():
             ctx.say(f"[{self.name}] resuming from {out / 'ckpt.pt'}")
         res = trainer.fit()  # its last checkpoint (out / "ckpt.pt") holds the final model

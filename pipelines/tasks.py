@@ -30,7 +30,8 @@ def stages_for(task: str) -> list:
     return [FlowStage(), BootstrapStage(), TrainStage(), ExportStage()]
 
 
-def run_task(task: str, clip, exposures, cfg, run_dir: Path, masks=None, progress: bool = True, extra_stages: list | None = None, train_callbacks: list | None = None,
+def run_task(task: str, clip, exposures, cfg, run_dir: Path, masks=None, progress: bool = True,
+             extra_stages: list | None = None, train_callbacks: list | None = None,
              window: int | None = None, ray: str | None = None) -> Context:
     """Analyse ``clip``, run the task's stages (and ``extra_stages``, e.g. an evaluate stage) into
     ``run_dir`` and write ``report.json``. After the flow, the settings are resolved once
@@ -42,7 +43,8 @@ def run_task(task: str, clip, exposures, cfg, run_dir: Path, masks=None, progres
     windows (``layercam.engine.cluster``)."""
     t0 = time.perf_counter()
     validate(cfg)
-    ctx = Context(run_dir=Path(run_dir), clip=clip, exposures=exposures, cfg=cfg, task=task, masks=masks, progress=progress, train_callbacks=list(train_callbacks or []))
+    ctx = Context(run_dir=Path(run_dir), clip=clip, exposures=exposures, cfg=cfg, task=task,
+                  masks=masks, progress=progress, train_callbacks=list(train_callbacks or []))
     ctx.say(f"layercam {task}: {clip.T} frames {clip.W}x{clip.H} from {clip.source}; preset {cfg.preset}")
     for w in list(getattr(exposures, "warnings", [])) + list(clip.meta.get("notes", [])):
         ctx.warn(w)
@@ -65,7 +67,9 @@ def _run(ctx: Context, stages: list, t0: float, window=None, ray: str | None = N
     from layercam.pipelines.windows.join import WindowsStage
 
     clip, exposures, task, cfg = ctx.clip, ctx.exposures, ctx.task, ctx.cfg
-    publish.check_folder(ctx.run_dir, [n for st in stages + [WindowsStage()] for n in st.output_names(ctx)])  # before any work
+    # before any work
+    publish.check_folder(ctx.run_dir,
+                         [n for st in stages + [WindowsStage()] for n in st.output_names(ctx)])
     extra = {}
     try:
         # flow first: the analysis reads it to decide what the model needs
@@ -74,7 +78,8 @@ def _run(ctx: Context, stages: list, t0: float, window=None, ray: str | None = N
         ctx.measures["masks_given"] = ctx.masks is not None and any(np.asarray(m).any() for m in ctx.masks)
         ctx.resolved = resolve(cfg, clip, exposures, task, ctx.measures)
         plan = window_plan.plan(clip, exposures, ctx.flow, task, window)
-        if task != "fuse-stack" and len(stages) == 4 and not ctx.train_callbacks:  # not for a stack, nor a scored run (demo, bench)
+        if task != "fuse-stack" and len(stages) == 4 and not ctx.train_callbacks:
+            # not for a stack, nor a scored run (demo, bench)
             ctx.resolved = dataclasses.replace(ctx.resolved, reasons={**ctx.resolved.reasons, "window": plan.reason})
         if ray and plan.count == 1:
             ctx.say("[ray] one model for the whole clip: it trains here (--ray distributes a long clip's windows)")
@@ -88,7 +93,8 @@ def _run(ctx: Context, stages: list, t0: float, window=None, ray: str | None = N
             stages = [stages[0], WindowsStage(plan, results)]
             run_stages(ctx, stages[1:])
             ctx.results["train"] = TrainResult(window_run.train_summary(results))
-            runs = [{**{k: r[k] for k in ("index", "frames", "keys", "times")}, "folder": str(Path(r["folder"]).relative_to(ctx.run_dir))} for r in results]
+            runs = [{**{k: r[k] for k in ("index", "frames", "keys", "times")},
+                     "folder": str(Path(r["folder"]).relative_to(ctx.run_dir))} for r in results]
             extra = {"windows": {**plan.to_dict(), "runs": runs, "ray": ctx.ray}}
         else:
             run_stages(ctx, stages[1:2])  # the bootstrap: motion masks for two layers
@@ -105,7 +111,8 @@ def _run(ctx: Context, stages: list, t0: float, window=None, ray: str | None = N
                 ctx.warn(faded)
     except LayercamError as e:
         if getattr(e, "events", None) is not None:  # training stopped: say why in report_failed.json
-            write_report(ctx, time.perf_counter() - t0, "report_failed.json", {"error": str(e), "train": {"stopped": True, "events": e.events}})
+            write_report(ctx, time.perf_counter() - t0, "report_failed.json",
+                         {"error": str(e), "train": {"stopped": True, "events": e.events}})
         raise
     report = write_report(ctx, time.perf_counter() - t0, name=None, extra=extra)
     if distributed.is_main():  # the top of the run folder becomes this run's outputs and report, at once
@@ -123,11 +130,15 @@ def _estimate(ctx: Context, cfg, what: str, plan=None) -> dict:
     from layercam.pipelines.windows.plan import extent
 
     clip = ctx.clip
-    est = cost.estimate({"frames": clip.T, "width": clip.W, "height": clip.H, "bit_depth": clip.bit_depth}, cfg, ctx.task,
-                        windows=None if plan is None else plan.windows, extent=None if plan is None else extent(clip, ctx.flow, plan.windows))
+    est = cost.estimate({"frames": clip.T, "width": clip.W, "height": clip.H,
+                         "bit_depth": clip.bit_depth}, cfg, ctx.task,
+                        windows=None if plan is None else plan.windows,
+                        extent=None if plan is None else extent(clip, ctx.flow, plan.windows))
     ctx.say(cost.summary_line(est) + what)
     cost.check(est, ctx.run_dir, cost.disk_used(ctx.run_dir / "cache"))
-    return {k: est[k] for k in ("memory", "disk", "stages", "disk_parts", "assumed", "windows")} | {"params": int(sum(est["params"].values()))}
+    return {k: est[k]
+            for k in ("memory", "disk", "stages", "disk_parts", "assumed",
+                      "windows")} | {"params": int(sum(est["params"].values()))}
 
 
 def write_report(ctx: Context, wall: float, name: str | None = "report.json", extra: dict | None = None) -> dict:
@@ -137,10 +148,18 @@ def write_report(ctx: Context, wall: float, name: str | None = "report.json", ex
     res = {k: r.report() for k, r in ctx.results.items()}
     rep = {
         "task": ctx.task,
-        "input": {"source": str(ctx.clip.source), "frames": ctx.clip.T, "width": ctx.clip.W, "height": ctx.clip.H, "fps": ctx.clip.fps, "bit_depth": ctx.clip.bit_depth,
-                  **{k: ctx.clip.meta[k] for k in ("primaries", "audio", "video") if k in ctx.clip.meta}},  # video: what the input's header says (frame rate, variable, sound)
-        "exposures": {"spec": ctx.exposures.spec, "reason": ctx.exposures.reason, "log2_dt_given": ctx.exposures.log2_dt.tolist(), "learn": ctx.exposures.learn},
-        "analysis": {**(decide.model_summary(ctx.resolved.settings) if ctx.resolved is not None else {}), "reasons": dict(ctx.resolved.reasons) if ctx.resolved is not None else {}, "measures": ctx.measures},
+        "input": {"source": str(ctx.clip.source), "frames": ctx.clip.T, "width": ctx.clip.W,
+                  "height": ctx.clip.H, "fps": ctx.clip.fps, "bit_depth": ctx.clip.bit_depth,
+                  **{k: ctx.clip.meta[k] for k in ("primaries", "audio", "video")
+                     if k in ctx.clip.meta}},
+                  # video: what the input's header says (frame rate, variable, sound)
+        "exposures": {"spec": ctx.exposures.spec, "reason": ctx.exposures.reason,
+                      "log2_dt_given": ctx.exposures.log2_dt.tolist(),
+                      "learn": ctx.exposures.learn},
+        "analysis": {**(decide.model_summary(ctx.resolved.settings) if ctx.resolved is not None
+                        else {}),
+                     "reasons": dict(ctx.resolved.reasons) if ctx.resolved is not None else {},
+                     "measures": ctx.measures},
         "settings": ctx.resolved.to_dict() if ctx.resolved is not None else ctx.cfg.to_dict(),
         "stages": ctx.times,
         "wall_seconds": round(wall, 2),
@@ -149,7 +168,9 @@ def write_report(ctx: Context, wall: float, name: str | None = "report.json", ex
         "export": res.get("export", {}),
         "metrics": res.get("evaluate", {}).get("metrics"),
         "baselines": res.get("evaluate", {}).get("baselines"),
-        "machine": {"python": platform.python_version(), "torch": torch.__version__, "threads": torch.get_num_threads(), "cpu": platform.processor() or platform.machine()},
+        "machine": {"python": platform.python_version(), "torch": torch.__version__,
+                    "threads": torch.get_num_threads(),
+                    "cpu": platform.processor() or platform.machine()},
         "cache_keys": ctx.keys,
         "memory": {"estimate": ctx.estimate, "peak_rss_bytes": process_peak_bytes()},
         "warnings": ctx.warnings,

@@ -8,7 +8,6 @@ from __future__ import annotations
 import ast
 from pathlib import Path
 
-import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 MAX_LINES = 400
@@ -110,7 +109,8 @@ def cycles(graph: dict[str, dict]) -> list[list[str]]:
 def upward(graph: dict[str, dict]) -> list[str]:
     """Every import of a module from a layer after its own: ``a (line) -> b``."""
     rank = {name: i for i, name in enumerate(LAYERS)}
-    return [f"{a}:{line} -> {b}" for a in sorted(graph) for b, line in sorted(graph[a].items()) if rank[layer(b)] > rank[layer(a)]]
+    return [f"{a}:{line} -> {b}" for a in sorted(graph) for b,
+            line in sorted(graph[a].items()) if rank[layer(b)] > rank[layer(a)]]
 
 
 def test_the_import_reader_sees_every_import(tmp_path):
@@ -118,7 +118,9 @@ def test_the_import_reader_sees_every_import(tmp_path):
     pkg = tmp_path / "layercam" / "scene"
     pkg.mkdir(parents=True)
     (pkg / "__init__.py").write_text("")
-    (pkg / "a.py").write_text("def f():\n    from . import b\n    from layercam.engine import train\n    import layercam.scene.b\n")
+    (pkg
+     / "a.py").write_text("def f():\n    from . import b\n    from layercam.engine import train\n  "
+                          "  import layercam.scene.b\n")
     known = {"layercam.scene.a": 0, "layercam.scene.b": 0, "layercam.engine.train": 0, "layercam.engine": 0}
     assert set(_imports("layercam.scene.a", pkg / "a.py", known)) == {"layercam.scene.b", "layercam.engine.train"}
     graph = {"layercam.scene.a": {"layercam.engine.train": 3}, "layercam.engine.train": {"layercam.scene.a": 1}}
@@ -151,9 +153,9 @@ def test_no_module_over_400_lines():
     assert not long, f"split these modules: {long}"
 
 
-@pytest.mark.xfail(strict=True, reason="the lines are wrapped in the last step (issue 69)")
 def test_no_line_over_120_characters():
-    wide = [f"{p.relative_to(ROOT)}:{i}" for p in _sources() for i, s in enumerate(p.read_text().splitlines(), 1) if len(s) > MAX_COLUMNS]
+    wide = [f"{p.relative_to(ROOT)}:{i}" for p in _sources() for i,
+            s in enumerate(p.read_text().splitlines(), 1) if len(s) > MAX_COLUMNS]
     assert not wide, f"{len(wide)} lines over {MAX_COLUMNS} characters, e.g. {wide[:5]}"
 
 
@@ -163,5 +165,6 @@ def test_every_package_is_installed():
 
     listed = set(tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"])
     found = {".".join(p.parent.relative_to(ROOT).parts) for p in (ROOT / "layercam").rglob("__init__.py")}
-    found |= {"layercam." + ".".join(p.parent.relative_to(ROOT).parts) for p in (ROOT / "pipelines").rglob("__init__.py")}
+    found |= {"layercam." + ".".join(p.parent.relative_to(ROOT).parts)
+              for p in (ROOT / "pipelines").rglob("__init__.py")}
     assert found - listed == set(), f"add to pyproject.toml's packages: {sorted(found - listed)}"

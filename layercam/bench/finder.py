@@ -28,12 +28,14 @@ def step_sets() -> dict[str, tuple]:
 
     sets = {"all": STEPS}
     for s in STEPS:  # the colour cut gates on the clean plate's residual: without the plate, no cut either
-        sets[f"without {s}" + (" (and colour)" if s == "background" else "")] = tuple(x for x in STEPS if x != s and not (s == "background" and x == "colour"))
+        sets[f"without {s}" + (" (and colour)" if s == "background" else "")] = tuple(x
+            for x in STEPS if x != s and not (s == "background" and x == "colour"))
     sets["motion masks alone"] = ()
     return sets
 
 
-def run_finder_clip(name: str, folder: Path, preset: str, resize: str, max_frames: int, overrides: list[str] | None = None) -> dict:
+def run_finder_clip(name: str, folder: Path, preset: str, resize: str, max_frames: int,
+                    overrides: list[str] | None = None) -> dict:
     """One clip at one preset's flow, in this process: ``{clip, preset, frames, size, flow_s,
     sets: {name: {iou, iou_min, inside, seconds}}}``."""
     from layercam.bench.layers import inside_share, mask_ious
@@ -60,7 +62,8 @@ def run_finder_clip(name: str, folder: Path, preset: str, resize: str, max_frame
         ious = mask_ious(masks, truth)
         sets[label] = {"iou": round(float(np.mean(ious)), 4), "iou_min": round(float(np.min(ious)), 4),
                        "inside": round(inside_share(masks, truth), 4), "seconds": round(time.perf_counter() - t0, 2)}
-    return {"clip": name, "preset": preset, "frames": clip.T, "size": f"{clip.W}x{clip.H}", "flow_s": round(flow_s, 1), "sets": sets}
+    return {"clip": name, "preset": preset, "frames": clip.T, "size": f"{clip.W}x{clip.H}",
+            "flow_s": round(flow_s, 1), "sets": sets}
 
 
 def summarise(rows: list[dict]) -> list[dict]:
@@ -69,11 +72,14 @@ def summarise(rows: list[dict]) -> list[dict]:
     for preset in dict.fromkeys(r["preset"] for r in rows):
         mine = [r for r in rows if r["preset"] == preset]
         for label in step_sets():
-            vals = [(r["sets"][label]["iou"], r["clip"], r["sets"][label]["inside"]) for r in mine if label in r["sets"]]
+            vals = [(r["sets"][label]["iou"], r["clip"], r["sets"][label]["inside"]) for r in mine
+                    if label in r["sets"]]
             if vals:
                 worst = min(vals)
-                out.append({"preset": preset, "steps": label, "clips": len(vals), "mean": round(float(np.mean([v[0] for v in vals])), 4),
-                            "worst": worst[0], "worst_clip": worst[1], "inside": round(float(np.mean([v[2] for v in vals])), 4)})
+                out.append({"preset": preset, "steps": label, "clips": len(vals),
+                            "mean": round(float(np.mean([v[0] for v in vals])), 4),
+                            "worst": worst[0], "worst_clip": worst[1],
+                            "inside": round(float(np.mean([v[2] for v in vals])), 4)})
     return out
 
 
@@ -81,15 +87,24 @@ def finder_markdown(rows: list[dict], summary: list[dict], command: str) -> str:
     """``finder.md``: the set's mean and worst clip per step set, then every clip."""
     labels = list(step_sets())
     lines = ["# The foreground finder's steps, each left out (masks against the true masks, no training)", "",
-             f"Regenerate: `{command}`", "", "| preset | steps | clips | mean IoU | worst clip | object inside (mean) |", "|---|---|---|---|---|---|"]
-    lines += [f"| `{s['preset']}` | {s['steps']} | {s['clips']} | {s['mean']:.3f} | {s['worst_clip']} {s['worst']:.3f} | {s['inside']:.3f} |" for s in summary]
-    lines += ["", "Per clip, mean IoU (worst frame):", "", "| clip | preset | " + " | ".join(labels) + " |", "|---|---|" + "---|" * len(labels)]
-    lines += [f"| {r['clip']} | `{r['preset']}` | " + " | ".join(f"{r['sets'][k]['iou']:.3f} ({r['sets'][k]['iou_min']:.2f})" for k in labels) + " |" for r in rows]
+             f"Regenerate: `{command}`", "",
+             "| preset | steps | clips | mean IoU | worst clip | object inside (mean) |",
+             "|---|---|---|---|---|---|"]
+    lines += [f"| `{s['preset']}` | {s['steps']} | {s['clips']} | {s['mean']:.3f} | "
+              f"{s['worst_clip']} {s['worst']:.3f} | {s['inside']:.3f} |" for s in summary]
+    lines += ["", "Per clip, mean IoU (worst frame):", "",
+              "| clip | preset | " + " | ".join(labels) + " |", "|---|---|" + "---|" * len(labels)]
+    lines += [f"| {r['clip']} | `{r['preset']}` | "
+              + " | ".join(f"{r['sets'][k]['iou']:.3f} ({r['sets'][k]['iou_min']:.2f})"
+                           for k in labels) + " |" for r in rows]
     return "\n".join(lines) + "\n"
 
 
-def run_finder_table(out: Path, data: Path, clips: list[str] | None = None, presets: tuple = ("fast", "balanced"), resize: str = "0.33", max_frames: int | None = None,
-                     overrides: list[str] | None = None, force: bool = False, progress: bool = True, command: str = "layercam bench --table finder") -> list[dict]:
+def run_finder_table(out: Path, data: Path, clips: list[str] | None = None,
+                     presets: tuple = ("fast", "balanced"), resize: str = "0.33",
+                     max_frames: int | None = None,
+                     overrides: list[str] | None = None, force: bool = False, progress: bool = True,
+                     command: str = "layercam bench --table finder") -> list[dict]:
     """Runs (or re-uses) every preset x clip, then writes ``finder.json`` and ``finder.md`` (``command``: the
     line that regenerates it, as typed). Returns the rows."""
     from layercam.bench.layers import MAX_FRAMES, find_clips

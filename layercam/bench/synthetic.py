@@ -24,10 +24,12 @@ from layercam.core.presets import preset_tag
 
 # scene name -> synth family, its arguments, the task it exercises; "quick" sizes for smoke tests
 SCENES = {
-    "pan": {"family": "pan_hdr", "kw": {"frames": 48, "size": (144, 256), "ev_step": 3.0}, "quick": {"frames": 6, "size": (32, 48)}, "task": "hdr-video"},
+    "pan": {"family": "pan_hdr", "kw": {"frames": 48, "size": (144, 256), "ev_step": 3.0},
+            "quick": {"frames": 6, "size": (32, 48)}, "task": "hdr-video"},
 }
 PRESETS = ["fast", "balanced", "quality", "paper"]
-CSV_FIELDS = ["scene", "method", "preset", "wall_s", "train_s", "steps", "steps_per_s", "psnr_mu", "psnr_l", "ssim_mu", "peak_mem_mb", "jod", "note"]
+CSV_FIELDS = ["scene", "method", "preset", "wall_s", "train_s", "steps", "steps_per_s", "psnr_mu",
+              "psnr_l", "ssim_mu", "peak_mem_mb", "jod", "note"]
 
 
 def make_scene(name: str, quick: bool = False):
@@ -84,7 +86,10 @@ class QualityProbe:
         self.model.train(was)
         m = hdr_metrics(pred, self.gt) if np.isfinite(pred).all() else {"psnr_mu": float("nan")}
         self.probe_time += time.perf_counter() - t0
-        self.points.append({"step": step, "train_s": round(t0 - self.start - (self.probe_time - (time.perf_counter() - t0)), 3), "psnr_mu": m["psnr_mu"]})
+        self.points.append({"step": step,
+                            "train_s": round(t0 - self.start
+                                             - (self.probe_time - (time.perf_counter() - t0)), 3),
+                            "psnr_mu": m["psnr_mu"]})
 
 
 def run_job(job: dict) -> dict:
@@ -109,7 +114,8 @@ def run_job(job: dict) -> dict:
         return probe["cb"]
 
     t0 = time.perf_counter()
-    ctx = run_task(SCENES[job["scene"]]["task"], scene.clip, scene_exposures(scene), cfg, Path(job["out"]), progress=False,
+    ctx = run_task(SCENES[job["scene"]]["task"], scene.clip, scene_exposures(scene), cfg,
+                   Path(job["out"]), progress=False,
                    extra_stages=[EvaluateStage(scene, baselines=())], train_callbacks=[make_probe])
     wall = time.perf_counter() - t0
     tr = ctx.results["train"].summary
@@ -153,9 +159,13 @@ def run_baselines(scene_name: str, quick: bool) -> list[dict]:
         hdr = baselines.debevec_video(scene.clip.frames, scene.exposure_times, fw, bw)
         secs = time.perf_counter() - t0
         m = metrics.hdr_metrics(hdr, scene.hdr)
-        rows.append({"scene": scene_name, "method": "debevec", "preset": "", "wall_s": round(secs, 2), "train_s": "", "steps": "", "steps_per_s": "",
-                     "psnr_mu": round(m["psnr_mu"], 3), "psnr_l": round(m["psnr_l"], 3), "ssim_mu": round(m["ssim_mu"], 4),
-                     "peak_mem_mb": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1), "jod": "", "note": "OpenCV CalibrateDebevec + MergeDebevec, DIS-aligned neighbour"})
+        rows.append({"scene": scene_name, "method": "debevec", "preset": "",
+                     "wall_s": round(secs, 2), "train_s": "", "steps": "", "steps_per_s": "",
+                     "psnr_mu": round(m["psnr_mu"], 3), "psnr_l": round(m["psnr_l"], 3),
+                     "ssim_mu": round(m["ssim_mu"], 4),
+                     "peak_mem_mb": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+                                          1), "jod": "",
+                     "note": "OpenCV CalibrateDebevec + MergeDebevec, DIS-aligned neighbour"})
     return rows
 
 
@@ -185,7 +195,8 @@ def paper_overrides(budget_s: float | None, paper_steps_per_s: float | None) -> 
     return [f"train.steps={steps}", f"train.bootstrap_steps={max(steps // 15, 1)}"]
 
 
-def run_bench(out: Path, scenes: list[str], presets: list[str], quick: bool = False, progress: bool = True, threads: int = 2,
+def run_bench(out: Path, scenes: list[str], presets: list[str], quick: bool = False,
+              progress: bool = True, threads: int = 2,
               overrides: list[str] | None = None) -> list[dict]:
     from layercam.io.atomic import ensure_writable_dir
 
@@ -200,21 +211,30 @@ def run_bench(out: Path, scenes: list[str], presets: list[str], quick: bool = Fa
             say(f"{sc:>8} {r['method']:>10} {'':>9} {r['wall_s']:>8.1f} s  PSNR-mu {r['psnr_mu']:.2f}")
         quality_wall = None
         for pr in presets:
-            ov = (["train.steps=20", "train.bootstrap_steps=2", "train.batch=1024"] if quick else []) + list(overrides or [])
+            ov = (["train.steps=20", "train.bootstrap_steps=2", "train.batch=1024"] if quick
+                  else []) + list(overrides or [])
             note = ""
             if pr == "paper" and not quick:
                 # measure the paper preset's speed, then give it quality's budget
-                probe = _spawn({"scene": sc, "preset": pr, "quick": quick, "overrides": ov + paper_overrides(None, None), "out": str(out / sc / "paper-speed"), "threads": threads, "probes": 1}, out)
+                probe = _spawn({"scene": sc, "preset": pr, "quick": quick,
+                                "overrides": ov + paper_overrides(None, None),
+                                "out": str(out / sc / "paper-speed"), "threads": threads,
+                                "probes": 1}, out)
                 ov = ov + paper_overrides(quality_wall, probe["row"]["steps_per_s"])
-                note = f"paper preset at {probe['row']['steps_per_s']} steps/s: 150k steps would take {150000 / max(probe['row']['steps_per_s'], 1e-9) / 3600:.1f} h here; run for quality's wall time"
+                note = (f"paper preset at {probe['row']['steps_per_s']} steps/s: 150k steps would "
+                        f"take {150000 / max(probe['row']['steps_per_s'], 1e-9) / 3600:.1f} h "
+                        "here; run for quality's wall time")
             note = "; ".join(filter(None, [note, " ".join(overrides or [])]))
-            res = _spawn({"scene": sc, "preset": pr, "quick": quick, "overrides": ov, "out": str(out / sc / preset_tag(pr)), "threads": threads, "note": note}, out)
+            res = _spawn({"scene": sc, "preset": pr, "quick": quick, "overrides": ov,
+                          "out": str(out / sc / preset_tag(pr)), "threads": threads, "note": note},
+                         out)
             rows.append(res["row"])
             curves[(sc, pr)] = res["curve"]
             if pr == "quality":
                 quality_wall = res["row"]["train_s"]
             r = res["row"]
-            say(f"{sc:>8} {'layercam':>10} {pr:>9} {r['wall_s']:>8.1f} s  PSNR-mu {r['psnr_mu']:.2f}  ({r['steps']} steps, {r['steps_per_s']} steps/s)")
+            say(f"{sc:>8} {'layercam':>10} {pr:>9} {r['wall_s']:>8.1f} s  PSNR-mu "
+                f"{r['psnr_mu']:.2f}  ({r['steps']} steps, {r['steps_per_s']} steps/s)")
     write_csv(out / "bench.csv", rows)
     (out / "curves.json").write_text(json.dumps({f"{k[0]}/{k[1]}": v for k, v in curves.items()}, indent=1))
     plot(out / "bench.png", rows, curves)
@@ -284,10 +304,12 @@ def plot(path: Path, rows: list[dict], curves: dict) -> None:
         # the dial (fast -> quality) is one line; the paper preset, cut to quality's wall time, is a reference point
         ours = [r for r in rows if r["scene"] == sc and r["method"] == "layercam"]
         pts = sorted((r for r in ours if r["preset"] != "paper"), key=lambda r: r["wall_s"])
-        ax.plot([r["wall_s"] for r in pts], [r["psnr_mu"] for r in pts], "o-", color=colours[sc], label=f"{sc}: presets")
+        ax.plot([r["wall_s"] for r in pts], [r["psnr_mu"] for r in pts], "o-", color=colours[sc],
+                label=f"{sc}: presets")
         for r in ours:
             if r["preset"] == "paper":
-                ax.plot([r["wall_s"]], [r["psnr_mu"]], "^", color=colours[sc], label=f"{sc}: paper preset, {r['steps']} of its 150k steps")
+                ax.plot([r["wall_s"]], [r["psnr_mu"]], "^", color=colours[sc],
+                        label=f"{sc}: paper preset, {r['steps']} of its 150k steps")
             ax.annotate(r["preset"], (r["wall_s"], r["psnr_mu"]), fontsize=7, xytext=(3, 3), textcoords="offset points")
         for r in rows:
             if r["scene"] == sc and r["method"] != "layercam":

@@ -43,22 +43,33 @@ def register(sub) -> argparse.ArgumentParser:
     r = sub.add_parser(
         "render",
         help="re-render a finished run at a new exposure or focus, or as a sweep video",
-        description="Re-renders a finished run (its checkpoint.pt) keeping parts of the learned camera: the tone mapper at a new exposure, the blur generator at an interpolated focus.",
+        description="Re-renders a finished run (its checkpoint.pt) keeping parts of the learned "
+                    "camera: the tone mapper at a new exposure, the blur generator at an "
+                    "interpolated focus.",
         epilog=EXAMPLES,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     r.add_argument("run", help="a finished layercam run folder (holds checkpoint.pt)")
-    r.add_argument("--exposure", type=number(float, -24, high=24), metavar="EV", help="stops relative to the run's reference exposure (median of its frames')")
-    r.add_argument("--focus", type=number(float, 0), metavar="F", help="fractional training-image index whose blur to render, e.g. 0.5")
+    r.add_argument("--exposure", type=number(float, -24, high=24), metavar="EV",
+                   help="stops relative to the run's reference exposure (median of its frames')")
+    r.add_argument("--focus", type=number(float, 0), metavar="F",
+                   help="fractional training-image index whose blur to render, e.g. 0.5")
     r.add_argument("--sweep", choices=["exposure", "focus"], help="a video sweeping over exposure or focus")
-    r.add_argument("--range", dest="sweep_range", metavar="A,B", help="sweep range (default: -4,4 EV; focus: first,last image)")
+    r.add_argument("--range", dest="sweep_range", metavar="A,B",
+                   help="sweep range (default: -4,4 EV; focus: first,last image)")
     r.add_argument("--steps", type=number(int, 2, high=1000), default=25, help="sweep steps (default 25)")
-    r.add_argument("--frame", type=number(int, 0), help="the view for --focus and sweeps (default: the run's reference image, else the middle frame; a long clip's windows: rendered by the window that holds it)")
+    r.add_argument("--frame", type=number(int, 0),
+                   help="the view for --focus and sweeps (default: the run's reference image, else "
+                        "the middle frame; a long clip's windows: rendered by the window that "
+                        "holds it)")
     r.add_argument("--keep-blur", action="store_true", help="exposure renders: keep each frame's learned blur")
-    r.add_argument("--fps", type=FPS, help="video frame rate (default: the input's; the input's sound is kept only at its rate)")
+    r.add_argument("--fps", type=FPS,
+                   help="video frame rate (default: the input's; the input's sound is kept only at "
+                        "its rate)")
     r.add_argument("--out", help="output folder (default: RUN/render)")
     r.add_argument("--overwrite", action="store_true", help="replace earlier renders of the same name")
-    r.add_argument("--device", choices=["cpu", "cuda", "auto"], default="auto", help="auto (default: CUDA when present, else the CPU), cpu or cuda")
+    r.add_argument("--device", choices=["cpu", "cuda", "auto"], default="auto",
+                   help="auto (default: CUDA when present, else the CPU), cpu or cuda")
     r.add_argument("--quiet", action="store_true")
     from layercam.commands.hdr_video import hdr_video_args
 
@@ -123,7 +134,8 @@ def run(args) -> int:
     if args.nits_white is not None and args.hdr_format is None:
         raise LayercamError("--nits-white sets the HDR video's diffuse white: give --hdr-format pq|hlg with it")
     if args.exposure is None and args.focus is None and args.sweep is None and args.hdr_format is None:
-        raise LayercamError("nothing to render: give --exposure EV, --focus F, --sweep exposure|focus or --hdr-format pq|hlg")
+        raise LayercamError("nothing to render: give --exposure EV, --focus F, --sweep "
+                            "exposure|focus or --hdr-format pq|hlg")
     from layercam.io.atomic import partials_removed_on_error
 
     finished = Path(args.run, "checkpoint.pt").is_file() or Path(args.run, INDEX).is_file()
@@ -163,7 +175,9 @@ class _Views:
             self.T = int(index["frames"])
             gains = windows.index_gains(index)
             self.z0 = windows.clip_reference(self.models, gains)
-            self.shift = [-float(np.log2(g)) for g in gains]  # window k at z renders as window 0 at z + shift: its irradiance is gain x window 0's
+            self.shift = [-float(np.log2(g)) for g in gains]  # window k at z renders as window 0 at
+                                                              # z + shift: its irradiance is gain x
+                                                              # window 0's
         self.has_blur = self.models[0].blur is not None
         self.reference = self.metas[0].get("reference") if self.plan is None else None
 
@@ -178,7 +192,10 @@ class _Views:
 
         if self.plan is None:
             return self.models[0].exposure.values().detach().cpu().tolist()
-        return [float(sum(w * (float(self.models[k].exposure.values().detach().cpu().numpy()[t - self.start(k)]) - self.shift[k]) for k, w in self.plan.weights(t))) for t in np.arange(self.T)]
+        return [float(sum(w
+                          * (float(self.models[k].exposure.values().detach().cpu().numpy()[t
+            - self.start(k)]) - self.shift[k]) for k, w in self.plan.weights(t)))
+                for t in np.arange(self.T)]
 
     def exposure_frames(self, ev: float, keep_blur: bool):
         """Every frame at ``ev`` stops from the clip's reference, ``(T, H, W, 3)``; a window's frames
@@ -191,7 +208,8 @@ class _Views:
             return exposure_frames(self.models[0], self.metas[0], ev, keep_blur, z0=self.z0)
         from layercam.pipelines.windows.plan import per_pixel
 
-        per = [exposure_frames(m, meta, ev, keep_blur, z0=self.z0 + d) for m, meta, d in zip(self.models, self.metas, self.shift)]
+        per = [exposure_frames(m, meta, ev, keep_blur, z0=self.z0 + d) for m, meta,
+               d in zip(self.models, self.metas, self.shift)]
         hw = per[0].shape[1:3]
 
         def joined(t: int):
@@ -216,7 +234,8 @@ def _render(args) -> int:
     v = _Views(Path(args.run), device_of(args.device))
     T = v.T
     if (args.focus is not None or args.sweep == "focus") and not v.has_blur:
-        raise LayercamError(f"{args.run}: this run has no blur generator (blur was off), so there is no focus to change")
+        raise LayercamError(f"{args.run}: this run has no blur generator (blur was off), so there "
+                            "is no focus to change")
     if args.focus is not None and not (0 <= args.focus <= T - 1):
         raise LayercamError(f"--focus must lie between 0 and {T - 1} (the training images' indices), got {args.focus}")
     if args.frame is not None and not 0 <= args.frame < T:
@@ -232,7 +251,9 @@ def _render(args) -> int:
         lo, hi = (0, T - 1) if v.plan is None else (v.plan.windows[k][0], v.plan.windows[k][1] - 1)
         sweep_range = _range(args.sweep_range, (float(lo), float(hi)))
         if not (lo <= min(sweep_range) and max(sweep_range) <= hi):
-            where = "" if v.plan is None else f" (the images of window {k}, which holds view {view}: each window's blur generator knows its own images)"
+            where = ("" if v.plan is None
+                     else f" (the images of window {k}, which holds view {view}: each window's "
+                          "blur generator knows its own images)")
             raise LayercamError(f"focus --range must lie within {lo}..{hi}{where}, got {args.sweep_range}")
     out = ensure_writable_dir(_out_dir(args))
     products = _products(args, out)
@@ -245,13 +266,16 @@ def _render(args) -> int:
     if "hdr" in products:  # checked before any work
         hdr_frames = sorted((Path(args.run) / "hdr").glob("frame_*.exr"))
         if len(hdr_frames) != T:
-            raise LayercamError(f"{args.run}: --hdr-format needs the run's linear HDR frames, hdr/frame_*.exr ({T}); found {len(hdr_frames)} (hdr-video runs have them)")
+            raise LayercamError(f"{args.run}: --hdr-format needs the run's linear HDR frames, "
+                                f"hdr/frame_*.exr ({T}); found {len(hdr_frames)} (hdr-video runs "
+                                "have them)")
         from layercam.io.hdr_video import missing_for_hdr
         from layercam.io.ffmpeg import ffmpeg_exe
 
         missing = missing_for_hdr()
         if missing:
-            raise LayercamError(f"cannot write an HDR video: ffmpeg ({ffmpeg_exe()}) has no {missing}; imageio-ffmpeg >= 0.8 ships an ffmpeg with it")
+            raise LayercamError(f"cannot write an HDR video: ffmpeg ({ffmpeg_exe()}) has no "
+                                f"{missing}; imageio-ffmpeg >= 0.8 ships an ffmpeg with it")
 
     def one(view: int):
         """The model of the window holding ``view``, its meta, the window's first frame and the
@@ -266,21 +290,35 @@ def _render(args) -> int:
         stage = staging_dir(out, products["sweep"][-1])
         if args.sweep == "exposure":
             evs = np.linspace(a, b, args.steps)
-            _write_sweep(stage, "exposure", exposure_sweep(model, meta, evs, view - a0, args.keep_blur, z0=zk), args.fps or fps, {**base, "what": "exposure sweep", "view": view, "ev": evs.tolist(), "blur": args.keep_blur})
+            _write_sweep(stage, "exposure",
+                         exposure_sweep(model, meta, evs, view - a0, args.keep_blur, z0=zk),
+                         args.fps or fps,
+                         {**base, "what": "exposure sweep", "view": view, "ev": evs.tolist(),
+                          "blur": args.keep_blur})
         else:
             fs = np.linspace(a, b, args.steps)
-            _write_sweep(stage, "focus", focus_sweep(model, meta, fs - a0, view - a0, args.exposure, z0=zk), args.fps or fps, {**base, "what": "focus sweep", "view": view, "focus": fs.tolist(), "exposure_ev": args.exposure})
+            _write_sweep(stage, "focus",
+                         focus_sweep(model, meta, fs - a0, view - a0, args.exposure, z0=zk),
+                         args.fps or fps,
+                         {**base, "what": "focus sweep", "view": view, "focus": fs.tolist(),
+                          "exposure_ev": args.exposure})
         commit_staged(stage, out, products["sweep"])
         say(f"{args.sweep} sweep {a:+g}..{b:+g} of view {view}: {out / products['sweep'][1]}")
     if "focus" in products:
         png, side = products["focus"]
-        view = args.frame if args.frame is not None else (int(v.reference) if v.reference is not None else int(round(args.focus)))
+        view = args.frame if args.frame is not None else (int(v.reference)
+                                                          if v.reference is not None
+                                                          else int(round(args.focus)))
         model, meta, a0, zk = one(view)
         if v.plan is not None and not 0 <= args.focus - a0 <= len(meta["names"]) - 1:
-            raise LayercamError(f"--focus {args.focus:g} and view {view} lie in different windows: each window's blur generator knows its own images ({a0}..{a0 + len(meta['names']) - 1} for view {view})")
+            raise LayercamError(f"--focus {args.focus:g} and view {view} lie in different windows: "
+                                "each window's blur generator knows its own images "
+                                f"({a0}..{a0 + len(meta['names']) - 1} for view {view})")
         stage = staging_dir(out, side)
         write_png(stage / png, focus_sweep(model, meta, [args.focus - a0], view - a0, args.exposure, z0=zk)[0])
-        write_json(stage / side, {**base, "what": "focus", "focus": args.focus, "view": view, "exposure_ev": args.exposure})
+        write_json(stage / side,
+                   {**base, "what": "focus", "focus": args.focus, "view": view,
+                    "exposure_ev": args.exposure})
         commit_staged(stage, out, products["focus"])
         say(f"focus {args.focus:g} of view {view}: {out / png}")
     if "exposure" in products:
@@ -289,9 +327,16 @@ def _render(args) -> int:
         frames = v.exposure_frames(args.exposure, args.keep_blur)
         _write_steps(stage / name, frames, write_png, prefix="frame_", width=5)
         if T > 1:
-            write_video(stage / name / "video.mp4", frames, fps=args.fps or fps, audio=run_audio(meta0, args.fps or fps))
-        write_json(stage / name / "render.json", {**base, "what": "exposure", "ev": args.exposure, "log2_exposure": z0 + args.exposure, "blur": args.keep_blur,
-                                                  **({} if v.plan is None else {"windows": v.plan.to_dict()["windows"], "join": "each window's frames, cross-faded over the overlaps by their fits as in the export"})})
+            write_video(stage / name / "video.mp4", frames, fps=args.fps or fps,
+                        audio=run_audio(meta0, args.fps or fps))
+        write_json(stage / name / "render.json",
+                   {**base, "what": "exposure", "ev": args.exposure,
+                    "log2_exposure": z0 + args.exposure, "blur": args.keep_blur,
+                                                  **({} if v.plan is None
+                                                     else {"windows": v.plan.to_dict()["windows"],
+                                                           "join": "each window's frames, "
+                                                                   "cross-faded over the overlaps "
+                                                                   "by their fits as in the export"})})
         commit_staged(stage, out, products["exposure"])
         say(f"{T} frames at {args.exposure:+g} EV: {out / name}")
     if "hdr" in products:
@@ -303,9 +348,14 @@ def _render(args) -> int:
         stage = staging_dir(out, side)
         gain = 2.0 ** (args.exposure or 0.0)
         nits = args.nits_white or 203.0
-        info = write_hdr_video(stage / video, lambda: (read_exr(p) * gain for p in hdr_frames), args.fps or fps, args.hdr_format, white_radiance(v.models[0]), nits,
-                               meta0.get("primaries", "bt709"), audio=run_audio(meta0, args.fps or fps), progress=not args.quiet)  # fmt: skip
-        write_json(stage / side, {**base, "what": "HDR video of the run's hdr/ frames", "exposure_ev": args.exposure, **info, "anchor": ANCHOR})
+        info = write_hdr_video(stage / video, lambda: (read_exr(p) * gain for p in hdr_frames),
+                               args.fps or fps, args.hdr_format, white_radiance(v.models[0]), nits,
+                               meta0.get("primaries", "bt709"),
+                               audio=run_audio(meta0, args.fps or fps), progress=not args.quiet)
+                               # fmt: skip
+        write_json(stage / side,
+                   {**base, "what": "HDR video of the run's hdr/ frames",
+                    "exposure_ev": args.exposure, **info, "anchor": ANCHOR})
         commit_staged(stage, out, products["hdr"])
         if info["audio"] and not info["audio"]["kept"]:
             print(f"warning: {video} is written without the input's sound: {info['audio']['why']}", flush=True)

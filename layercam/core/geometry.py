@@ -105,7 +105,8 @@ def chain_homographies(pair_h: np.ndarray, ref: int) -> np.ndarray:
 
 def frame_corners(h: int, w: int) -> np.ndarray:
     """``(3, 4)``: the outer corners of an ``h x w`` frame in pixel coordinates, homogeneous columns."""
-    return np.array([[-0.5, -0.5, 1], [w - 0.5, -0.5, 1], [-0.5, h - 0.5, 1], [w - 0.5, h - 0.5, 1]], dtype=np.float64).T
+    return np.array([[-0.5, -0.5, 1], [w - 0.5, -0.5, 1], [-0.5, h - 0.5, 1],
+                     [w - 0.5, h - 0.5, 1]], dtype=np.float64).T
 
 
 def atlas_box(h: int, w: int) -> np.ndarray:
@@ -132,7 +133,8 @@ def atlas_mappings(h: int, w: int, pixel_maps: np.ndarray, margin: float = 0.9) 
     return fit_into_atlas(pixel_maps, (lo + hi) / 2, (hi - lo).max() / 2, margin, h, w)
 
 
-def fit_into_atlas(pixel_maps: np.ndarray, centre: np.ndarray, half: float, margin: float, h: int, w: int) -> np.ndarray:
+def fit_into_atlas(pixel_maps: np.ndarray, centre: np.ndarray, half: float, margin: float, h: int,
+                   w: int) -> np.ndarray:
     """Pixel maps ``(T, 3, 3)`` -> normalised frame coordinates to atlas ``uv``, with the reference
     view's square of half-side ``half`` around ``centre`` (pixels) scaled to ``[-margin, margin]^2``."""
     s = margin / max(half, 1e-6)

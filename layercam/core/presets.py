@@ -125,7 +125,8 @@ def settings_help(width: int = 100) -> str:
     import textwrap
 
     rows = describe_settings()
-    lines = [f"settings (--set section.field=VALUE; {len(rows)} in all; the defaults before a preset; a run's resolved values: report.json):"]
+    lines = [f"settings (--set section.field=VALUE; {len(rows)} in all; the defaults before a "
+             "preset; a run's resolved values: report.json):"]
     for key, default, comment in rows:
         lines.append(f"  {key} = {default!r}")
         lines += textwrap.wrap(comment, width, initial_indent="      ", subsequent_indent="      ")

@@ -14,7 +14,8 @@ from layercam.core.geometry import STATIC_CORNER_PX
 from layercam.vision.analyse import BLUR_SIGMA, IND_MOTION_PX, LONG_REACH, MIN_EVIDENCE
 
 # thresholds of the rules (each documented where it is used; the measures': layercam.vision.analyse)
-IND_MOTION_PAIRS = 0.3       # two layers: independent motion (analyse.IND_MOTION_FRAC) in at least this fraction of neighbour pairs
+IND_MOTION_PAIRS = 0.3       # two layers: independent motion (analyse.IND_MOTION_FRAC) in at least
+                             # this fraction of neighbour pairs
 MIN_MOVING_PAIRS = 2         # ... and in at least this many: one pair can be a flow failure (e.g. between
                              # two differently defocused images; docs/measurements.md)
 LONG_MIN_PAIRS = 2           # ... or in at least this many pairs analyse.LONG_REACH frames apart
@@ -24,7 +25,8 @@ ROBUST_STACK = 0.05          # loss.robust=auto for fuse-stack without a blur ge
                              # and under MSE the shared tone curve bent to fit where the scene changed
                              # between them (NTIRE 000001); with a blur generator (a focus stack) the PSFs
                              # are fitted by the large errors at edges, so MSE. docs/measurements.md
-BLUR_TILE_SHARE = 0.4        # a blur generator: relative blur of analyse.BLUR_SIGMA on at least this share of the tiles of a pair (both signs: focus
+BLUR_TILE_SHARE = 0.4        # a blur generator: relative blur of analyse.BLUR_SIGMA on at least
+                             # this share of the tiles of a pair (both signs: focus
                              # that differs by region; the real captures' shares: docs/measurements.md)
 BLUR_PAIR_SHARE = 0.25       # ... in more than this share of the pairs measured (a clip of two frames: its
                              # pair): a share, not a count, so that a long clip's stray pairs do not add
@@ -76,24 +78,31 @@ def decide(cfg: Config, clip, exposures, task: str, measures: dict | None = None
     if not forced("model.layers", m.layers):
         if mm.get("masks_given"):
             m.layers, r["layers"] = 2, "foreground masks given (--masks)"
-        elif mm.get("foreground_found") is False:  # two layers were chosen, and the finder found no object (unfound_foreground)
+        elif mm.get("foreground_found") is False:  # two layers were chosen, and the finder found no
+                                                   # object (unfound_foreground)
             m.layers, r["layers"] = 1, f"no consistent independently moving object: {mm.get('foreground_reason', '')}"
         elif clip.T > 1 and pairs >= IND_MOTION_PAIRS and mm.get("moving_pairs", 0) >= MIN_MOVING_PAIRS:
             m.layers = 2
-            r["layers"] = f"independent motion in {pairs:.0%} of frame pairs (median {frac:.1%} of pixels beyond {IND_MOTION_PX} px of the global homography)"
+            r["layers"] = (f"independent motion in {pairs:.0%} of frame pairs (median {frac:.1%} "
+                           f"of pixels beyond {IND_MOTION_PX} px of the global homography)")
         elif clip.T > 1 and pairs_long >= IND_MOTION_PAIRS and mm.get("moving_pairs_long", 0) >= LONG_MIN_PAIRS:
             m.layers = 2
-            r["layers"] = f"independent motion in {pairs_long:.0%} of frame pairs {LONG_REACH} frames apart (median {mm.get('independent_frac_long', 0.0):.1%} of pixels beyond {IND_MOTION_PX} px of the static scene)"
+            r["layers"] = (f"independent motion in {pairs_long:.0%} of frame pairs {LONG_REACH} "
+                           f"frames apart (median {mm.get('independent_frac_long', 0.0):.1%} of "
+                           f"pixels beyond {IND_MOTION_PX} px of the static scene)")
         else:
             m.layers = 1
             if not measures:
                 r["layers"] = "one layer (no flow measured)"
             elif mm.get("motion_pairs_measured", 1) == 0:
-                r["layers"] = f"no pair of frames sees {MIN_EVIDENCE:.0%} of its pixels well in both frames: no evidence of independent motion"
+                r["layers"] = (f"no pair of frames sees {MIN_EVIDENCE:.0%} of its pixels well in "
+                               "both frames: no evidence of independent motion")
             elif pairs >= IND_MOTION_PAIRS:
-                r["layers"] = f"independent motion in only {mm.get('moving_pairs', 0)} pair(s) of frames (< {MIN_MOVING_PAIRS}): taken as a flow failure"
+                r["layers"] = (f"independent motion in only {mm.get('moving_pairs', 0)} pair(s) of "
+                               f"frames (< {MIN_MOVING_PAIRS}): taken as a flow failure")
             else:
-                r["layers"] = f"no independent motion (in {pairs:.0%} of the pairs measured, on the pixels both frames see well)"
+                r["layers"] = (f"no independent motion (in {pairs:.0%} of the pairs measured, on "
+                               "the pixels both frames see well)")
 
     # tone mapper: a response curve is only identifiable from more than one exposure
     n_exp = exposures.count_distinct
@@ -119,20 +128,28 @@ def decide(cfg: Config, clip, exposures, task: str, measures: dict | None = None
     if not forced("model.blur", m.blur):
         if measured:
             m.blur = "on"
-            r["blur"] = f"sharpness differs by at least {BLUR_SIGMA} px (Gaussian sigma) on at least {BLUR_TILE_SHARE:.0%} of the tiles in {over} of {len(shares)} pairs measured (up to {share:.0%}, 90th percentile {sigma:.1f} px)"
+            r["blur"] = (f"sharpness differs by at least {BLUR_SIGMA} px (Gaussian sigma) on at "
+                         f"least {BLUR_TILE_SHARE:.0%} of the tiles in {over} of {len(shares)} "
+                         f"pairs measured (up to {share:.0%}, 90th percentile {sigma:.1f} px)")
         else:
             m.blur = "off"
             if not measures:
                 r["blur"] = "no blur expected (nothing measured)"
             elif over:  # some pairs differ, too few of them
-                r["blur"] = f"sharpness differs by {BLUR_SIGMA} px on at least {BLUR_TILE_SHARE:.0%} of the tiles in only {over} of {len(shares)} pairs measured (more than {BLUR_PAIR_SHARE:.0%} needed): not the camera"
+                r["blur"] = (f"sharpness differs by {BLUR_SIGMA} px on at least "
+                             f"{BLUR_TILE_SHARE:.0%} of the tiles in only {over} of {len(shares)} "
+                             f"pairs measured (more than {BLUR_PAIR_SHARE:.0%} needed): not the "
+                             "camera")
             elif mm.get("blur_pairs_measured", 0) == 0:
                 r["blur"] = "no pair of frames has enough texture that both see well to compare sharpness"
             else:
                 why = "exposure, not focus" if n_exp > 1 else "the frames are equally sharp"
-                r["blur"] = f"sharpness differs by {BLUR_SIGMA} px on at most {share:.0%} of the tiles of a pair (< {BLUR_TILE_SHARE:.0%}): {why}"
+                r["blur"] = (f"sharpness differs by {BLUR_SIGMA} px on at most {share:.0%} of the "
+                             f"tiles of a pair (< {BLUR_TILE_SHARE:.0%}): {why}")
             if task == "deblur-video" and measures:  # the user asked for sharper frames: say why there are none
-                r["blur"] += "; a frame is sharpened from sharper views of the same place, so the frames come out as sharp as they went in (--blur 3x3 forces the blur generator)"
+                r["blur"] += ("; a frame is sharpened from sharper views of the same place, so the "
+                              "frames come out as sharp as they went in (--blur 3x3 forces the "
+                              "blur generator)")
     if cfg.loss.robust == AUTO:  # an exposure bracket (a stack without a blur generator to fit by its edges)
         cfg.loss.robust = ROBUST_STACK if task == "fuse-stack" and m.blur == "off" else 0.0
     if not forced("blur.max_offset", b.max_offset):
@@ -151,7 +168,9 @@ def decide(cfg: Config, clip, exposures, task: str, measures: dict | None = None
             m.flow_loss, r["flow_loss"] = False, "a single frame has no neighbours"
         elif measures and m.layers == 1 and (motion < STATIC_PX or mm.get("corner_shift_px", 1e9) < STATIC_CORNER_PX):
             m.flow_loss = False
-            r["flow_loss"] = f"static scene (median flow {motion:.2f} px on what both frames see well; the pair homographies move a corner {mm.get('corner_shift_px', 0.0):.2f} px)"
+            r["flow_loss"] = (f"static scene (median flow {motion:.2f} px on what both frames see "
+                              "well; the pair homographies move a corner "
+                              f"{mm.get('corner_shift_px', 0.0):.2f} px)")
         else:
             m.flow_loss = True
             r["flow_loss"] = f"median flow {motion:.2f} px" if measures else "more than one frame"
@@ -162,4 +181,6 @@ def model_summary(cfg: Config) -> dict:
     """The decided model as the report and the analysis table show it: ``{"layers": 1, "blur":
     "3x3" | "off", "max_offset": 5.0, ...}``."""
     m, b = cfg.model, cfg.blur
-    return {"layers": m.layers, "tone_mapper": m.tone_mapper, "exposures": m.exposures, "blur": "off" if m.blur == "off" else f"{b.n}x{b.n}", "max_offset": b.max_offset, "flow_loss": m.flow_loss}
+    return {"layers": m.layers, "tone_mapper": m.tone_mapper, "exposures": m.exposures,
+            "blur": "off" if m.blur == "off" else f"{b.n}x{b.n}", "max_offset": b.max_offset,
+            "flow_loss": m.flow_loss}

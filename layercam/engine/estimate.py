@@ -12,7 +12,8 @@ exactly (the model is built on PyTorch's meta device: no memory); what a trainin
 small stand-in of the model (:func:`layercam.engine.model_cost.kept_for_backward`); the other working sets are per-pixel
 costs measured on this project's runs (``docs/measurements.md``), scaled by what each
 stage holds at once: a pair of frames (flow), at most ``analyse.MOTION_PAIRS`` pairs (analysis), a
-window of at most ``segment.long.SEG_FRAMES`` frames at the finder's working size (two-layer bootstrap), the model, its optimiser and
+window of at most ``segment.long.SEG_FRAMES`` frames at the finder's working size (two-layer
+bootstrap), the model, its optimiser and
 a batch (training), a frame and a render chunk (export). None of them grows with the clip's length
 except the alpha grid's slices up to ``scene.fields.ALPHA_GRID_CELLS`` (and, before the analysis, the
 widest atlas the frames could span, up to the grid's cap: :func:`widest_atlas`); the disk does.
@@ -39,20 +40,28 @@ from layercam.engine.model_cost import floats_per_sample, kept_for_backward, mod
 # of what each stage holds at once. Fitted to readings of /proc (kB / 1024: MiB, 2^20 B), so in MiB
 # and scaled by MIB to bytes (the estimate is said in bytes: 1 GB = 1e9 B)
 MIB = 2**20 / 1e6
-BASE = 700e6 * MIB       # python, torch, OpenCV and layercam imported, a clip opened (VmRSS 680-700 MiB on this machine)
+BASE = 700e6 * MIB       # python, torch, OpenCV and layercam imported, a clip opened (VmRSS 680-700
+                         # MiB on this machine)
 FLOW_PER_PX = 180.0 * MIB      # per working-grid pixel of a pair: the two frames, flows, checks, DIS
 ANALYSIS_PER_PX = 28.0 * MIB   # per working-grid pixel of each pair measured (flow in float32, residuals, chains)
 SEG_PER_PX = 23.0 * MIB        # two layers, a clip segmented whole: per pixel of the flow's grid of each frame
-SEG_WORK_PER_PX = 70.0 * MIB   # two layers, a clip segmented in windows: per pixel of the finder's working size of each window frame
+SEG_WORK_PER_PX = 70.0 * MIB   # two layers, a clip segmented in windows: per pixel of the finder's
+                               # working size of each window frame
 BOOT_PER_PX = 24.0 * MIB       # one layer: per frame pixel (a frame and its temporaries)
-EXPORT_PER_PX = 455.0 * MIB    # per frame pixel: the faithful export's arrays for a frame and its two neighbours and their
-EXPORT_FIXED = 240e6 * MIB     # geometry kept for the atlases, and what it holds at any frame size (the writers, the atlases'
-                               # images): fitted to fast's exports of 24 frames at 427x240..1920x1080 (within 0..14%) and Basler's
+EXPORT_PER_PX = 455.0 * MIB    # per frame pixel: the faithful export's arrays for a frame and its
+                               # two neighbours and their
+EXPORT_FIXED = 240e6 * MIB     # geometry kept for the atlases, and what it holds at any frame size
+                               # (the writers, the atlases'
+                               # images): fitted to fast's exports of 24 frames at
+                               # 427x240..1920x1080 (within 0..14%) and Basler's
 RENDER_SHARE = 0.25      # a render chunk's pixel holds this share of what a training sample keeps (no autograd: the
-                         # networks' layers one at a time): fast 1600 B measured against 6144 kept, paper 9 kB against 38 kB
+                         # networks' layers one at a time): fast 1600 B measured against 6144 kept,
+                         # paper 9 kB against 38 kB
 RENDER_CHUNK = 65536     # pixels rendered at once (layercam.scene.render: frames, atlases, the tone mapping of both)
-PARAM_BYTES = 23.3 * MIB # per model parameter in training: value, Adam's two moments, a dense part's gradient (the sparse
-                         # grid levels' are rows) and what the step's scratch adds: fitted to fast's training peaks on twelve
+PARAM_BYTES = 23.3 * MIB # per model parameter in training: value, Adam's two moments, a dense
+                         # part's gradient (the sparse
+                         # grid levels' are rows) and what the step's scratch adds: fitted to fast's
+                         # training peaks on twelve
                          # clips, 64x64 to 1920x1080, 0.35-75 M parameters (within -12..+8%)
 GRAD_FACTOR = 1.4        # a training step's peak over what autograd keeps for the backward pass (a layer's gradients
                          # at a time besides): paper, 2 layers, 64x64 frames: 1.39; fast 2.0 (there 67 MB in all)
@@ -131,7 +140,8 @@ def _settings(cfg, keys) -> str:
     return ", ".join(f"{k}={getattr(getattr(cfg, k.split('.')[0]), k.split('.')[1])}" for k in keys)
 
 
-def estimate(info: dict, cfg, task: str = "hdr-video", windows: list | None = None, extent: float | None = None) -> dict:
+def estimate(info: dict, cfg, task: str = "hdr-video", windows: list | None = None,
+             extent: float | None = None) -> dict:
     """Peak memory and disk of a run on a clip of ``info`` (:func:`layercam.io.probe_clip`:
     ``frames``, ``width``, ``height``, ``bit_depth``) with ``cfg`` (the settings as given, a
     :class:`~layercam.core.config.Config`, or as resolved after the analysis, a
@@ -159,7 +169,8 @@ def estimate(info: dict, cfg, task: str = "hdr-video", windows: list | None = No
     wpx = h * w
     batch = int(rc.train.batch)
     per_part = floats_per_sample(rc)
-    if PARAM_BYTES * n_params < available_memory():  # a model that cannot be trained here is refused on its parameters alone
+    if PARAM_BYTES * n_params < available_memory():  # a model that cannot be trained here is
+                                                     # refused on its parameters alone
         fixed, per = kept_for_backward(r)
     else:
         fixed, per = 0.0, 0.0
@@ -167,10 +178,14 @@ def estimate(info: dict, cfg, task: str = "hdr-video", windows: list | None = No
     stages = {
         "flow": FLOW_PER_PX * wpx + 24.0 * px if T > 1 else 0.0,
         "analysis": ANALYSIS_PER_PX * min(T - 1, MOTION_PAIRS) * wpx,
-        "bootstrap": (BOOT_PER_PX * px if rc.model.layers == 1 else SEG_PER_PX * T * wpx + 16.0 * px if not windowed(T, (H, W), (h, w))
-                      else SEG_WORK_PER_PX * min(T, SEG_FRAMES) * math.prod(working_size((h, w), WORK_SHORT)) + 16.0 * px),  # windows at the finder's size
+        "bootstrap": (BOOT_PER_PX * px if rc.model.layers == 1 else SEG_PER_PX * T * wpx + 16.0 * px
+                      if not windowed(T, (H, W), (h, w))
+                      else SEG_WORK_PER_PX * min(T, SEG_FRAMES)
+                      * math.prod(working_size((h, w), WORK_SHORT)) + 16.0 * px),
+                      # windows at the finder's size
         "train": PARAM_BYTES * n_params + GRAD_FACTOR * fixed + sample * batch,
-        "export": 4.0 * n_params + EXPORT_FIXED + EXPORT_PER_PX * px + RENDER_SHARE * per * RENDER_CHUNK,  # the atlases render whole chunks at any frame size
+        "export": 4.0 * n_params + EXPORT_FIXED + EXPORT_PER_PX * px
+        + RENDER_SHARE * per * RENDER_CHUNK,  # the atlases render whole chunks at any frame size
     }
     store = 1 if int(info.get("bit_depth") or 8) <= 8 else (2 if int(info.get("bit_depth")) <= 16 else 4)
     disk = {
@@ -193,9 +208,13 @@ def estimate(info: dict, cfg, task: str = "hdr-video", windows: list | None = No
     else:
         largest = f"the {stage} stage on {W}x{H} frames"
         settings = "--resize"
-    return {"memory": BASE + max(stages.values()), "disk": sum(disk.values()), "stages": {k: round(v) for k, v in stages.items()},
-            "disk_parts": {k: round(v) for k, v in disk.items()}, "params": params, "largest": largest, "settings": settings,
-            "frames": T, "size": [W, H], "windows": len(spans), "assumed": {"layers": rc.model.layers, "blur": "off" if rc.model.blur == "off" else f"{rc.blur.n}x{rc.blur.n}"}}
+    return {"memory": BASE + max(stages.values()), "disk": sum(disk.values()),
+            "stages": {k: round(v) for k, v in stages.items()},
+            "disk_parts": {k: round(v) for k, v in disk.items()}, "params": params,
+            "largest": largest, "settings": settings,
+            "frames": T, "size": [W, H], "windows": len(spans),
+            "assumed": {"layers": rc.model.layers,
+                        "blur": "off" if rc.model.blur == "off" else f"{rc.blur.n}x{rc.blur.n}"}}
 
 
 def available_memory() -> float:
@@ -241,7 +260,8 @@ def summary_line(est: dict) -> str:
     """One line for the run's printout: ``estimate: peak memory 2.1 GB (train), disk 1.3 GB``."""
     stage = max(est["stages"], key=est["stages"].get)
     win = f" in {est['windows']} windows" if est.get("windows", 1) > 1 else ""
-    return f"estimate: peak memory {_fmt(est['memory'])} ({stage}), disk {_fmt(est['disk'])} for {est['frames']} frames {est['size'][0]}x{est['size'][1]}{win}"
+    return (f"estimate: peak memory {_fmt(est['memory'])} ({stage}), disk {_fmt(est['disk'])} for "
+            f"{est['frames']} frames {est['size'][0]}x{est['size'][1]}{win}")
 
 
 def check(est: dict, run_dir: Path, used_disk: float = 0.0) -> None:
@@ -249,10 +269,12 @@ def check(est: dict, run_dir: Path, used_disk: float = 0.0) -> None:
     what is free where the run folder is (less ``used_disk``, what the run already holds there)."""
     mem, have = est["memory"], available_memory()
     if mem > have:
-        raise LayercamError(f"this run needs about {_fmt(mem)} of memory, {_fmt(have)} is available: most for {est['largest']}; "
+        raise LayercamError(f"this run needs about {_fmt(mem)} of memory, {_fmt(have)} is "
+                            f"available: most for {est['largest']}; "
                             f"lower {est['settings']}{' or --resize' if est['settings'] != '--resize' else ''}")
     need, free = est["disk"] - used_disk, free_disk(run_dir)
     if need > free:
         big = max(est["disk_parts"], key=est["disk_parts"].get)
-        raise LayercamError(f"this run needs about {_fmt(est['disk'])} of disk in {run_dir}, {_fmt(free)} is free (most for the {big}); "
+        raise LayercamError(f"this run needs about {_fmt(est['disk'])} of disk in {run_dir}, "
+                            f"{_fmt(free)} is free (most for the {big}); "
                             f"free some space, or use --resize, --max-frames or --stride")

@@ -78,7 +78,8 @@ def alpha_flow_loss(alpha: torch.Tensor, alpha_match: torch.Tensor, valid: torch
     return (d * v).sum() / v.sum().clamp_min(1.0)
 
 
-def mask_loss(alpha: torch.Tensor, mask: torch.Tensor, balance: float = 1.0, max_pos_weight: float = 10.0, keep: torch.Tensor | None = None) -> torch.Tensor:
+def mask_loss(alpha: torch.Tensor, mask: torch.Tensor, balance: float = 1.0,
+              max_pos_weight: float = 10.0, keep: torch.Tensor | None = None) -> torch.Tensor:
     """Alpha against masks: binary cross-entropy, ``alpha (N, 1)`` and ``mask (N,)`` in {0, 1}.
     With ``balance`` 1 it is class-balanced: foreground pixels weigh ``n_bg / n_fg`` (at most
     ``max_pos_weight``), so that a small object is not learnt as "all background" first (plain BCE

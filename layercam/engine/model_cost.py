@@ -104,10 +104,12 @@ def _measure_kept(r) -> tuple[float, float]:
         kept = []
         for n in PROBE:
             t = torch.randint(0, T, (n,))
-            batch = {"t": t, "xy": torch.rand(n, 2) * 2 - 1, "rgb": torch.rand(n, 3), "mask": (torch.rand(n) < 0.5).float(),
+            batch = {"t": t, "xy": torch.rand(n, 2) * 2 - 1, "rgb": torch.rand(n, 3),
+                     "mask": (torch.rand(n) < 0.5).float(),
                      "probe": torch.rand(PROBES, 3)}
             if m.flow_loss:
-                batch.update(t_match=(t + 1).clamp(max=T - 1), xy_match=torch.rand(n, 2) * 2 - 1, match_ok=torch.ones(n, dtype=torch.bool))
+                batch.update(t_match=(t + 1).clamp(max=T - 1), xy_match=torch.rand(n, 2) * 2 - 1,
+                             match_ok=torch.ones(n, dtype=torch.bool))
             seen: dict[int, int] = {}
 
             def pack(x, seen=seen):
@@ -125,7 +127,8 @@ def _measure_kept(r) -> tuple[float, float]:
 
 def floats_per_sample(cfg) -> dict:
     """Floats one training sample carries through each part's networks (their inputs and each
-    layer's output), by part (as :data:`layercam.engine.estimate.SETTINGS` names them), for the resolved settings ``cfg``:
+    layer's output), by part (as :data:`layercam.engine.estimate.SETTINGS` names them), for the
+    resolved settings ``cfg``:
     which part a batch's activations are most for (:func:`kept_for_backward` measures how much)."""
     from layercam.scene import fields as f
 
@@ -134,7 +137,9 @@ def floats_per_sample(cfg) -> dict:
     n = int(cfg.blur.n) if cfg.model.blur == "on" else 1
     k = n * n * (2 if cfg.model.flow_loss else 1)  # each sample's n x n PSF taps, and its match for the flow loss
     out = {"deformation": k * L * mlp(3 * (1 + 2 * f.DEFORM_PE_FREQS), s.deform_width, s.deform_depth, 2),
-           "atlas grids": k * L * (s.grid_levels * f.GRID_FEATURES * 4 if s.encoding == "grid" else 2 * (1 + 2 * f.ATLAS_PE_FREQS)),
+           "atlas grids": k * L
+           * (s.grid_levels * f.GRID_FEATURES * 4 if s.encoding == "grid"
+              else 2 * (1 + 2 * f.ATLAS_PE_FREQS)),
            "atlas MLP": k * L * mlp(0, s.atlas_width, s.atlas_depth, 3),
            "tone mapper and exposures": k * 3 * mlp(1, cfg.tone.width, cfg.tone.depth)}
     if L > 1:

@@ -103,7 +103,9 @@ class Resolved:
         return cls(freeze(config_from_dict(d)), bool(d.get(STATIC_KEY, False)), dict(d.get("reasons", {})))
 
 
-def resolve(cfg: Config, clip=None, exposures=None, task: str = "hdr-video", measures: dict | None = None, *, frames: int | None = None, hw: tuple[int, int] | None = None) -> Resolved:
+def resolve(cfg: Config, clip=None, exposures=None, task: str = "hdr-video",
+            measures: dict | None = None, *, frames: int | None = None,
+            hw: tuple[int, int] | None = None) -> Resolved:
     """``cfg`` with every ``auto`` decided and every cap applied, for ``clip`` (or a clip of
     ``frames`` frames of size ``hw``) with ``exposures`` and the analysis's ``measures``."""
     from layercam.core.geometry import STATIC_CORNER_PX
@@ -128,26 +130,35 @@ def resolve(cfg: Config, clip=None, exposures=None, task: str = "hdr-video", mea
     elif shift is None or clip.T < 2:
         reasons[STATIC_KEY] = "no: no flow measured"
     else:
-        reasons[STATIC_KEY] = f"{'yes' if static else 'no'}: the flow's chained homographies move a frame corner {shift:.2f} px ({'<' if static else '>='} {STATIC_CORNER_PX})"
+        reasons[STATIC_KEY] = (f"{'yes' if static else 'no'}: the flow's chained homographies move "
+                               f"a frame corner {shift:.2f} px ({'<' if static else '>='} "
+                               f"{STATIC_CORNER_PX})")
 
     cap(cfg, clip, reasons)
 
     e = cfg.export
     if e.merge_neighbours == AUTO:
         e.merge_neighbours = "on" if static and task != "fuse-stack" else "off"
-        reasons["export.merge_neighbours"] = ("a video from a static camera: each frame merged with its neighbours where they agree with it"
-                                              if e.merge_neighbours == "on" else "a moving camera or a stack's fused view: each frame its own")
+        reasons["export.merge_neighbours"] = ("a video from a static camera: each frame merged "
+                                              "with its neighbours where they agree with it"
+                                              if e.merge_neighbours == "on"
+                                              else "a moving camera or a stack's fused view: each "
+                                                   "frame its own")
     if e.denoise == AUTO:
         e.denoise = "on" if task == "fuse-stack" else "off"
-        reasons["export.denoise"] = ("a stack's fused view: filtered against the reference shot's own noise" if e.denoise == "on"
-                                     else "a video: each frame keeps its own noise (filtered by their different noise, short and long frames flickered)")
+        reasons["export.denoise"] = ("a stack's fused view: filtered against the reference shot's "
+                                     "own noise" if e.denoise == "on"
+                                     else "a video: each frame keeps its own noise (filtered by "
+                                          "their different noise, short and long frames flickered)")
     t = cfg.train
     if t.device == AUTO:
         t.device = device_of(AUTO)
-        reasons["train.device"] = "torch sees a CUDA device" if t.device.startswith("cuda") else "torch sees no CUDA device"
+        reasons["train.device"] = ("torch sees a CUDA device" if t.device.startswith("cuda")
+                                   else "torch sees no CUDA device")
     if t.autocast == AUTO:
         t.autocast = "bf16" if t.device.startswith("cuda") and _bf16() else "none"
-        reasons["train.autocast"] = "bf16 mixed precision on a GPU that has it" if t.autocast == "bf16" else "fp32 (no GPU with bf16)"
+        reasons["train.autocast"] = ("bf16 mixed precision on a GPU that has it"
+                                     if t.autocast == "bf16" else "fp32 (no GPU with bf16)")
     return Resolved(freeze(cfg), bool(static), reasons)
 
 
@@ -162,24 +173,31 @@ def cap(cfg: Config, clip, reasons: dict) -> None:
     blur = cfg.model.blur == "on"
     cap = step_cap(t, clip.T, clip.H * clip.W, blur)
     if cap >= t.steps:
-        reasons["train.steps"] = f"{t.steps}: the preset's (under its cap of {t.passes_per_frame:g} x {clip.T} passes over the clip's pixels)"
+        reasons["train.steps"] = (f"{t.steps}: the preset's (under its cap of "
+                                  f"{t.passes_per_frame:g} x {clip.T} passes over the clip's "
+                                  "pixels)")
         return
     asked = t.steps
     t.steps = cap
     t.bootstrap_steps = min(t.bootstrap_steps, cap // 2)
     if s.grid_levels > FLOOR_GRID_LEVELS:
         s.grid_levels = FLOOR_GRID_LEVELS
-        reasons["scene.grid_levels"] = f"{FLOOR_GRID_LEVELS}: a capped training fits the few looks' disagreements with more"
+        reasons["scene.grid_levels"] = (f"{FLOOR_GRID_LEVELS}: a capped training fits the few "
+                                        "looks' disagreements with more")
     floor = cap == MIN_STEPS and has_floor_model(cfg)  # (a blur generator keeps its floor in pixels sampled)
     if floor:
         s.grid_levels, s.atlas_width = FLOOR["scene.grid_levels"], min(s.atlas_width, FLOOR["scene.atlas_width"])
         t.batch = min(t.batch, FLOOR["train.batch"])
-        reasons["train.steps"] = (f"{t.steps} steps of {t.batch} pixels instead of {asked}: a clip this short trains at the step cap's floor, one model "
-                                  f"whatever the preset ({s.grid_levels} grid levels, atlas width {s.atlas_width}; more fit a short stack's noise; "
+        reasons["train.steps"] = (f"{t.steps} steps of {t.batch} pixels instead of {asked}: a clip "
+                                  "this short trains at the step cap's floor, one model "
+                                  f"whatever the preset ({s.grid_levels} grid levels, atlas width "
+                                  f"{s.atlas_width}; more fit a short stack's noise; "
                                   "train.passes_per_frame=0: no cap)")
     else:
-        reasons["train.steps"] = (f"{t.steps} instead of {asked}: at most {t.passes_per_frame:g} x {clip.T} passes over the clip's "
-                                  f"{clip.T * clip.H * clip.W:,} pixels (more fit a short stack's noise; train.passes_per_frame=0: no cap)")
+        reasons["train.steps"] = (f"{t.steps} instead of {asked}: at most {t.passes_per_frame:g} x "
+                                  f"{clip.T} passes over the clip's "
+                                  f"{clip.T * clip.H * clip.W:,} pixels (more fit a short stack's "
+                                  "noise; train.passes_per_frame=0: no cap)")
 
 
 def has_floor_model(cfg: Config) -> bool:
@@ -228,7 +246,8 @@ def min_samples() -> int:
     return int(t.steps) * int(t.batch)
 
 
-TABLE_KEYS = ("window", "static", "train.steps", "scene.grid_levels", "export.merge_neighbours", "export.denoise", "train.device", "train.autocast")
+TABLE_KEYS = ("window", "static", "train.steps", "scene.grid_levels", "export.merge_neighbours",
+              "export.denoise", "train.device", "train.autocast")
 
 
 def format_table(r: Resolved, windows: int = 1) -> str:
@@ -242,7 +261,8 @@ def format_table(r: Resolved, windows: int = 1) -> str:
     rows = [(k, str(summary[k]), r.reasons.get(keys.get(k, f"model.{k}"), "")) for k in MODEL_KEYS]
     for k in TABLE_KEYS:
         if k in r.reasons:
-            value = r.static if k == STATIC_KEY else windows if k == "window" else getattr(getattr(r.settings, k.split(".")[0]), k.split(".")[1])
+            value = r.static if k == STATIC_KEY else windows if k == "window" else getattr(
+                getattr(r.settings, k.split(".")[0]), k.split(".")[1])
             reason = r.reasons[k].split(": ", 1)[1] if k == STATIC_KEY else r.reasons[k]
             rows.append((k, str(value), reason))
     w0 = max(len(a) for a, _, _ in rows)

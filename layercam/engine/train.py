@@ -49,7 +49,9 @@ class TrainResult:
 
 
 class Trainer:
-    def __init__(self, model, sampler, cfg: TrainConfig, ckpt_path: Path | None = None, callbacks=(), progress: bool = True, desc: str = "train", max_bad_steps: int | None = None):
+    def __init__(self, model, sampler, cfg: TrainConfig, ckpt_path: Path | None = None,
+                 callbacks=(), progress: bool = True, desc: str = "train",
+                 max_bad_steps: int | None = None):
         self.model, self.sampler, self.cfg = model, sampler, cfg
         self.max_bad_steps = MAX_BAD_STEPS if max_bad_steps is None else max_bad_steps
         self.ckpt_path = Path(ckpt_path) if ckpt_path else None
@@ -94,7 +96,9 @@ class Trainer:
         if not distributed.is_main():
             return True  # rank 0 writes it (all ranks hold the same model)
         if not self.finite_state():
-            self.history.append({"step": self.step, "event": "non-finite parameters: checkpoint not written, previous one kept"})
+            self.history.append({"step": self.step,
+                                 "event": "non-finite parameters: checkpoint not written, previous "
+                                          "one kept"})
             return False
         state = self.state(final)
         if sampler_state is not None:
@@ -105,7 +109,10 @@ class Trainer:
         except (OSError, RuntimeError) as e:  # torch reports a full disk as a RuntimeError of its zip writer
             with contextlib.suppress(OSError):
                 tmp.unlink()
-            raise LayercamError(f"cannot write the checkpoint {self.ckpt_path} (is the disk full?): {str(e).splitlines()[0] if str(e) else type(e).__name__}; the previous checkpoint is kept") from None
+            raise LayercamError(f"cannot write the checkpoint {self.ckpt_path} (is the disk "
+                                "full?): "
+                                f"{str(e).splitlines()[0] if str(e) else type(e).__name__}; the "
+                                "previous checkpoint is kept") from None
         tmp.replace(self.ckpt_path)
         return True
 
@@ -117,7 +124,8 @@ class Trainer:
         if "opt" in s:  # a final checkpoint has none: nothing is left to train
             self.opt.load_state_dict(s["opt"])
         elif s["step"] < self.cfg.steps:
-            raise LayercamError(f"{self.ckpt_path} is a finished training's checkpoint (step {s['step']}), not one to train on to step {self.cfg.steps}")
+            raise LayercamError(f"{self.ckpt_path} is a finished training's checkpoint (step "
+                                f"{s['step']}), not one to train on to step {self.cfg.steps}")
         self.step, self.history = s["step"], s["history"]
         self.lr_scale, self.bad_total = s["lr_scale"], s.get("bad_total", 0)
         self.sampler.load_state_dict(s["sampler"])
@@ -174,7 +182,9 @@ class Trainer:
                     bad_run += 1
                     self.bad_total += 1
                     self.lr_scale *= 0.5
-                    self.history.append({"step": self.step, "event": f"{bad}: step skipped, lr halved (x{self.lr_scale:g})"})
+                    self.history.append({"step": self.step,
+                                         "event": f"{bad}: step skipped, lr halved "
+                                                  f"(x{self.lr_scale:g})"})
                     if bad_run >= self.max_bad_steps:
                         err = LayercamError(
                             f"training diverged: {bad_run} non-finite steps in a row at step {self.step} ({bad}); "
@@ -213,9 +223,11 @@ class Trainer:
             bar.close()
         self.opt.flush()  # sparse grid rows: the coasting since their last gradient (layercam/engine/optim.py)
         if not self.finite_state():
-            raise LayercamError(f"training ended with non-finite parameters at step {self.step}; " + self._kept_message())
+            raise LayercamError(f"training ended with non-finite parameters at step {self.step}; "
+                                + self._kept_message())
         self.save(final=True)
-        return TrainResult(self.step, time.perf_counter() - t0, self.history, last, self.bad_total, resumed, time.process_time() - c0)
+        return TrainResult(self.step, time.perf_counter() - t0, self.history, last, self.bad_total,
+                           resumed, time.process_time() - c0)
 
     @staticmethod
     def _check(loss: torch.Tensor, terms: dict, params: list) -> str:
@@ -224,7 +236,8 @@ class Trainer:
             names = [k for k, v in terms.items() if not bool(torch.isfinite(v.detach()).all())]
             return f"non-finite loss ({', '.join(names) or 'total'})"
         loss.backward()
-        grads = [p.grad._values() if p.grad.is_sparse else p.grad for p in params if p.grad is not None]  # sparse: its rows
+        grads = [p.grad._values() if p.grad.is_sparse else p.grad for p in params
+                 if p.grad is not None]  # sparse: its rows
         if grads and not bool(torch.isfinite(torch.nn.utils.get_total_norm(grads))):
             return "non-finite gradient norm"
         return ""

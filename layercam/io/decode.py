@@ -17,7 +17,8 @@ from layercam.io.lock import pid_alive
 from layercam.io.images import read_exif_exposure, read_image
 from layercam.io.video import iter_video, probe_video
 from layercam.io.clip import Clip
-from layercam.io.inputs import (FRAMES_VERSION, EXIF_SUFFIXES, alpha_note, audio_plan, check_count, expand_inputs, parse_resize, primaries_of, resize, source_key,
+from layercam.io.inputs import (FRAMES_VERSION, EXIF_SUFFIXES, alpha_note, audio_plan, check_count,
+                                expand_inputs, parse_resize, primaries_of, resize, source_key,
                                  target_size, unique_names)
 
 
@@ -116,7 +117,8 @@ def _cached_clip(folder: Path) -> Clip | None:
     meta = dict(info["meta"], frames_cache=str(folder), _fingerprint=info["fingerprint"])
     if meta.get("source_size") is not None:
         meta["source_size"] = tuple(meta["source_size"])
-    return Clip(frames=Frames(raw), source=info["source"], names=info["names"], fps=info["fps"], bit_depth=info["bit_depth"],
+    return Clip(frames=Frames(raw), source=info["source"], names=info["names"], fps=info["fps"],
+                bit_depth=info["bit_depth"],
                 exif_exposures=info["exif_exposures"], meta=meta)
 
 
@@ -168,7 +170,8 @@ def load_clip(
         shutil.rmtree(partial, ignore_errors=True)
         partial.mkdir()
     try:
-        clip = (_decode_video if kind == "video" else _decode_images)(what, source, max_frames, stride, rs, None if folder is None else partial)
+        clip = (_decode_video if kind == "video" else _decode_images)(what, source, max_frames,
+            stride, rs, None if folder is None else partial)
         if folder is not None:
             _keep(clip, partial, folder)
             clip = _cached_clip(folder)
@@ -187,11 +190,14 @@ def _keep(clip: Clip, partial: Path, folder: Path) -> None:
     import json
 
     raw = clip.frames.raw
-    info = {"version": FRAMES_VERSION, "dtype": raw.dtype.str, "shape": list(raw.shape), "source": clip.source, "names": clip.names,
-            "fps": clip.fps, "bit_depth": clip.bit_depth, "exif_exposures": clip.exif_exposures, "fingerprint": clip.fingerprint(),
+    info = {"version": FRAMES_VERSION, "dtype": raw.dtype.str, "shape": list(raw.shape),
+            "source": clip.source, "names": clip.names,
+            "fps": clip.fps, "bit_depth": clip.bit_depth, "exif_exposures": clip.exif_exposures,
+            "fingerprint": clip.fingerprint(),
             "meta": {k: (list(v) if isinstance(v, tuple) else v) for k, v in clip.meta.items()}}
     os.fsync(raw._fd)
-    (partial / ".made").touch()  # decoded by this command: removed again if it fails before its stages (cli.before_stages)
+    (partial / ".made").touch()  # decoded by this command: removed again if it fails before its
+                                 # stages (cli.before_stages)
     (partial / "clip.json").write_text(json.dumps(info))
     raw.close()
     try:
@@ -227,12 +233,14 @@ def _decode_video(path: Path, source: str, max_frames, stride: int, rs, folder: 
         fps=info["fps"],
         bit_depth=8,
         exif_exposures=None,
-        meta={"kind": "video", "frame_indices": idx, "n_source_frames": None, "source_size": info["size"], "video": header,
+        meta={"kind": "video", "frame_indices": idx, "n_source_frames": None,
+              "source_size": info["size"], "video": header,
               "primaries": primaries_of(header.get("primaries")), "audio": audio, "notes": notes},
     )
 
 
-def _decode_images(all_paths: list[Path], source: str, max_frames, stride: int, rs, folder: Path | None, depth: int = 8) -> Clip:
+def _decode_images(all_paths: list[Path], source: str, max_frames, stride: int, rs,
+                   folder: Path | None, depth: int = 8) -> Clip:
     idx = list(range(0, len(all_paths), stride))
     if max_frames is not None:
         idx = idx[:max_frames]

@@ -25,7 +25,8 @@ from layercam.io.ev import _measure_phase_ev, _pair_diffs, _pairs_measured_per_p
 __all__ = ["Exposures", "parse_exposures", "measure_pair_ev"]
 
 _EV_MIN, _EV_MAX = 0.5, 12.0
-MAX_SPAN_EV = 120.0  # exposures of one clip at most this many stops apart: 2^120 and the scene's own range within float32 (2^128)
+MAX_SPAN_EV = 120.0  # exposures of one clip at most this many stops apart: 2^120 and the scene's
+                     # own range within float32 (2^128)
 
 
 @dataclass
@@ -59,9 +60,12 @@ class Exposures:
             if self.phase.shape != self.log2_dt.shape:
                 raise ValueError("phase and log2_dt must have the same length")
         if self.log2_dt.size and not np.isfinite(self.log2_dt).all():
-            raise LayercamError(f"exposures ({self.spec}): an exposure is beyond the range of numbers (check the times or EVs given)")
+            raise LayercamError(f"exposures ({self.spec}): an exposure is beyond the range of "
+                                "numbers (check the times or EVs given)")
         if self.log2_dt.size and float(np.ptp(self.log2_dt)) > MAX_SPAN_EV:
-            raise LayercamError(f"exposures ({self.spec}) span {float(np.ptp(self.log2_dt)):.3g} stops; at most {MAX_SPAN_EV:g} are supported (check the times or EVs given)")
+            raise LayercamError(f"exposures ({self.spec}) span {float(np.ptp(self.log2_dt)):.3g} "
+                                f"stops; at most {MAX_SPAN_EV:g} are supported (check the times or "
+                                "EVs given)")
 
     @property
     def T(self) -> int:  # noqa: N802
@@ -120,7 +124,8 @@ def _alt(clip: Clip, n: int, spec: str, ev_step: float | None, force_ev_step: bo
     measured, stray = _measure_phase_ev(clip.frames, phase, n)  # EV per phase, phase 0 at 0
     if stray > _EV_MIN:  # frames of the same phases differ more than two exposures must: another cycle
         other = "alt3" if n == 2 else "alt"
-        raise LayercamError(f"'{spec}': the frames do not repeat every {n} exposures (frames of the same phases differ by {stray:.1f} EV); "
+        raise LayercamError(f"'{spec}': the frames do not repeat every {n} exposures (frames of "
+                            f"the same phases differ by {stray:.1f} EV); "
                             f"try --exposures {other}, an EV cycle, or learn")
     order = np.argsort(measured)  # darkest first
     rank = np.empty(n, dtype=np.int64)
@@ -176,7 +181,8 @@ def _cycle(clip: Clip, spec: str, each: bool = False) -> Exposures:
         raise LayercamError(f"empty exposure cycle {spec!r}")
     n = len(evs)
     if each and 1 < n != clip.T:
-        raise LayercamError(f"--exposures {spec!r} gives {n} EVs for {clip.T} images; a stack needs one per image, in order")
+        raise LayercamError(f"--exposures {spec!r} gives {n} EVs for {clip.T} images; a stack "
+                            "needs one per image, in order")
     if n > clip.T:
         raise LayercamError(f"exposure cycle {spec!r} has {n} entries for {clip.T} frames (at most one per frame)")
     phase = _frame_phase(clip, n)
@@ -244,7 +250,8 @@ def _read_time_file(path: Path, clip: Clip, spec: str) -> Exposures:
     )
 
 
-def parse_exposures(spec: str | None, clip: Clip, ev_step: float | None = None, force_ev_step: bool = False, each: bool = False) -> Exposures:
+def parse_exposures(spec: str | None, clip: Clip, ev_step: float | None = None,
+                    force_ev_step: bool = False, each: bool = False) -> Exposures:
     """Decide the exposure of each frame of ``clip`` from ``spec``.
 
     spec:

@@ -37,7 +37,8 @@ def rate_text(fps: float) -> str:
 
 
 _STREAM = re.compile(r"Stream #0:\d+[^:]*: (Video|Audio): ([^\n]*)")
-_TAGGED = ("bt709", "bt2020", "bt470bg", "smpte170m", "smpte240m", "smpte432", "smpte431", "bt470m", "film", "smpte428", "jedec-p22")
+_TAGGED = ("bt709", "bt2020", "bt470bg", "smpte170m", "smpte240m", "smpte432", "smpte431", "bt470m",
+           "film", "smpte428", "jedec-p22")
 
 
 def parse_header(text: str) -> dict:
@@ -47,7 +48,8 @@ def parse_header(text: str) -> dict:
     ``video`` (its codec line), ``audio`` (the first audio stream's codec, or None) and
     ``primaries`` (the colour primaries the video is tagged with, or None)."""
     head = text.split("Output #0", 1)[0]
-    out: dict = {"fps": None, "tbr": None, "variable": False, "duration": None, "video": None, "audio": None, "primaries": None}
+    out: dict = {"fps": None, "tbr": None, "variable": False, "duration": None, "video": None,
+                 "audio": None, "primaries": None}
     m = re.search(r"Duration: (\d+):(\d+):(\d+(?:\.\d+)?)", head)
     if m:
         out["duration"] = int(m.group(1)) * 3600 + int(m.group(2)) * 60 + float(m.group(3))

@@ -18,7 +18,8 @@ def figure(nrows: int, ncols: int, cell: tuple[float, float] = (2.2, 2.2), squee
     return fig, axes
 
 
-def crf_figure(z: np.ndarray, curve: np.ndarray, truth: np.ndarray | None = None, shift: np.ndarray | None = None, data_range: tuple[float, float] | None = None):
+def crf_figure(z: np.ndarray, curve: np.ndarray, truth: np.ndarray | None = None,
+               shift: np.ndarray | None = None, data_range: tuple[float, float] | None = None):
     """Per-channel CRF: one panel per R, G, B with the learned curve ``(K, 3)`` over ``z`` stops and,
     when known, the ground truth ``(K, 3)`` (already aligned, see :func:`layercam.bench.viz.align_crf`; ``shift`` is
     then printed in the legend). ``data_range`` shades the stops that the clip's pixels cover."""

@@ -46,19 +46,24 @@ __all__ = ["FORMATS", "TRANSFER", "HdrMapping", "missing_for_hdr", "write_hdr_vi
 
 FORMATS = ("pq", "hlg", "none")
 TRANSFER = {"pq": "smpte2084", "hlg": "arib-std-b67"}
-CRF = 10  # x265's quality: the codec's error within 2% of the light on most well-exposed pixels (docs/measurements.md); 18 left 3%
+CRF = 10  # x265's quality: the codec's error within 2% of the light on most well-exposed pixels
+          # (docs/measurements.md); 18 left 3%
 PRESET = "fast"  # as medium's error and size, in three quarters of its time
 MIN_SIDE = 16  # libx265 refuses smaller frames
-NARROW = 64  # narrower frames are encoded padded to this width and cropped back (libx265 4.3's 10-bit encoder crashes at widths 34..48)
-ANCHOR = ("diffuse white = the radiance an SDR camera at the run's reference exposure (the median of its frames') records as signal 1.0: "
-          "the learned camera's half signal at that exposure taken as sRGB's 0.5, i.e. 21.4% of white; it is shown at nits_white cd/m2 "
+NARROW = 64  # narrower frames are encoded padded to this width and cropped back (libx265 4.3's
+             # 10-bit encoder crashes at widths 34..48)
+ANCHOR = ("diffuse white = the radiance an SDR camera at the run's reference exposure (the median "
+          "of its frames') records as signal 1.0: "
+          "the learned camera's half signal at that exposure taken as sRGB's 0.5, i.e. 21.4% of "
+          "white; it is shown at nits_white cd/m2 "
           "(BT.2408's HDR reference white, where SDR's 100% lands)")
 
 
 @functools.lru_cache(maxsize=8)
 def _ffmpeg_text(exe: str, *args: str) -> str:
     try:
-        res = subprocess.run([exe, "-hide_banner", *args], stdin=subprocess.DEVNULL, capture_output=True, text=True, timeout=60)
+        res = subprocess.run([exe, "-hide_banner", *args], stdin=subprocess.DEVNULL,
+                             capture_output=True, text=True, timeout=60)
     except (OSError, subprocess.SubprocessError):
         return ""
     return res.stdout + res.stderr
@@ -96,7 +101,8 @@ class HdrMapping:
     peak: float = bt2100.DISPLAY_PEAK
 
     @classmethod
-    def anchored(cls, fmt: str, white: float, nits_white: float = bt2100.REFERENCE_WHITE, primaries: str = "bt709") -> "HdrMapping":
+    def anchored(cls, fmt: str, white: float, nits_white: float = bt2100.REFERENCE_WHITE,
+                 primaries: str = "bt709") -> "HdrMapping":
         """The mapping that shows radiance ``white`` (diffuse white) at ``nits_white`` cd/m2."""
         if fmt not in TRANSFER:
             raise LayercamError(f"HDR format must be one of {', '.join(TRANSFER)}, got {fmt!r}")
@@ -104,7 +110,8 @@ class HdrMapping:
             raise LayercamError(f"diffuse white must be a positive radiance, got {white}")
         if not (math.isfinite(nits_white) and 0 < nits_white <= bt2100.DISPLAY_PEAK):
             raise LayercamError(f"nits_white must be in (0, {bt2100.DISPLAY_PEAK:g}] cd/m2, got {nits_white}")
-        target = nits_white if fmt == "pq" else bt2100.DISPLAY_PEAK * (nits_white / bt2100.DISPLAY_PEAK) ** (1 / bt2100.hlg_gamma())
+        target = nits_white if fmt == "pq" else bt2100.DISPLAY_PEAK * (nits_white
+            / bt2100.DISPLAY_PEAK) ** (1 / bt2100.hlg_gamma())
         return cls(fmt, target / white, primaries)
 
     @functools.cached_property
@@ -146,7 +153,8 @@ class HdrMapping:
         if self.fmt == "pq":
             return m * ratio
         ys = (lin @ np.asarray(bt2100.LUMA_2020, np.float32)) * ratio / bt2100.DISPLAY_PEAK
-        return (bt2100.DISPLAY_PEAK * np.power(np.maximum(ys, 1e-12), bt2100.hlg_gamma() - 1) * m * ratio / bt2100.DISPLAY_PEAK).astype(np.float32)
+        return (bt2100.DISPLAY_PEAK * np.power(np.maximum(ys, 1e-12), bt2100.hlg_gamma() - 1) * m
+                * ratio / bt2100.DISPLAY_PEAK).astype(np.float32)
 
     def signal(self, img: np.ndarray) -> np.ndarray:
         """Non-linear R'G'B' in [0, 1] ``(H, W, 3)`` float32."""
@@ -185,7 +193,8 @@ def _master_display(primaries: str, hi: float) -> str:
     return f"G{xy(g)}B{xy(b)}R{xy(r)}WP{xy(w)}L({round(min(max(hi, 5.0), bt2100.PQ_PEAK) * 10000)},1)"
 
 
-def write_hdr_video(path: str | os.PathLike, frames: Callable[[], Iterable[np.ndarray]], fps: float, fmt: str, white: float,
+def write_hdr_video(path: str | os.PathLike, frames: Callable[[], Iterable[np.ndarray]], fps: float,
+                    fmt: str, white: float,
                     nits_white: float = bt2100.REFERENCE_WHITE, primaries: str = "bt709", audio: dict | None = None,
                     crf: int = CRF, progress: bool = False) -> dict:
     """Write ``path`` (an mp4, atomically): the linear HDR frames that each call of ``frames()``
@@ -218,7 +227,8 @@ def write_hdr_video(path: str | os.PathLike, frames: Callable[[], Iterable[np.nd
     if n == 0:
         raise LayercamError(f"no frames for {path.name}")
     if min(size) < MIN_SIDE:
-        raise LayercamError(f"cannot write {path.name}: libx265 encodes frames of at least {MIN_SIDE} px a side, these are {size[1]}x{size[0]}")
+        raise LayercamError(f"cannot write {path.name}: libx265 encodes frames of at least "
+                            f"{MIN_SIDE} px a side, these are {size[1]}x{size[0]}")
     cll, fall = 0.0, 0.0
     for img in frames():  # pass 2: the light levels of what the reference display shows
         m = mp.display_max(img)
@@ -231,12 +241,16 @@ def write_hdr_video(path: str | os.PathLike, frames: Callable[[], Iterable[np.nd
     h, w = size[0] + size[0] % 2, size[1] + size[1] % 2
     pad = max(0, NARROW - w)  # encoded wider, cropped back by the stream's conformance window
     side = _side_data_options(exe)
-    params = [f"log-level=error", "colorprim=bt2020", f"transfer={trc}", "colormatrix=bt2020nc", "range=limited", "chromaloc=0",
+    params = [f"log-level=error", "colorprim=bt2020", f"transfer={trc}", "colormatrix=bt2020nc",
+              "range=limited", "chromaloc=0",
               f"master-display={master}", f"max-cll={max_cll},{max_fall}", "hdr10=1"]
     colour = ["-color_primaries", "bt2020", "-color_trc", trc, "-colorspace", "bt2020nc", "-color_range", "tv"]
-    cmd = [exe, "-hide_banner", "-loglevel", "error", "-y", "-f", "rawvideo", "-pix_fmt", "yuv420p10le", "-s", f"{w + pad}x{h}", "-framerate", rate_text(fps),
-           *(["-mastering_display", master, "-content_light", f"{max_cll},{max_fall}"] if side else []), *colour, "-i", "-",
-           "-c:v", "libx265", "-preset", PRESET, "-crf", str(crf), "-profile:v", "main10", "-pix_fmt", "yuv420p10le", "-x265-params", ":".join(params),
+    cmd = [exe, "-hide_banner", "-loglevel", "error", "-y", "-f", "rawvideo", "-pix_fmt",
+           "yuv420p10le", "-s", f"{w + pad}x{h}", "-framerate", rate_text(fps),
+           *(["-mastering_display", master, "-content_light", f"{max_cll},{max_fall}"] if side
+             else []), *colour, "-i", "-",
+           "-c:v", "libx265", "-preset", PRESET, "-crf", str(crf), "-profile:v", "main10",
+           "-pix_fmt", "yuv420p10le", "-x265-params", ":".join(params),
            *colour, "-chroma_sample_location", "left", *(["-bsf:v", f"hevc_metadata=crop_right={pad}"] if pad else []),
            "-tag:v", "hvc1", "-movflags", "+faststart"]  # fmt: skip
     tmp = temp_name(path)
@@ -244,7 +258,8 @@ def write_hdr_video(path: str | os.PathLike, frames: Callable[[], Iterable[np.nd
         proc = subprocess.Popen([*cmd, str(tmp)], stdin=subprocess.PIPE, stdout=subprocess.DEVNULL, stderr=log)
         try:
             try:
-                for img in bar(frames(), total=n, desc=f"{path.name} ({fmt})", unit="frame", enabled=progress):  # pass 3: encode
+                for img in bar(frames(), total=n, desc=f"{path.name} ({fmt})", unit="frame",
+                               enabled=progress):  # pass 3: encode
                     proc.stdin.write(_yuv420(mp.signal(_even(np.asarray(img, np.float32), pad))))
                 proc.stdin.close()
             except (BrokenPipeError, OSError):
@@ -263,8 +278,11 @@ def write_hdr_video(path: str | os.PathLike, frames: Callable[[], Iterable[np.nd
         raise LayercamError(f"cannot write {path}{full}: ffmpeg failed ({last_line(text)})")
 
     sound = finish_with_audio(tmp, path, audio)
-    return {"file": path.name, "format": fmt, "transfer": trc, "codec": "hevc main10 yuv420p10le bt2020nc", "frames": n, "fps": rate_text(fps),
+    return {"file": path.name, "format": fmt, "transfer": trc,
+            "codec": "hevc main10 yuv420p10le bt2020nc", "frames": n, "fps": rate_text(fps),
             "nits_white": nits_white, "white_radiance": white, "scale": float(mp.scale), "primaries_in": primaries,
-            "source_peak": round(mp.source_peak, 2), "display_peak": mp.peak, "rolled_off": bool(mp.source_peak > mp.peak),
-            "max_cll": max_cll, "max_fall": max_fall, "master_display": master, "metadata": "mp4 boxes and SEI" if side else "SEI",
+            "source_peak": round(mp.source_peak, 2), "display_peak": mp.peak,
+            "rolled_off": bool(mp.source_peak > mp.peak),
+            "max_cll": max_cll, "max_fall": max_fall, "master_display": master,
+            "metadata": "mp4 boxes and SEI" if side else "SEI",
             "audio": sound, "seconds": round(time.perf_counter() - t0, 2)}  # fmt: skip

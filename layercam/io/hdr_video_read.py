@@ -20,7 +20,8 @@ __all__ = ["read_hdr_video", "probe_video", "sdr_view"]
 def _decode(path: Path, pix_fmt: str, args: tuple[str, ...] = ()) -> tuple[bytes, str]:
     from layercam.io.ffmpeg import ffmpeg_exe
 
-    res = subprocess.run([ffmpeg_exe(), "-nostdin", "-hide_banner", "-i", str(path), *args, "-map", "0:v:0", "-f", "rawvideo", "-pix_fmt", pix_fmt, "-"],
+    res = subprocess.run([ffmpeg_exe(), "-nostdin", "-hide_banner", "-i", str(path), *args, "-map",
+                          "0:v:0", "-f", "rawvideo", "-pix_fmt", pix_fmt, "-"],
                          stdin=subprocess.DEVNULL, capture_output=True)  # fmt: skip
     text = res.stderr.decode("utf-8", "replace")
     if res.returncode != 0:
@@ -109,14 +110,20 @@ def probe_video(path: str | os.PathLike) -> dict:
     block = re.search(r"Stream #0:\d+[^:]*: Video:.*?\n((?:\s{4,}.*\n)*)", head)
     stream_lines = [ln.strip() for ln in (block.group(1).splitlines() if block else [])]
     side = stream_lines[stream_lines.index("Side data:") + 1 :] if "Side data:" in stream_lines else []
-    out["stream_side_data"] = [ln for ln in side if ":" in ln and not ln.startswith(("Metadata", "handler_name", "vendor_id", "encoder"))]
+    out["stream_side_data"] = [ln for ln in side
+                               if ":" in ln
+                               and not ln.startswith(("Metadata", "handler_name", "vendor_id",
+                                                      "encoder"))]
     out["frame_side_data"] = re.findall(r"side data - ([^\n]*)", text)
     out["mastering_display"] = out["content_light"] = None
     for line in out["stream_side_data"] + out["frame_side_data"]:
-        md = re.search(rf"r\({_NUM}[, ]\s*{_NUM}\) g\({_NUM}[, ]\s*{_NUM}\) b\({_NUM}[, ]\s*{_NUM}\) wp\({_NUM}[, ]\s*{_NUM}\) min_luminance={_NUM}, max_luminance={_NUM}", line)
+        md = re.search(rf"r\({_NUM}[, ]\s*{_NUM}\) g\({_NUM}[, ]\s*{_NUM}\) b\({_NUM}[, "
+                       rf"]\s*{_NUM}\) wp\({_NUM}[, ]\s*{_NUM}\) min_luminance={_NUM}, "
+                       rf"max_luminance={_NUM}", line)
         if md and out["mastering_display"] is None:
             v = [float(x) for x in md.groups()]
-            out["mastering_display"] = {"r": tuple(v[0:2]), "g": tuple(v[2:4]), "b": tuple(v[4:6]), "wp": tuple(v[6:8]), "min": v[8], "max": v[9]}
+            out["mastering_display"] = {"r": tuple(v[0:2]), "g": tuple(v[2:4]), "b": tuple(v[4:6]),
+                                        "wp": tuple(v[6:8]), "min": v[8], "max": v[9]}
         cl = re.search(r"MaxCLL=(\d+), MaxFALL=(\d+)", line)
         if cl and out["content_light"] is None:
             out["content_light"] = {"max_cll": int(cl.group(1)), "max_fall": int(cl.group(2))}

@@ -19,7 +19,8 @@ from layercam.core.errors import LayercamError
 from layercam.io.images import IMAGE_SUFFIXES
 from layercam.io.video import VIDEO_SUFFIXES
 
-__all__ = ["FRAMES_VERSION", "EXIF_SUFFIXES", "alpha_note", "audio_plan", "check_count", "expand_inputs", "list_folder", "natural_key",
+__all__ = ["FRAMES_VERSION", "EXIF_SUFFIXES", "alpha_note", "audio_plan", "check_count",
+           "expand_inputs", "list_folder", "natural_key",
            "parse_resize", "primaries_of", "resize", "source_key", "target_size", "unique_names"]
 
 FRAMES_VERSION = 2  # the layout of a decoded clip in the cache (frames-<key>/frames.raw + clip.json): part of its key
@@ -194,7 +195,8 @@ def primaries_of(tag: str | None) -> dict:
     return {"name": "bt709", "how": f"assumed: BT.709 / sRGB, as untagged 8-bit video and images are{said}"}
 
 
-def audio_plan(path: Path, info: dict, n: int, fps: float, stride: int, max_frames: int | None) -> tuple[dict | None, list[str]]:
+def audio_plan(path: Path, info: dict, n: int, fps: float, stride: int,
+               max_frames: int | None) -> tuple[dict | None, list[str]]:
     """The sound the videos written from a clip of ``n`` frames carry over from the input ``path``
     (``{"path", "codec", "duration"}``: the input's first audio stream from its start, cut at
     ``duration`` seconds when ``--max-frames`` ended the clip early; None without sound or with a
@@ -202,12 +204,15 @@ def audio_plan(path: Path, info: dict, n: int, fps: float, stride: int, max_fram
     and sound (a variable frame rate, sound dropped)."""
     notes = []
     if info.get("variable"):
-        notes.append(f"{path.name} has a variable frame rate ({info['fps']:g} fps on average): its frames are taken at a constant "
-                     f"{fps:g} fps (ffmpeg repeats or drops a frame where the timing needs it, so the sound stays in step), and every video is written at {fps:g} fps")
+        notes.append(f"{path.name} has a variable frame rate ({info['fps']:g} fps on average): its "
+                     "frames are taken at a constant "
+                     f"{fps:g} fps (ffmpeg repeats or drops a frame where the timing needs it, so "
+                     f"the sound stays in step), and every video is written at {fps:g} fps")
     if not info.get("audio"):
         return None, notes
     if stride > 1:
-        notes.append(f"--stride {stride}: the sound of {path.name} is dropped (every {stride}th frame played at {fps:g} fps no longer keeps the input's time)")
+        notes.append(f"--stride {stride}: the sound of {path.name} is dropped (every {stride}th "
+                     f"frame played at {fps:g} fps no longer keeps the input's time)")
         return None, notes
     span = n / fps
     dur = info.get("duration")
@@ -218,4 +223,5 @@ def audio_plan(path: Path, info: dict, n: int, fps: float, stride: int, max_fram
 def alpha_note(transparent: list[float], n: int) -> str:
     """One line for frames whose alpha channel is dropped (layercam reads RGB)."""
     part = f"{max(transparent):.0%} of the pixels transparent at most" if max(transparent) > 0 else "fully opaque"
-    return f"{len(transparent)} of {n} frames have an alpha channel ({part}): alpha is dropped, the RGB values are used as they are"
+    return (f"{len(transparent)} of {n} frames have an alpha channel ({part}): alpha is dropped, "
+            "the RGB values are used as they are")

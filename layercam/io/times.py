@@ -63,7 +63,8 @@ def read_times(path: Path, clip) -> tuple[np.ndarray, str]:
                 ) from None
             named.append((name, val))
         if not (np.isfinite(val) and val > 0):
-            raise LayercamError(f"{path.name} line {lineno}: an exposure time must be a positive finite number of seconds, got {toks[0 if name is None else 1]}")
+            raise LayercamError(f"{path.name} line {lineno}: an exposure time must be a positive "
+                                f"finite number of seconds, got {toks[0 if name is None else 1]}")
     if named and plain:
         raise LayercamError(f"{path.name} mixes lines with and without file names")
     if not named and not plain:

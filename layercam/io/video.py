@@ -3,7 +3,8 @@ binary bundled with imageio-ffmpeg (works offline). Imported lazily inside the f
 
 What the input's header says (frame rate, variable rate, duration, sound, colour primaries) comes
 with the frames (``read_video(..., with_info=True)``, :func:`layercam.io.ffmpeg.parse_header`); the videos
-written keep the input's frame rate as a fraction (:func:`layercam.io.ffmpeg.rate_text`: 30000/1001, not 29.97) and carry its sound
+written keep the input's frame rate as a fraction (:func:`layercam.io.ffmpeg.rate_text`: 30000/1001,
+not 29.97) and carry its sound
 over (:func:`mux_audio`, ``VideoWriter(audio=...)``).
 """
 
@@ -22,7 +23,8 @@ import numpy as np
 from layercam.core.errors import LayercamError
 from layercam.io.ffmpeg import ffmpeg_exe, last_line, ntsc, parse_header, rate_text
 
-__all__ = ["VideoWriter", "VIDEO_SUFFIXES", "iter_video", "probe_video", "read_video", "write_video", "mux_audio", "mp4_complete"]
+__all__ = ["VideoWriter", "VIDEO_SUFFIXES", "iter_video", "probe_video", "read_video",
+           "write_video", "mux_audio", "mp4_complete"]
 
 VIDEO_SUFFIXES: tuple[str, ...] = (".mp4", ".mov", ".avi", ".mkv", ".m4v", ".webm", ".gif")
 
@@ -42,7 +44,8 @@ _OUT_STREAM = re.compile(r"Output #0.*?Stream #0:0.*?: Video: rawvideo[^\n]*?, (
 _DURATION = re.compile(r"Duration: (\d+):(\d+):([\d.]+)")
 
 
-def iter_video(path: str | os.PathLike, max_frames: int | None = None, stride: int = 1, info: dict | None = None) -> Iterator[np.ndarray]:
+def iter_video(path: str | os.PathLike, max_frames: int | None = None, stride: int = 1,
+               info: dict | None = None) -> Iterator[np.ndarray]:
     """Decode a video file frame by frame: yields uint8 RGB ``(H, W, 3)`` frames, one in memory at
     a time. ``stride`` keeps every K-th frame (0, K, 2K, ...), then ``max_frames`` keeps the first
     N of those; decoding stops as soon as N are given. ``info``, when given, is filled before the
@@ -99,7 +102,8 @@ def iter_video(path: str | os.PathLike, max_frames: int | None = None, stride: i
             if info is not None:
                 dur = _DURATION.search(text)
                 secs = int(dur.group(1)) * 3600 + int(dur.group(2)) * 60 + float(dur.group(3)) if dur else None
-                info.update(size=(w, h), fps=fps, frames=int(round(secs * fps)) if secs else None, header=parse_header(text))
+                info.update(size=(w, h), fps=fps, frames=int(round(secs * fps)) if secs else None,
+                            header=parse_header(text))
             nbytes = w * h * 3
             assert proc.stdout is not None
             i = 0
@@ -213,7 +217,8 @@ class VideoWriter:
         from fractions import Fraction
 
         self._gen = imageio_ffmpeg.write_frames(
-            str(self._tmp), (w + w % 2, h + h % 2), fps=Fraction(rate_text(self.fps)), codec="libx264", quality=None, macro_block_size=2,
+            str(self._tmp), (w + w % 2, h + h % 2), fps=Fraction(rate_text(self.fps)),
+            codec="libx264", quality=None, macro_block_size=2,
             pix_fmt_out="yuv420p", ffmpeg_log_level="error",
             output_params=["-crf", str(self.crf), "-preset", "medium", "-movflags", "+faststart"],
         )
@@ -273,19 +278,25 @@ def mux_audio(video: Path, audio: dict, out: Path) -> dict:
     why, and ``out`` is not written."""
     src = Path(audio["path"])
     if not src.is_file():
-        return {"kept": False, "codec": audio.get("codec"), "copied": False, "why": f"the input {src} is no longer there"}
+        return {"kept": False, "codec": audio.get("codec"), "copied": False,
+                "why": f"the input {src} is no longer there"}
     cut = ["-t", f"{float(audio['duration']):.6f}"] if audio.get("duration") else []
-    base = [ffmpeg_exe(), "-nostdin", "-hide_banner", "-loglevel", "error", "-y", "-i", str(video), *cut, "-i", str(src), "-map", "0:v:0", "-map", "1:a:0", "-c:v", "copy"]
+    base = [ffmpeg_exe(), "-nostdin", "-hide_banner", "-loglevel", "error", "-y", "-i", str(video),
+            *cut, "-i", str(src), "-map", "0:v:0", "-map", "1:a:0", "-c:v", "copy"]
     why = ""
     for copied, codec in ((True, ["-c:a", "copy"]), (False, ["-c:a", "aac", "-b:a", "256k"])):
-        res = subprocess.run([*base, *codec, "-movflags", "+faststart", str(out)], stdin=subprocess.DEVNULL, capture_output=True, text=True)
+        res = subprocess.run([*base, *codec, "-movflags", "+faststart", str(out)],
+                             stdin=subprocess.DEVNULL, capture_output=True, text=True)
         if res.returncode == 0 and out.is_file() and mp4_complete(out):
-            return {"kept": True, "codec": audio.get("codec"), "copied": copied, "why": "" if copied else f"{audio.get('codec')} cannot be copied into mp4 ({why}): encoded as AAC"}
+            return {"kept": True, "codec": audio.get("codec"), "copied": copied,
+                    "why": "" if copied
+                    else f"{audio.get('codec')} cannot be copied into mp4 ({why}): encoded as AAC"}
         why = last_line(res.stderr)
         out.unlink(missing_ok=True)
         if "No space left" in res.stderr:
             raise LayercamError(f"cannot write {out.with_name(video.name)} (the disk is full): {why}")
-    return {"kept": False, "codec": audio.get("codec"), "copied": False, "why": f"ffmpeg could not carry it over ({why})"}
+    return {"kept": False, "codec": audio.get("codec"), "copied": False,
+            "why": f"ffmpeg could not carry it over ({why})"}
 
 
 def mp4_complete(path: str | os.PathLike) -> bool:

@@ -15,5 +15,6 @@ def normalise_xy(x: torch.Tensor, y: torch.Tensor, w: int, h: int) -> torch.Tens
 
 def pixel_grid(h: int, w: int, device="cpu") -> torch.Tensor:
     """All pixel centres of an ``h x w`` frame, row-major, as ``(h*w, 2)`` normalised coordinates."""
-    ys, xs = torch.meshgrid(torch.arange(h, device=device, dtype=torch.float32), torch.arange(w, device=device, dtype=torch.float32), indexing="ij")
+    ys, xs = torch.meshgrid(torch.arange(h, device=device, dtype=torch.float32),
+                            torch.arange(w, device=device, dtype=torch.float32), indexing="ij")
     return normalise_xy(xs.flatten(), ys.flatten(), w, h)

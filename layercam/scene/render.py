@@ -14,7 +14,8 @@ FRAME_OUTPUTS = ("hdr", "log2_r", "layers", "ldr", "uv", "alpha")
 
 
 @torch.no_grad()
-def render_frame(model, t: int, hw: tuple[int, int], what=("hdr",), *, log2_dt: float | None = None, blur: bool = False, t_blur: float | None = None, chunk: int = 65536) -> dict:
+def render_frame(model, t: int, hw: tuple[int, int], what=("hdr",), *, log2_dt: float | None = None,
+                 blur: bool = False, t_blur: float | None = None, chunk: int = 65536) -> dict:
     """Frame ``t`` of a trained model at ``hw = (H, W)``, rendered in chunks of ``chunk`` pixels on
     the model's device (``chunk / K`` with a ``K``-sample blur patch); the one full-frame renderer of
     the exports, ``render``, ``edit``, the notebook and the benchmark's probe.
@@ -52,7 +53,8 @@ def render_frame(model, t: int, hw: tuple[int, int], what=("hdr",), *, log2_dt: 
             v = got[k]()
             if v is not None:
                 parts[k].append(v.float().cpu())
-    shapes = {"hdr": (h, w, 3), "log2_r": (h, w, 3), "ldr": (h, w, 3), "alpha": (h, w), "uv": (-1, h, w, 2), "layers": (-1, h, w, 3)}
+    shapes = {"hdr": (h, w, 3), "log2_r": (h, w, 3), "ldr": (h, w, 3), "alpha": (h, w),
+              "uv": (-1, h, w, 2), "layers": (-1, h, w, 3)}
     res = {}
     for k, v in parts.items():
         if not v:
@@ -237,7 +239,8 @@ def exposure_frames(model, meta: dict, ev: float, keep_blur: bool = False, chunk
     ``(T, H, W, 3)``."""
     hw = tuple(meta["frame_hw"])
     z = (model.exposure.reference() if z0 is None else z0) + ev
-    return np.stack([render_frame(model, t, hw, "ldr", log2_dt=z, blur=keep_blur, chunk=chunk)["ldr"] for t in range(int(meta["n_frames"]))])
+    return np.stack([render_frame(model, t, hw, "ldr", log2_dt=z, blur=keep_blur,
+                                  chunk=chunk)["ldr"] for t in range(int(meta["n_frames"]))])
 
 
 def exposure_sweep(model, meta: dict, evs, frame: int, keep_blur: bool = False, z0: float | None = None):

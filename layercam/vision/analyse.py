@@ -24,7 +24,8 @@ IND_MOTION_PX = 1.5          # residual flow (px) beyond which a pixel moves on 
 IND_MOTION_FRAC = (0.02, 0.6)  # fraction of such pixels that makes a foreground (not noise, not all):
                              # camera shake puts flow errors on up to 1.4% of the pixels of a pair
                              # (synth shake, 96x96); an object moving on its own covered 9-15%
-LONG_REACH = 8               # independent motion also measured between frames this many apart (layercam.vision.motion.long_range_moving_share):
+LONG_REACH = 8               # independent motion also measured between frames this many apart
+                             # (layercam.vision.motion.long_range_moving_share):
                              # a slow object (DAVIS cows, 0.1-0.5 px per frame) in 0% of neighbour pairs
 MIN_EVIDENCE = 0.03          # a pair counts for motion when both frames see well this share of its pixels
 BLUR_SIGMA = 0.8             # relative blur (Gaussian sigma, px) of a tile that needs a blur generator
@@ -59,8 +60,11 @@ def _motion_part(frames, flow: dict) -> tuple[dict, np.ndarray]:
     moving = (res > IND_MOTION_PX + 0.05 * means[:, None, None]) & seen
     from layercam.vision.motion import long_range_moving_share
 
-    return {"ok": float(ok.sum()), "pixels": ok.size, "share": share, "mag_seen": mag[seen], "frac": moving.mean(axis=(1, 2)),  # a share of the whole pair, as IND_MOTION_FRAC was measured
-            "long": long_range_moving_share(fw, seen, LONG_REACH, IND_MOTION_PX)}, moving  # followed through what both frames see well
+    # a share of the whole pair, as IND_MOTION_FRAC was measured
+    return {"ok": float(ok.sum()), "pixels": ok.size, "share": share, "mag_seen": mag[seen],
+            "frac": moving.mean(axis=(1, 2)),
+            "long": long_range_moving_share(fw, seen, LONG_REACH, IND_MOTION_PX)}, moving
+            # followed through what both frames see well
 
 
 def _motion_summary(parts: list[dict], homs: np.ndarray, hw: tuple[int, int], frame_hw: tuple[int, int]) -> dict:
@@ -135,7 +139,9 @@ def _blur(frames: np.ndarray, homs: np.ndarray | None, moving: np.ndarray | None
     pairs = np.asarray(pairs, int)
     n = len(pairs)
     pairs = pairs[np.unique(np.linspace(0, n - 1, min(n, MAX_BLUR_PAIRS)).round().astype(int))] if n > 0 else []
-    per_pair = [np.abs(pair_relative_blur(frames[t], frames[t + 1], None if homs is None else homs[t], None if moving is None else moving[t])) for t in pairs]
+    per_pair = [np.abs(pair_relative_blur(frames[t], frames[t + 1],
+                                          None if homs is None else homs[t],
+                                          None if moving is None else moving[t])) for t in pairs]
     counts = [len(x) for x in per_pair if len(x) >= MIN_TILES]
     enough = max(MIN_TILES, MIN_TILE_FRACTION * float(np.median(counts))) if counts else MIN_TILES
     shares, best, sigma = [], -1.0, 0.0
@@ -147,7 +153,9 @@ def _blur(frames: np.ndarray, homs: np.ndarray | None, moving: np.ndarray | None
         shares.append(round(sh, 3))
         if sh > best:
             best, sigma = sh, float(np.percentile(tiles, 90))
-    return {"blur_tile_share": shares, "max_blur_tile_share": max(best, 0.0), "max_blur_sigma": round(sigma, 3), "blur_pairs_measured": sum(v is not None for v in shares)}
+    return {"blur_tile_share": shares, "max_blur_tile_share": max(best, 0.0),
+            "max_blur_sigma": round(sigma, 3),
+            "blur_pairs_measured": sum(v is not None for v in shares)}
 
 
 def measure(clip, exposures, flow: dict | None) -> dict:
@@ -166,7 +174,8 @@ def measure(clip, exposures, flow: dict | None) -> dict:
         "clipped_low": sum(int(at_floor(f).all(-1).sum()) for f in frames) / n,
     }
     if flow is None or "fw" not in flow or len(flow["fw"]) == 0:
-        m.update(global_motion_px=0.0, independent_motion_frac=0.0, independent_pairs=0.0, moving_pairs=0, flow_consistent=1.0, motion_pairs_measured=0)
+        m.update(global_motion_px=0.0, independent_motion_frac=0.0, independent_pairs=0.0,
+                 moving_pairs=0, flow_consistent=1.0, motion_pairs_measured=0)
         m.update(_blur(frames, None, None))
         return m
     work = tuple(flow["fw"].shape[1:3])

@@ -15,7 +15,8 @@ from __future__ import annotations
 import numpy as np
 
 from layercam.core.errors import LayercamError
-from layercam.core.geometry import pixel_grid, warp  # noqa: F401 - warp: the flow's backward warp, imported from here too
+from layercam.core.geometry import pixel_grid, warp  # noqa: F401 - warp: the flow's backward warp,
+                                                     # imported from here too
 from layercam.vision.flow_input import check_frame, check_frames, normalise_for_flow, pair_progress
 
 __all__ = [
@@ -86,7 +87,9 @@ def compute_flow(
         )
     fw = np.zeros((max(t - 1, 0), h, w, 2), np.float32)
     bw = np.zeros_like(fw)
-    for i, (a, b) in enumerate(pair_progress(dis_pairs(iter(f), method, normaliser), t - 1, progress, f"flow ({method})")):
+    for i, (a,
+            b) in enumerate(pair_progress(dis_pairs(iter(f), method, normaliser), t - 1, progress,
+                                          f"flow ({method})")):
         fw[i], bw[i] = a, b
     return fw, bw
 
@@ -157,7 +160,8 @@ def flow_consistency(fw, bw, abs_tol: float = 1.0, rel_tol: float = 0.05) -> np.
 SIMPLER_SHARE = 0.9  # see global_homographies
 
 
-def global_homographies(fw, grid: int = 32, thresh: float = 1.0, seed: int = 0, mask=None, min_points: int = 24) -> np.ndarray:
+def global_homographies(fw, grid: int = 32, thresh: float = 1.0, seed: int = 0, mask=None,
+                        min_points: int = 24) -> np.ndarray:
     """Per-pair homography ``(T-1,3,3)`` (frame t -> t+1 pixel coordinates), fitted with RANSAC
     (reprojection threshold ``thresh`` px) to ``grid x grid`` flow correspondences.
 
@@ -178,11 +182,14 @@ def global_homographies(fw, grid: int = 32, thresh: float = 1.0, seed: int = 0, 
     out = np.repeat(np.eye(3)[None], n, 0)
     cv2.setRNGSeed(seed)
     for i in range(n):  # a pair at a time (flows kept on disk are read pair by pair)
-        out[i] = pair_homography(np.asarray(fw[i], np.float32), None if mask is None else np.asarray(mask[i]), grid, thresh, min_points)
+        out[i] = pair_homography(np.asarray(fw[i], np.float32),
+                                 None if mask is None else np.asarray(mask[i]), grid, thresh,
+                                 min_points)
     return out.astype(np.float64)
 
 
-def pair_homography(f: np.ndarray, mask: np.ndarray | None = None, grid: int = 32, thresh: float = 1.0, min_points: int = 24) -> np.ndarray:
+def pair_homography(f: np.ndarray, mask: np.ndarray | None = None, grid: int = 32,
+                    thresh: float = 1.0, min_points: int = 24) -> np.ndarray:
     """One pair's homography ``(3,3)`` for :func:`global_homographies` (which seeds OpenCV's RNG
     once for all pairs: a caller fitting pairs as they come seeds it once too)."""
     import cv2
@@ -212,12 +219,15 @@ def pair_homography(f: np.ndarray, mask: np.ndarray | None = None, grid: int = 3
     shift = np.median(d, axis=0)
     # the simplest model that explains nearly as many points (Occam): identity, translation,
     # homography (RANSAC fits a zoom to the flow noise between two differently focused images)
-    explained = {"identity": int((np.linalg.norm(d, axis=1) < thresh).sum()), "translation": int((np.linalg.norm(d - shift, axis=1) < thresh).sum())}
+    explained = {"identity": int((np.linalg.norm(d, axis=1) < thresh).sum()),
+                 "translation": int((np.linalg.norm(d - shift, axis=1) < thresh).sum())}
     if hm is not None and np.all(np.isfinite(hm)):
         pts = np.concatenate([src, np.ones((len(src), 1), np.float32)], 1) @ hm.T
         explained["homography"] = int((np.linalg.norm(pts[:, :2] / pts[:, 2:] - (src + d), axis=1) < thresh).sum())
     best = max(explained.values())
-    kind = next(k for k in ("identity", "translation", "homography") if k in explained and explained[k] >= SIMPLER_SHARE * best) if best else "translation"
+    kind = next(k for k in ("identity", "translation", "homography")
+                if k in explained
+                and explained[k] >= SIMPLER_SHARE * best) if best else "translation"
     if kind != "homography":
         hm = np.eye(3)
         if kind == "translation":
@@ -234,7 +244,8 @@ def pair_arrays(frames, fw, bw) -> dict:
 
     fw_ok = flow_consistency(fw, bw)
     vis = pair_visible(frames, fw)
-    return {"fw_ok": fw_ok, "bw_ok": flow_consistency(bw, fw), "vis": vis, "homs": global_homographies(fw, mask=vis & fw_ok)}
+    return {"fw_ok": fw_ok, "bw_ok": flow_consistency(bw, fw), "vis": vis,
+            "homs": global_homographies(fw, mask=vis & fw_ok)}
 
 
 def _homography_flow(hm: np.ndarray, h: int, w: int) -> np.ndarray:

@@ -24,7 +24,8 @@ from layercam.core.interrupts import reached
 from layercam.io.frames import DiskArray
 from layercam.vision import scale
 
-ARRAYS = {"fw": (np.float16, 2), "bw": (np.float16, 2), "fw_ok": (np.bool_, 0), "bw_ok": (np.bool_, 0), "vis": (np.bool_, 0)}
+ARRAYS = {"fw": (np.float16, 2), "bw": (np.float16, 2), "fw_ok": (np.bool_, 0),
+          "bw_ok": (np.bool_, 0), "vis": (np.bool_, 0)}
 
 
 @dataclass(frozen=True, eq=False)
@@ -65,7 +66,9 @@ class FlowArrays(Mapping):
 
     def rows(self, a: int, b: int) -> "FlowArrays":
         """Pairs ``a .. b - 1`` (views of arrays on disk: nothing read)."""
-        return replace(self, **{k: (v.rows(a, b) if hasattr(v, "rows") else np.asarray(v)[a:b]) for k, v in self.items()})
+        return replace(self,
+                       **{k: (v.rows(a, b) if hasattr(v, "rows") else np.asarray(v)[a:b]) for k,
+                          v in self.items()})
 
     def __getitem__(self, k: str):
         v = getattr(self, k, None) if k in _NAMES else None
@@ -100,7 +103,8 @@ def compute(frames, out: Path, cfg, progress: bool = False, device: str = "cpu")
     n = max(T - 1, 0)
     work = scale.working_size((H, W))
     h, w = work
-    arrays = {k: DiskArray.create(out / f"{k}.raw", dt, (n, h, w, 2) if c else (n, h, w)) for k, (dt, c) in ARRAYS.items()}
+    arrays = {k: DiskArray.create(out / f"{k}.raw", dt, (n, h, w, 2) if c else (n, h, w)) for k,
+              (dt, c) in ARRAYS.items()}
     homs = np.repeat(np.eye(3)[None], n, 0)
     last2: list = []  # the pair's two frames, as the flow read them
 
@@ -137,7 +141,10 @@ def compute(frames, out: Path, cfg, progress: bool = False, device: str = "cpu")
         a.flush()
         a.close()
     np.save(out / "homs.npy", homs.astype(np.float64))
-    (out / "flow.json").write_text(json.dumps({"pairs": n, "working_size": [h, w], "arrays": {k: [np.dtype(dt).str, c] for k, (dt, c) in ARRAYS.items()}}))
+    (out
+     / "flow.json").write_text(json.dumps({"pairs": n, "working_size": [h, w],
+                                           "arrays": {k: [np.dtype(dt).str, c] for k,
+                                                      (dt, c) in ARRAYS.items()}}))
     if n == 0:
         return {"pairs": 0}
     px = n * h * w

@@ -34,7 +34,8 @@ def grid_points(h: int, w: int) -> np.ndarray:
     return np.stack(pixel_grid(h, w), -1)
 
 
-def chained_displacements(fw: np.ndarray, bw: np.ndarray | None, fw_ok: np.ndarray, bw_ok: np.ndarray | None, t: int, kmax: int) -> dict:
+def chained_displacements(fw: np.ndarray, bw: np.ndarray | None, fw_ok: np.ndarray,
+                          bw_ok: np.ndarray | None, t: int, kmax: int) -> dict:
     """``{k: (d (H, W, 2), valid (H, W))}`` for ``k = +-1 .. +-kmax`` inside the clip (forward only
     when ``bw`` is None): where each pixel
     of frame ``t`` lands in frame ``t + k`` along the chained flows (``fw[j]``: j -> j+1, ``bw[j]``:
@@ -54,8 +55,11 @@ def chained_displacements(fw: np.ndarray, bw: np.ndarray | None, fw_ok: np.ndarr
                 break
             i = j if sgn > 0 else j - 1
             p = base + d
-            f = cv2.remap(flows[i], p[..., 0], p[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=(np.nan, np.nan, np.nan, np.nan))
-            ok = cv2.remap(oks[i].astype(np.float32), p[..., 0], p[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT) > 0.5
+            f = cv2.remap(flows[i], p[..., 0], p[..., 1], cv2.INTER_LINEAR,
+                          borderMode=cv2.BORDER_CONSTANT,
+                          borderValue=(np.nan, np.nan, np.nan, np.nan))
+            ok = cv2.remap(oks[i].astype(np.float32), p[..., 0], p[..., 1], cv2.INTER_LINEAR,
+                           borderMode=cv2.BORDER_CONSTANT) > 0.5
             v &= ok & np.isfinite(f).all(-1)
             d = d + np.nan_to_num(f)
             j += sgn

@@ -1,5 +1,6 @@
 """Flow at a working size: frames whose short side is longer than ``WORKING_SHORT_SIDE`` are flowed on
-scaled copies; flows, masks and homographies are carried back to the frame's size (``AtFrameSize``, read a pair at a time;
+scaled copies; flows, masks and homographies are carried back to the frame's size (``AtFrameSize``,
+read a pair at a time;
 :func:`layercam.vision.flow_store.at_frame_size`, the flow stage's arrays)."""
 
 from __future__ import annotations
@@ -83,7 +84,8 @@ def upsample_mask(ok: np.ndarray, hw: tuple[int, int]) -> np.ndarray:
     n, h, w = ok.shape[:3]
     if (h, w) == tuple(hw):
         return np.asarray(ok, bool)
-    return np.stack([cv2.resize(m.astype(np.uint8), (hw[1], hw[0]), interpolation=cv2.INTER_NEAREST).astype(bool) for m in ok])
+    return np.stack([cv2.resize(m.astype(np.uint8), (hw[1], hw[0]),
+                                interpolation=cv2.INTER_NEAREST).astype(bool) for m in ok])
 
 
 class AtFrameSize:

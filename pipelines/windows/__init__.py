@@ -1,6 +1,7 @@
 """Long clips as overlapping windows, each its own model, sharing one camera.
 
-A clip longer than one model holds (:func:`~layercam.pipelines.windows.plan.plan`: the analysis's rule, or ``--window N``) is cut
+A clip longer than one model holds (:func:`~layercam.pipelines.windows.plan.plan`: the analysis's
+rule, or ``--window N``) is cut
 into overlapping windows of frames. Each window is a run of the ordinary stages (bootstrap,
 train, export) in its own folder ``RUN/cache/windows/<first>-<end>/``
 (its own stage cache: each window resumes on its own), on its slice of the clip and of the whole
@@ -8,10 +9,12 @@ clip's flow, with the model the analysis decided once for the whole clip. The ca
 once: window 0 trains as a single model would, and the others start from its tone mapper (and
 its learned exposure ratios, ``--exposures alt`` without ``--ev-step``) and hold them fixed, so
 that every window renders through the same response curve and exposures (the train stage's key
-names window 0's training, :func:`layercam.pipelines.stages.hold_camera`). Window 0 runs first; the others do not depend on
+names window 0's training, :func:`layercam.pipelines.stages.hold_camera`). Window 0 runs first; the
+others do not depend on
 one another (``--ray``: tasks on a Ray cluster, ``layercam.engine.cluster``).
 
-The windows' outputs are then joined by the ``windows`` stage (:class:`~layercam.pipelines.windows.join.WindowsStage`): in the
+The windows' outputs are then joined by the ``windows`` stage
+(:class:`~layercam.pipelines.windows.join.WindowsStage`): in the
 overlap of windows ``k`` and ``k + 1`` (frames ``a_(k+1) .. b_k - 1``) each frame is the
 cross-fade ``(1 - w) X_k + w X_(k+1)`` of the linear fade ``f = (t - a_(k+1) + 1) / (overlap + 1)``
 weighted per pixel by each window's fit to the overlap's frames (:func:`~layercam.pipelines.windows.plan.overlap_fits`,

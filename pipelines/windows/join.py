@@ -62,10 +62,18 @@ class WindowsStage(Stage):
                 np.savez(f, **{f"w{k}_o{j}": e for (k, j), e in p.fits.items()})
         write_json(out / INDEX, {
             "frames": ctx.clip.T,
-            "windows": [{"index": k, "frames": list(p.windows[k]), "folder": f"{FOLDER}/w{k:02d}", "hdr_gain": gains[k]} for k in range(p.count)],
+            "windows": [{"index": k, "frames": list(p.windows[k]), "folder": f"{FOLDER}/w{k:02d}",
+                         "hdr_gain": gains[k]} for k in range(p.count)],
             "overlaps": p.overlaps(), "reason": p.reason,
-            "camera": "learned by window 0, held fixed in the others" if ctx.resolved.settings.model.tone_mapper == "learned" else "the fixed sRGB curve",
-            "join": f"cross-fade over each overlap weighted per pixel by each window's fit: frame t of the overlap [a, b) of windows k and k+1 is (1 - w) x_k + w x_(k+1), w = q_(k+1) / (q_k + q_(k+1)), q_k = (1 - f) / e_k, q_(k+1) = f / e_(k+1), f = (t - a + 1) / (b - a + 1), e the window's squared error per pixel over the overlap's frames (its model through its camera against the input frames; {FOLDER}/{FITS}: e_k of overlap j as w<k>_o<j>; without them the plain fade), in linear HDR (hdr/), sharp frames (frames/) and alpha (alpha/)",
+            "camera": "learned by window 0, held fixed in the others"
+            if ctx.resolved.settings.model.tone_mapper == "learned" else "the fixed sRGB curve",
+            "join": "cross-fade over each overlap weighted per pixel by each window's fit: frame "
+                    "t of the overlap [a, b) of windows k and k+1 is (1 - w) x_k + w x_(k+1), w = "
+                    "q_(k+1) / (q_k + q_(k+1)), q_k = (1 - f) / e_k, q_(k+1) = f / e_(k+1), f = "
+                    "(t - a + 1) / (b - a + 1), e the window's squared error per pixel over the "
+                    "overlap's frames (its model through its camera against the input frames; "
+                    f"{FOLDER}/{FITS}: e_k of overlap j as w<k>_o<j>; without them the plain "
+                    "fade), in linear HDR (hdr/), sharp frames (frames/) and alpha (alpha/)",
         })
         summary["hdr_gains"] = gains
         return summary
@@ -128,7 +136,8 @@ class WindowsStage(Stage):
             for t, hdr in self._frames(ctx, dirs, gains, read):
                 exrs.add(out / "hdr" / f"frame_{t:05d}.exr", hdr)
                 preview.add(render.tonemap_display(hdr, stats)[0])
-        return {"frames": ctx.clip.T, "hdr_min": exrs.lo, "hdr_max": exrs.hi, "exr": "half" if exrs.half else "float32", "display": stats}
+        return {"frames": ctx.clip.T, "hdr_min": exrs.lo, "hdr_max": exrs.hi,
+                "exr": "half" if exrs.half else "float32", "display": stats}
 
     def _sharp(self, ctx, out, dirs, gains, with_hdr: bool) -> dict:
         from layercam.io import VideoWriter, read_exr, write_png
@@ -141,7 +150,8 @@ class WindowsStage(Stage):
         kept = np.lib.format.open_memmap(out / "deblurred.npy", mode="w+", dtype=np.float32, shape=(T, *hw, 3))
         index = {d: k for k, d in enumerate(dirs)}
         with VideoWriter(out / "deblurred.mp4", fps=media.fps(ctx)) as video:
-            for t, ldr in self._frames(ctx, dirs, [1.0] * len(dirs), lambda d, i: np.asarray(sharp[index[d]][i], np.float32)):
+            for t, ldr in self._frames(ctx, dirs, [1.0] * len(dirs), lambda d,
+                                       i: np.asarray(sharp[index[d]][i], np.float32)):
                 ldr = np.clip(ldr, 0.0, 1.0)
                 write_png(out / "frames" / f"frame_{t:05d}.png", ldr, bit_depth=media.png_bits(ctx))
                 kept[t] = ldr
@@ -161,7 +171,8 @@ class WindowsStage(Stage):
         from layercam.io import read_image, write_png
 
         (out / "alpha").mkdir(exist_ok=True)
-        for t, a in self._frames(ctx, dirs, [1.0] * len(dirs), lambda d, i: read_image(d / "alpha" / f"frame_{i:05d}.png")[..., 0]):
+        for t, a in self._frames(ctx, dirs, [1.0] * len(dirs), lambda d,
+                                 i: read_image(d / "alpha" / f"frame_{i:05d}.png")[..., 0]):
             write_png(out / "alpha" / f"frame_{t:05d}.png", np.clip(a, 0.0, 1.0))
 
     def load(self, ctx, out, summary):

@@ -49,7 +49,8 @@ def specs(ctx: Context, p: Plan) -> list[WindowSpec]:
     out = []
     for k, (a, b) in enumerate(p.windows):
         out.append(WindowSpec(
-            k, a, b, str(window_dir(ctx.run_dir, a, b)), ctx.task, sub_clip(ctx.clip, a, b), sub_exposures(ctx.exposures, a, b), ctx.cfg, ctx.resolved,
+            k, a, b, str(window_dir(ctx.run_dir, a, b)), ctx.task, sub_clip(ctx.clip, a, b),
+            sub_exposures(ctx.exposures, a, b), ctx.cfg, ctx.resolved,
             None if ctx.masks is None else rows(ctx.masks, a, b), sub_flow(ctx.flow, a, b),
             config_hash({"flow": ctx.keys["flow"], "window": [a, b]})[:12], ctx.results["flow"].summary,
             ctx.measures, lv, progress=ctx.progress,
@@ -67,7 +68,8 @@ def run_window(spec: WindowSpec) -> dict:
         import torch
 
         torch.set_num_threads(spec.threads)
-    ctx = Context(run_dir=Path(spec.run_dir), clip=spec.clip, exposures=spec.exposures, cfg=spec.cfg, task=spec.task, masks=spec.masks,
+    ctx = Context(run_dir=Path(spec.run_dir), clip=spec.clip, exposures=spec.exposures,
+                  cfg=spec.cfg, task=spec.task, masks=spec.masks,
                   progress=spec.progress, measures=spec.measures, resolved=spec.resolved, flow=spec.flow)
     ctx.camera, ctx.window = spec.camera, (spec.a, spec.b)
     ctx.keys["flow"] = spec.flow_key
@@ -109,7 +111,8 @@ def run_all(ctx: Context, p: Plan, ray: str | None = None) -> list[dict]:
 
         for s in todo:
             s.progress, s.threads = False, runner.threads
-            if isinstance(s.masks, TempArray):  # an unlinked file no other process can open: the window's masks sent as they are
+            if isinstance(s.masks, TempArray):  # an unlinked file no other process can open: the
+                                                # window's masks sent as they are
                 s.masks = np.asarray(s.masks)
     first = runner.map(_in_turn, todo[:1])[0] if runner else _in_turn(todo[0])
     camera = camera_from(first, ctx.exposures.learn) if ctx.resolved.settings.model.tone_mapper == "learned" else None
@@ -133,4 +136,5 @@ def _in_turn(spec: WindowSpec) -> dict:
 def train_summary(results: list[dict]) -> dict:
     """The report's ``train``: each window's, and their steps together."""
     tr = [r["train"] for r in results]
-    return {"steps": int(sum(t.get("steps", 0) for t in tr)), "windows": tr, "final_loss": None, "resumed_from": [t.get("resumed_from") for t in tr]}
+    return {"steps": int(sum(t.get("steps", 0) for t in tr)), "windows": tr, "final_loss": None,
+            "resumed_from": [t.get("resumed_from") for t in tr]}

@@ -32,7 +32,8 @@ def test_a_huge_batch_is_still_refused_on_its_activations(tmp_path):
     from layercam.core.errors import LayercamError
     from layercam.engine.estimate import check
 
-    est = estimate({"frames": 48, "width": 854, "height": 480}, load_config("fast", ["train.batch=1000000000", "train.passes_per_frame=0"]))
+    est = estimate({"frames": 48, "width": 854, "height": 480},
+                   load_config("fast", ["train.batch=1000000000", "train.passes_per_frame=0"]))
     with pytest.raises(LayercamError, match="train.batch"):
         check(est, tmp_path)
 
@@ -57,7 +58,8 @@ def test_the_estimate_counts_the_atlas_the_camera_pans_over():
     r = bound(cfg, "hdr-video", T, hw)
     maps = atlas_mappings(*hw, chain_homographies(homs, middle_frame(T)))
     h0 = np.stack([maps] * int(r.settings.model.layers))
-    meta = {**identity_meta(r, T, hw), "h0": h0, "sizes": derived_sizes(h0, hw, fine=False)}  # as the run's model derives them
+    # as the run's model derives them
+    meta = {**identity_meta(r, T, hw), "h0": h0, "sizes": derived_sizes(h0, hw, fine=False)}
     with torch.device("meta"):
         built = sum(p.numel() for p in build_model(r, meta).parameters())
     info = {"frames": T, "width": 64, "height": 64}

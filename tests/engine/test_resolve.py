@@ -23,7 +23,8 @@ def test_static_camera_holds_the_background_still():
 
 
 def _cap(preset, sets, frames, hw):
-    return resolve(load_config(preset, ["model.layers=1", "model.blur=off"] + list(sets)), frames=frames, hw=hw).settings
+    return resolve(load_config(preset, ["model.layers=1", "model.blur=off"] + list(sets)),
+                   frames=frames, hw=hw).settings
 
 
 def test_short_stack_trains_fewer_steps():
@@ -41,7 +42,8 @@ def test_short_stack_trains_fewer_steps():
         assert (c.train.steps, c.train.batch, c.scene.grid_levels, c.scene.atlas_width) == (300, 4096, 6, 64)
     # above the floor the cap keeps the preset's batch and width, at most 6 grid levels
     big = _cap("quality", [], 3, (510, 768))
-    assert (big.train.steps, big.train.batch, big.scene.grid_levels, big.scene.atlas_width) == (861, 8192, FLOOR_GRID_LEVELS, 128)
+    assert (big.train.steps, big.train.batch, big.scene.grid_levels, big.scene.atlas_width) == (861,
+            8192, FLOOR_GRID_LEVELS, 128)
     assert _cap("quality", [], 48, (144, 256)).scene.grid_levels == 8
     assert _cap("fast", [], 3, (510, 768)).scene.grid_levels == 5
     # with a blur generator the floor is min_samples() (fast's steps x batch) in the preset's own model and batch

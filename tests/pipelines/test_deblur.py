@@ -128,7 +128,8 @@ def test_blur_generator_deblurs_shake_clip(tmp_path):
 
     sc = synth.shake_blur(frames=6, size=(48, 48), max_blur_px=6.0, seed=0)
     e = Exposures(np.zeros(6), "none", None, "none", "single")
-    cfg = load_config("fast", ["train.batch=2048", "model.layers=1"])  # with a blur generator, at most one grid cell per pixel
+    # with a blur generator, at most one grid cell per pixel
+    cfg = load_config("fast", ["train.batch=2048", "model.layers=1"])
     ctx = run_task("deblur-video", sc.clip, e, cfg, tmp_path / "run", progress=False, extra_stages=[EvaluateStage(sc)])
     res = ctx.results["evaluate"].summary["aligned"]
     assert res["deblurred"]["psnr"] > res["input"]["psnr"] + 1.0, res

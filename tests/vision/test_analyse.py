@@ -62,7 +62,8 @@ def test_deblur_video_of_equally_sharp_frames_says_they_stay_as_sharp():
     and how to force one (the Adobe240 triplet, whose blur is the same motion blur in each frame)."""
     tex = _texture(48, 48)
     spec, _ = _decide(np.stack([tex] * 4), task="deblur-video")
-    assert spec.blur == "off" and "as sharp as they went in" in spec.reasons["blur"] and "--blur 3x3" in spec.reasons["blur"]
+    assert (spec.blur == "off" and "as sharp as they went in" in spec.reasons["blur"]
+            and "--blur 3x3" in spec.reasons["blur"])
 
 
 def _panning_square(T: int, where) -> np.ndarray:
@@ -85,7 +86,8 @@ def test_object_moving_on_its_own_gets_two_layers():
 
 
 def test_slow_object_gets_two_layers_from_pairs_eight_frames_apart():
-    spec, m = _decide(_panning_square(16, lambda t: (20, 24 + t - int(round(0.5 * t)))))  # drifts 0.5 px/frame against the pan
+    # drifts 0.5 px/frame against the pan
+    spec, m = _decide(_panning_square(16, lambda t: (20, 24 + t - int(round(0.5 * t)))))
     assert m["independent_pairs"] < decide.IND_MOTION_PAIRS  # neighbours: too slow to tell
     assert spec.layers == 2 and m["moving_pairs_long"] >= decide.LONG_MIN_PAIRS, m
     assert "8 frames apart" in spec.reasons["layers"]
@@ -135,7 +137,8 @@ def test_camera_shake_alone_keeps_one_layer():
 
 
 def _grid(r, h0, hw):
-    return ImplicitCameraModel(r, torch.as_tensor(h0, dtype=torch.float32), np.zeros(h0.shape[1]), frame_hw=hw).sizes["grid_max_res"]
+    return ImplicitCameraModel(r, torch.as_tensor(h0, dtype=torch.float32), np.zeros(h0.shape[1]),
+                               frame_hw=hw).sizes["grid_max_res"]
 
 
 def test_grid_no_finer_than_pixels_with_blur():
@@ -143,10 +146,14 @@ def test_grid_no_finer_than_pixels_with_blur():
     h0 = scaled_h0(0.9)
     px = atlas_pixels(h0, (64, 64))
     assert abs(px - 64 / 0.9) < 1e-6
-    assert _grid(decided(cfg, h0, (64, 64), blur="off"), h0, (64, 64)) == 128  # power of two at or above 71.1 px: at least one cell per pixel
-    assert _grid(decided(cfg, h0, (64, 64), blur="3x3"), h0, (64, 64)) == 71  # the extent itself: at most one cell per pixel
+    # power of two at or above 71.1 px: at least one cell per pixel
+    assert _grid(decided(cfg, h0, (64, 64), blur="off"), h0, (64, 64)) == 128
+    # the extent itself: at most one cell per pixel
+    assert _grid(decided(cfg, h0, (64, 64), blur="3x3"), h0, (64, 64)) == 71
     assert _grid(decided(cfg, h0, (64, 64), static=True), h0, (64, 64)) == 71  # a static one-layer scene too
-    m = ImplicitCameraModel(decided(cfg, h0, (64, 64), blur="3x3"), torch.as_tensor(h0, dtype=torch.float32), np.zeros(2), frame_hw=(64, 64))
+    m = ImplicitCameraModel(decided(cfg, h0, (64, 64), blur="3x3"),
+                            torch.as_tensor(h0, dtype=torch.float32), np.zeros(2),
+                            frame_hw=(64, 64))
     assert m.scene.atlases[0].enc.resolutions[-1] == 71
 
 
@@ -184,7 +191,8 @@ def test_moving_clip_keeps_psf_shift_free(tmp_path):
 
     sc = synth.pan_hdr(frames=3, size=(48, 48), ev_step=0.0, seed=0)  # pans 1.5 to 3 px a frame
     cfg = load_config("fast", TINY + ["train.steps=10", "model.layers=1", "model.blur=on", "blur.n=3"])
-    ctx = run_task("deblur-video", sc.clip, Exposures(np.zeros(3), "none", None, "none", "single"), cfg, tmp_path / "run", progress=False)
+    ctx = run_task("deblur-video", sc.clip, Exposures(np.zeros(3), "none", None, "none", "single"),
+                   cfg, tmp_path / "run", progress=False)
     assert ctx.resolved.static is False and ctx.results["bootstrap"].static is False
     model, ck = load_run_model(tmp_path / "run")
     assert ck["settings"]["static"] is False and not model.blur.centre_exact
@@ -262,7 +270,8 @@ def test_blur_in_few_pairs_of_many_is_not_a_blur_generator(monkeypatch):
     clip = Clip(frames, "test", [f"{i:05d}" for i in range(5)])
 
     def decided(fr):
-        m = {**analyse.measure(Clip(fr, "t", [str(i) for i in range(len(fr))]), _single(len(fr)), None), **analyse._blur(fr, None, None)}
+        m = {**analyse.measure(Clip(fr, "t", [str(i) for i in range(len(fr))]), _single(len(fr)),
+                               None), **analyse._blur(fr, None, None)}
         return decide.decide(load_config("fast"), clip, _single(len(fr)), "deblur-video", m)
 
     cfg, reasons = decided(frames)
@@ -298,7 +307,8 @@ def test_no_foreground_found_means_one_layer_and_says_why():
     from layercam.core.presets import load_config
 
     cfg = load_config("fast")
-    fg = {"masks": "motion segmentation", "verdict": {"found": False, "reason": "the candidate masks jump between frames"}}
+    fg = {"masks": "motion segmentation",
+          "verdict": {"found": False, "reason": "the candidate masks jump between frames"}}
     why = unfound_foreground(cfg, fg)
     assert why == "the candidate masks jump between frames"
     assert unfound_foreground(load_config("fast", ["model.layers=2"]), fg) is None
@@ -309,5 +319,6 @@ def test_no_foreground_found_means_one_layer_and_says_why():
     exposures = SimpleNamespace(count_distinct=1, learn="none", reason="given")
     two, r2 = decide.decide(cfg, clip, exposures, "hdr-video", measures)
     assert two.model.layers == 2
-    one, r1 = decide.decide(cfg, clip, exposures, "hdr-video", {**measures, "foreground_found": False, "foreground_reason": why})
+    one, r1 = decide.decide(cfg, clip, exposures, "hdr-video",
+                            {**measures, "foreground_found": False, "foreground_reason": why})
     assert one.model.layers == 1 and why in r1["layers"] and "no consistent" in r1["layers"]

@@ -33,11 +33,13 @@ def test_real_static_brackets_are_one_sharp_layer(shared_data, tmp_path):
     from layercam.core.geometry import STATIC_CORNER_PX
 
     d = shared_data / "bracket_taipei"
-    times = dict(line.split()[:2] for line in (d / "image_list.txt").read_text().splitlines() if line.strip() and not line.startswith("#"))
+    times = dict(line.split()[:2] for line in (d / "image_list.txt").read_text().splitlines()
+                 if line.strip() and not line.startswith("#"))
     names = sorted(times)
     sub = [names[i] for i in (1, 4, 7)]
     (tmp_path / "t.txt").write_text("".join(f"{n} {times[n]}\n" for n in sub))
-    cases = [([d / n for n in sub], str(tmp_path / "t.txt")), (sorted((shared_data / "bracket_frobisher_exif").glob("*.jpg")), "exif")]
+    cases = [([d / n for n in sub], str(tmp_path / "t.txt")),
+             (sorted((shared_data / "bracket_frobisher_exif").glob("*.jpg")), "exif")]
     for paths, exposures in cases:
         spec, m = _real(paths, exposures)
         assert spec.layers == 1 and spec.blur == "off", (paths[0].parent.name, m, spec.reasons)

@@ -40,7 +40,8 @@ def _clip(T=10, size=64, pan=(1.0, 0.0), band=None, obj_speed=(0.0, 2.0), side=1
             f[-band:] = cv2.warpAffine(near, mn, (size, band), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP)[:band]
         x0, y0 = 30 + (obj_speed[0] - pan[0]) * t, 8 + (obj_speed[1] - pan[1]) * t
         ms = np.float32([[1, 0, -x0], [0, 1, -y0]])
-        obj = cv2.warpAffine(sq, ms, (size, size), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP, borderValue=(-1, -1, -1))
+        obj = cv2.warpAffine(sq, ms, (size, size), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+                             borderValue=(-1, -1, -1))
         inside = obj[..., 0] >= 0
         f[inside] = obj[inside]
         frames.append(f)
@@ -59,7 +60,8 @@ def test_chained_displacements_follow_the_pan():
     ch = motion.chained_displacements(fw, bw, fo, bo, 2, 4)
     assert set(ch) == {1, 2, 3, -1, -2}  # inside the clip only
     d, v = ch[3]
-    assert v.mean() > 0.5 and np.allclose(np.median(d[v], axis=0), [-3.0, 0.0], atol=0.3)  # content moves left 1 px per frame
+    # content moves left 1 px per frame
+    assert v.mean() > 0.5 and np.allclose(np.median(d[v], axis=0), [-3.0, 0.0], atol=0.3)
     d, v = ch[-2]
     assert np.allclose(np.median(d[v], axis=0), [2.0, 0.0], atol=0.3)
     fwd = motion.chained_displacements(fw, None, fo, None, 2, 2)

@@ -44,7 +44,8 @@ def _square_clip(T=6, size=64, side=16, seed=0):
 def square():
     frames, masks, centres = _square_clip()
     fw, bw = flow.compute_flow(frames, "dis_fast", progress=False)
-    return {"frames": frames, "masks": masks, "centres": centres, "fw": fw, "bw": bw, "fw_ok": flow.flow_consistency(fw, bw), "homs": flow.global_homographies(fw)}
+    return {"frames": frames, "masks": masks, "centres": centres, "fw": fw, "bw": bw,
+            "fw_ok": flow.flow_consistency(fw, bw), "homs": flow.global_homographies(fw)}
 
 
 def test_motion_masks_find_the_moving_square(square):
@@ -223,7 +224,8 @@ def test_sure_pixels_leave_a_band_around_each_mask_edge():
     masks[0, 10:30, 10:30] = True  # frame 1: no object at all
     sure = segment.sure_pixels(masks, band=0.1)  # 4 px of 40
     assert sure[0, 20, 20] and sure[0, 2, 2] and sure[0, 20, 36]  # deep inside, far outside
-    assert not sure[0, 10, 20] and not sure[0, 29, 20] and not sure[0, 20, 8] and not sure[0, 20, 32]  # on and near the edge
+    assert not sure[0, 10, 20] and not sure[0, 29, 20] and not sure[0, 20, 8] and not sure[0, 20,
+                    32]  # on and near the edge
     assert sure[1].all()  # nothing to be unsure about
     assert segment.sure_pixels(masks, band=0.0).all()
 
@@ -369,7 +371,8 @@ def test_motion_evidence_is_a_share_high_on_the_moving_square(square):
     assert offsets(8) == (1, 2, 4, 8) and offsets(5) == (1, 2, 4) and offsets(0) == (1,)
     from layercam.vision.segment.moving import flow_checks
 
-    ev, info = motion_evidence(square["fw"], square["bw"], *flow_checks(square["fw"], square["bw"]), reach=4, k_sigma=SegmentConfig().k_sigma)
+    ev, info = motion_evidence(square["fw"], square["bw"], *flow_checks(square["fw"], square["bw"]),
+                               reach=4, k_sigma=SegmentConfig().k_sigma)
     assert ev.shape == square["masks"].shape and ev.dtype == np.float32 and 0 <= ev.min() and ev.max() <= 1
     inside, outside = ev[square["masks"]].mean(), ev[~square["masks"]].mean()
     assert inside > 0.5 and outside < 0.1, (inside, outside)

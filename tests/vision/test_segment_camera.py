@@ -27,7 +27,8 @@ def test_the_refit_fits_the_whole_frames_background_and_keeps_the_subject_out():
     d[subject] += (3.0, -2.0)
     x = grid_points(h, w)
     seed = np.array([[1.0, 0, 0], [0, 1.0, 0], [0, 0, 1]])  # what a ring could settle for: no motion at all
-    assert np.linalg.norm(project(seed, x) - (x + d), axis=-1)[~subject].max() < RANSAC_PX  # the seed explains the background ...
+    # the seed explains the background ...
+    assert np.linalg.norm(project(seed, x) - (x + d), axis=-1)[~subject].max() < RANSAC_PX
     out = refit(seed, x.reshape(-1, 2), (x + d).reshape(-1, 2))
     assert np.allclose(out, zoom, atol=1e-4)  # ... and the refit recovers the zoom, not the subject's motion
     res, epipolar = pair_residuals(d, np.ones((h, w), bool))

@@ -41,7 +41,9 @@ from layercam.vision.segment.evidence import offsets as motion_offsets
 from layercam.vision.segment.moving import motion_masks
 from layercam.vision.segment.store import load_masks, mask_coverage, save_masks, sure_pixels
 
-__all__ = ["SegmentConfig", "STEPS", "foreground_bootstrap", "motion_masks", "motion_offsets", "clean_mask", "object_motion", "foreground_mappings", "sure_pixels", "load_masks", "save_masks"]
+__all__ = ["SegmentConfig", "STEPS", "foreground_bootstrap", "motion_masks", "motion_offsets",
+           "clean_mask", "object_motion", "foreground_mappings", "sure_pixels", "load_masks",
+           "save_masks"]
 
 STEPS = ("grabcut", "background", "colour")  # the optional steps after the motion masks (each measured: the ablation)
 WORK_SHORT = 240  # the finder sees frames at most this many pixels on the short side (masks are upsampled to the
@@ -84,7 +86,8 @@ def _working(frames: np.ndarray, flows: dict) -> tuple[np.ndarray, dict]:
     return resize_frames(frames, work), out
 
 
-def find_foreground(frames: np.ndarray, flows: dict, cfg: SegmentConfig, steps: tuple = STEPS) -> tuple[np.ndarray, dict]:
+def find_foreground(frames: np.ndarray, flows: dict, cfg: SegmentConfig,
+                    steps: tuple = STEPS) -> tuple[np.ndarray, dict]:
     """The finder itself (module docstring): masks ``(T, H, W)`` float32 in {0, 1} and an info
     dict whose ``"verdict"`` says whether one consistent moving object was found. ``flows`` holds
     ``fw``, ``bw`` (and optionally ``fw_ok``, ``bw_ok``) at the frames' size; ``steps``: the
@@ -116,17 +119,20 @@ def find_foreground(frames: np.ndarray, flows: dict, cfg: SegmentConfig, steps: 
         if "colour" in steps:
             from layercam.vision.segment.colour import colour_cut
 
-            masks = colour_cut(frames, fill_still_frames(masks, fw, bw)[0], rel, fw, bw)  # frames the check emptied start again from their neighbours'
+            # frames the check emptied start again from their neighbours'
+            masks = colour_cut(frames, fill_still_frames(masks, fw, bw)[0], rel, fw, bw)
     masks = np.asarray(masks, np.float32)
     info["verdict"] = verdict(masks, evidence, fw)
     if masks.shape[1:] != (h, w):
         info["working_size"] = list(masks.shape[1:])
-        masks = np.stack([cv2.resize(m, (w, h), interpolation=cv2.INTER_LINEAR) > 0.5 for m in masks]).astype(np.float32)
+        masks = np.stack([cv2.resize(m, (w, h), interpolation=cv2.INTER_LINEAR) > 0.5
+                          for m in masks]).astype(np.float32)
     info["coverage_final"] = float(masks.mean())
     return masks, info
 
 
-def detector_masks(frames: np.ndarray, masks: np.ndarray, cfg: SegmentConfig, progress: bool = False) -> tuple[np.ndarray, dict]:
+def detector_masks(frames: np.ndarray, masks: np.ndarray, cfg: SegmentConfig,
+                   progress: bool = False) -> tuple[np.ndarray, dict]:
     """The motion ``masks`` ``(T, H, W)`` replaced by the instances of the local detector file
     ``cfg.detector`` (:mod:`layercam.vision.segment.detect`) that lie in them, on ``frames``
     ``(T, H, W, 3)`` of the masks' size; returns the masks and what was picked."""
@@ -136,7 +142,8 @@ def detector_masks(frames: np.ndarray, masks: np.ndarray, cfg: SegmentConfig, pr
     return pick_instances(found, masks, cfg.detector_overlap)
 
 
-def foreground_bootstrap(frames: np.ndarray, flows: dict | None, masks: np.ndarray | None = None, cfg: SegmentConfig | None = None, progress: bool = False) -> dict:
+def foreground_bootstrap(frames: np.ndarray, flows: dict | None, masks: np.ndarray | None = None,
+                         cfg: SegmentConfig | None = None, progress: bool = False) -> dict:
     """What a two-layer scene starts from: ``{"h0": (T, 3, 3), "masks": (T, H, W) | None,
     "computed": bool, "how": str, "info": dict}``.
 

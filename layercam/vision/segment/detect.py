@@ -45,7 +45,8 @@ def load_detector(path: str, device=None):
         except RuntimeError:
             continue
         return model.eval().to(device or "cpu")
-    raise LayercamError(f"segment.detector: {path!r} is a Mask R-CNN of neither torchvision architecture (maskrcnn_resnet50_fpn, _v2)")
+    raise LayercamError(f"segment.detector: {path!r} is a Mask R-CNN of neither torchvision "
+                        "architecture (maskrcnn_resnet50_fpn, _v2)")
 
 
 def detect_instances(frames: np.ndarray, path: str, score: float, size: int, progress: bool = False) -> list[dict]:
@@ -74,7 +75,8 @@ def detect_instances(frames: np.ndarray, path: str, score: float, size: int, pro
             x = torch.from_numpy(np.clip(f[t] * gains[t], 0.0, 1.0)).permute(2, 0, 1).contiguous().to(dev)
             d = {k: v.cpu() for k, v in model([x])[0].items()}
             keep = (d["scores"] >= score).numpy()
-            out.append({"masks": (d["masks"][:, 0].numpy() > 0.5)[keep], "scores": d["scores"].numpy()[keep], "labels": d["labels"].numpy()[keep]})
+            out.append({"masks": (d["masks"][:, 0].numpy() > 0.5)[keep],
+                        "scores": d["scores"].numpy()[keep], "labels": d["labels"].numpy()[keep]})
     return out
 
 

@@ -29,7 +29,8 @@ def check_flows(fw, bw) -> tuple[np.ndarray, np.ndarray]:
     f = np.asarray(fw, dtype=np.float32)
     b = np.asarray(bw, dtype=np.float32)
     if f.ndim != 4 or f.shape[-1] != 2 or b.shape != f.shape:
-        raise LayercamError(f"motion segmentation needs forward and backward flows (T-1,H,W,2), got {f.shape} and {b.shape}")
+        raise LayercamError("motion segmentation needs forward and backward flows (T-1,H,W,2), "
+                            f"got {f.shape} and {b.shape}")
     if f.shape[0] < 1:
         raise LayercamError("motion segmentation needs at least two frames")
     return f, b
@@ -99,5 +100,7 @@ def motion_masks(fw, bw, fw_ok=None, bw_ok=None, *, cfg, frames=None) -> tuple[n
     masks, filled = fill_still_frames(np.stack(masks), f, b)
     masks = np.stack([clean_mask(m) for m in masks]) if filled else masks
     cover = masks.reshape(len(masks), -1).mean(1)
-    info.update(evidence=soft, coverage_mean=float(cover.mean()), coverage_min=float(cover.min()), coverage_max=float(cover.max()), filled_from_neighbours=filled, empty_frames=int((cover == 0).sum()))
+    info.update(evidence=soft, coverage_mean=float(cover.mean()), coverage_min=float(cover.min()),
+                coverage_max=float(cover.max()), filled_from_neighbours=filled,
+                empty_frames=int((cover == 0).sum()))
     return masks.astype(np.float32), info

@@ -80,7 +80,7 @@ def run_job(job: dict) -> None:
             job["preset"], "--out", job["out"], "--quiet"]
     for s in job["overrides"]:
         argv += ["--set", s]
-    ran = run_layercam(argv, job["threads"])
+    ran = run_layercam(argv, job["threads"], Path(job["out"]) / "report.json")
     if ran["returncode"] != 0:
         raise SystemExit(ran["returncode"])
     _finish(job, {"wall_s": round(ran["wall_s"], 2), "peak_mem_mb": ran["peak_mem_mb"]})

@@ -197,7 +197,7 @@ def job_layercam(job: dict) -> dict:
     for s in job.get("overrides", []):
         argv += ["--set", s]
     load0 = _load()
-    ran = run_layercam(argv, int(job.get("threads", 1)))
+    ran = run_layercam(argv, int(job.get("threads", 1)), run_dir / "report.json")
     rc = ran["returncode"]
     row = {"method": "layercam", "preset": job["preset"], "wall_s": round(ran["wall_s"], 2),
            "peak_mem_mb": ran["peak_mem_mb"], "load": f"{load0:.1f}-{_load():.1f}",

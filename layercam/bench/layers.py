@@ -1,7 +1,9 @@
 """``layercam bench --table layers``: the layered scene on real footage, scored against ground truth.
 
 Every ``layers_davis_*`` clip under ``--data`` (DAVIS clips with per-frame foreground masks in
-``masks_gt/``) runs as ``layercam hdr-video FRAMES --exposures none --layers 2 --resize R``, on its
+``masks_gt/``) of the split asked for (:data:`VALIDATION`: DAVIS 2016's validation sequences, judged
+on and never fitted on; every other clip is of its training split, where anything learned or tuned
+is fitted) runs as ``layercam hdr-video FRAMES --exposures none --layers 2 --resize R``, on its
 first ``MAX_FRAMES`` frames (one protocol for every clip), at each preset asked for: with its masks
 given (``--masks``, variant "masks") and without (variant "motion": the foreground is found by
 :mod:`layercam.vision.segment`). Each run is its own process (one torch thread unless told otherwise) and
@@ -15,8 +17,9 @@ the mean) and its worst frame; the share of the object inside alpha (true mask p
 DAVIS scores, at the masks' own size (the mattes upsampled bilinearly); the bootstrap masks' IoU and
 the finder's verdict (variant "motion"); the
 reconstruction PSNR (every frame re-rendered through the learned camera against the input frame);
-wall time (flow + bootstrap + training + export). Writes ``OUT/layers.json``, ``OUT/layers.md`` (the
-table, and per preset and variant the set's mean and worst clip) and one figure per run,
+wall time (flow + bootstrap + training + export). Writes ``OUT/layers.json``, ``OUT/layers.md`` (per
+split its own table, and per preset and variant the split's mean and worst clip: the two splits are
+never mixed) and one figure per run,
 ``OUT/<clip>-<variant>-<preset>.png`` (:func:`layercam.bench.viz.layer_bench_figure`).
 """
 
@@ -35,15 +38,33 @@ from layercam.core.errors import LayercamError
 VARIANTS = ("motion", "masks")
 PREFIX = "layers_davis_"
 MAX_FRAMES = 24  # every clip's first 24 frames (the shortest DAVIS clip in the set has 30; libby has 49)
+# DAVIS 2016's validation sequences (Perazzi et al. 2016): the clips a change is judged on, never fitted on
+VALIDATION = frozenset((
+    "blackswan", "bmx-trees", "breakdance", "camel", "car-roundabout", "car-shadow", "cows",
+    "dance-twirl", "dog", "drift-chicane", "drift-straight", "goat", "horsejump-high", "kite-surf",
+    "libby", "motocross-jump", "paragliding-launch", "parkour", "scooter-black", "soapbox"))
+SPLITS = ("validation", "training", "all")
 
 
-def find_clips(data: Path, names: list[str] | None = None) -> dict[str, Path]:
-    """``{clip name: folder}`` for the ``layers_davis_*`` folders of ``data`` (all, or ``names``)."""
+def split_of(clip: str) -> str:
+    """``"validation"`` for a DAVIS 2016 validation sequence, else ``"training"``."""
+    return "validation" if clip in VALIDATION else "training"
+
+
+def find_clips(data: Path, names: list[str] | None = None, split: str = "all") -> dict[str, Path]:
+    """``{clip name: folder}`` for the ``layers_davis_*`` folders of ``data``: ``names``, else
+    every clip of ``split`` (:data:`SPLITS`)."""
+    if split not in SPLITS:
+        raise LayercamError(f"unknown split {split!r} (one of {', '.join(SPLITS)})")
     data = Path(data).expanduser()
     found = {p.name[len(PREFIX):]: p for p in sorted(data.glob(PREFIX + "*"))
              if (p / "frames").is_dir() and (p / "masks_gt").is_dir()}
     if not found:
         raise LayercamError(f"no {PREFIX}* clips (frames/ and masks_gt/) under {data}")
+    if not names and split != "all":
+        found = {k: v for k, v in found.items() if split_of(k) == split}
+        if not found:
+            raise LayercamError(f"no clip of the {split} split under {data}")
     if names:
         missing = [n for n in names if n not in found]
         if missing:
@@ -190,8 +211,9 @@ def run_layers_table(out: Path, data: Path, clips: list[str] | None = None,
                      variants: tuple = VARIANTS, presets: tuple = ("fast", "balanced"),
                      resize: str = "0.33", overrides: list[str] | None = None, layers: str = "2",
                      max_frames: int | None = MAX_FRAMES, threads: int = 1, force: bool = False,
-                     progress: bool = True) -> list[dict]:
-    """Runs (or re-uses) every preset x clip x variant job, then writes the table. Returns the rows."""
+                     progress: bool = True, split: str = "validation") -> list[dict]:
+    """Runs (or re-uses) every preset x clip (``clips``, else those of ``split``) x variant job,
+    then writes the table. Returns the rows."""
     from layercam.io.atomic import ensure_writable_dir
 
     out = ensure_writable_dir(out)
@@ -204,8 +226,8 @@ def run_layers_table(out: Path, data: Path, clips: list[str] | None = None,
         presets = (presets,)
     rows = []
     for preset, (name,
-                 folder), v in ((p, c, v) for p in presets for c in find_clips(data, clips).items()
-                                for v in variants):
+                 folder), v in ((p, c, v) for p in presets
+                                for c in find_clips(data, clips, split).items() for v in variants):
         tag = f"{name}-{v}-{preset}"
         res = out / "results" / f"{tag}.json"
         job = {"clip": name, "folder": str(folder), "variant": v, "preset": preset,
@@ -232,13 +254,17 @@ def run_layers_table(out: Path, data: Path, clips: list[str] | None = None,
 
 
 def summaries(rows: list[dict]) -> list[dict]:
-    """Per preset and variant: the set's mean alpha IoU, mean share inside, and its worst clip."""
+    """Per split, preset and variant: the split's mean alpha IoU, mean share inside, and its worst
+    clip (and the bootstrap masks' mean, where the rows have it)."""
     out = []
-    for key in dict.fromkeys((r.get("preset", ""), r["variant"]) for r in rows):
-        rs = [r for r in rows if (r.get("preset", ""), r["variant"]) == key]
+    key_of = lambda r: (split_of(r["clip"]), r.get("preset", ""), r["variant"])  # noqa: E731
+    for key in sorted(dict.fromkeys(key_of(r) for r in rows), key=lambda k: SPLITS.index(k[0])):
+        rs = [r for r in rows if key_of(r) == key]
         worst = min(rs, key=lambda r: r["iou"])
         inside = [r["inside"] for r in rs if r.get("inside") is not None]
-        out.append({"preset": key[0], "variant": key[1], "clips": len(rs),
+        boot = [r["bootstrap_iou"] for r in rs if r.get("bootstrap_iou") is not None]
+        out.append({"split": key[0], "preset": key[1], "variant": key[2], "clips": len(rs),
+                    "bootstrap_mean": round(float(np.mean(boot)), 4) if len(boot) == len(rs) else None,
                     "iou_mean": round(float(np.mean([r["iou"] for r in rs])), 4),
                     "inside_mean": round(float(np.mean(inside)), 4) if inside else None,
                     "inside_min": round(float(np.min(inside)), 4) if inside else None,
@@ -253,34 +279,43 @@ def summaries(rows: list[dict]) -> list[dict]:
 
 def write_layers_table(out: Path, rows: list[dict]) -> None:
     """``layers.json`` (every row, per-frame values included, and the summaries) and ``layers.md``
-    (the table, then one line per preset and variant: the set's mean and its worst clip)."""
+    (per split, validation first: its table, then one line per preset and variant: the split's
+    mean, its bootstrap masks' mean and its worst clip)."""
     from layercam.io.atomic import atomic_write
 
     sums = summaries(rows)
-    atomic_write(out / "layers.json", lambda p: p.write_text(json.dumps({"rows": rows, "summary": sums}, indent=1)))
-    md = ["| clip | preset | frames | size | masks | layers | alpha IoU (mean) | alpha IoU (worst "
-          "frame) | object inside alpha | at the masks' own size: IoU / inside | bootstrap IoU | "
-          "found | PSNR dB | wall s |", "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
-    for r in rows:
-        boot = "" if r["bootstrap_iou"] is None else f"{r['bootstrap_iou']:.3f}"
-        inside = "" if r.get("inside") is None else f"{r['inside']:.3f}"
-        found = "" if r.get("found") is None else ("yes" if r["found"] else "no")
-        src = ("" if r.get("iou_source") is None
-               else f"{r['iou_source']:.3f} / {r['inside_source']:.3f} ({r['source_size']})")
-        md.append(f"| {r['clip']} | {r.get('preset', '')} | {r['frames']} | {r['size']} | "
-                  f"{'given' if r['variant'] == 'masks' else 'none (motion)'} | {r['layers']} | "
-                  f"{r['iou']:.3f} | {r['iou_min']:.3f} | {inside} | {src} | {boot} | {found} | "
-                  f"{r['psnr']:.2f} | {r['wall_s']:.0f} |")
-    md += ["",
-           "| preset | masks | clips | mean alpha IoU | mean share inside | least share inside | "
-           "worst clip | at the masks' own size: mean IoU / least inside / worst clip's IoU |",
-           "|---|---|---|---|---|---|---|---|"]
-    for sm in sums:
-        ins = "" if sm["inside_mean"] is None else f"{sm['inside_mean']:.3f}"
-        least = "" if sm["inside_min"] is None else f"{sm['inside_min']:.3f}"
-        src = (f"{sm['iou_source_mean']:.3f} / {sm['inside_source_min']:.3f} / "
-               f"{sm['worst_iou_source']:.3f}" if "iou_source_mean" in sm else "")
-        md.append(f"| {sm['preset']} | {'given' if sm['variant'] == 'masks' else 'none (motion)'} "
-                  f"| {sm['clips']} | {sm['iou_mean']:.3f} | {ins} | {least} | {sm['worst_clip']} "
-                  f"{sm['worst_iou']:.3f} | {src} |")
-    atomic_write(out / "layers.md", lambda p: p.write_text("\n".join(md) + "\n"))
+    atomic_write(out / "layers.json",
+                 lambda p: p.write_text(json.dumps({"rows": rows, "summary": sums}, indent=1)))
+    md = []
+    for split in [s for s in SPLITS if any(split_of(r["clip"]) == s for r in rows)]:
+        md += [f"## The {split} split" + (" (judged on, never fitted on)" if split == "validation"
+                                         else " (where anything learned or tuned is fitted)"), "",
+               "| clip | preset | frames | size | masks | layers | alpha IoU (mean) | alpha IoU "
+               "(worst frame) | object inside alpha | at the masks' own size: IoU / inside | "
+               "bootstrap IoU | found | PSNR dB | wall s |",
+               "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+        for r in (r for r in rows if split_of(r["clip"]) == split):
+            boot = "" if r["bootstrap_iou"] is None else f"{r['bootstrap_iou']:.3f}"
+            inside = "" if r.get("inside") is None else f"{r['inside']:.3f}"
+            found = "" if r.get("found") is None else ("yes" if r["found"] else "no")
+            src = ("" if r.get("iou_source") is None
+                   else f"{r['iou_source']:.3f} / {r['inside_source']:.3f} ({r['source_size']})")
+            md.append(f"| {r['clip']} | {r.get('preset', '')} | {r['frames']} | {r['size']} | "
+                      f"{'given' if r['variant'] == 'masks' else 'none (motion)'} | {r['layers']} | "
+                      f"{r['iou']:.3f} | {r['iou_min']:.3f} | {inside} | {src} | {boot} | {found} | "
+                      f"{r['psnr']:.2f} | {r['wall_s']:.0f} |")
+        md += ["",
+               "| preset | masks | clips | mean alpha IoU | its bootstrap masks | mean share inside | "
+               "least share inside | worst clip | at the masks' own size: mean IoU / least inside / "
+               "worst clip's IoU |", "|---|---|---|---|---|---|---|---|---|"]
+        for sm in (sm for sm in sums if sm["split"] == split):
+            ins = "" if sm["inside_mean"] is None else f"{sm['inside_mean']:.3f}"
+            least = "" if sm["inside_min"] is None else f"{sm['inside_min']:.3f}"
+            boot = "" if sm.get("bootstrap_mean") is None else f"{sm['bootstrap_mean']:.3f}"
+            src = (f"{sm['iou_source_mean']:.3f} / {sm['inside_source_min']:.3f} / "
+                   f"{sm['worst_iou_source']:.3f}" if "iou_source_mean" in sm else "")
+            md.append(f"| {sm['preset']} | {'given' if sm['variant'] == 'masks' else 'none (motion)'} "
+                      f"| {sm['clips']} | {sm['iou_mean']:.3f} | {boot} | {ins} | {least} | "
+                      f"{sm['worst_clip']} {sm['worst_iou']:.3f} | {src} |")
+        md.append("")
+    atomic_write(out / "layers.md", lambda p: p.write_text("\n".join(md)))

@@ -99,7 +99,11 @@ def register(sub) -> argparse.ArgumentParser:
                         "finder: the first N of each clip (default: 24)")
     b.add_argument("--clips",
                    help="--table layers, finder: comma-separated clip names, e.g. libby,cows "
-                        "(default: every layers_davis_* clip)")
+                        "(default: every layers_davis_* clip of --split)")
+    b.add_argument("--split", choices=["validation", "training", "all"], default="validation",
+                   help="--table layers, finder: the DAVIS clips of DAVIS 2016's validation split "
+                        "(judged on, never fitted on; default), of its training split (where "
+                        "anything learned or tuned is fitted), or all; each split is its own table")
     b.add_argument("--variants",
                    help="--table layers: motion (no masks: the motion bootstrap), masks (the true "
                         "masks given) (default: both); --table length: masks alone gives the true "
@@ -149,8 +153,9 @@ READS = {
     "real": {"cases", "presets", "max_frames", "threads", "force", "data", "redraw", "quick"},
     "presets": {"scenes", "presets", "quick", "threads"},
     "analysis": {"preset", "quick"},
-    "layers": {"clips", "variants", "presets", "resize", "layers", "max_frames", "threads", "force", "data"},
-    "finder": {"clips", "presets", "resize", "max_frames", "force", "data"},
+    "layers": {"clips", "variants", "presets", "resize", "layers", "max_frames", "threads", "force", "data",
+               "split"},
+    "finder": {"clips", "presets", "resize", "max_frames", "force", "data", "split"},
     "scaling": {"sizes", "presets", "frames", "threads", "no_baseline"},
     "length": {"lengths", "clips", "sizes", "preset", "threads", "variants", "data"},
     "hdr-video": {"preset", "variants", "repeat", "force", "data", "quick", "threads"},
@@ -225,7 +230,8 @@ def run(args) -> int:
                                 tuple(_list(args.variants) or VARIANTS),
                                 tuple(_list(args.presets) or ("fast", "balanced")), args.resize,
                                 args.overrides, args.layers, args.max_frames or MAX_FRAMES,
-                                args.threads or 1, args.force, progress=not args.quiet)
+                                args.threads or 1, args.force, progress=not args.quiet,
+                                split=args.split)
         if not args.quiet:
             print(f"wrote {out / 'layers.md'} ({len(rows)} rows)")
         return 0
@@ -234,13 +240,14 @@ def run(args) -> int:
 
         flags = (("--clips", args.clips), ("--presets", args.presets),
                  ("--resize", args.resize if args.resize != "0.33" else None),
-                 ("--max-frames", args.max_frames))
+                 ("--max-frames", args.max_frames),
+                 ("--split", args.split if args.split != "validation" else None))
         rows = run_finder_table(out, _data(args), _list(args.clips),
                                 tuple(_list(args.presets) or ("fast", "balanced")), args.resize,
                                 args.max_frames, args.overrides, args.force,
                                 progress=not args.quiet,
                                 command=_command("layercam bench --table finder", out, flags,
-                                                 args.overrides))
+                                                 args.overrides), split=args.split)
         if not args.quiet:
             print(f"wrote {out / 'finder.md'} ({len(rows)} rows)")
         return 0

@@ -9,6 +9,7 @@ import math
 import sys
 from pathlib import Path
 
+from layercam.core.config import DEFAULT_PRESET
 from layercam.core.errors import LayercamError
 
 EPILOG = """examples:
@@ -37,7 +38,9 @@ def number(kind: type = float, low: float | None = None, strict: bool = False, h
         try:
             v = kind(text) if kind is float else int(text)
         except ValueError:
-            raise argparse.ArgumentTypeError(f"expected {'an integer' if kind is int else 'a number'}, got {text!r}") from None
+            raise argparse.ArgumentTypeError("expected "
+                                             f"{'an integer' if kind is int else 'a number'}, got "
+                                             f"{text!r}") from None
         if not math.isfinite(v):
             raise argparse.ArgumentTypeError(f"must be a finite number, got {text}")
         if low is not None and (v <= low if strict else v < low):
@@ -56,12 +59,20 @@ FPS = number(float, 0, strict=True, high=1000)
 
 def common_model_args(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group("settings")
-    g.add_argument("--preset", default="balanced", help="speed/quality preset: fast, balanced, quality, paper, or a .toml file (default: balanced)")
-    g.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE", help="override one setting, e.g. train.steps=500 (repeatable)")
+    g.add_argument("--preset", default=DEFAULT_PRESET,
+                   help="speed/quality preset: fast, balanced, quality, paper, or a .toml file "
+                        f"(default: {DEFAULT_PRESET})")
+    g.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                   help="override one setting, e.g. train.steps=500 (repeatable)")
     g.add_argument("--steps", type=POSITIVE_INT, help="shortcut for --set train.steps=N")
-    g.add_argument("--device", choices=["cpu", "cuda", "auto"], help="where to train and render: auto (default: CUDA when torch sees a GPU, else the CPU), cpu or cuda")
+    g.add_argument("--device", choices=["cpu", "cuda", "auto"],
+                   help="where to train and render: auto (default: CUDA when torch sees a GPU, "
+                        "else the CPU), cpu or cuda")
     m = p.add_argument_group("model (default: chosen by analysis of the clip)")
-    m.add_argument("--layers", type=int, choices=[1, 2], help="scene layers: 1, or 2 for an object that moves on its own (alpha and atlases per layer, editable with layercam edit); the analysis chooses when not given")
+    m.add_argument("--layers", type=int, choices=[1, 2],
+                   help="scene layers: 1, or 2 for an object that moves on its own (alpha and "
+                        "atlases per layer, editable with layercam edit); the analysis chooses "
+                        "when not given")
     m.add_argument("--tone-mapper", choices=["learned", "fixed"], help="learn the camera response, or assume sRGB")
     m.add_argument("--blur", choices=["off", "3x3", "5x5"], help="blur generator patch size, or off")
     m.add_argument("--max-offset", type=number(float, 0), help="blur generator's maximum offset in pixels")
@@ -73,13 +84,21 @@ def input_args(p: argparse.ArgumentParser, exposures_default: str | None) -> Non
     p.add_argument("inputs", nargs="+", help="a video (mp4, mov, avi, mkv), a folder of frames, or image files")
     p.add_argument("--out", help="run folder (default: runs/<input name>)")
     g = p.add_argument_group("input")
-    g.add_argument("--exposures", default=exposures_default, help="alt | alt3 | an EV cycle like 0,3 | times.txt (one time per frame) | exif | learn | none")
-    g.add_argument("--ev-step", type=number(float, 0, strict=True), help="EV between alternating exposures (alt/alt3); learned when omitted. Checked against the EV the frames measure: more than 2 EV apart is said, more than 2 EV and a factor of 2 apart is refused")
-    g.add_argument("--force-ev-step", action="store_true", help="use --ev-step even where the frames measure a very different ratio")
+    g.add_argument("--exposures", default=exposures_default,
+                   help="alt | alt3 | an EV cycle like 0,3 | times.txt (one time per frame) | exif "
+                        "| learn | none")
+    g.add_argument("--ev-step", type=number(float, 0, strict=True),
+                   help="EV between alternating exposures (alt/alt3); learned when omitted. "
+                        "Checked against the EV the frames measure: more than 2 EV apart is said, "
+                        "more than 2 EV and a factor of 2 apart is refused")
+    g.add_argument("--force-ev-step", action="store_true",
+                   help="use --ev-step even where the frames measure a very different ratio")
     g.add_argument("--max-frames", type=POSITIVE_INT, help="use at most N frames")
     g.add_argument("--stride", type=POSITIVE_INT, default=1, help="use every K-th frame")
     g.add_argument("--resize", help="scale factor (0.5) or size WxH")
-    g.add_argument("--masks", help="folder of foreground masks, one PNG per frame (two-layer scenes); without it the foreground "
+    g.add_argument("--masks",
+                   help="folder of foreground masks, one PNG per frame (two-layer scenes); without "
+                        "it the foreground "
                    "is found from its motion, helped by a local Mask R-CNN weights file if you pass one "
                    "(--set segment.detector=PATH; nothing is downloaded)")
 
@@ -94,11 +113,12 @@ _window.__name__ = "window"
 
 
 def window_args(p: argparse.ArgumentParser) -> None:
-    """``--window`` and ``--ray``: a long clip as windows of frames (``pipelines/windows.py``)."""
+    """``--window`` and ``--ray``: a long clip as windows of frames (``layercam.pipelines.windows``)."""
     g = p.add_argument_group("long clips")
     g.add_argument("--window", type=_window, metavar="N|off", help=(
         "train the clip as overlapping windows of N frames, each its own model sharing one camera (the response "
-        "curve and exposures learned on the first window), joined by a cross-fade over their overlap weighted, pixel by pixel, by how well each window "
+        "curve and exposures learned on the first window), joined by a cross-fade over their "
+        "overlap weighted, pixel by pixel, by how well each window "
         "reproduces the overlap's frames; off: one "
         "model. Default: windows where the camera's motion spans more than the atlas holds at one cell per pixel "
         "(the analysis says so); each window resumes on its own"))
@@ -109,13 +129,28 @@ def window_args(p: argparse.ArgumentParser) -> None:
         "Needs pip install 'layercam[ray]'"))
 
 
-COMMAND_MODULES = ["hdr_video", "demo", "bench", "deblur_video", "fuse_stack", "render", "batch", "edit"]  # each layercam/commands/<name>.py has register(sub) and run(args)
+def nproc_args(p: argparse.ArgumentParser) -> None:
+    """``--nproc`` for a command that supports data-parallel training (:func:`layercam.engine.distributed.launch`)."""
+    p.add_argument(
+        "--nproc", type=number(int, 1), default=1, metavar="N",
+        help="train with N data-parallel processes on this machine (torch.distributed: gloo on CPU, nccl "
+        "with --device cuda, one GPU each); or start the command under torchrun (multi-node) instead. "
+        "Default 1: one process, which on a few CPU cores is as fast",
+    )
+
+
+COMMAND_MODULES = ["hdr_video", "demo", "bench", "deblur_video", "fuse_stack", "render", "batch",
+                   "edit"]  # each layercam/commands/<name>.py has register(sub) and run(args)
 
 
 def build_parser() -> argparse.ArgumentParser:
     import importlib
 
-    p = Parser(prog="layercam", description="Recover what the camera lost: sharp, all-in-focus, linear HDR frames from videos and photo stacks, by learning a layered scene and an implicit camera model per clip.", epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = Parser(prog="layercam",
+               description="Recover what the camera lost: sharp, all-in-focus, linear HDR frames "
+                           "from videos and photo stacks, by learning a layered scene and an "
+                           "implicit camera model per clip.", epilog=EPILOG,
+               formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--version", action="version", version="layercam 0.1.0")
     sub = p.add_subparsers(dest="command", metavar="COMMAND")
     for name in COMMAND_MODULES:
@@ -199,9 +234,10 @@ def finish(ctx) -> None:
     """One closing line: where the outputs are and how training ended."""
     if ctx.progress:
         tr = ctx.results["train"]
-        if tr.windows is not None:  # a long clip's windows (pipelines/windows.py)
+        if tr.windows is not None:  # a long clip's windows (layercam.pipelines.windows)
             losses = ", ".join(f"{(w.get('final_loss') or {}).get('total', float('nan')):.4g}" for w in tr.windows)
-            print(f"done: {ctx.run_dir}  ({len(tr.windows)} windows, train {tr.steps} steps in all, final losses {losses})")
+            print(f"done: {ctx.run_dir}  ({len(tr.windows)} windows, train {tr.steps} steps in "
+                  f"all, final losses {losses})")
             return
         fl = tr.final_loss or {}
         print(f"done: {ctx.run_dir}  (train {tr.steps} steps, final loss {fl.get('total', float('nan')):.4g})")
@@ -224,7 +260,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: {e}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print("\ninterrupted: run the same command again to go on (training resumes from its last checkpoint, unfinished outputs are redone)", file=sys.stderr)
+        print("\ninterrupted: run the same command again to go on (training resumes from its last "
+              "checkpoint, unfinished outputs are redone)", file=sys.stderr)
         return 130
 
 

@@ -58,7 +58,7 @@ from layercam import synth
 from layercam.bench import viz
 from layercam.core.geometry import middle_frame
 from layercam.engine import checkpoint
-from layercam.engine.sampler import normalise_xy
+from layercam.scene.coords import normalise_xy
 from layercam.pipelines.atlas_export import atlas_resolution
 from layercam.scene import render
 
@@ -98,7 +98,8 @@ if RUN is None:
     scene = synth.moving_object(frames=6, size=(32, 32), ev_step=2.0, crf="mixed", seed=0, object_radius=0.25)
     exposures = parse_exposures("alt", scene.clip)  # ratio learned from a measured start
     tiny = [
-        "train.steps=100", "train.batch=256", "train.lr=1e-2", "train.bootstrap_steps=50", "train.checkpoint_every=1000",
+        "train.steps=100", "train.batch=256", "train.lr=1e-2", "train.bootstrap_steps=50",
+        "train.checkpoint_every=1000",
         "scene.grid_levels=3", "scene.atlas_width=16", "scene.deform_width=16",
         "tone.width=16", "flow.method=dis_fast",
     ]
@@ -133,7 +134,9 @@ uv = [np.stack([r["uv"][k] for r in renders]) for k in range(model.scene.n_layer
 alpha = None if renders[0]["alpha"] is None else np.stack([r["alpha"] for r in renders])  # (T, H, W)
 ldr = np.stack([r["ldr"] for r in renders])
 L = len(uv)
-visible = [np.stack(w) for w in zip(*(render.layer_weights(None if alpha is None else alpha[t], L, (H, W)) for t in range(T)))]
+visible = [np.stack(w)
+           for w in zip(*(render.layer_weights(None if alpha is None else alpha[t], L, (H, W))
+                          for t in range(T)))]
 _, display_stats = render.tonemap_display(hdr)  # one tonemap for the whole clip and its atlases
 print(f"{L} layer(s); irradiance {hdr.min():.3g}..{hdr.max():.3g}")
 
@@ -177,7 +180,8 @@ show("alpha_mattes", viz.alpha_figure(alpha, ldr, truth=truth_mask))
 # the object as it moves, mean that the mapping follows the scene.
 
 # %%
-overlays = [np.stack([render.checker_overlay(ldr[t], uv[k][t], visible[k][t], cells=8) for t in range(T)]) for k in range(L)]
+overlays = [np.stack([render.checker_overlay(ldr[t], uv[k][t], visible[k][t], cells=8)
+                      for t in range(T)]) for k in range(L)]
 show("uv_checkerboard", viz.uv_checker_figure(overlays))
 
 # %% [markdown]
@@ -211,7 +215,9 @@ show("crf", viz.crf_figure(z.numpy(), curve, crf_truth, crf_shift, data_range=z_
 # %%
 learned_ev = model.exposure.values().detach().numpy()
 truth_ev = None if scene is None else np.log2(scene.exposure_times)
-show("exposures", viz.exposures_figure(learned_ev, given=np.asarray(meta["log2_dt"]), truth=truth_ev, kind=model.exposure.learn))
+show("exposures",
+     viz.exposures_figure(learned_ev, given=np.asarray(meta["log2_dt"]), truth=truth_ev,
+                          kind=model.exposure.learn))
 if truth_ev is not None:
     print(f"exposure range: model {np.ptp(learned_ev):.2f} EV, truth {np.ptp(truth_ev):.2f} EV")
 
@@ -225,14 +231,17 @@ if truth_ev is not None:
 
 # %%
 t_mid = middle_frame(T)
-px = np.array([[W // 4, H // 4], [3 * W // 4, H // 4], [W // 4, 3 * H // 4], [3 * W // 4, 3 * H // 4]], dtype=np.float32)
+px = np.array([[W // 4, H // 4], [3 * W // 4, H // 4], [W // 4, 3 * H // 4],
+               [3 * W // 4, 3 * H // 4]], dtype=np.float32)
 offsets = weights = None
 if model.blur is not None:
     xy = normalise_xy(torch.from_numpy(px[:, 0]), torch.from_numpy(px[:, 1]), W, H)
     with torch.no_grad():
         offsets, weights = (a.numpy() for a in model.blur.kernels(xy, torch.full((len(px),), t_mid, dtype=torch.long)))
 labels = [f"({x:.0f}, {y:.0f}) frame {t_mid}" for x, y in px]
-show("blur_kernels", viz.kernels_figure(offsets, weights, px, ldr[t_mid], labels, max_offset=float(model.cfg.blur.max_offset)))
+show("blur_kernels",
+     viz.kernels_figure(offsets, weights, px, ldr[t_mid], labels,
+                        max_offset=float(model.cfg.blur.max_offset)))
 
 # %% [markdown]
 # ## 7. Exposure sweep
@@ -254,6 +263,7 @@ show("exposure_sweep", viz.sweep_figure(sweep, SWEEP_EV))
 # %%
 for i, (name, fig) in enumerate(FIGURES.items(), 1):
     print(f"{i}. {name}: {len(fig.axes)} panels")
-assert list(FIGURES) == ["atlases", "alpha_mattes", "uv_checkerboard", "crf", "exposures", "blur_kernels", "exposure_sweep"]
+assert list(FIGURES) == ["atlases", "alpha_mattes", "uv_checkerboard", "crf", "exposures",
+                         "blur_kernels", "exposure_sweep"]
 assert all(np.isfinite(a).all() for a in (hdr, ldr, sweep, curve, *uv, *atlas_img, *camera_img, *coverage))
 assert np.all(np.diff(sweep.mean(axis=(1, 2, 3))) >= -1e-3), "exposure sweep got darker with more exposure"

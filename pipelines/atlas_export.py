@@ -31,7 +31,8 @@ from layercam.pipelines.runner import write_json
 ATLAS_RES = (32, 2048)  # an exported atlas's side, texels, at least / at most
 
 
-def atlas_resolution(uv: np.ndarray, weight: np.ndarray, lo: int = ATLAS_RES[0], hi: int = ATLAS_RES[1], pixels: int | None = None) -> int:
+def atlas_resolution(uv: np.ndarray, weight: np.ndarray, lo: int = ATLAS_RES[0],
+                     hi: int = ATLAS_RES[1], pixels: int | None = None) -> int:
     """Atlas grid size at which one frame pixel is about one atlas pixel: from the median spacing of
     neighbouring pixels' ``uv (H, W, 2)`` where the layer is seen (``weight (H, W)`` > 0.5), within
     ``lo..hi`` and, given the clip's ``pixels`` (frames x H x W), at most as many texels as pixels
@@ -41,7 +42,9 @@ def atlas_resolution(uv: np.ndarray, weight: np.ndarray, lo: int = ATLAS_RES[0],
     dy = np.linalg.norm(uv[1:] - uv[:-1], axis=-1)
     on_x = (weight[:, 1:] > 0.5) & (weight[:, :-1] > 0.5)
     on_y = (weight[1:] > 0.5) & (weight[:-1] > 0.5)
-    d = np.concatenate([dx[on_x], dy[on_y]]) if (on_x.sum() + on_y.sum()) > 8 else np.concatenate([dx.ravel(), dy.ravel()])
+    d = np.concatenate([dx[on_x], dy[on_y]]) if (on_x.sum()
+                                                 + on_y.sum()) > 8 else np.concatenate([dx.ravel(),
+        dy.ravel()])
     step = float(np.median(d)) if d.size else 2.0 / lo
     if pixels:
         hi = max(lo, min(hi, int(np.sqrt(pixels))))
@@ -93,8 +96,10 @@ class AtlasSink:
         if self.two:
             (self.run_dir / "alpha").mkdir(exist_ok=True)
         self._videos = contextlib.ExitStack()  # written as the frames arrive: memory of one frame
-        self.uv_videos = [self._videos.enter_context(VideoWriter(self.adir / f"layer{k}_uv.mp4", fps=fps)) for k in range(L)]
-        self.alpha_videos = [self._videos.enter_context(VideoWriter(self.adir / f"layer{k}_alpha.mp4", fps=fps)) for k in range(L)] if self.two else []
+        self.uv_videos = [self._videos.enter_context(VideoWriter(self.adir / f"layer{k}_uv.mp4",
+            fps=fps)) for k in range(L)]
+        self.alpha_videos = [self._videos.enter_context(VideoWriter(
+            self.adir / f"layer{k}_alpha.mp4", fps=fps)) for k in range(L)] if self.two else []
 
     def add(self, t: int, uv: list[np.ndarray], alpha: np.ndarray | None) -> None:
         from layercam.io import write_png
@@ -138,7 +143,8 @@ class AtlasSink:
             cov = coverage_from_splat(self.acc[k], self.res[k])
             write_exr(adir / f"layer{k}.exr", np.exp2(log2_r).astype(np.float32), half=False)
             write_rgba_png(adir / f"layer{k}.png", tone_map_log2(model, log2_r, log2_dt), cov)
-            entry = {"layer": k, "res": self.res[k], "exr": f"layer{k}.exr", "png": f"layer{k}.png", "uv_video": f"layer{k}_uv.mp4", "coverage": float(cov.mean())}
+            entry = {"layer": k, "res": self.res[k], "exr": f"layer{k}.exr", "png": f"layer{k}.png",
+                     "uv_video": f"layer{k}_uv.mp4", "coverage": float(cov.mean())}
             if two:
                 entry["alpha_video"] = f"layer{k}_alpha.mp4"
             layers.append(entry)
@@ -153,11 +159,13 @@ class AtlasSink:
             "frame_hw": [H, W],
         }
         write_json(adir / "atlas.json", info)
-        return {"layers": [{k: v for k, v in e.items() if k in ("layer", "res", "coverage")} for e in layers], "alpha_mattes": T if two else 0,
+        return {"layers": [{k: v for k, v in e.items() if k in ("layer", "res", "coverage")}
+                           for e in layers], "alpha_mattes": T if two else 0,
                 **({"foreground_share": float(np.mean(self.fg))} if two else {})}
 
 
-def export_atlases(model, run_dir: Path, frames: np.ndarray, fps: float = 24.0, chunk: int = 65536, progress: bool = False) -> dict:
+def export_atlases(model, run_dir: Path, frames: np.ndarray, fps: float = 24.0, chunk: int = 65536,
+                   progress: bool = False) -> dict:
     """Writes the files listed in this module's docstring into ``run_dir``, each atlas at
     :func:`atlas_resolution`, rendering each frame's geometry for them; returns a summary."""
     from layercam.core.progress import bar as progress_bar

@@ -23,7 +23,8 @@ writer                writes
 ====================  ======================================================================
 
 Every video keeps the input's frame rate and carries its sound over
-(:func:`audio`). Every writer is ``writer(ctx, model, dest, cache) -> dict`` (its part of the export summary): it
+(:func:`layercam.pipelines.media.audio`). Every writer is ``writer(ctx, model, dest, cache) ->
+dict`` (its part of the export summary): it
 writes its outputs into ``dest`` and what the evaluate stage reads into ``cache``. Both are the
 stage's cache folder: an interrupted export is redone there, and the finished outputs are published
 to the top of the run folder with the report, as one set, when the run ends
@@ -32,138 +33,22 @@ to the top of the run folder with the report, as one set, when the run ends
 
 from __future__ import annotations
 
-from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
 
 from layercam.core.errors import LayercamError
+from layercam.core.geometry import reference_index
 from layercam.core.interrupts import reached
+from layercam.pipelines.hdr_frames import FIRST_PASS_PIXELS, faithful_hdr, faithful_summary, first_pass
 from layercam.pipelines.runner import Context, Stage, write_json
 from layercam.io.hdr_set import HALF_MAX, HdrSet, write_hdr_set
-from layercam.pipelines.window_plan import area, fit_maps
+from layercam.pipelines.windows.plan import area, fit_maps
 from layercam.vision.scale import size_within
-from layercam.pipelines.export_context import _bits, _fps, _frames, _sound, audio, resolve_reference
+from layercam.pipelines import media
 from layercam.pipelines.sharp import sharp_writer
 
 CHECKPOINT_NAME = "checkpoint.pt"
-
-
-# The preview's clip-wide tonemap statistics and the EXRs' type come from a first pass over every
-# frame rendered at most this many pixels (every pixel of a clip up to 256x256; 1/32 of a 1080p
-# frame): the export then renders each frame once, writes it and lets it go, so that its memory
-# does not grow with the clip.
-FIRST_PASS_PIXELS = 65536
-FIRST_PASS_TOTAL = 64 * FIRST_PASS_PIXELS  # ... and at most this many over the clip (a longer clip: fewer a frame)
-
-
-def first_pass(ctx: Context, model) -> tuple[dict, float]:
-    """Every frame rendered at most :data:`FIRST_PASS_PIXELS` pixels -> the preview's display
-    statistics (:func:`layercam.scene.render.display_stats`) and the clip's peak irradiance. Refuses (one
-    line) non-finite irradiance before anything is written."""
-    from layercam.scene import render
-    from layercam.core.colour import REC709, luma
-
-    hw = size_within((ctx.clip.H, ctx.clip.W), min(FIRST_PASS_PIXELS, FIRST_PASS_TOTAL // ctx.clip.T))
-    lum, peak = [], 0.0
-    for t in _frames(ctx, "export (first pass)"):
-        hdr = render.render_frame(model, t, hw, ("hdr",))["hdr"]
-        if not np.isfinite(hdr).all():
-            raise LayercamError(f"frame_{t:05d}.exr: the model rendered non-finite irradiance; not writing it")
-        lum.append(luma(hdr, REC709).ravel())
-        peak = max(peak, float(hdr.max()))
-    return render.display_stats(np.concatenate(lum)), peak
-
-
-def faithful_hdr(ctx: Context, model, ts, geometry=None) -> Iterator[tuple[int, np.ndarray, dict]]:
-    """For each frame ``t`` of ``ts`` in turn: ``(t, linear HDR (H, W, 3), what the correction did)``.
-    With ``export.faithful`` the model corrected towards the frame where it saw well, and where it
-    did not towards its neighbours' corrections moved along the clip's flow
-    (:mod:`layercam.camera.faithful`); else the model alone (and ``{}``). Each frame's correction is
-    computed once and kept while a neighbour needs it. ``geometry(t, uv, alpha)``, when given, is
-    called with each frame's geometry from the same render, before the frame is yielded."""
-    from layercam.scene import render
-
-    geo = ("uv", "alpha") if geometry is not None else ()
-    if not ctx.resolved.settings.export.faithful:
-        for t in ts:
-            reached("export", t)
-            out = render.render_frame(model, t, (ctx.clip.H, ctx.clip.W), ("hdr", *geo))
-            if geo:
-                geometry(t, out["uv"], out["alpha"])
-            yield t, out["hdr"], {}
-        return
-    from layercam.camera.faithful import correction, faithful_log2, merge_weight, neighbour_fill
-    from layercam.pipelines.stages import ctx_clip_levels
-
-    lv, frames, T = ctx_clip_levels(ctx), ctx.clip.frames, ctx.clip.T
-    static = ctx.resolved.static  # registered by the identity: every frame sees this view
-    kept: dict[int, dict] = {}
-    # auto: a video from a static camera; not moved along the flow, nor for a bracket's fused view
-    # (docs/measurements.md)
-    merging = ctx.resolved.settings.export.merge_neighbours == "on"  # auto: a video from a static camera (layercam.engine.resolve)
-
-    # auto: a stack's fused view; not videos, whose short and long frames, filtered by their own
-    # different noise, flicker (docs/measurements.md)
-    denoise = ctx.resolved.settings.export.denoise == "on"  # auto: a stack's fused view (layercam.engine.resolve)
-
-    from layercam.camera.faithful import stack_extremes
-
-    extremes = stack_extremes(frames, lv) if static else None  # once, a frame at a time (it was the whole clip, per frame)
-
-    def corr(t: int) -> dict:
-        if t not in kept:
-            kept[t] = correction(model, frames[t], t, lv, geometry=bool(geo))
-        return kept[t]
-
-    for t in ts:
-        reached("export", t)
-        neighbours, merge = [], []
-        for n in (t - 1, t + 1):
-            fl = _flow_to(ctx, t, n) if 0 <= n < T else None
-            if fl is not None:
-                c = corr(n)
-                neighbours.append((c["weight"] * c["delta"], c["weight"], fl))
-                if merging:
-                    still = np.zeros_like(fl) if static else fl  # a static camera: the same scene point, whatever the flow says
-                    merge.append((c["model_log2_r"] + c["weight"] * c["delta"], merge_weight(c["exposed"], c["log2_dts"][n], c["log2_dts"]), still))
-        res = faithful_log2(model, frames[t], t, lv, extremes if static else None, corr=corr(t), fill=neighbour_fill(neighbours), merge=merge, clipped=ctx.resolved.settings.export.clipped_everywhere, denoise=denoise)
-        if geo:
-            geometry(t, kept[t].pop("uv"), kept[t].pop("alpha"))
-        for k in [k for k in kept if k < t]:
-            del kept[k]
-        yield t, np.exp2(res["log2_r"]).astype(np.float32), res["info"]
-
-
-def _flow_to(ctx: Context, t: int, n: int) -> np.ndarray | None:
-    """``(H, W, 2)``: the flow from frame ``t``'s pixels to neighbour ``n = t +- 1``'s where the
-    forward-backward check holds, elsewhere the pair's global homography's (a clipped or flat
-    region gives the flow nothing to hold on to); None without flow."""
-    fl = ctx.flow
-    if fl is None or fl.pairs != ctx.clip.T - 1:
-        return None
-    f, ok = (fl.fw[t], fl.fw_ok[t]) if n == t + 1 else (fl.bw[n], fl.bw_ok[n])
-    f = np.asarray(f, np.float32)
-    h, w = ctx.clip.H, ctx.clip.W
-    if f.shape[:2] != (h, w):
-        return None
-    hom = np.asarray(fl.homs[min(t, n)], np.float64)
-    if not np.isfinite(hom).all() or abs(np.linalg.det(hom)) < 1e-12:  # no homography: the flow alone
-        return np.where(np.asarray(ok, bool)[..., None], f, np.nan).astype(np.float32)
-    hom = hom if n == t + 1 else np.linalg.inv(hom)
-    from layercam.core.geometry import pixel_grid
-
-    xx, yy = (g.astype(np.float64) for g in pixel_grid(h, w))
-    q = np.stack([xx, yy, np.ones_like(xx)], -1) @ hom.T
-    by_hom = (q[..., :2] / q[..., 2:3] - np.stack([xx, yy], -1)).astype(np.float32)
-    return np.where(np.asarray(ok, bool)[..., None], f, by_hom).astype(np.float32)
-
-
-def _faithful_summary(infos: list[dict]) -> dict:
-    if not infos or not infos[0]:
-        return {"faithful": None}
-    return {"faithful": {"mean_weight": round(float(np.mean([i["mean_weight"] for i in infos])), 4), "unseen_share": round(float(np.mean([i["unseen_share"] for i in infos])), 4),
-                         "merged_neighbours": any(i.get("merged", False) for i in infos)}}
 
 
 def hdr_writer(ctx: Context, model, dest: Path, cache: Path, atlas=None) -> dict:
@@ -176,20 +61,24 @@ def hdr_writer(ctx: Context, model, dest: Path, cache: Path, atlas=None) -> dict
     exrs = HdrSet(ctx.resolved.settings.export.half and peak <= HALF_MAX, ctx.say)
     (dest / "hdr").mkdir(exist_ok=True)
     infos, fits = [], None
-    with VideoWriter(dest / "preview.mp4", fps=_fps(ctx), audio=audio(ctx)) as preview:
-        for t, hdr, info in faithful_hdr(ctx, model, _frames(ctx), None if atlas is None else atlas.add):
+    with VideoWriter(dest / "preview.mp4", fps=media.fps(ctx), audio=media.audio(ctx)) as preview:
+        for t, hdr, info in faithful_hdr(ctx, model, ctx.frames_bar(), None if atlas is None else atlas.add):
             exrs.add(dest / "hdr" / f"frame_{t:05d}.exr", hdr)
             preview.add(render.tonemap_display(hdr, stats)[0])
             fit = info.pop("fit_map", None)
-            if fit is not None and ctx.window is not None:  # how well a window's model reproduces each frame, per pixel (the join's weights)
+            if fit is not None and ctx.window is not None:  # how well a window's model reproduces
+                                                            # each frame, per pixel (the join's
+                                                            # weights)
                 fits = fit_maps(cache, ctx.clip.T, size_within(fit.shape, FIRST_PASS_PIXELS)) if fits is None else fits
                 fits[t] = area(fit, fits.shape[1:])
             infos.append(info)
     if fits is not None:
         fits.flush()
         del fits
-    return {"frames": int(ctx.clip.T), "hdr_min": exrs.lo, "hdr_max": exrs.hi, "exr": "half" if exrs.half else "float32", "display": stats, **_faithful_summary(infos),
-            "hdr_video": hdr_video(ctx, model, exrs.paths, dest), "fps": _fps(ctx), "sound": _sound(ctx, preview)}
+    return {"frames": int(ctx.clip.T), "hdr_min": exrs.lo, "hdr_max": exrs.hi,
+            "exr": "half" if exrs.half else "float32", "display": stats, **faithful_summary(infos),
+            "hdr_video": hdr_video(ctx, model, exrs.paths, dest), "fps": media.fps(ctx),
+            "sound": media.sound(ctx, preview)}
 
 
 def hdr_video(ctx: Context, model, paths: list[Path], dest: Path) -> dict:
@@ -197,9 +86,9 @@ def hdr_video(ctx: Context, model, paths: list[Path], dest: Path) -> dict:
     diffuse white (:func:`layercam.scene.render.white_radiance`) at ``export.nits_white``; with an ffmpeg
     that cannot write one, a warning naming what it lacks, and none (as ``hdr_format=none``)."""
     from layercam.io import read_exr
-    from layercam.io.clip import primaries_of
+    from layercam.io.inputs import primaries_of
     from layercam.io.hdr_video import ANCHOR, MIN_SIDE, missing_for_hdr, write_hdr_video
-    from layercam.io.video import ffmpeg_exe
+    from layercam.io.ffmpeg import ffmpeg_exe
     from layercam.scene.render import white_radiance
 
     fmt = ctx.resolved.settings.export.hdr_format
@@ -207,14 +96,18 @@ def hdr_video(ctx: Context, model, paths: list[Path], dest: Path) -> dict:
         return {"format": "none"}
     missing = missing_for_hdr()
     if missing:
-        ctx.warn(f"ffmpeg ({ffmpeg_exe()}) has no {missing}: hdr.mp4 is not written (as with --hdr-format none); imageio-ffmpeg >= 0.8 ships an ffmpeg with it")
+        ctx.warn(f"ffmpeg ({ffmpeg_exe()}) has no {missing}: hdr.mp4 is not written (as with "
+                 "--hdr-format none); imageio-ffmpeg >= 0.8 ships an ffmpeg with it")
         return {"format": "none", "why": f"ffmpeg has no {missing}"}
     if min(ctx.clip.H, ctx.clip.W) < MIN_SIDE:
-        ctx.warn(f"hdr.mp4 is not written: libx265 encodes frames of at least {MIN_SIDE} px a side, these are {ctx.clip.W}x{ctx.clip.H}")
+        ctx.warn(f"hdr.mp4 is not written: libx265 encodes frames of at least {MIN_SIDE} px a "
+                 f"side, these are {ctx.clip.W}x{ctx.clip.H}")
         return {"format": "none", "why": f"frames below {MIN_SIDE} px"}
     prim = ctx.clip.meta.get("primaries") or primaries_of(None)
     white = white_radiance(model)
-    info = write_hdr_video(dest / "hdr.mp4", lambda: (read_exr(p) for p in paths), _fps(ctx), fmt, white, ctx.resolved.settings.export.nits_white, prim["name"], audio=audio(ctx), progress=ctx.progress)
+    info = write_hdr_video(dest / "hdr.mp4", lambda: (read_exr(p) for p in paths), media.fps(ctx),
+                           fmt, white, ctx.resolved.settings.export.nits_white, prim["name"],
+                           audio=media.audio(ctx), progress=ctx.progress)
     if info["audio"] and not info["audio"]["kept"]:
         ctx.warn(f"hdr.mp4 is written without the input's sound: {info['audio']['why']}")
     return {**info, "input_primaries": prim, "anchor": ANCHOR}
@@ -225,18 +118,20 @@ def fused_writer(ctx: Context, model, dest: Path, cache: Path) -> dict:
     from layercam.io import write_png
 
     hw = (ctx.clip.H, ctx.clip.W)
-    ref = resolve_reference(ctx.resolved.settings.export.reference, ctx.clip.T)
+    ref = reference_index(ctx.resolved.settings.export.reference, ctx.clip.T)
     _, hdr, info = next(faithful_hdr(ctx, model, [ref]))
     write_hdr_set([dest / "fused.exr"], [hdr], ctx.resolved.settings.export.half, ctx.say)
     np.save(cache / "fused.npy", hdr.astype(np.float32))
-    if ctx.resolved.settings.model.tone_mapper == "fixed":  # one exposure: the sharp image as the camera would have recorded it
+    if ctx.resolved.settings.model.tone_mapper == "fixed":  # one exposure: the sharp image as the
+                                                            # camera would have recorded it
         png = render.render_frame(model, ref, hw, ("ldr",))["ldr"]
         how, stats = "fixed sRGB tone curve at the stack's exposure (input tonality)", None
     else:
         png, stats = render.tonemap_display(hdr)
         how = "Reinhard global tonemap + sRGB"
-    write_png(dest / "fused.png", png, bit_depth=_bits(ctx))
-    return {"reference": ref, "reference_name": ctx.clip.names[ref], "png": how, "display": stats, "hdr_min": float(hdr.min()), "hdr_max": float(hdr.max()), **_faithful_summary([info])}
+    write_png(dest / "fused.png", png, bit_depth=media.png_bits(ctx))
+    return {"reference": ref, "reference_name": ctx.clip.names[ref], "png": how, "display": stats,
+            "hdr_min": float(hdr.min()), "hdr_max": float(hdr.max()), **faithful_summary([info])}
 
 
 def atlas_writer(ctx: Context, model, dest: Path, cache: Path, atlas=None) -> dict:
@@ -245,20 +140,23 @@ def atlas_writer(ctx: Context, model, dest: Path, cache: Path, atlas=None) -> di
 
     if atlas is not None:
         return {"atlas": atlas.close()}
-    return {"atlas": export_atlases(model, dest, ctx.clip.frames, fps=_fps(ctx), progress=ctx.progress)}
+    return {"atlas": export_atlases(model, dest, ctx.clip.frames, fps=media.fps(ctx), progress=ctx.progress)}
 
 
 def crf_writer(ctx: Context, model, dest: Path, cache: Path) -> dict:
     """``crf.json`` (z = log2 r + log2 dt in stops -> value per channel) and ``crf.png``."""
     import torch
 
-    from layercam.bench import viz
     from layercam.io.atomic import atomic_write
+    from layercam.io.figures import crf_figure
 
     z = torch.linspace(-12, 12, 241)
     curve = model.tone.curve(z.to(next(model.parameters()).device)).float().cpu().numpy()
-    write_json(dest / "crf.json", {"z_stops": z.tolist(), "r": curve[:, 0].tolist(), "g": curve[:, 1].tolist(), "b": curve[:, 2].tolist(), "kind": model.cfg.model.tone_mapper, "exposures_log2": model.exposure.values().detach().cpu().tolist()})
-    fig = viz.crf_figure(z.numpy(), curve)
+    write_json(dest / "crf.json",
+               {"z_stops": z.tolist(), "r": curve[:, 0].tolist(), "g": curve[:, 1].tolist(),
+                "b": curve[:, 2].tolist(), "kind": model.cfg.model.tone_mapper,
+                "exposures_log2": model.exposure.values().detach().cpu().tolist()})
+    fig = crf_figure(z.numpy(), curve)
     atomic_write(dest / "crf.png", lambda p: fig.savefig(p, format="png"))
     return {}
 
@@ -279,7 +177,7 @@ def checkpoint_writer(ctx: Context, model, dest: Path, cache: Path) -> dict:
 
     meta = model_meta(ctx)
     if ctx.task == "fuse-stack":
-        meta["reference"] = resolve_reference(ctx.resolved.settings.export.reference, ctx.clip.T)
+        meta["reference"] = reference_index(ctx.resolved.settings.export.reference, ctx.clip.T)
     save_run_model(dest / CHECKPOINT_NAME, model, meta)
     return {}
 
@@ -296,7 +194,8 @@ WRITERS = {
 }
 TASK_WRITERS = {"hdr-video": ("hdr",), "demo": ("hdr",), "deblur-video": ("sharp",), "fuse-stack": ("fused",)}
 SHARING = ("hdr", "atlases")  # the first renders every frame and hands the second each frame's geometry
-COMMON_WRITERS = ("atlases", "crf", "psf", "checkpoint")  # render writers run on the training device, these on the CPU from "crf" on
+COMMON_WRITERS = ("atlases", "crf", "psf", "checkpoint")  # render writers run on the training
+                                                          # device, these on the CPU from "crf" on
 REPORT_NAME = "report.json"  # written by the task after its stages; set aside with the outputs it describes
 
 
@@ -310,19 +209,27 @@ def outputs_for(task: str) -> list[str]:
     return list(dict.fromkeys(names + [REPORT_NAME]))
 
 
+def all_output_names() -> list[str]:
+    """Every name an export may publish to the top of a run folder, for any task."""
+    return list(dict.fromkeys(n for task in TASK_WRITERS for n in outputs_for(task) if n != REPORT_NAME))
+
+
 class ExportStage(Stage):
     """Writes the run folder with the task's writers (this module's docstring)."""
 
     name = "export"
     deps = ("train",)
-    reads = ("export", "task", "static", "model.blur", "blur.max_offset")  # the last two: the sharp frames' trust window
+    # the last two: the sharp frames' trust window
+    reads = ("export", "task", "static", "model.blur", "blur.max_offset")
 
     def output_names(self, ctx):
         return [n for n in outputs_for(ctx.task) if n != REPORT_NAME]
 
     def options(self, ctx):
-        fits = {"fits": "per pixel"} if ctx.window is not None else {}  # a window's export keeps window_plan.FIT_FILE (older ones: none)
-        return fits | ({"sharp": "trusted per pixel"} if "sharp" in writers_for(ctx.task) else {})  # (older ones: a check per frame)
+        # a window's export keeps windows.plan.FIT_FILE (older ones: none); deblur-video's frames
+        # are trusted per pixel (older ones: a check per frame)
+        fits = {"fits": "per pixel"} if ctx.window is not None else {}
+        return fits | ({"sharp": "trusted per pixel"} if "sharp" in writers_for(ctx.task) else {})
 
     def run(self, ctx, out):
         dest = out  # published to the top of the run folder when the run ends
@@ -334,7 +241,7 @@ class ExportStage(Stage):
         if SHARING[0] in names and SHARING[1] in names:  # the HDR frames' renders give the atlases their geometry
             from layercam.pipelines.atlas_export import AtlasSink
 
-            atlas = AtlasSink(model, dest, ctx.clip.frames, fps=_fps(ctx))
+            atlas = AtlasSink(model, dest, ctx.clip.frames, fps=media.fps(ctx))
         try:
             for name in names:
                 if name == "crf":
@@ -355,4 +262,5 @@ class ExportStage(Stage):
 
 def kept_arrays(out: Path) -> dict:
     """The arrays an export keeps in ``out`` for a scorer (:class:`~layercam.pipelines.results.ExportResult`)."""
-    return {k: (out / f"{n}.npy" if (out / f"{n}.npy").exists() else None) for k, n in (("frames", "deblurred"), ("fused", "fused"))}
+    return {k: (out / f"{n}.npy" if (out / f"{n}.npy").exists() else None) for k,
+            n in (("frames", "deblurred"), ("fused", "fused"))}

@@ -53,9 +53,10 @@ def read_manifest(run: Path) -> dict | None:
         raise LayercamError(f"{run / MANIFEST} is unreadable; move it away (the outputs it describes stay)") from None
     else:
         if not _manifest_ok(m):
-            raise LayercamError(f"{run / MANIFEST} is not a layercam outputs list (corrupt?); move it away (the outputs it describes stay)")
+            raise LayercamError(f"{run / MANIFEST} is not a layercam outputs list (corrupt?); move "
+                                "it away (the outputs it describes stay)")
         return m
-    from layercam.pipelines.tasks import all_output_names
+    from layercam.pipelines.export import all_output_names
 
     names = [n for n in all_output_names() + [REPORT, LEGACY_KEY] if (run / n).exists()]
     legacy = run / LEGACY_KEY
@@ -72,7 +73,8 @@ def _manifest_ok(m) -> bool:
     def plain(n) -> bool:
         return isinstance(n, str) and n not in ("", ".", "..") and "/" not in n and "\\" not in n
 
-    if not isinstance(m, dict) or not plain(m.get("key")) or not isinstance(m.get("names"), list) or not all(plain(n) for n in m["names"]):
+    if not isinstance(m, dict) or not plain(m.get("key")) or not isinstance(m.get("names"),
+                      list) or not all(plain(n) for n in m["names"]):
         return False
     return isinstance(m.get("complete", False), bool) and isinstance(m.get("stages", {}), dict)
 

@@ -53,7 +53,8 @@ class BootstrapResult(StageResult):
 
     @property
     def verdict(self) -> dict:
-        """The foreground finder's verdict (``found``, ``reason``; :mod:`layercam.vision.segment.verdict`), {} without one."""
+        """The foreground finder's verdict (``found``, ``reason``;
+        :mod:`layercam.vision.segment.verdict`), {} without one."""
         return dict((self.foreground or {}).get("verdict") or {})
 
     @property

@@ -43,22 +43,33 @@ class Context:
     task: str
     masks: Any = None               # (T, H, W) foreground masks or None
     progress: bool = True
-    train_callbacks: list = field(default_factory=list)  # model -> trainer callback, besides the model's own (the bench's probe)
+    train_callbacks: list = field(default_factory=list)  # model -> trainer callback, besides the
+                                                         # model's own (the bench's probe)
     measures: dict | None = None    # what the analysis measured (layercam.vision.analyse.measure)
-    resolved: Any = None            # the run's settings, resolved once after the flow (layercam.engine.resolve.Resolved)
-    flow: Any = None                # the flow stage's arrays (layercam.vision.flow_store.FlowArrays: on disk), opened once; None for one frame
-    model: Any = None               # the trained model (layercam.scene.model.ImplicitCameraModel), built once
-    camera: dict | None = None      # a long clip's window after the first: the camera it holds fixed (pipelines/windows.py)
-    window: tuple | None = None     # a long clip's window: its frames [a, b) of the clip (its export keeps its fit per pixel for the join)
-    results: dict = field(default_factory=dict)   # stage name -> layercam.pipelines.results.StageResult (or its subclass)
+    resolved: Any = None            # the run's settings, resolved once after the flow
+                                    # (layercam.engine.resolve.Resolved)
+    flow: Any = None                # the flow stage's arrays
+                                    # (layercam.vision.flow_store.FlowArrays: on disk), opened once;
+                                    # None for one frame
+    model: Any = None               # the trained model (layercam.engine.model.ImplicitCameraModel), built once
+    camera: dict | None = None      # a long clip's window after the first: the camera it holds
+                                    # fixed (layercam.pipelines.windows)
+    window: tuple | None = None     # a long clip's window: its frames [a, b) of the clip (its
+                                    # export keeps its fit per pixel for the join)
+    results: dict = field(default_factory=dict)   # stage name ->
+                                                  # layercam.pipelines.results.StageResult (or its
+                                                  # subclass)
     clip_levels: Any = None         # the clip's clipping levels (pipelines.stages.ctx_clip_levels), measured once
-    ray: dict | None = None         # the Ray cluster a long clip's windows ran on (pipelines/windows.py), None without --ray
+    ray: dict | None = None         # the Ray cluster a long clip's windows ran on
+                                    # (layercam.pipelines.windows), None without --ray
     dirs: dict = field(default_factory=dict)
     keys: dict = field(default_factory=dict)
     times: dict = field(default_factory=dict)
     log: list = field(default_factory=list)
     warnings: list = field(default_factory=list)
-    estimate: dict = field(default_factory=dict)  # what the run was estimated to cost (layercam.engine.estimate), before and after the analysis
+    estimate: dict = field(default_factory=dict)  # what the run was estimated to cost
+                                                  # (layercam.engine.estimate), before and after the
+                                                  # analysis
 
     def say(self, msg: str) -> None:
         self.log.append(msg)
@@ -70,6 +81,12 @@ class Context:
         self.warnings.append(msg)
         if distributed.is_main():
             print(f"warning: {msg}", file=sys.stderr, flush=True)
+
+    def frames_bar(self, desc: str = "export"):
+        """The clip's frame indices, with a progress bar when the run shows progress."""
+        from layercam.core.progress import bar
+
+        return bar(range(self.clip.T), desc=desc, unit="frame", enabled=self.progress)
 
 
 class Stage:
@@ -143,7 +160,9 @@ def run_stages(ctx: Context, stages: list[Stage]) -> Context:
         missing = [d for d in st.deps if d not in ctx.keys]
         if missing:
             raise RuntimeError(f"stage {st.name} needs {missing} first")
-        material = {"cache": CACHE_VERSION, "stage": st.name, "input": inkey, "settings": settings_read(ctx, st.reads), "options": st.options(ctx), "deps": {d: ctx.keys[d] for d in st.deps}}
+        material = {"cache": CACHE_VERSION, "stage": st.name, "input": inkey,
+                    "settings": settings_read(ctx, st.reads), "options": st.options(ctx),
+                    "deps": {d: ctx.keys[d] for d in st.deps}}
         key = config_hash(material)[:12]
         out = cache / f"{st.name}-{key}"
         ctx.keys[st.name], ctx.dirs[st.name] = key, out
@@ -158,7 +177,9 @@ def run_stages(ctx: Context, stages: list[Stage]) -> Context:
         if done.exists():
             summary = json.loads(done.read_text())
             ctx.results[st.name] = st.load(ctx, out, summary)
-            ctx.times[st.name] = {"seconds": 0.0, "cached": True, "original_seconds": summary.get("_seconds"), "original_cpu_seconds": summary.get("_cpu_seconds"),
+            ctx.times[st.name] = {"seconds": 0.0, "cached": True,
+                                  "original_seconds": summary.get("_seconds"),
+                                  "original_cpu_seconds": summary.get("_cpu_seconds"),
                                   **({"original_peak_mb": summary["_peak_mb"]} if "_peak_mb" in summary else {})}
             ctx.say(f"[{st.name}] cached ({out.name})")
             if alone and main:
@@ -175,7 +196,8 @@ def run_stages(ctx: Context, stages: list[Stage]) -> Context:
         except OSError as e:  # a full disk where a stage writes without atomic_write (np.savez, ...)
             if e.errno not in (errno.ENOSPC, errno.EDQUOT, errno.EROFS):
                 raise
-            raise LayercamError(f"[{st.name}] cannot write in {out}: {e.strerror}; free some space and run the same command again: the finished stages are kept") from None
+            raise LayercamError(f"[{st.name}] cannot write in {out}: {e.strerror}; free some space "
+                                "and run the same command again: the finished stages are kept") from None
         secs, cpu = time.perf_counter() - t0, time.process_time() - c0
         peak = heap.peak_bytes()  # the stage's own peak resident memory
         summary["_seconds"], summary["_cpu_seconds"] = secs, cpu
@@ -185,7 +207,8 @@ def run_stages(ctx: Context, stages: list[Stage]) -> Context:
         if main:
             atomic_write(done, lambda p: p.write_text(json.dumps(summary, indent=1, default=_json_default)))
         ctx.results[st.name] = st.load(ctx, out, summary)
-        ctx.times[st.name] = {"seconds": round(secs, 3), "cpu_seconds": round(cpu, 3), "cached": False, **({"peak_mb": summary["_peak_mb"]} if peak else {})}
+        ctx.times[st.name] = {"seconds": round(secs, 3), "cpu_seconds": round(cpu, 3),
+                              "cached": False, **({"peak_mb": summary["_peak_mb"]} if peak else {})}
         ctx.say(f"[{st.name}] done in {secs:.1f} s")
         if alone and main:
             distributed.barrier()

@@ -17,7 +17,7 @@ import numpy as np
 from layercam.core.errors import LayercamError
 from layercam.core.interrupts import reached
 from layercam.io.hdr_set import HdrSet
-from layercam.pipelines.export_context import _bits, _fps, _frames, _sound, audio, exposures_vary
+from layercam.pipelines import media
 from layercam.pipelines.runner import Context
 from layercam.pipelines.view import blend, check_stride, trust, window_sigma
 
@@ -31,7 +31,8 @@ def sharp_frame(model, t: int, hw: tuple[int, int], frame: np.ndarray, sigma: fl
     out = render.render_frame(model, t, hw, ("ldr", "hdr") if with_hdr else ("ldr",))
     sharp = out["ldr"]
     d = check_stride(sigma)
-    reblurred = render.render_frame(model, t, hw, ("ldr",), blur=True, centred=True, stride=d)["ldr"] if model.blur is not None else sharp[::d, ::d]
+    reblurred = render.render_frame(model, t, hw, ("ldr",), blur=True, centred=True,
+                                    stride=d)["ldr"] if model.blur is not None else sharp[::d, ::d]
     if not (np.isfinite(sharp).all() and np.isfinite(reblurred).all()):
         raise LayercamError(f"frame {t}: the model rendered non-finite values; not writing it")
     mask, info = trust(reblurred, frame, sigma, d)
@@ -42,17 +43,18 @@ def sharp_writer(ctx: Context, model, dest: Path, cache: Path) -> dict:
     from layercam.io import VideoWriter, write_png
 
     T, hw = ctx.clip.T, (ctx.clip.H, ctx.clip.W)
-    with_hdr = exposures_vary(ctx)
+    with_hdr = ctx.exposures.varies
     exrs = HdrSet(ctx.resolved.settings.export.half, ctx.say)
     for d in ("frames", "trust") + (("hdr",) if with_hdr else ()):
         (dest / d).mkdir(exist_ok=True)
-    kept = np.lib.format.open_memmap(cache / "deblurred.npy", mode="w+", dtype=np.float32, shape=(T, *hw, 3))  # for the evaluation, on disk
+    kept = np.lib.format.open_memmap(cache / "deblurred.npy", mode="w+", dtype=np.float32,
+                                     shape=(T, *hw, 3))  # for the evaluation, on disk
     sigma, infos = window_sigma(ctx), []
-    with VideoWriter(dest / "deblurred.mp4", fps=_fps(ctx), audio=audio(ctx)) as video:
-        for t in _frames(ctx):
+    with VideoWriter(dest / "deblurred.mp4", fps=media.fps(ctx), audio=media.audio(ctx)) as video:
+        for t in ctx.frames_bar():
             reached("export", t)
             res = sharp_frame(model, t, hw, np.asarray(ctx.clip.frames[t], np.float32), sigma, with_hdr)
-            write_png(dest / "frames" / f"frame_{t:05d}.png", res["ldr"], bit_depth=_bits(ctx))
+            write_png(dest / "frames" / f"frame_{t:05d}.png", res["ldr"], bit_depth=media.png_bits(ctx))
             write_png(dest / "trust" / f"frame_{t:05d}.png", res["mask"])
             kept[t] = res["ldr"]
             video.add(res["ldr"])
@@ -63,11 +65,14 @@ def sharp_writer(ctx: Context, model, dest: Path, cache: Path) -> dict:
     del kept
     share = [i["kept"] for i in infos]
     lo = int(np.argmin(share))
-    ctx.say(f"[export] the sharp render is kept on {np.mean(share):.0%} of the pixels (frame {lo}: {share[lo]:.0%}), where the model "
+    ctx.say(f"[export] the sharp render is kept on {np.mean(share):.0%} of the pixels (frame {lo}: "
+            f"{share[lo]:.0%}), where the model "
             "re-blurred reproduces the input within its noise; the input elsewhere (trust/ shows where)"
             + ("; hdr/ is the render" if with_hdr else ""))
     check = {"window_sigma_px": sigma, "kept_share": share, "noise_codes": [i["noise"] for i in infos]}
-    return {"frames": int(T), "trust": check, "hdr": with_hdr, "hdr_max": exrs.hi if with_hdr else 0.0, "png_bits": _bits(ctx), "fps": _fps(ctx), "sound": _sound(ctx, video)}
+    return {"frames": int(T), "trust": check, "hdr": with_hdr,
+            "hdr_max": exrs.hi if with_hdr else 0.0, "png_bits": media.png_bits(ctx),
+            "fps": media.fps(ctx), "sound": media.sound(ctx, video)}
 
 
 def join_trust(out: Path, dirs: list[Path], joined) -> dict:

@@ -1,5 +1,6 @@
 """The stages every task is built from: flow -> bootstrap -> train (-> export, in export.py). Between
-flow and bootstrap the task runs the analysis (``layercam.vision.analyse``), which decides the model."""
+flow and bootstrap the task measures the clip (``layercam.vision.analyse``) and resolves the settings once
+(``layercam.engine.resolve``), which decides the model."""
 
 from __future__ import annotations
 
@@ -21,9 +22,13 @@ class FlowStage(Stage):
     reads = ("flow",)
 
     def run(self, ctx, out):
+        from layercam.engine.resolve import device_of
         from layercam.vision import flow_store
 
-        return flow_store.compute(ctx.clip.frames, out, ctx.cfg.flow, progress=ctx.progress)
+        raft = ctx.cfg.flow.method.startswith("raft")  # a network: where the run trains (before the
+                                                       # settings are resolved)
+        return flow_store.compute(ctx.clip.frames, out, ctx.cfg.flow, progress=ctx.progress,
+                                  device=device_of(ctx.cfg.train.device) if raft else "cpu")
 
     def load(self, ctx, out, summary):
         """The summary; the arrays opened once into ``ctx.flow`` (None for a single frame)."""
@@ -44,28 +49,34 @@ class BootstrapStage(Stage):
 
     def options(self, ctx):
         """A long clip, or one larger than the flow's grid, is segmented in windows on that grid
-        (:func:`layercam.vision.segment.foreground_bootstrap_long`): their size (other clips keep their key)."""
-        from layercam.vision import segment
+        (:func:`layercam.vision.segment.long.foreground_bootstrap_long`): their size (other clips keep their key)."""
+        from layercam.vision.segment import long as seg_long
 
-        if ctx.resolved.settings.model.layers > 1 and ctx.flow is not None and segment.windowed(ctx.clip.T, (ctx.clip.H, ctx.clip.W), ctx.flow.grid):
-            return {"windows": [segment.long.SEG_FRAMES, segment.long.SEG_MARGIN]}
+        if ctx.resolved.settings.model.layers > 1 and ctx.flow is not None and seg_long.windowed(
+            ctx.clip.T, (ctx.clip.H, ctx.clip.W), ctx.flow.grid):
+            return {"windows": [seg_long.SEG_FRAMES, seg_long.SEG_MARGIN]}
         return {}
 
     def run(self, ctx, out):
         from layercam.camera.tone import initial_log2
         from layercam.core.geometry import atlas_mappings, chain_homographies, middle_frame
 
-        from layercam.vision.scale import at_frame_size
+        from layercam.vision.flow_store import at_frame_size
 
         from layercam.vision import segment
+        from layercam.vision.segment import long as seg_long
 
         clip = ctx.clip
         T, H, W = clip.T, clip.H, clip.W
         r = ctx.resolved
-        long = r.settings.model.layers > 1 and ctx.flow is not None and segment.windowed(T, (H, W), ctx.flow.grid)  # on the flow's grid, in windows
-        fl = at_frame_size(ctx.flow, (H, W), None if r.settings.model.layers > 1 and not long else ("homs",))  # the motion segmentation reads the flows too
+        long = r.settings.model.layers > 1 and ctx.flow is not None and seg_long.windowed(T, (H, W),
+            ctx.flow.grid)  # on the flow's grid, in windows
+        # the motion segmentation reads the flows too
+        fl = at_frame_size(ctx.flow, (H, W),
+                           None if r.settings.model.layers > 1 and not long else ("homs",))
         ref = middle_frame(T)
-        static = r.static  # the flow's chained homographies move no corner by STATIC_CORNER_PX (layercam.engine.resolve)
+        static = r.static  # the flow's chained homographies move no corner by STATIC_CORNER_PX
+                           # (layercam.engine.resolve)
         if static:
             bg = np.stack([np.eye(3)] * T)
             how = f"identity: {r.reasons.get('static', 'a static camera')}"
@@ -79,33 +90,43 @@ class BootstrapStage(Stage):
         fg = {}
         cfg = r.settings
         if cfg.segment.detector and (cfg.model.layers == 1 or ctx.masks is not None):
-            ctx.say(f"[bootstrap] segment.detector unused: {'one layer, no foreground' if cfg.model.layers == 1 else '--masks given'}")
+            ctx.say("[bootstrap] segment.detector unused: "
+                    f"{'one layer, no foreground' if cfg.model.layers == 1 else '--masks given'}")
         if cfg.model.layers > 1:  # foreground: user masks, else motion segmentation of the flow
             if long:
-                fg = segment.foreground_bootstrap_long(clip.frames, ctx.flow, out, ctx.masks, cfg.segment, progress=ctx.progress)
+                fg = seg_long.foreground_bootstrap_long(clip.frames, ctx.flow, out, ctx.masks,
+                                                        cfg.segment, progress=ctx.progress)
                 if fg["computed"]:
                     g = fg["info"]["grid"]
-                    ctx.say(f"[bootstrap] motion segmentation on the flow's {g[1]}x{g[0]} grid, in {fg['info']['windows']} window(s) of at most {segment.long.SEG_FRAMES} frames overlapping by {segment.long.SEG_MARGIN}")
+                    ctx.say(f"[bootstrap] motion segmentation on the flow's {g[1]}x{g[0]} grid, in "
+                            f"{fg['info']['windows']} window(s) of at most {seg_long.SEG_FRAMES} "
+                            f"frames overlapping by {seg_long.SEG_MARGIN}")
             else:
                 fg = segment.foreground_bootstrap(clip.frames, fl, ctx.masks, cfg.segment, progress=ctx.progress)
             h0.append(fg["h0"])
             if fg["computed"]:
                 segment.save_masks(out, fg["masks"])
-                ctx.say(f"[bootstrap] motion masks (no --masks given): mean coverage {segment.mask_coverage(fg['masks']).mean():.3f}, saved in {out / 'masks'}")
+                ctx.say("[bootstrap] motion masks (no --masks given): mean coverage "
+                        f"{segment.mask_coverage(fg['masks']).mean():.3f}, saved in {out / 'masks'}")
                 if "detector_frames" in fg["info"]:
-                    ctx.say(f"[bootstrap] the detector's instances replaced the motion masks in {fg['info']['detector_frames']} of {T} frames")
+                    ctx.say("[bootstrap] the detector's instances replaced the motion masks in "
+                            f"{fg['info']['detector_frames']} of {T} frames")
         h0 = np.stack(h0)
         init_log2 = initial_log2(clip.frames, ctx.exposures.log2_dt, cfg.model.tone_mapper)  # layercam.camera.tone
         np.save(out / "h0.npy", h0)
         res = {"how": how, "init_log2": init_log2, "layers": int(h0.shape[0]), "static": static}
         if fg:
-            res["foreground"] = {"how": fg["how"], "masks": "motion segmentation" if fg["computed"] else ("given" if fg["masks"] is not None else "none"), **fg["info"]}
+            res["foreground"] = {"how": fg["how"],
+                                 "masks": "motion segmentation" if fg["computed"]
+                                 else ("given" if fg["masks"] is not None else "none"),
+                                 **fg["info"]}
         return res
 
     def load(self, ctx, out, summary):
         from layercam.vision.segment import load_masks
 
-        return BootstrapResult(summary, h0=np.load(out / "h0.npy"), init_log2=summary["init_log2"], static=bool(summary["static"]),
+        return BootstrapResult(summary, h0=np.load(out / "h0.npy"), init_log2=summary["init_log2"],
+                               static=bool(summary["static"]),
                                masks=load_masks(out), foreground=summary.get("foreground"))
 
 
@@ -118,7 +139,8 @@ class TrainStage(Stage):
     all_ranks = True  # data-parallel under torch.distributed (layercam/engine/distributed.py)
 
     def options(self, ctx):
-        """A long clip's alpha grid with slices shared by neighbouring frames (:data:`layercam.scene.fields.ALPHA_GRID_CELLS`;
+        """A long clip's alpha grid with slices shared by neighbouring frames
+        (:data:`layercam.scene.fields.ALPHA_GRID_CELLS`;
         clips where it changes nothing keep their key); a long clip's later window: the key of
         window 0's camera, held fixed."""
         from layercam.scene.fields import ALPHA_GRID_CELLS, alpha_grid_capped
@@ -143,6 +165,7 @@ class TrainStage(Stage):
 
         from layercam.engine import distributed
         from layercam.camera.tone import fit_init_curve
+        from layercam.engine.resolve import device_of
         from layercam.engine.sampler import PixelSampler
         from layercam.engine.train import Trainer
 
@@ -150,9 +173,7 @@ class TrainStage(Stage):
         cfg = r.settings
         torch.manual_seed(cfg.train.seed)
         model = self.build(ctx)
-        if getattr(ctx, "camera", None) is not None:  # pipelines/windows.py: window 0's camera, held fixed
-            from layercam.pipelines.windows import hold_camera
-
+        if getattr(ctx, "camera", None) is not None:  # layercam.pipelines.windows: window 0's camera, held fixed
             hold_camera(model, ctx.camera)
         elif cfg.model.tone_mapper == "learned":
             fit_init_curve(model.tone, seed=cfg.train.seed)
@@ -168,7 +189,8 @@ class TrainStage(Stage):
         )
         callbacks += [make(model) for make in ctx.train_callbacks]  # e.g. the benchmark's quality probe
         tcfg = dataclasses.replace(cfg.train, batch=distributed.rank_batch(cfg.train.batch))  # each rank's share
-        trainer = Trainer(model, sampler, tcfg, out / "ckpt.pt", callbacks, progress=ctx.progress, desc=f"{ctx.task} {self.name}")
+        trainer = Trainer(model, sampler, tcfg, out / "ckpt.pt", callbacks, progress=ctx.progress,
+                          desc=f"{ctx.task} {self.name}")
         if (out / "ckpt.pt").exists():
             ctx.say(f"[{self.name}] resuming from {out / 'ckpt.pt'}")
         res = trainer.fit()  # its last checkpoint (out / "ckpt.pt") holds the final model
@@ -214,16 +236,43 @@ class TrainStage(Stage):
         return TrainResult(summary)
 
 
-def device_of(name: str) -> str:
-    """A resolved ``train.device`` (or a command's ``--device``; "auto": CUDA when torch sees a GPU,
-    else the CPU) checked against what torch sees."""
-    import torch
+def hold_camera(model, camera: dict) -> None:
+    """``model``'s tone mapper (and learned exposure offsets) set to ``camera``'s and held fixed:
+    no gradient, and the terms that only shape the tone curve (white balance, monotonicity) off."""
+    missing = [k for k in camera["state"] if k not in model.state_dict()]
+    if missing:
+        raise LayercamError(f"the shared camera does not fit this window's model ({', '.join(missing[:3])})")
+    model.load_state_dict(camera["state"], strict=False)
+    for name, p in model.named_parameters():
+        if name in camera["state"]:
+            p.requires_grad_(False)
+    model.loss_weights.white_balance = 0.0
+    model.loss_weights.gradient = 0.0
 
-    if name == "auto":
-        return "cuda" if torch.cuda.is_available() else "cpu"
-    if name.startswith("cuda") and not torch.cuda.is_available():
-        raise LayercamError(f"--device {name} asked for, but torch sees no CUDA device")
-    return name
+
+FADED_SHARE = 0.25  # the foreground's alpha over less than this share of its masks' area: it lost the object
+FADED = "the foreground layer faded in training"  # how the warning begins (layercam edit repeats it)
+
+
+def faded_foreground(ctx: Context) -> str | None:
+    """A warning when a two-layer run's foreground layer lost its object in training: the trained
+    alpha (> 0.5, ``export["atlas"]["foreground_share"]``) covers less than ``FADED_SHARE`` of the
+    area the masks it was fitted to cover (given or motion masks; a share of the frames,
+    over the clip). Alpha that is 0 everywhere satisfies the flow terms, and the plain mask term
+    pulls a small object towards the background (docs/measurements.md). None when it did not, or without masks or
+    the atlas export (one layer, a run exported before the share was kept)."""
+    share = (ctx.results["export"].atlas or {}).get("foreground_share") if "export" in ctx.results else None
+    masks, source = TrainStage.masks(ctx)
+    if share is None or masks is None:
+        return None
+    from layercam.vision.segment import mask_coverage
+
+    ref = float(mask_coverage(masks).mean())  # a frame at a time (a long clip's masks are on disk)
+    if ref <= 0 or share >= FADED_SHARE * ref:
+        return None
+    hint = "" if source == "given" else "; --masks gives masks"
+    return (f"{FADED}: its alpha holds {share:.2%} of the frames, the {source} masks it started from "
+            f"{ref:.2%}; alpha/, the atlases and `layercam edit` miss the object{hint}")
 
 
 def device_line(asked: str, dev: str) -> str:
@@ -261,7 +310,7 @@ def model_meta(ctx: Context) -> dict:
         "n_frames": ctx.clip.T,
         "names": list(ctx.clip.names),
         "fps": float(ctx.clip.fps or 24.0),
-        "audio": ctx.clip.meta.get("audio"),  # the sound `render` and `edit` carry over (layercam.io.clip.audio_plan)
+        "audio": ctx.clip.meta.get("audio"),  # the sound `render` and `edit` carry over (layercam.io.inputs.audio_plan)
         "primaries": (ctx.clip.meta.get("primaries") or {}).get("name", "bt709"),
         "task": ctx.task,
         "source": str(ctx.clip.source),

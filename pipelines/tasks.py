@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
+from layercam.engine import decide
 from layercam.vision import analyse
 
 from layercam.core.heap import process_peak_bytes
@@ -21,14 +22,7 @@ from layercam.pipelines import publish
 from layercam.pipelines.export import ExportStage
 from layercam.pipelines.results import TrainResult
 from layercam.pipelines.runner import Context, output_sources, run_stages, write_json
-from layercam.pipelines.stages import BootstrapStage, FlowStage, TrainStage
-
-
-def all_output_names() -> list[str]:
-    """Every name an export may publish to the top of a run folder, for any task."""
-    from layercam.pipelines.export import TASK_WRITERS, outputs_for
-
-    return list(dict.fromkeys(n for task in TASK_WRITERS for n in outputs_for(task) if n != publish.REPORT))
+from layercam.pipelines.stages import BootstrapStage, FlowStage, TrainStage, faded_foreground
 
 
 def stages_for(task: str) -> list:
@@ -36,19 +30,21 @@ def stages_for(task: str) -> list:
     return [FlowStage(), BootstrapStage(), TrainStage(), ExportStage()]
 
 
-def run_task(task: str, clip, exposures, cfg, run_dir: Path, masks=None, progress: bool = True, extra_stages: list | None = None, train_callbacks: list | None = None,
+def run_task(task: str, clip, exposures, cfg, run_dir: Path, masks=None, progress: bool = True,
+             extra_stages: list | None = None, train_callbacks: list | None = None,
              window: int | None = None, ray: str | None = None) -> Context:
     """Analyse ``clip``, run the task's stages (and ``extra_stages``, e.g. an evaluate stage) into
     ``run_dir`` and write ``report.json``. After the flow, the settings are resolved once
     (:func:`layercam.engine.resolve.resolve`: each ``auto`` decided from what the analysis measured, values
     set are kept: ``--layers`` etc.) into ``ctx.resolved``, which every later stage reads.
     ``train_callbacks``: functions of the model that return more trainer callbacks (the benchmark's
-    quality probe). ``window``: a video's windows (``pipelines/windows.py``): None as the analysis
+    quality probe). ``window``: a video's windows (``layercam.pipelines.windows``): None as the analysis
     decides, 0 none, N frames each; ``ray``: a Ray cluster (``auto`` or an address) that trains the
     windows (``layercam.engine.cluster``)."""
     t0 = time.perf_counter()
     validate(cfg)
-    ctx = Context(run_dir=Path(run_dir), clip=clip, exposures=exposures, cfg=cfg, task=task, masks=masks, progress=progress, train_callbacks=list(train_callbacks or []))
+    ctx = Context(run_dir=Path(run_dir), clip=clip, exposures=exposures, cfg=cfg, task=task,
+                  masks=masks, progress=progress, train_callbacks=list(train_callbacks or []))
     ctx.say(f"layercam {task}: {clip.T} frames {clip.W}x{clip.H} from {clip.source}; preset {cfg.preset}")
     for w in list(getattr(exposures, "warnings", [])) + list(clip.meta.get("notes", [])):
         ctx.warn(w)
@@ -67,10 +63,13 @@ def run_task(task: str, clip, exposures, cfg, run_dir: Path, masks=None, progres
 
 
 def _run(ctx: Context, stages: list, t0: float, window=None, ray: str | None = None) -> None:
-    from layercam.pipelines import window_plan, windows
+    from layercam.pipelines.windows import plan as window_plan, run as window_run
+    from layercam.pipelines.windows.join import WindowsStage
 
     clip, exposures, task, cfg = ctx.clip, ctx.exposures, ctx.task, ctx.cfg
-    publish.check_folder(ctx.run_dir, [n for st in stages + [windows.WindowsStage()] for n in st.output_names(ctx)])  # before any work
+    # before any work
+    publish.check_folder(ctx.run_dir,
+                         [n for st in stages + [WindowsStage()] for n in st.output_names(ctx)])
     extra = {}
     try:
         # flow first: the analysis reads it to decide what the model needs
@@ -79,25 +78,27 @@ def _run(ctx: Context, stages: list, t0: float, window=None, ray: str | None = N
         ctx.measures["masks_given"] = ctx.masks is not None and any(np.asarray(m).any() for m in ctx.masks)
         ctx.resolved = resolve(cfg, clip, exposures, task, ctx.measures)
         plan = window_plan.plan(clip, exposures, ctx.flow, task, window)
-        if task != "fuse-stack" and len(stages) == 4 and not ctx.train_callbacks:  # not for a stack, nor a scored run (demo, bench)
+        if task != "fuse-stack" and len(stages) == 4 and not ctx.train_callbacks:
+            # not for a stack, nor a scored run (demo, bench)
             ctx.resolved = dataclasses.replace(ctx.resolved, reasons={**ctx.resolved.reasons, "window": plan.reason})
         if ray and plan.count == 1:
             ctx.say("[ray] one model for the whole clip: it trains here (--ray distributes a long clip's windows)")
         ctx.say("model chosen:\n" + format_table(ctx.resolved, plan.count))
         ctx.estimate["after_analysis"] = _estimate(ctx, ctx.resolved, " (the model chosen)", plan)
         if plan.count > 1:  # a long clip: windows of the stages below, then joined
-            results = windows.run_all(ctx, plan, ray)
+            results = window_run.run_all(ctx, plan, ray)
             for r in results:
                 for w in r["warnings"]:
                     ctx.warn(f"window {r['index']} (frames {r['frames'][0]}..{r['frames'][1] - 1}): {w}")
-            stages = [stages[0], windows.WindowsStage(plan, results)]
+            stages = [stages[0], WindowsStage(plan, results)]
             run_stages(ctx, stages[1:])
-            ctx.results["train"] = TrainResult(windows.train_summary(results))
-            runs = [{**{k: r[k] for k in ("index", "frames", "keys", "times")}, "folder": str(Path(r["folder"]).relative_to(ctx.run_dir))} for r in results]
+            ctx.results["train"] = TrainResult(window_run.train_summary(results))
+            runs = [{**{k: r[k] for k in ("index", "frames", "keys", "times")},
+                     "folder": str(Path(r["folder"]).relative_to(ctx.run_dir))} for r in results]
             extra = {"windows": {**plan.to_dict(), "runs": runs, "ray": ctx.ray}}
         else:
             run_stages(ctx, stages[1:2])  # the bootstrap: motion masks for two layers
-            unfound = analyse.unfound_foreground(cfg, ctx.results["bootstrap"].foreground)
+            unfound = decide.unfound_foreground(cfg, ctx.results["bootstrap"].foreground)
             if unfound:  # the analysis chose two layers and the finder found no object: one layer, saying why
                 ctx.measures.update(foreground_found=False, foreground_reason=unfound)
                 again = resolve(cfg, clip, exposures, task, ctx.measures)
@@ -110,7 +111,8 @@ def _run(ctx: Context, stages: list, t0: float, window=None, ray: str | None = N
                 ctx.warn(faded)
     except LayercamError as e:
         if getattr(e, "events", None) is not None:  # training stopped: say why in report_failed.json
-            write_report(ctx, time.perf_counter() - t0, "report_failed.json", {"error": str(e), "train": {"stopped": True, "events": e.events}})
+            write_report(ctx, time.perf_counter() - t0, "report_failed.json",
+                         {"error": str(e), "train": {"stopped": True, "events": e.events}})
         raise
     report = write_report(ctx, time.perf_counter() - t0, name=None, extra=extra)
     if distributed.is_main():  # the top of the run folder becomes this run's outputs and report, at once
@@ -125,39 +127,18 @@ def _estimate(ctx: Context, cfg, what: str, plan=None) -> dict:
     in one line and checked against the memory available and the disk free (less what the run
     folder's cache holds)."""
     from layercam.engine import estimate as cost
-    from layercam.pipelines.window_plan import extent
+    from layercam.pipelines.windows.plan import extent
 
     clip = ctx.clip
-    est = cost.estimate({"frames": clip.T, "width": clip.W, "height": clip.H, "bit_depth": clip.bit_depth}, cfg, ctx.task,
-                        windows=None if plan is None else plan.windows, extent=None if plan is None else extent(clip, ctx.flow, plan.windows))
+    est = cost.estimate({"frames": clip.T, "width": clip.W, "height": clip.H,
+                         "bit_depth": clip.bit_depth}, cfg, ctx.task,
+                        windows=None if plan is None else plan.windows,
+                        extent=None if plan is None else extent(clip, ctx.flow, plan.windows))
     ctx.say(cost.summary_line(est) + what)
     cost.check(est, ctx.run_dir, cost.disk_used(ctx.run_dir / "cache"))
-    return {k: est[k] for k in ("memory", "disk", "stages", "disk_parts", "assumed", "windows")} | {"params": int(sum(est["params"].values()))}
-
-
-FADED_SHARE = 0.25  # the foreground's alpha over less than this share of its masks' area: it lost the object
-FADED = "the foreground layer faded in training"  # how the warning begins (layercam edit repeats it)
-
-
-def faded_foreground(ctx: Context) -> str | None:
-    """A warning when a two-layer run's foreground layer lost its object in training: the trained
-    alpha (> 0.5, ``export["atlas"]["foreground_share"]``) covers less than ``FADED_SHARE`` of the
-    area the masks it was fitted to cover (given or motion masks; a share of the frames,
-    over the clip). Alpha that is 0 everywhere satisfies the flow terms, and the plain mask term
-    pulls a small object towards the background (docs/measurements.md). None when it did not, or without masks or
-    the atlas export (one layer, a run exported before the share was kept)."""
-    share = (ctx.results["export"].atlas or {}).get("foreground_share") if "export" in ctx.results else None
-    masks, source = TrainStage.masks(ctx)
-    if share is None or masks is None:
-        return None
-    from layercam.vision.segment import mask_coverage
-
-    ref = float(mask_coverage(masks).mean())  # a frame at a time (a long clip's masks are on disk)
-    if ref <= 0 or share >= FADED_SHARE * ref:
-        return None
-    hint = "" if source == "given" else "; --masks gives masks"
-    return (f"{FADED}: its alpha holds {share:.2%} of the frames, the {source} masks it started from "
-            f"{ref:.2%}; alpha/, the atlases and `layercam edit` miss the object{hint}")
+    return {k: est[k]
+            for k in ("memory", "disk", "stages", "disk_parts", "assumed",
+                      "windows")} | {"params": int(sum(est["params"].values()))}
 
 
 def write_report(ctx: Context, wall: float, name: str | None = "report.json", extra: dict | None = None) -> dict:
@@ -167,10 +148,18 @@ def write_report(ctx: Context, wall: float, name: str | None = "report.json", ex
     res = {k: r.report() for k, r in ctx.results.items()}
     rep = {
         "task": ctx.task,
-        "input": {"source": str(ctx.clip.source), "frames": ctx.clip.T, "width": ctx.clip.W, "height": ctx.clip.H, "fps": ctx.clip.fps, "bit_depth": ctx.clip.bit_depth,
-                  **{k: ctx.clip.meta[k] for k in ("primaries", "audio", "video") if k in ctx.clip.meta}},  # video: what the input's header says (frame rate, variable, sound)
-        "exposures": {"spec": ctx.exposures.spec, "reason": ctx.exposures.reason, "log2_dt_given": ctx.exposures.log2_dt.tolist(), "learn": ctx.exposures.learn},
-        "analysis": {**(analyse.model_summary(ctx.resolved.settings) if ctx.resolved is not None else {}), "reasons": dict(ctx.resolved.reasons) if ctx.resolved is not None else {}, "measures": ctx.measures},
+        "input": {"source": str(ctx.clip.source), "frames": ctx.clip.T, "width": ctx.clip.W,
+                  "height": ctx.clip.H, "fps": ctx.clip.fps, "bit_depth": ctx.clip.bit_depth,
+                  **{k: ctx.clip.meta[k] for k in ("primaries", "audio", "video")
+                     if k in ctx.clip.meta}},
+                  # video: what the input's header says (frame rate, variable, sound)
+        "exposures": {"spec": ctx.exposures.spec, "reason": ctx.exposures.reason,
+                      "log2_dt_given": ctx.exposures.log2_dt.tolist(),
+                      "learn": ctx.exposures.learn},
+        "analysis": {**(decide.model_summary(ctx.resolved.settings) if ctx.resolved is not None
+                        else {}),
+                     "reasons": dict(ctx.resolved.reasons) if ctx.resolved is not None else {},
+                     "measures": ctx.measures},
         "settings": ctx.resolved.to_dict() if ctx.resolved is not None else ctx.cfg.to_dict(),
         "stages": ctx.times,
         "wall_seconds": round(wall, 2),
@@ -179,7 +168,9 @@ def write_report(ctx: Context, wall: float, name: str | None = "report.json", ex
         "export": res.get("export", {}),
         "metrics": res.get("evaluate", {}).get("metrics"),
         "baselines": res.get("evaluate", {}).get("baselines"),
-        "machine": {"python": platform.python_version(), "torch": torch.__version__, "threads": torch.get_num_threads(), "cpu": platform.processor() or platform.machine()},
+        "machine": {"python": platform.python_version(), "torch": torch.__version__,
+                    "threads": torch.get_num_threads(),
+                    "cpu": platform.processor() or platform.machine()},
         "cache_keys": ctx.keys,
         "memory": {"estimate": ctx.estimate, "peak_rss_bytes": process_peak_bytes()},
         "warnings": ctx.warnings,

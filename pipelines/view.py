@@ -65,9 +65,11 @@ def trust(reblurred: np.ndarray, frame: np.ndarray, sigma: float, stride: int = 
     noise = frame_noise(f, exposure_weight(f), 0.0)
     fs = f[::stride, ::stride]
     if np.shape(reblurred) != fs.shape:
-        raise ValueError(f"trust: the re-blurred render {np.shape(reblurred)} is not the frame {f.shape} at stride {stride}")
+        raise ValueError(f"trust: the re-blurred render {np.shape(reblurred)} is not the frame "
+                         f"{f.shape} at stride {stride}")
     # every pixel counts, clipped ones too: both clip where the model is as bright as the input saw
-    rho = disagreement(fs, np.clip(np.asarray(reblurred, np.float32), 0.0, 1.0), noise, np.ones_like(fs), window=sigma / stride)
+    rho = disagreement(fs, np.clip(np.asarray(reblurred, np.float32), 0.0, 1.0), noise,
+                       np.ones_like(fs), window=sigma / stride)
     if stride > 1:  # pixel (y, x) of the frame is (y / stride, x / stride) of the grid read
         h, w = f.shape[:2]
         gx, gy = np.meshgrid(np.arange(w, dtype=np.float32) / stride, np.arange(h, dtype=np.float32) / stride)

@@ -85,7 +85,8 @@ def two_layer_run(tmp_path_factory):
     return {"scene": scene, "run": run, "ctx": ctx, "exposures": exposures, "cfg": cfg}
 
 
-def decided(cfg=None, h0=None, frame_hw=(16, 16), static: bool = False, *, layers=1, tone_mapper="learned", exposures="given", blur="off", max_offset=5.0, flow_loss=True):
+def decided(cfg=None, h0=None, frame_hw=(16, 16), static: bool = False, *, layers=1,
+            tone_mapper="learned", exposures="given", blur="off", max_offset=5.0, flow_loss=True):
     """``cfg`` (default: the fast preset) with the model chosen by hand, as the analysis would write
     it, resolved (:func:`layercam.engine.resolve.resolve`) for a clip of the bootstrap mappings' ``h0 (L, T,
     3, 3)`` frames (default: identity, one per layer, 2 frames) of size ``frame_hw``, the camera

@@ -42,7 +42,9 @@ SIZES = st.sampled_from([(1, 1), (2, 3), (3, 2), (5, 7), (7, 5)])
 
 
 SCENE = SceneConfig(grid_levels=2, atlas_width=8, deform_width=8)
-SIZES_SMALL = {"grid_max_res": 8, "alpha_grid_res": 8}  # the derived sizes (layercam.scene.layered.derived_sizes) of a tiny scene
+SIZES_SMALL = {"grid_max_res": 8, "alpha_grid_res": 8}  # the derived sizes
+                                                        # (layercam.scene.layered.derived_sizes) of
+                                                        # a tiny scene
 
 
 Z = torch.linspace(-20.0, 20.0, 2001)  # stops, for monotonicity
@@ -57,7 +59,9 @@ def _finite(*ts) -> bool:
 
 
 def _grads_finite(module: torch.nn.Module) -> bool:
-    return all(p.grad is None or bool(torch.isfinite(p.grad._values() if p.grad.is_sparse else p.grad).all()) for p in module.parameters())
+    return all(p.grad is None
+               or bool(torch.isfinite(p.grad._values() if p.grad.is_sparse else p.grad).all())
+               for p in module.parameters())
 
 
 def _scale_params(module: torch.nn.Module, scale: float) -> None:

@@ -22,7 +22,8 @@ def test_committed_notebook_has_no_outputs():
     code = [c for c in nb.cells if c.cell_type == "code"]
     assert code, "the notebook has no code cells"
     for c in code:
-        assert c.outputs == [], f"outputs left in a cell starting {c.source[:40]!r}: run `jupytext --to ipynb {TWIN.name}` to strip"
+        assert c.outputs == [], (f"outputs left in a cell starting {c.source[:40]!r}: run "
+                                 f"`jupytext --to ipynb {TWIN.name}` to strip")
         assert c.execution_count is None
         assert "execution" not in c.metadata
 
@@ -33,7 +34,8 @@ def test_notebook_matches_its_text_twin():
     nb = nbformat.read(NOTEBOOK, as_version=4)
     twin = jupytext.read(TWIN)
     cells = lambda n: [(c.cell_type, c.source.strip()) for c in n.cells]  # noqa: E731
-    assert cells(nb) == cells(twin), f"{NOTEBOOK.name} and {TWIN.name} differ: edit the .py, then `jupytext --sync {TWIN.name}`"
+    assert cells(nb) == cells(twin), (f"{NOTEBOOK.name} and {TWIN.name} differ: edit the .py, then "
+                                      f"`jupytext --sync {TWIN.name}`")
     params = [c for c in nb.cells if "parameters" in c.metadata.get("tags", [])]
     assert len(params) == 1 and "RUN = " in params[0].source
 
@@ -45,7 +47,8 @@ def test_notebook_runs_headless_with_nbmake(tmp_path):
     env = {k: v for k, v in os.environ.items() if k not in ("LAYERCAM_RUN", "LAYERCAM_CRF_TRUTH")}
     # the tiny run goes to a temp folder: under tmp_path, so that pytest cleans it up
     env.update(LAYERCAM_FIGURE_DIR=str(tmp_path / "figures"), OMP_NUM_THREADS="1", TMPDIR=str(tmp_path))
-    cmd = [sys.executable, "-m", "pytest", "--nbmake", "--nbmake-timeout=600", str(NOTEBOOK), "-q", "-p", "no:cacheprovider", "-o", "addopts=", "-o", "timeout=0"]
+    cmd = [sys.executable, "-m", "pytest", "--nbmake", "--nbmake-timeout=600", str(NOTEBOOK), "-q",
+           "-p", "no:cacheprovider", "-o", "addopts=", "-o", "timeout=0"]
     res = subprocess.run(cmd, cwd=tmp_path, env=env, capture_output=True, text=True, timeout=900)
     assert res.returncode == 0, res.stdout[-4000:] + res.stderr[-2000:]
     saved = sorted(p.name for p in (tmp_path / "figures").glob("*.png"))

@@ -236,7 +236,8 @@ def unsharp_mask(frames, sigma: float = 1.5, amount: float = 1.0) -> np.ndarray:
     return np.stack(out).astype(np.float32)
 
 
-def lucky_regions(frames, radius: int = 2, window: float = 4.0, agree: float = 0.03, flow_method: str = "dis_medium") -> np.ndarray:
+def lucky_regions(frames, radius: int = 2, window: float = 4.0, agree: float = 0.03,
+                  flow_method: str = "dis_medium") -> np.ndarray:
     """Flow-aligned lucky-region selection (after Cho, Wang and Lee, "Video deblurring for
     hand-held cameras using patch-based synthesis", 2012, without its patch synthesis): a hand-held
     clip's blur changes from frame to frame, so each region of frame ``t`` is taken from the

@@ -27,7 +27,8 @@ import numpy as np
 
 from layercam.core.errors import LayercamError
 
-VARIANTS = {"off": {"blur": "off"}, "s0": {"blur": "3x3", "max_offset": 0.0}, "s5": {"blur": "3x3", "max_offset": 5.0}, "s5n5": {"blur": "5x5", "max_offset": 5.0},
+VARIANTS = {"off": {"blur": "off"}, "s0": {"blur": "3x3", "max_offset": 0.0},
+            "s5": {"blur": "3x3", "max_offset": 5.0}, "s5n5": {"blur": "5x5", "max_offset": 5.0},
             "s5nf": {"blur": "3x3", "max_offset": 5.0, "flow_loss": False}}  # nf: no flow loss
 DEFAULT_VARIANTS = {"shake": ["s5", "s0", "off"], "mfme": ["s5", "off"]}
 CASES = ["shake", "mfme-3", "mfme-9"]
@@ -37,11 +38,12 @@ QUICK_SIZE, QUICK_FRAMES = (32, 32), 4
 QUICK = ["train.steps=20", "train.bootstrap_steps=2", "train.batch=512"]
 
 
-def shake(out: Path, variants: list[str], preset: str, overrides: list[str], size: tuple[int, int], frames: int, progress: bool = True) -> dict:
+def shake(out: Path, variants: list[str], preset: str, overrides: list[str], size: tuple[int, int],
+          frames: int, progress: bool = True) -> dict:
     from layercam import synth
     from layercam.core.presets import load_config, model_overrides
     from layercam.io import Exposures
-    from layercam.pipelines.evaluate import EvaluateStage
+    from layercam.bench.evaluate import EvaluateStage
     from layercam.pipelines.tasks import run_task
 
     say = print if progress else (lambda *a, **k: None)
@@ -60,17 +62,19 @@ def shake(out: Path, variants: list[str], preset: str, overrides: list[str], siz
         pf, pa = ev["raw"]["per_frame"], ev["aligned"]["per_frame"]
         say(f"{v}: {time.time() - t0:.0f} s  raw: deblurred {ev['raw']['deblurred']} input {ev['raw']['input']}")
         say(f"    aligned: deblurred {ev['aligned']['deblurred']} input {ev['aligned']['input']}")
-        say(f"    largest blur (frame {big}): raw {pf['deblurred'][big]} input {pf['input'][big]}; aligned {pa['deblurred'][big]} input {pa['input'][big]}")
+        say(f"    largest blur (frame {big}): raw {pf['deblurred'][big]} input {pf['input'][big]}; "
+            f"aligned {pa['deblurred'][big]} input {pa['input'][big]}")
         res[v] = {"seconds": round(time.time() - t0, 1), **ev}
     return res
 
 
-def mfme(out: Path, subsets: list[str], variants: list[str], seeds: list[int], preset: str, overrides: list[str], size: tuple[int, int], progress: bool = True) -> dict:
+def mfme(out: Path, subsets: list[str], variants: list[str], seeds: list[int], preset: str,
+         overrides: list[str], size: tuple[int, int], progress: bool = True) -> dict:
     from layercam import synth
     from layercam.core.presets import load_config, model_overrides
     from layercam.io import Exposures
     from layercam.io.clip import Clip
-    from layercam.pipelines.evaluate import EvaluateStage
+    from layercam.bench.evaluate import EvaluateStage
     from layercam.pipelines.tasks import run_task
 
     say = print if progress else (lambda *a, **k: None)
@@ -80,11 +84,14 @@ def mfme(out: Path, subsets: list[str], variants: list[str], seeds: list[int], p
     res = {}
     for sub in subsets:
         idx = [0, 4, 8] if sub == "3" else list(range(9))
-        clip = Clip(scene.clip.frames[idx], "synthetic:mfme_stack", [scene.clip.names[i] for i in idx], meta={"kind": "synthetic"})
+        clip = Clip(scene.clip.frames[idx], "synthetic:mfme_stack",
+                    [scene.clip.names[i] for i in idx], meta={"kind": "synthetic"})
         e = Exposures(ev[idx] - ev[idx].min(), "none", None, "times", "synthetic: known times")
-        truth = {"focus_index": fidx[idx], "times": scene.exposure_times[idx], "full_stack": (scene.clip.frames, scene.exposure_times, fidx)}
+        truth = {"focus_index": fidx[idx], "times": scene.exposure_times[idx],
+                 "full_stack": (scene.clip.frames, scene.exposure_times, fidx)}
         for v in variants:
-            key = {seed: f"{sub}_{v}" + (f"_seed{seed}" if seed else "") for seed in seeds}  # seed 0 keeps the plain name
+            # seed 0 keeps the plain name
+            key = {seed: f"{sub}_{v}" + (f"_seed{seed}" if seed else "") for seed in seeds}
             for seed in seeds:
                 cfg = load_config(preset, model_overrides(layers=1, **VARIANTS[v]) + overrides + [f"train.seed={seed}"])
                 t0 = time.time()
@@ -97,13 +104,16 @@ def mfme(out: Path, subsets: list[str], variants: list[str], seeds: list[int], p
                 res[key[seed]] = {"seconds": round(time.time() - t0, 1), **r}
             if len(seeds) > 1:
                 vals = [res[key[s]]["metrics"]["psnr_mu"] for s in seeds]
-                res[f"{sub}_{v}_seeds"] = {"seeds": seeds, "psnr_mu": vals, "mean": float(np.mean(vals)), "std": float(np.std(vals))}
+                res[f"{sub}_{v}_seeds"] = {"seeds": seeds, "psnr_mu": vals,
+                                           "mean": float(np.mean(vals)), "std": float(np.std(vals))}
                 say(f"{sub} images, {v}: PSNR-mu over seeds {seeds}: mean {np.mean(vals):.2f}, std {np.std(vals):.2f}")
     return res
 
 
-def run_blur(out: Path, cases: list[str] | None = None, variants: list[str] | None = None, seeds: list[int] | None = None, preset: str = "fast",
-             overrides: list[str] | None = None, size: tuple[int, int] | None = None, frames: int | None = None, quick: bool = False,
+def run_blur(out: Path, cases: list[str] | None = None, variants: list[str] | None = None,
+             seeds: list[int] | None = None, preset: str = "fast",
+             overrides: list[str] | None = None, size: tuple[int, int] | None = None,
+             frames: int | None = None, quick: bool = False,
              threads: int = 1, progress: bool = True) -> dict:
     """The cases asked for; ``{"shake": ..., "mfme": ...}`` as written to ``OUT/shake.json`` and ``OUT/mfme.json``.
     ``size`` (H, W) and ``frames`` (shake) default to 64x64 and 8 (``quick``: 32x32 and 4, a few steps)."""
@@ -114,7 +124,8 @@ def run_blur(out: Path, cases: list[str] | None = None, variants: list[str] | No
     cases = cases or CASES
     bad = [c for c in cases if c not in CASES] + [v for v in variants or [] if v not in VARIANTS]
     if bad:
-        raise LayercamError(f"--table blur: unknown {bad[0]!r} (cases: {', '.join(CASES)}; variants: {', '.join(VARIANTS)})")
+        raise LayercamError(f"--table blur: unknown {bad[0]!r} (cases: {', '.join(CASES)}; "
+                            f"variants: {', '.join(VARIANTS)})")
     size = size or (QUICK_SIZE if quick else SIZE)
     frames = frames or (QUICK_FRAMES if quick else FRAMES)
     overrides = (QUICK if quick else []) + list(overrides or [])
@@ -126,7 +137,8 @@ def run_blur(out: Path, cases: list[str] | None = None, variants: list[str] | No
         res["shake"] = shake(out, variants or DEFAULT_VARIANTS["shake"], preset, overrides, size, frames, progress)
     subsets = [c.split("-")[1] for c in cases if c.startswith("mfme-")]
     if subsets:
-        res["mfme"] = mfme(out, subsets, variants or DEFAULT_VARIANTS["mfme"], seeds or [0], preset, overrides, size, progress)
+        res["mfme"] = mfme(out, subsets, variants or DEFAULT_VARIANTS["mfme"], seeds or [0], preset,
+                           overrides, size, progress)
     for what, r in res.items():
         atomic_write(out / f"{what}.json", lambda p, r=r: p.write_text(json.dumps(r, indent=1, default=str)))
     return res

@@ -28,12 +28,14 @@ def step_sets() -> dict[str, tuple]:
 
     sets = {"all": STEPS}
     for s in STEPS:  # the colour cut gates on the clean plate's residual: without the plate, no cut either
-        sets[f"without {s}" + (" (and colour)" if s == "background" else "")] = tuple(x for x in STEPS if x != s and not (s == "background" and x == "colour"))
+        sets[f"without {s}" + (" (and colour)" if s == "background" else "")] = tuple(x
+            for x in STEPS if x != s and not (s == "background" and x == "colour"))
     sets["motion masks alone"] = ()
     return sets
 
 
-def run_finder_clip(name: str, folder: Path, preset: str, resize: str, max_frames: int, overrides: list[str] | None = None) -> dict:
+def run_finder_clip(name: str, folder: Path, preset: str, resize: str, max_frames: int,
+                    overrides: list[str] | None = None) -> dict:
     """One clip at one preset's flow, in this process: ``{clip, preset, frames, size, flow_s,
     sets: {name: {iou, iou_min, inside, seconds}}}``."""
     from layercam.bench.layers import inside_share, mask_ious
@@ -41,7 +43,7 @@ def run_finder_clip(name: str, folder: Path, preset: str, resize: str, max_frame
     from layercam.io import load_clip
     from layercam.io.masks import load_masks
     from layercam.vision import flow_store
-    from layercam.vision.scale import at_frame_size
+    from layercam.vision.flow_store import at_frame_size
     from layercam.vision.segment import find_foreground
 
     clip = load_clip(folder / "frames", max_frames=max_frames, resize=resize)
@@ -60,44 +62,70 @@ def run_finder_clip(name: str, folder: Path, preset: str, resize: str, max_frame
         ious = mask_ious(masks, truth)
         sets[label] = {"iou": round(float(np.mean(ious)), 4), "iou_min": round(float(np.min(ious)), 4),
                        "inside": round(inside_share(masks, truth), 4), "seconds": round(time.perf_counter() - t0, 2)}
-    return {"clip": name, "preset": preset, "frames": clip.T, "size": f"{clip.W}x{clip.H}", "flow_s": round(flow_s, 1), "sets": sets}
+    return {"clip": name, "preset": preset, "frames": clip.T, "size": f"{clip.W}x{clip.H}",
+            "flow_s": round(flow_s, 1), "sets": sets}
 
 
 def summarise(rows: list[dict]) -> list[dict]:
-    """Per preset and step set: the set's mean IoU, its worst clip and the mean share inside."""
+    """Per split (:func:`layercam.bench.layers.split_of`, never mixed), preset and step set: the
+    split's mean IoU, its worst clip and the mean share inside."""
+    from layercam.bench.layers import SPLITS, split_of
+
     out = []
-    for preset in dict.fromkeys(r["preset"] for r in rows):
-        mine = [r for r in rows if r["preset"] == preset]
+    keys = dict.fromkeys((split_of(r["clip"]), r["preset"]) for r in rows)
+    for split, preset in sorted(keys, key=lambda k: SPLITS.index(k[0])):
+        mine = [r for r in rows if r["preset"] == preset and split_of(r["clip"]) == split]
         for label in step_sets():
-            vals = [(r["sets"][label]["iou"], r["clip"], r["sets"][label]["inside"]) for r in mine if label in r["sets"]]
+            vals = [(r["sets"][label]["iou"], r["clip"], r["sets"][label]["inside"]) for r in mine
+                    if label in r["sets"]]
             if vals:
                 worst = min(vals)
-                out.append({"preset": preset, "steps": label, "clips": len(vals), "mean": round(float(np.mean([v[0] for v in vals])), 4),
-                            "worst": worst[0], "worst_clip": worst[1], "inside": round(float(np.mean([v[2] for v in vals])), 4)})
+                out.append({"split": split, "preset": preset, "steps": label, "clips": len(vals),
+                            "mean": round(float(np.mean([v[0] for v in vals])), 4),
+                            "worst": worst[0], "worst_clip": worst[1],
+                            "inside": round(float(np.mean([v[2] for v in vals])), 4)})
     return out
 
 
 def finder_markdown(rows: list[dict], summary: list[dict], command: str) -> str:
-    """``finder.md``: the set's mean and worst clip per step set, then every clip."""
+    """``finder.md``: per split (validation first, never mixed) the split's mean and worst clip per
+    step set, then every clip."""
+    from layercam.bench.layers import split_of
+
     labels = list(step_sets())
-    lines = ["# The foreground finder's steps, each left out (masks against the true masks, no training)", "",
-             f"Regenerate: `{command}`", "", "| preset | steps | clips | mean IoU | worst clip | object inside (mean) |", "|---|---|---|---|---|---|"]
-    lines += [f"| `{s['preset']}` | {s['steps']} | {s['clips']} | {s['mean']:.3f} | {s['worst_clip']} {s['worst']:.3f} | {s['inside']:.3f} |" for s in summary]
-    lines += ["", "Per clip, mean IoU (worst frame):", "", "| clip | preset | " + " | ".join(labels) + " |", "|---|---|" + "---|" * len(labels)]
-    lines += [f"| {r['clip']} | `{r['preset']}` | " + " | ".join(f"{r['sets'][k]['iou']:.3f} ({r['sets'][k]['iou_min']:.2f})" for k in labels) + " |" for r in rows]
+    lines = ["# The foreground finder's steps, each left out (masks against the true masks, no "
+             "training)", "", f"Regenerate: `{command}`"]
+    for split in dict.fromkeys(s["split"] for s in summary):
+        lines += ["", f"## The {split} split", "",
+                  "| preset | steps | clips | mean IoU | worst clip | object inside (mean) |",
+                  "|---|---|---|---|---|---|"]
+        lines += [f"| `{s['preset']}` | {s['steps']} | {s['clips']} | {s['mean']:.3f} | "
+                  f"{s['worst_clip']} {s['worst']:.3f} | {s['inside']:.3f} |"
+                  for s in summary if s["split"] == split]
+        lines += ["", "Per clip, mean IoU (worst frame):", "",
+                  "| clip | preset | " + " | ".join(labels) + " |", "|---|---|" + "---|" * len(labels)]
+        lines += [f"| {r['clip']} | `{r['preset']}` | "
+                  + " | ".join(f"{r['sets'][k]['iou']:.3f} ({r['sets'][k]['iou_min']:.2f})"
+                               if k in r["sets"] else "" for k in labels) + " |"
+                  for r in rows if split_of(r["clip"]) == split]
     return "\n".join(lines) + "\n"
 
 
-def run_finder_table(out: Path, data: Path, clips: list[str] | None = None, presets: tuple = ("fast", "balanced"), resize: str = "0.33", max_frames: int | None = None,
-                     overrides: list[str] | None = None, force: bool = False, progress: bool = True, command: str = "layercam bench --table finder") -> list[dict]:
-    """Runs (or re-uses) every preset x clip, then writes ``finder.json`` and ``finder.md`` (``command``: the
-    line that regenerates it, as typed). Returns the rows."""
+def run_finder_table(out: Path, data: Path, clips: list[str] | None = None,
+                     presets: tuple = ("fast", "balanced"), resize: str = "0.33",
+                     max_frames: int | None = None,
+                     overrides: list[str] | None = None, force: bool = False, progress: bool = True,
+                     command: str = "layercam bench --table finder",
+                     split: str = "validation") -> list[dict]:
+    """Runs (or re-uses) every preset x clip (``clips``, else those of ``split``), then writes
+    ``finder.json`` and ``finder.md`` (``command``: the line that regenerates it, as typed).
+    Returns the rows."""
     from layercam.bench.layers import MAX_FRAMES, find_clips
     from layercam.core.progress import bar
     from layercam.io.atomic import atomic_write
 
     out = Path(out)
-    found = find_clips(data, clips)
+    found = find_clips(data, clips, split)
     (out / "results").mkdir(parents=True, exist_ok=True)
     rows = []
     jobs = [(p, c) for p in presets for c in found]

@@ -56,16 +56,20 @@ def _export(run: Path, argv: list[str], fmt: str, threads: int) -> dict:
     if r.returncode:
         raise LayercamError(f"hdr-video --hdr-format {fmt} failed: {(r.stderr.strip().splitlines() or ['?'])[-1]}")
     rep = json.loads(Path(run, "report.json").read_text())
-    return {"format": fmt, "export_s": rep["stages"]["export"]["seconds"], "command_s": round(time.perf_counter() - t0, 2), "hdr_video": rep["export"].get("hdr_video")}
+    return {"format": fmt, "export_s": rep["stages"]["export"]["seconds"],
+            "command_s": round(time.perf_counter() - t0, 2),
+            "hdr_video": rep["export"].get("hdr_video")}
 
 
 def round_trip(run: Path, video: Path) -> dict:
     """hdr.mp4 (or an HLG one) back to radiance against the run's EXRs: median relative errors."""
     from layercam.core.bt2100 import eetf, primaries_matrix
     from layercam.io import read_exr
-    from layercam.io.hdr_video import HdrMapping, read_hdr_video
+    from layercam.io.hdr_video import HdrMapping
+    from layercam.io.hdr_video_read import read_hdr_video
 
-    info = json.loads((run / "report.json").read_text())["export"]["hdr_video"] if video.name == "hdr.mp4" else json.loads(video.with_suffix(".json").read_text())
+    info = (json.loads((run / "report.json").read_text())["export"]["hdr_video"]
+            if video.name == "hdr.mp4" else json.loads(video.with_suffix(".json").read_text()))
     exr = np.stack([read_exr(p) for p in sorted((run / "hdr").glob("frame_*.exr"))])
     light, probe = read_hdr_video(video)
     m = primaries_matrix(info["primaries_in"], "bt2020")
@@ -80,8 +84,12 @@ def round_trip(run: Path, video: Path) -> dict:
     ok = (exr @ y > info["white_radiance"] / 16) & np.isclose(eetf(lin, mp.source_peak), lin, rtol=1e-6)
     lum = np.abs(back @ y - exr @ y)[ok] / (exr @ y)[ok]
     rgb = np.abs(back - exr).sum(-1)[ok] / exr.sum(-1)[ok]
-    return {"well_exposed_share": round(float(ok.mean()), 3), "median_lum_error": round(float(np.median(lum)), 4), "median_rgb_error": round(float(np.median(rgb)), 4),
-            "p90_lum_error": round(float(np.percentile(lum, 90)), 4), "kbit_s": round(video.stat().st_size * 8 / (exr.shape[0] / float(probe["fps"] or 24)) / 1000, 1)}
+    return {"well_exposed_share": round(float(ok.mean()), 3),
+            "median_lum_error": round(float(np.median(lum)), 4),
+            "median_rgb_error": round(float(np.median(rgb)), 4),
+            "p90_lum_error": round(float(np.percentile(lum, 90)), 4),
+            "kbit_s": round(video.stat().st_size * 8 / (exr.shape[0] / float(probe["fps"] or 24))
+                            / 1000, 1)}
 
 
 def figure(run: Path, out: Path, frame: int) -> None:
@@ -90,16 +98,19 @@ def figure(run: Path, out: Path, frame: int) -> None:
 
     from layercam.io import read_video
     from layercam.io.atomic import atomic_write
-    from layercam.io.hdr_video import read_hdr_video, sdr_view
+    from layercam.io.hdr_video_read import read_hdr_video, sdr_view
 
     previews = read_video(run / "preview.mp4")[0]
     frame = min(frame, len(previews) - 1)
     preview = previews[frame]
     pq, pinfo = read_hdr_video(run / "hdr.mp4")
     hlg_path = run / "render" / "hdr_hlg.mp4"
-    subprocess.run([sys.executable, "-m", "layercam", "render", str(run), "--hdr-format", "hlg", "--overwrite", "--quiet"], check=True)
+    subprocess.run([sys.executable, "-m", "layercam", "render", str(run), "--hdr-format", "hlg",
+                    "--overwrite", "--quiet"], check=True)
     _, hinfo = read_hdr_video(hlg_path)
-    panels = [preview.astype(np.float32) / 255, sdr_view(pq[frame], pinfo["content_light"]["max_cll"]), np.clip(hinfo["signal"][frame], 0, 1)]
+    panels = [preview.astype(np.float32) / 255,
+              sdr_view(pq[frame], pinfo["content_light"]["max_cll"]),
+              np.clip(hinfo["signal"][frame], 0, 1)]
     h, w = preview.shape[:2]
     gap = np.ones((h, 4, 3), np.float32)
     row = np.concatenate([panels[0], gap, panels[1], gap, panels[2]], 1)
@@ -113,21 +124,25 @@ def figure(run: Path, out: Path, frame: int) -> None:
 
 def table(rows: list[dict], formats: list[str], repeat: int) -> str:
     """The markdown table: per format the medians over the repeats, the last round trip."""
-    lines = ["| hdr-format | export (s) | hdr.mp4 (s) | added | kbit/s | median luminance error | median RGB error |", "|---|---|---|---|---|---|---|"]
-    base = np.median([r["export_s"] for r in rows if r["format"] == "none"]) if any(r["format"] == "none" for r in rows) else None
+    lines = ["| hdr-format | export (s) | hdr.mp4 (s) | added | kbit/s | median luminance error | "
+             "median RGB error |", "|---|---|---|---|---|---|---|"]
+    base = np.median([r["export_s"] for r in rows if r["format"] == "none"]) if any(
+        r["format"] == "none" for r in rows) else None
     for fmt in formats:
         rs = [r for r in rows if r["format"] == fmt]
         ex = np.median([r["export_s"] for r in rs])
         hv = np.median([r["hdr_video"]["seconds"] for r in rs]) if fmt != "none" else 0.0
         rt = rs[-1].get("round_trip") or {}
         added = f"+{hv / (ex - hv):.1%}" if fmt != "none" else ""
-        lines.append(f"| {fmt} | {ex:.1f} | {hv:.1f} | {added} | {rt.get('kbit_s', '')} | {rt.get('median_lum_error', '')} | {rt.get('median_rgb_error', '')} |")
+        lines.append(f"| {fmt} | {ex:.1f} | {hv:.1f} | {added} | {rt.get('kbit_s', '')} | "
+                     f"{rt.get('median_lum_error', '')} | {rt.get('median_rgb_error', '')} |")
     if base is not None:
         lines.append(f"\nexport without hdr.mp4 (none): {base:.1f} s (median of {repeat})")
     return "\n".join(lines)
 
 
-def run_hdr_video(out: Path, data: Path, preset: str = "balanced", formats: list[str] | None = None, repeat: int = 2, overrides: list[str] | None = None,
+def run_hdr_video(out: Path, data: Path, preset: str = "balanced", formats: list[str] | None = None,
+                  repeat: int = 2, overrides: list[str] | None = None,
                   quick: bool = False, force: bool = False, threads: int = 1, progress: bool = True) -> list[dict]:
     """The table: one row per export (``repeat`` x ``formats``); writes hdr_video.{json,md,png} under ``out``."""
     formats = formats or FORMATS
@@ -138,8 +153,11 @@ def run_hdr_video(out: Path, data: Path, preset: str = "balanced", formats: list
     out.mkdir(parents=True, exist_ok=True)
     clip = quick_clip(out) if quick else Path(data) / CLIP
     if not clip.exists():
-        raise LayercamError(f"missing shared capture {clip} (--data: the shared captures; see ../shared/data/README.md)")
-    argv = [str(clip), "--exposures", "alt", "--ev-step", "3", "--preset", preset] + [a for s in (QUICK if quick else []) + list(overrides or []) for a in ("--set", s)]
+        raise LayercamError(f"missing shared capture {clip} (--data: the shared captures; see "
+                            "../shared/data/README.md)")
+    argv = [str(clip), "--exposures", "alt", "--ev-step", "3", "--preset",
+            preset] + [a for s in (QUICK if quick else []) + list(overrides or [])
+                       for a in ("--set", s)]
     run = out / "run"
     if force and run.exists():
         shutil.rmtree(run)

@@ -46,9 +46,9 @@ QUICK = ["train.steps=20", "train.bootstrap_steps=2", "train.batch=512"]
 
 def two_windows(T: int, cycle: int = 2) -> int:
     """The shortest window length that cuts ``T`` frames (exposures repeating every ``cycle``) into
-    two windows overlapping by :func:`layercam.pipelines.window_plan.overlap_for` (57 for 96: windows
+    two windows overlapping by :func:`layercam.pipelines.windows.plan.overlap_for` (57 for 96: windows
     of 57 frames overlapping by 18)."""
-    from layercam.pipelines.window_plan import overlap_for
+    from layercam.pipelines.windows.plan import overlap_for
 
     n = (T + 1) // 2
     while 2 * n - overlap_for(n, cycle) < T:
@@ -100,13 +100,16 @@ def build(case: str, folder: Path, data: Path, T: int, quick: bool = False) -> d
         idx = centred(clip.T, T)
         for t, i in enumerate(idx):
             write_png(frames_dir / f"frame_{t:03d}.png", clip.frames[i])
-        meta = {"ev_step": 3.0, "truth": False, "source": f"altexp_video_basler/clip_2exp_3stop.mp4 ({clip.T} frames) back and forth, centred"}
+        meta = {"ev_step": 3.0, "truth": False,
+                "source": f"altexp_video_basler/clip_2exp_3stop.mp4 ({clip.T} frames) back and "
+                          "forth, centred"}
     meta["indices"] = idx
     info.write_text(json.dumps(meta))
     return meta
 
 
-def run(folder: Path, name: str, meta: dict, preset: str, window: str, overrides: list[str] | None = None, threads: int = 1, force: bool = False) -> dict:
+def run(folder: Path, name: str, meta: dict, preset: str, window: str,
+        overrides: list[str] | None = None, threads: int = 1, force: bool = False) -> dict:
     """``layercam hdr-video`` on the case's frames with ``--window window`` into ``folder/name``
     (a finished run is reused unless ``force``): its wall time."""
     out = folder / name
@@ -116,8 +119,10 @@ def run(folder: Path, name: str, meta: dict, preset: str, window: str, overrides
         rep = json.loads((out / "report.json").read_text())
         return {"wall_s": rep["wall_seconds"], "cached": True}
     env = dict(os.environ, OMP_NUM_THREADS=str(threads))
-    argv = [sys.executable, "-m", "layercam", "hdr-video", str(folder / "frames"), "--exposures", "alt", "--ev-step", f"{meta['ev_step']:g}",
-            "--preset", preset, "--window", window, "--out", str(out), "--quiet", *[a for s in overrides or [] for a in ("--set", s)]]
+    argv = [sys.executable, "-m", "layercam", "hdr-video", str(folder / "frames"), "--exposures",
+            "alt", "--ev-step", f"{meta['ev_step']:g}",
+            "--preset", preset, "--window", window, "--out", str(out), "--quiet",
+            *[a for s in overrides or [] for a in ("--set", s)]]
     t0 = time.perf_counter()
     r = subprocess.run(["nice", "-n", "10", *argv], env=env, capture_output=True, text=True)
     if r.returncode:
@@ -174,9 +179,12 @@ def score(case: str, folder: Path, meta: dict) -> dict:
     }
     if meta["truth"]:
         d = ps_win - ps_single
-        res.update(psnr_single_mean=float(ps_single.mean()), psnr_windows_mean=float(ps_win.mean()), worst_frame=int(np.argmin(d)), worst_drop_db=float(-d.min()), frames_over_0p5_db_under=int((d < -0.5).sum()))
+        res.update(psnr_single_mean=float(ps_single.mean()), psnr_windows_mean=float(ps_win.mean()),
+                   worst_frame=int(np.argmin(d)), worst_drop_db=float(-d.min()),
+                   frames_over_0p5_db_under=int((d < -0.5).sum()))
     else:
-        res.update(agreement_psnr_mean=float(ps_win.mean()), agreement_psnr_min=float(ps_win.min()), agreement_worst_frame=int(np.argmin(ps_win)))
+        res.update(agreement_psnr_mean=float(ps_win.mean()), agreement_psnr_min=float(ps_win.min()),
+                   agreement_worst_frame=int(np.argmin(ps_win)))
     for name, fl in (("single", fl_single), ("windows", fl_win)):
         res[f"flicker_{name}_median"] = float(np.nanmedian(fl))
         res[f"flicker_{name}_clip"] = float(np.nanmean(fl))
@@ -214,7 +222,8 @@ def figure(results: list[dict], path: Path) -> None:
         ax.legend(fontsize=8)
         ax = axes[1, j]
         ax.plot(np.arange(len(r["flicker_single"])) + 0.5, r["flicker_single"], color="k", lw=1, label="one model")
-        ax.plot(np.arange(len(r["flicker_windows"])) + 0.5, r["flicker_windows"], color="tab:red", lw=1, label="two windows")
+        ax.plot(np.arange(len(r["flicker_windows"])) + 0.5, r["flicker_windows"], color="tab:red",
+                lw=1, label="two windows")
         ax.axhline(r["flicker_windows_median"], color="tab:red", ls=":", lw=1, label="two windows: median pair")
         ax.axvspan(a - 0.5, b - 0.5, color="tab:blue", alpha=0.15)
         ax.set_ylabel("flicker, pair (t, t+1) (8-bit codes)")
@@ -229,26 +238,35 @@ def figure(results: list[dict], path: Path) -> None:
 
 def table(results: list[dict], runs: dict) -> str:
     """The markdown table: a row per case and run (one model, two windows)."""
-    rows = ["| clip | run | wall | PSNR-mu mean (dB) | worst frame against one model | flicker, codes: clip's median pair / join pairs' mean / max | join pairs / their phase's median: mean, max |", "|---|---|---|---|---|---|---|"]
+    rows = ["| clip | run | wall | PSNR-mu mean (dB) | worst frame against one model | flicker, "
+            "codes: clip's median pair / join pairs' mean / max | join pairs / their phase's "
+            "median: mean, max |", "|---|---|---|---|---|---|---|"]
     for r in results:
         c = r["case"]
         for name in ("single", "windows"):
             wall = runs[c][name]["wall_s"]
             if "psnr_single_mean" in r:
                 ps = f"{r[f'psnr_{name}_mean']:.2f}"
-                worst = "" if name == "single" else f"{-r['worst_drop_db']:+.2f} dB (frame {r['worst_frame']}; {r['frames_over_0p5_db_under']} frames > 0.5 dB under)"
+                worst = ("" if name == "single"
+                         else f"{-r['worst_drop_db']:+.2f} dB (frame {r['worst_frame']}; "
+                              f"{r['frames_over_0p5_db_under']} frames > 0.5 dB under)")
             else:
                 ps = "(reference)" if name == "single" else f"{r['agreement_psnr_mean']:.2f} vs one model"
-                worst = "" if name == "single" else f"min {r['agreement_psnr_min']:.2f} dB (frame {r['agreement_worst_frame']})"
-            fl = f"{r[f'flicker_{name}_median']:.3f} / {r[f'flicker_{name}_join_mean']:.3f} / {r[f'flicker_{name}_join_max']:.3f}"
+                worst = ("" if name == "single"
+                         else f"min {r['agreement_psnr_min']:.2f} dB (frame "
+                              f"{r['agreement_worst_frame']})")
+            fl = (f"{r[f'flicker_{name}_median']:.3f} / {r[f'flicker_{name}_join_mean']:.3f} / "
+                  f"{r[f'flicker_{name}_join_max']:.3f}")
             rel = f"{r[f'flicker_{name}_join_rel_mean']:.3f}, {r[f'flicker_{name}_join_rel_max']:.3f}"
-            rows.append(f"| {c} | {'one model' if name == 'single' else 'two windows'} | {wall:.0f} s | {ps} | {worst} | {fl} | {rel} |")
+            rows.append(f"| {c} | {'one model' if name == 'single' else 'two windows'} | "
+                        f"{wall:.0f} s | {ps} | {worst} | {fl} | {rel} |")
     return "\n".join(rows)
 
 
 
 
-def run_joins(out: Path, data: Path, cases: list[str] | None = None, preset: str = "fast", frames: int | None = None, overrides: list[str] | None = None,
+def run_joins(out: Path, data: Path, cases: list[str] | None = None, preset: str = "fast",
+              frames: int | None = None, overrides: list[str] | None = None,
               quick: bool = False, force: bool = False, threads: int = 1, progress: bool = True) -> list[dict]:
     """Each case built, run twice and scored; writes joins.{json,md,png} under ``out``. The scores per case."""
     from layercam.io.atomic import atomic_write
@@ -268,13 +286,16 @@ def run_joins(out: Path, data: Path, cases: list[str] | None = None, preset: str
         folder = out / case
         meta = build(case, folder, Path(data), T, quick)
         if len(meta["indices"]) != T:
-            raise LayercamError(f"{folder} holds a clip of {len(meta['indices'])} frames, not {T}: another --out, or delete it")
+            raise LayercamError(f"{folder} holds a clip of {len(meta['indices'])} frames, not {T}: "
+                                "another --out, or delete it")
         runs[case] = {"single": run(folder, "single", meta, preset, "off", overrides, threads, force),
                       "windows": run(folder, "windows", meta, preset, window, overrides, threads, force)}
         if progress:
             print(case, runs[case], flush=True)
         results.append(score(case, folder, meta))
-    atomic_write(out / "joins.json", lambda p: p.write_text(json.dumps({"results": results, "runs": runs, "preset": preset, "window": window}, indent=1)))
+    atomic_write(out / "joins.json",
+                 lambda p: p.write_text(json.dumps({"results": results, "runs": runs,
+                                                    "preset": preset, "window": window}, indent=1)))
     md = table(results, runs)
     atomic_write(out / "joins.md", lambda p: p.write_text(md + "\n"))
     figure(results, out / "joins.png")

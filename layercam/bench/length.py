@@ -27,8 +27,10 @@ from layercam.core.errors import LayercamError
 from layercam.core.heap import proc_status
 
 LENGTHS = [48, 192, 768]
-FIELDS = ["clip", "frames", "size", "preset", "layers", "steps", "wall_s", "cpu_s", "flow_s", "bootstrap_s", "train_s", "export_s",
-          "peak_rss_mb", "peak_anon_mb", "estimate_mb", "estimate_disk_mb", "cache_mb", "note"]  # and stage_peak_mb, stage_cpu_s in length.json
+FIELDS = ["clip", "frames", "size", "preset", "layers", "steps", "wall_s", "cpu_s", "flow_s",
+          "bootstrap_s", "train_s", "export_s",
+          "peak_rss_mb", "peak_anon_mb", "estimate_mb", "estimate_disk_mb", "cache_mb", "note"]
+          # and stage_peak_mb, stage_cpu_s in length.json
 
 
 class MemorySampler:
@@ -53,8 +55,10 @@ class MemorySampler:
             return
         self.peak = max(self.peak, s.get("VmRSS", 0.0))
         self.peak_anon = max(self.peak_anon, s.get("RssAnon", 0.0))
-        if not self.series or time.perf_counter() - self._t0 - self.series[-1][0] >= 1.0:  # a reading a second for the record
-            self.series.append((round(time.perf_counter() - self._t0, 2), round(s.get("VmRSS", 0.0), 1), round(s.get("RssAnon", 0.0), 1)))
+        if not self.series or time.perf_counter() - self._t0 - self.series[-1][0] >= 1.0:
+            # a reading a second for the record
+            self.series.append((round(time.perf_counter() - self._t0, 2),
+                                round(s.get("VmRSS", 0.0), 1), round(s.get("RssAnon", 0.0), 1)))
 
     def _loop(self) -> None:
         while not self._stop.wait(self.every):
@@ -78,12 +82,14 @@ def long_clip(frames_dir: Path, n: int, out: Path, size: tuple[int, int] | None 
     import cv2
 
     from layercam.io import VideoWriter
-    from layercam.io.clip import natural_key
+    from layercam.io.inputs import natural_key
 
     out = Path(out)
     if out.exists():
         return out
-    paths = sorted((p for p in Path(frames_dir).iterdir() if p.suffix.lower() in (".jpg", ".jpeg", ".png")), key=lambda p: natural_key(p.name))
+    paths = sorted((p for p in Path(frames_dir).iterdir()
+                    if p.suffix.lower() in (".jpg", ".jpeg", ".png")),
+                   key=lambda p: natural_key(p.name))
     if len(paths) < 2:
         raise LayercamError(f"{frames_dir}: needs at least two frames to build a long clip")
     cycle = list(range(len(paths))) + list(range(len(paths) - 2, 0, -1))
@@ -102,12 +108,13 @@ def long_masks(masks_dir: Path, n: int, out: Path, size: tuple[int, int] | None 
     folder of ``n`` PNGs (nearest-neighbour resized to ``size = (W, H)``), for ``--masks``."""
     import cv2
 
-    from layercam.io.clip import natural_key
+    from layercam.io.inputs import natural_key
 
     out = Path(out)
     if out.is_dir() and len(list(out.glob("*.png"))) == n:
         return out
-    paths = sorted((p for p in Path(masks_dir).iterdir() if p.suffix.lower() == ".png"), key=lambda p: natural_key(p.name))
+    paths = sorted((p for p in Path(masks_dir).iterdir() if p.suffix.lower() == ".png"),
+                   key=lambda p: natural_key(p.name))
     cycle = list(range(len(paths))) + list(range(len(paths) - 2, 0, -1))
     out.mkdir(parents=True, exist_ok=True)
     for i in range(n):
@@ -127,7 +134,8 @@ def _spawn(job: dict) -> dict:
     shared libraries the interpreter pages in as it exits, which the readings see), the readings'
     largest where it reports none (a run stopped on purpose); each stage's peak is the run's own
     (``peak_mb`` of each stage, the largest over windows)."""
-    argv = [sys.executable, "-m", "layercam", "hdr-video", job["clip"], "--exposures", "none", "--preset", job["preset"], "--out", job["out"], "--quiet"]
+    argv = [sys.executable, "-m", "layercam", "hdr-video", job["clip"], "--exposures", "none",
+            "--preset", job["preset"], "--out", job["out"], "--quiet"]
     if job.get("masks"):
         argv += ["--masks", job["masks"]]
     for s in job["overrides"]:
@@ -140,7 +148,8 @@ def _spawn(job: dict) -> dict:
         err = p.communicate()[1]
     wall = time.perf_counter() - t0
     use = resource.getrusage(resource.RUSAGE_CHILDREN)  # the run and its decoder's ffmpeg, once waited for
-    stopped = os.environ.get("LAYERCAM_SIGNAL_AT") if p.returncode == 130 else None  # stopped on purpose (a partial run)
+    # stopped on purpose (a partial run)
+    stopped = os.environ.get("LAYERCAM_SIGNAL_AT") if p.returncode == 130 else None
     if p.returncode != 0 and not stopped:
         tail = (err or "").strip().splitlines()[-1:] or [f"exit {p.returncode}"]
         raise LayercamError(f"length job {job['frames']} frames failed: {tail[0]}")
@@ -153,8 +162,11 @@ def _spawn(job: dict) -> dict:
             peak = v.get("peak_mb") or v.get("original_peak_mb")  # a resumed run: the peak its stage had when it ran
             if peak:
                 stages[k] = max(stages.get(k, 0.0), peak)
-    res = {"wall_s": round(wall, 2), "cpu_s": round(use.ru_utime + use.ru_stime - before.ru_utime - before.ru_stime, 1), "peak_rss_mb": round(reported or mem.peak, 1),
-           "peak_anon_mb": round(mem.peak_anon, 1), "stage_peak_mb": stages, **({"stopped_at": stopped} if stopped else {})}
+    res = {"wall_s": round(wall, 2),
+           "cpu_s": round(use.ru_utime + use.ru_stime - before.ru_utime - before.ru_stime, 1),
+           "peak_rss_mb": round(reported or mem.peak, 1),
+           "peak_anon_mb": round(mem.peak_anon, 1), "stage_peak_mb": stages,
+           **({"stopped_at": stopped} if stopped else {})}
     Path(job["out"]).mkdir(parents=True, exist_ok=True)
     Path(job["out"], "memory.json").write_text(json.dumps({**res, "series": mem.series}))
     return res
@@ -167,16 +179,22 @@ def _row(clip: str, n: int, size: tuple[int, int], preset: str, run: Path, res: 
     st = rep["stages"]
     sec = lambda k: round(st.get(k, {}).get("seconds", 0.0), 1)  # noqa: E731
     est = rep.get("memory", {}).get("estimate", {}).get("before", {})
-    return {"clip": clip, "frames": n, "size": f"{size[0]}x{size[1]}", "preset": preset, "layers": rep["analysis"].get("layers"),
-            "steps": rep["train"].get("steps"), "wall_s": res["wall_s"], "cpu_s": res.get("cpu_s"), "flow_s": sec("flow"), "bootstrap_s": sec("bootstrap"),
-            "train_s": sec("train"), "export_s": sec("export"), "peak_rss_mb": res["peak_rss_mb"], "peak_anon_mb": res["peak_anon_mb"],
-            "estimate_mb": round(est.get("memory", 0) / 2**20), "estimate_disk_mb": round(est.get("disk", 0) / 2**20),  # MiB, as the peaks
+    return {"clip": clip, "frames": n, "size": f"{size[0]}x{size[1]}", "preset": preset,
+            "layers": rep["analysis"].get("layers"),
+            "steps": rep["train"].get("steps"), "wall_s": res["wall_s"], "cpu_s": res.get("cpu_s"),
+            "flow_s": sec("flow"), "bootstrap_s": sec("bootstrap"),
+            "train_s": sec("train"), "export_s": sec("export"), "peak_rss_mb": res["peak_rss_mb"],
+            "peak_anon_mb": res["peak_anon_mb"],
+            "estimate_mb": round(est.get("memory", 0) / 2**20),
+            "estimate_disk_mb": round(est.get("disk", 0) / 2**20),  # MiB, as the peaks
             "cache_mb": round(disk_used(run / "cache") / 2**20), "stage_peak_mb": res.get("stage_peak_mb", {}),
             "stage_cpu_s": {k: v.get("cpu_seconds") for k, v in st.items() if "cpu_seconds" in v}, "note": note}
 
 
-def run_length(out: Path, data: Path, clip: str = "cows", lengths: list[int] | None = None, preset: str = "fast", size: tuple[int, int] | None = None,
-               threads: int = 1, overrides: list[str] | None = None, progress: bool = True, masks: bool = False) -> list[dict]:
+def run_length(out: Path, data: Path, clip: str = "cows", lengths: list[int] | None = None,
+               preset: str = "fast", size: tuple[int, int] | None = None,
+               threads: int = 1, overrides: list[str] | None = None, progress: bool = True,
+               masks: bool = False) -> list[dict]:
     """The table: for each length of ``lengths`` (default 48, 192, 768) the DAVIS clip ``clip``
     played forth and back (:func:`long_clip`, at ``size`` ``(W, H)`` or its own), ``layercam
     hdr-video --exposures none --preset PRESET`` on it in its own process, one at a time; with
@@ -192,7 +210,8 @@ def run_length(out: Path, data: Path, clip: str = "cows", lengths: list[int] | N
     for n in lengths or LENGTHS:
         tag = f"{clip}-{n}" + (f"-{size[0]}x{size[1]}" if size else "")
         video = long_clip(frames_dir, n, out / "clips" / f"{tag}.mp4", size)
-        job = {"clip": str(video), "preset": preset, "threads": threads, "overrides": list(overrides or []), "frames": n}
+        job = {"clip": str(video), "preset": preset, "threads": threads,
+               "overrides": list(overrides or []), "frames": n}
         if masks:
             job["masks"] = str(long_masks(frames_dir.parent / "masks_gt", n, out / "clips" / f"{tag}-masks", size))
             tag += "-masks"
@@ -200,11 +219,15 @@ def run_length(out: Path, data: Path, clip: str = "cows", lengths: list[int] | N
         res = _spawn({**job, "out": str(run)})
         from layercam.io.video import probe_video
 
-        row = _row(clip + (" (true masks given)" if masks else ""), n, probe_video(video)["size"], preset, run, res, f"{threads} thread(s); " + " ".join(overrides or []))
-        rows = [r for r in rows if (r["clip"], r["frames"], r["size"], r["preset"]) != (row["clip"], row["frames"], row["size"], row["preset"])] + [row]
+        row = _row(clip + (" (true masks given)" if masks else ""), n, probe_video(video)["size"],
+                   preset, run, res, f"{threads} thread(s); " + " ".join(overrides or []))
+        rows = [r for r in rows
+                if (r["clip"], r["frames"], r["size"], r["preset"]) != (row["clip"], row["frames"],
+                    row["size"], row["preset"])] + [row]
         rows.sort(key=lambda r: (r["size"], r["preset"], r["frames"]))
         write_length(out, rows)
-        say(f"{tag:>16} {preset}: {row['wall_s']:8.1f} s, peak {row['peak_rss_mb']:.0f} MiB (anonymous {row['peak_anon_mb']:.0f}), estimate {row['estimate_mb']} MiB")
+        say(f"{tag:>16} {preset}: {row['wall_s']:8.1f} s, peak {row['peak_rss_mb']:.0f} MiB "
+            f"(anonymous {row['peak_anon_mb']:.0f}), estimate {row['estimate_mb']} MiB")
     return rows
 
 
@@ -234,7 +257,8 @@ def plot_length(path: Path, rows: list[dict]) -> None:
         pts = sorted((r for r in rows if (r["size"], r["preset"]) == key), key=lambda r: r["frames"])
         x = [r["frames"] for r in pts]
         c = f"C{i}"
-        gb = lambda k: [r[k] * MIB / 1000 for r in pts]  # noqa: E731 - the columns are MiB; the axis GB of 1e9 B, as the README
+        gb = lambda k: [r[k] * MIB / 1000 for r in pts]  # noqa: E731 - the columns are MiB; the
+                                                         # axis GB of 1e9 B, as the README
         a.plot(x, gb("peak_rss_mb"), "o-", color=c, label=f"{key[0]} {key[1]}: peak resident")
         a.plot(x, gb("peak_anon_mb"), "s:", color=c, label="its anonymous part")
         a.plot(x, gb("estimate_mb"), "x--", color=c, label="estimate before the work")
@@ -242,7 +266,8 @@ def plot_length(path: Path, rows: list[dict]) -> None:
         if all(r.get("cpu_s") for r in pts):
             b.plot(x, [r["cpu_s"] / 60 for r in pts], "s:", color=c, label="CPU (all threads)")
         if x:
-            b.plot([0, max(x)], [0, pts[0]["wall_s"] / 60 * max(x) / x[0]], ":", color="grey", label="proportional to the length")
+            b.plot([0, max(x)], [0, pts[0]["wall_s"] / 60 * max(x) / x[0]], ":", color="grey",
+                   label="proportional to the length")
     for ax, title in ((a, "peak memory (GB)"), (b, "time (min)")):
         ax.set_xscale("log", base=2)
         ax.set_xticks(sorted({r["frames"] for r in rows}), [str(v) for v in sorted({r["frames"] for r in rows})])

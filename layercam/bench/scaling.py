@@ -27,7 +27,8 @@ from layercam.core.errors import LayercamError
 
 SIZES = ["128x128", "256x256", "512x512", "1080x1920"]  # HxW
 PRESETS = ["fast", "balanced"]
-FIELDS = ["size", "pixels", "method", "preset", "grid_max_res", "wall_s", "flow_s", "bootstrap_s", "train_s", "export_s",
+FIELDS = ["size", "pixels", "method", "preset", "grid_max_res", "wall_s", "flow_s", "bootstrap_s",
+          "train_s", "export_s",
           "steps", "batch", "steps_per_s", "samples_per_s", "train_cpu_ms_per_step", "peak_mem_mb",
           "psnr_mu", "psnr_l", "ssim_mu", "note"]
 
@@ -46,7 +47,8 @@ def parse_size(s: str) -> tuple[int, int]:
 def _spawn(fn: str, job: dict, result: Path) -> dict:
     """Runs ``layercam.bench.scaling.<fn>(job)`` in a fresh process; returns what it wrote."""
     code = f"import json, sys; from layercam.bench.scaling import {fn}; {fn}(json.loads(sys.argv[1]))"
-    p = subprocess.run([sys.executable, "-c", code, json.dumps({**job, "result": str(result)})], capture_output=True, text=True)
+    p = subprocess.run([sys.executable, "-c", code, json.dumps({**job, "result": str(result)})],
+                       capture_output=True, text=True)
     if p.returncode != 0:
         tail = (p.stderr or p.stdout).strip().splitlines()[-1:] or ["?"]
         raise LayercamError(f"scaling job {fn} {job.get('size', '')} {job.get('preset', '')} failed: {tail[0]}")
@@ -54,7 +56,9 @@ def _spawn(fn: str, job: dict, result: Path) -> dict:
 
 
 def _finish(job: dict, res: dict) -> None:
-    res["peak_mem_mb"] = round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1)
+    # this job's, or its run's
+    res.setdefault("peak_mem_mb",
+                   round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1))
     Path(job["result"]).write_text(json.dumps(res))
 
 
@@ -68,21 +72,18 @@ def clip_job(job: dict) -> None:
 
 
 def run_job(job: dict) -> None:
-    """``layercam hdr-video`` on the clip's frames, in this process (its peak memory is the run's)."""
-    import torch
+    """``layercam hdr-video`` on the clip's frames, in a process of its own (its peak memory is the run's)."""
+    from layercam.bench.command import run_layercam
 
-    from layercam.cli import main
-
-    torch.set_num_threads(job["threads"])
     clip = Path(job["clip"])
-    argv = ["hdr-video", str(clip / "frames"), "--exposures", str(clip / "times.txt"), "--preset", job["preset"], "--out", job["out"], "--quiet"]
+    argv = ["hdr-video", str(clip / "frames"), "--exposures", str(clip / "times.txt"), "--preset",
+            job["preset"], "--out", job["out"], "--quiet"]
     for s in job["overrides"]:
         argv += ["--set", s]
-    t0 = time.perf_counter()
-    code = main(argv)
-    if code != 0:
-        raise SystemExit(code)
-    _finish(job, {"wall_s": round(time.perf_counter() - t0, 2)})
+    ran = run_layercam(argv, job["threads"], Path(job["out"]) / "report.json")
+    if ran["returncode"] != 0:
+        raise SystemExit(ran["returncode"])
+    _finish(job, {"wall_s": round(ran["wall_s"], 2), "peak_mem_mb": ran["peak_mem_mb"]})
 
 
 def score_job(job: dict) -> None:
@@ -92,7 +93,8 @@ def score_job(job: dict) -> None:
     from layercam.synth.disk import truth_frame
 
     hdr = Path(job["hdr"])
-    m = hdr_metrics_streamed(lambda t: read_exr(hdr / f"frame_{t:05d}.exr"), lambda t: truth_frame(Path(job["clip"]), t), job["frames"])
+    m = hdr_metrics_streamed(lambda t: read_exr(hdr / f"frame_{t:05d}.exr"),
+                             lambda t: truth_frame(Path(job["clip"]), t), job["frames"])
     _finish(job, m)
 
 
@@ -110,7 +112,8 @@ def debevec_job(job: dict) -> None:
     t0 = time.perf_counter()
     for a in range(0, n, step):
         b = min(a + step, n)
-        lo, hi = (a if b < n or b - a >= 2 else a - 1), min(b + 1, n)  # with each frame's neighbour (the last frame's: the one before)
+        # with each frame's neighbour (the last frame's: the one before)
+        lo, hi = (a if b < n or b - a >= 2 else a - 1), min(b + 1, n)
         f = np.stack([read_image(clip / "frames" / f"frame_{t:05d}.png") for t in range(lo, hi)])
         hdr = debevec_video(f, times[lo:hi], flow_method="dis_medium")
         for t in range(a, b):
@@ -128,7 +131,8 @@ def _row(size: str, hw, preset: str, run: Path, res: dict, score: dict, note: st
     return {
         "size": size, "pixels": hw[0] * hw[1], "method": "layercam", "preset": preset,
         "grid_max_res": _grid_res(run), "wall_s": res["wall_s"], "flow_s": sec("flow"), "bootstrap_s": sec("bootstrap"),
-        "train_s": sec("train"), "export_s": round(sec("export") + sec("atlas"), 2), "steps": tr["steps"], "batch": batch,
+        "train_s": sec("train"), "export_s": round(sec("export") + sec("atlas"), 2),
+        "steps": tr["steps"], "batch": batch,
         "steps_per_s": tr["steps_per_s"], "samples_per_s": round(tr["steps_per_s"] * batch),
         "train_cpu_ms_per_step": round(1000 * cpu / max(tr["steps"] - tr["resumed_from"], 1), 2) if cpu else "",
         "peak_mem_mb": res["peak_mem_mb"], **{k: round(v, 3) for k, v in score.items()}, "note": note,
@@ -142,7 +146,8 @@ def _grid_res(run: Path) -> int | str:
     return int(ck["sizes"]["grid_max_res"])
 
 
-def run_scaling(out: Path, sizes: list[str] | None = None, presets: list[str] | None = None, frames: int = 48, threads: int = 2,
+def run_scaling(out: Path, sizes: list[str] | None = None, presets: list[str] | None = None,
+                frames: int = 48, threads: int = 2,
                 overrides: list[str] | None = None, baseline: bool = True, progress: bool = True) -> list[dict]:
     from layercam.io.atomic import ensure_writable_dir
 
@@ -160,20 +165,32 @@ def run_scaling(out: Path, sizes: list[str] | None = None, presets: list[str] | 
         c = _spawn("clip_job", {"clip": str(clip), "frames": frames, "hw": list(hw), "size": size}, out / "result.json")
         say(f"{size:>10} clip written in {c['seconds']:.1f} s (peak {c['peak_mem_mb']:.0f} MB)")
         if baseline:
-            d = _spawn("debevec_job", {"clip": str(clip), "frames": frames, "out": str(out / "debevec" / size), "size": size}, out / "result.json")
-            s = _spawn("score_job", {"clip": str(clip), "frames": frames, "hdr": str(out / "debevec" / size)}, out / "result.json")
-            add({"size": size, "pixels": hw[0] * hw[1], "method": "debevec", "preset": "", "wall_s": d["wall_s"], "peak_mem_mb": d["peak_mem_mb"],
-                         **{k: round(s[k], 3) for k in ("psnr_mu", "psnr_l", "ssim_mu")}, "note": "DIS flow + OpenCV Debevec per frame and aligned neighbour, CRF per 12-frame chunk"})
+            d = _spawn("debevec_job",
+                       {"clip": str(clip), "frames": frames, "out": str(out / "debevec" / size),
+                        "size": size}, out / "result.json")
+            s = _spawn("score_job",
+                       {"clip": str(clip), "frames": frames, "hdr": str(out / "debevec" / size)},
+                       out / "result.json")
+            add({"size": size, "pixels": hw[0] * hw[1], "method": "debevec", "preset": "",
+                 "wall_s": d["wall_s"], "peak_mem_mb": d["peak_mem_mb"],
+                         **{k: round(s[k], 3) for k in ("psnr_mu", "psnr_l", "ssim_mu")},
+                         "note": "DIS flow + OpenCV Debevec per frame and aligned neighbour, CRF "
+                                 "per 12-frame chunk"})
             say(f"{size:>10} {'debevec':>9} {d['wall_s']:8.1f} s  PSNR-mu {s['psnr_mu']:.2f}")
         for preset in presets or PRESETS:
             run = out / "runs" / f"{size}-{preset}"
-            job = {"clip": str(clip), "preset": preset, "out": str(run), "threads": threads, "overrides": list(overrides or []), "size": size}
+            job = {"clip": str(clip), "preset": preset, "out": str(run), "threads": threads,
+                   "overrides": list(overrides or []), "size": size}
             res = _spawn("run_job", job, out / "result.json")
-            score = _spawn("score_job", {"clip": str(clip), "frames": frames, "hdr": str(run / "hdr")}, out / "result.json")
+            score = _spawn("score_job",
+                           {"clip": str(clip), "frames": frames, "hdr": str(run / "hdr")},
+                           out / "result.json")
             score = {k: score[k] for k in ("psnr_mu", "psnr_l", "ssim_mu")}
             r = _row(size, hw, preset, run, res, score, f"{threads} thread(s); " + " ".join(overrides or []))
             add(r)
-            say(f"{size:>10} {preset:>9} {r['wall_s']:8.1f} s  train {r['steps_per_s']} steps/s ({r['train_cpu_ms_per_step']} ms CPU/step)  peak {r['peak_mem_mb']:.0f} MB  PSNR-mu {r['psnr_mu']:.2f}")
+            say(f"{size:>10} {preset:>9} {r['wall_s']:8.1f} s  train {r['steps_per_s']} steps/s "
+                f"({r['train_cpu_ms_per_step']} ms CPU/step)  peak {r['peak_mem_mb']:.0f} MB  "
+                f"PSNR-mu {r['psnr_mu']:.2f}")
     return rows
 
 
@@ -208,16 +225,20 @@ def plot_scaling(path: Path, rows: list[dict]) -> None:
     from layercam.io.atomic import atomic_write
 
     panels = [("ms per training step (wall)", lambda r: 1000.0 / r["steps_per_s"] if r.get("steps_per_s") else None),
-              ("end-to-end wall time (s)", lambda r: r.get("wall_s")), ("peak memory (MB)", lambda r: r.get("peak_mem_mb"))]
+              ("end-to-end wall time (s)", lambda r: r.get("wall_s")),
+              ("peak memory (MB)", lambda r: r.get("peak_mem_mb"))]
     fig, axes = plt.subplots(1, 3, figsize=(12, 3.8), dpi=110)
     labels = sorted({(r["method"], r["preset"]) for r in rows})
     colours = {lab: f"C{i}" for i, lab in enumerate(labels)}  # one colour per series in every panel
     sizes = {r["pixels"]: r["size"] for r in rows}
     for ax, (title, get) in zip(axes, panels):
         for method, preset in labels:
-            pts = sorted(((r["pixels"], get(r)) for r in rows if (r["method"], r["preset"]) == (method, preset) and get(r)), key=lambda p: p[0])
+            pts = sorted(((r["pixels"], get(r)) for r in rows
+                          if (r["method"], r["preset"]) == (method, preset) and get(r)),
+                         key=lambda p: p[0])
             if pts:
-                ax.plot([p[0] for p in pts], [p[1] for p in pts], "o-" if method == "layercam" else "s--", label=preset or method,
+                ax.plot([p[0] for p in pts], [p[1] for p in pts],
+                        "o-" if method == "layercam" else "s--", label=preset or method,
                         color=colours[(method, preset)])
         x = np.array(sorted({r["pixels"] for r in rows}), dtype=float)
         if title.startswith("ms") and len(x) > 1:
@@ -226,7 +247,8 @@ def plot_scaling(path: Path, rows: list[dict]) -> None:
                 ax.plot(x, min(base) * x / x[0], ":", color="grey", label="proportional to pixels")
         ax.set_xscale("log")
         ax.set_yscale("log")
-        ax.set_xticks(sorted(sizes), [sizes[k] for k in sorted(sizes)], fontsize=7)  # the sizes measured, not 2x10^4 ...
+        # the sizes measured, not 2x10^4 ...
+        ax.set_xticks(sorted(sizes), [sizes[k] for k in sorted(sizes)], fontsize=7)
         ax.xaxis.set_minor_locator(matplotlib.ticker.NullLocator())
         ax.set_xlabel("pixels per frame (HxW)")
         ax.set_title(title, fontsize=9)

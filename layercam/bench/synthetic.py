@@ -24,10 +24,12 @@ from layercam.core.presets import preset_tag
 
 # scene name -> synth family, its arguments, the task it exercises; "quick" sizes for smoke tests
 SCENES = {
-    "pan": {"family": "pan_hdr", "kw": {"frames": 48, "size": (144, 256), "ev_step": 3.0}, "quick": {"frames": 6, "size": (32, 48)}, "task": "hdr-video"},
+    "pan": {"family": "pan_hdr", "kw": {"frames": 48, "size": (144, 256), "ev_step": 3.0},
+            "quick": {"frames": 6, "size": (32, 48)}, "task": "hdr-video"},
 }
 PRESETS = ["fast", "balanced", "quality", "paper"]
-CSV_FIELDS = ["scene", "method", "preset", "wall_s", "train_s", "steps", "steps_per_s", "psnr_mu", "psnr_l", "ssim_mu", "peak_mem_mb", "jod", "note"]
+CSV_FIELDS = ["scene", "method", "preset", "wall_s", "train_s", "steps", "steps_per_s", "psnr_mu",
+              "psnr_l", "ssim_mu", "peak_mem_mb", "jod", "note"]
 
 
 def make_scene(name: str, quick: bool = False):
@@ -84,7 +86,10 @@ class QualityProbe:
         self.model.train(was)
         m = hdr_metrics(pred, self.gt) if np.isfinite(pred).all() else {"psnr_mu": float("nan")}
         self.probe_time += time.perf_counter() - t0
-        self.points.append({"step": step, "train_s": round(t0 - self.start - (self.probe_time - (time.perf_counter() - t0)), 3), "psnr_mu": m["psnr_mu"]})
+        self.points.append({"step": step,
+                            "train_s": round(t0 - self.start
+                                             - (self.probe_time - (time.perf_counter() - t0)), 3),
+                            "psnr_mu": m["psnr_mu"]})
 
 
 def run_job(job: dict) -> dict:
@@ -94,7 +99,7 @@ def run_job(job: dict) -> dict:
     import torch
 
     from layercam.core.presets import load_config
-    from layercam.pipelines.evaluate import EvaluateStage
+    from layercam.bench.evaluate import EvaluateStage
     from layercam.pipelines.tasks import run_task
 
     torch.set_num_threads(job.get("threads", 2))
@@ -109,7 +114,8 @@ def run_job(job: dict) -> dict:
         return probe["cb"]
 
     t0 = time.perf_counter()
-    ctx = run_task(SCENES[job["scene"]]["task"], scene.clip, scene_exposures(scene), cfg, Path(job["out"]), progress=False,
+    ctx = run_task(SCENES[job["scene"]]["task"], scene.clip, scene_exposures(scene), cfg,
+                   Path(job["out"]), progress=False,
                    extra_stages=[EvaluateStage(scene, baselines=())], train_callbacks=[make_probe])
     wall = time.perf_counter() - t0
     tr = ctx.results["train"].summary
@@ -153,9 +159,13 @@ def run_baselines(scene_name: str, quick: bool) -> list[dict]:
         hdr = baselines.debevec_video(scene.clip.frames, scene.exposure_times, fw, bw)
         secs = time.perf_counter() - t0
         m = metrics.hdr_metrics(hdr, scene.hdr)
-        rows.append({"scene": scene_name, "method": "debevec", "preset": "", "wall_s": round(secs, 2), "train_s": "", "steps": "", "steps_per_s": "",
-                     "psnr_mu": round(m["psnr_mu"], 3), "psnr_l": round(m["psnr_l"], 3), "ssim_mu": round(m["ssim_mu"], 4),
-                     "peak_mem_mb": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1), "jod": "", "note": "OpenCV CalibrateDebevec + MergeDebevec, DIS-aligned neighbour"})
+        rows.append({"scene": scene_name, "method": "debevec", "preset": "",
+                     "wall_s": round(secs, 2), "train_s": "", "steps": "", "steps_per_s": "",
+                     "psnr_mu": round(m["psnr_mu"], 3), "psnr_l": round(m["psnr_l"], 3),
+                     "ssim_mu": round(m["ssim_mu"], 4),
+                     "peak_mem_mb": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+                                          1), "jod": "",
+                     "note": "OpenCV CalibrateDebevec + MergeDebevec, DIS-aligned neighbour"})
     return rows
 
 
@@ -185,7 +195,8 @@ def paper_overrides(budget_s: float | None, paper_steps_per_s: float | None) -> 
     return [f"train.steps={steps}", f"train.bootstrap_steps={max(steps // 15, 1)}"]
 
 
-def run_bench(out: Path, scenes: list[str], presets: list[str], quick: bool = False, progress: bool = True, threads: int = 2,
+def run_bench(out: Path, scenes: list[str], presets: list[str], quick: bool = False,
+              progress: bool = True, threads: int = 2,
               overrides: list[str] | None = None) -> list[dict]:
     from layercam.io.atomic import ensure_writable_dir
 
@@ -200,21 +211,30 @@ def run_bench(out: Path, scenes: list[str], presets: list[str], quick: bool = Fa
             say(f"{sc:>8} {r['method']:>10} {'':>9} {r['wall_s']:>8.1f} s  PSNR-mu {r['psnr_mu']:.2f}")
         quality_wall = None
         for pr in presets:
-            ov = (["train.steps=20", "train.bootstrap_steps=2", "train.batch=1024"] if quick else []) + list(overrides or [])
+            ov = (["train.steps=20", "train.bootstrap_steps=2", "train.batch=1024"] if quick
+                  else []) + list(overrides or [])
             note = ""
             if pr == "paper" and not quick:
                 # measure the paper preset's speed, then give it quality's budget
-                probe = _spawn({"scene": sc, "preset": pr, "quick": quick, "overrides": ov + paper_overrides(None, None), "out": str(out / sc / "paper-speed"), "threads": threads, "probes": 1}, out)
+                probe = _spawn({"scene": sc, "preset": pr, "quick": quick,
+                                "overrides": ov + paper_overrides(None, None),
+                                "out": str(out / sc / "paper-speed"), "threads": threads,
+                                "probes": 1}, out)
                 ov = ov + paper_overrides(quality_wall, probe["row"]["steps_per_s"])
-                note = f"paper preset at {probe['row']['steps_per_s']} steps/s: 150k steps would take {150000 / max(probe['row']['steps_per_s'], 1e-9) / 3600:.1f} h here; run for quality's wall time"
+                note = (f"paper preset at {probe['row']['steps_per_s']} steps/s: 150k steps would "
+                        f"take {150000 / max(probe['row']['steps_per_s'], 1e-9) / 3600:.1f} h "
+                        "here; run for quality's wall time")
             note = "; ".join(filter(None, [note, " ".join(overrides or [])]))
-            res = _spawn({"scene": sc, "preset": pr, "quick": quick, "overrides": ov, "out": str(out / sc / preset_tag(pr)), "threads": threads, "note": note}, out)
+            res = _spawn({"scene": sc, "preset": pr, "quick": quick, "overrides": ov,
+                          "out": str(out / sc / preset_tag(pr)), "threads": threads, "note": note},
+                         out)
             rows.append(res["row"])
             curves[(sc, pr)] = res["curve"]
             if pr == "quality":
                 quality_wall = res["row"]["train_s"]
             r = res["row"]
-            say(f"{sc:>8} {'layercam':>10} {pr:>9} {r['wall_s']:>8.1f} s  PSNR-mu {r['psnr_mu']:.2f}  ({r['steps']} steps, {r['steps_per_s']} steps/s)")
+            say(f"{sc:>8} {'layercam':>10} {pr:>9} {r['wall_s']:>8.1f} s  PSNR-mu "
+                f"{r['psnr_mu']:.2f}  ({r['steps']} steps, {r['steps_per_s']} steps/s)")
     write_csv(out / "bench.csv", rows)
     (out / "curves.json").write_text(json.dumps({f"{k[0]}/{k[1]}": v for k, v in curves.items()}, indent=1))
     plot(out / "bench.png", rows, curves)
@@ -284,10 +304,12 @@ def plot(path: Path, rows: list[dict], curves: dict) -> None:
         # the dial (fast -> quality) is one line; the paper preset, cut to quality's wall time, is a reference point
         ours = [r for r in rows if r["scene"] == sc and r["method"] == "layercam"]
         pts = sorted((r for r in ours if r["preset"] != "paper"), key=lambda r: r["wall_s"])
-        ax.plot([r["wall_s"] for r in pts], [r["psnr_mu"] for r in pts], "o-", color=colours[sc], label=f"{sc}: presets")
+        ax.plot([r["wall_s"] for r in pts], [r["psnr_mu"] for r in pts], "o-", color=colours[sc],
+                label=f"{sc}: presets")
         for r in ours:
             if r["preset"] == "paper":
-                ax.plot([r["wall_s"]], [r["psnr_mu"]], "^", color=colours[sc], label=f"{sc}: paper preset, {r['steps']} of its 150k steps")
+                ax.plot([r["wall_s"]], [r["psnr_mu"]], "^", color=colours[sc],
+                        label=f"{sc}: paper preset, {r['steps']} of its 150k steps")
             ax.annotate(r["preset"], (r["wall_s"], r["psnr_mu"]), fontsize=7, xytext=(3, 3), textcoords="offset points")
         for r in rows:
             if r["scene"] == sc and r["method"] != "layercam":
@@ -304,70 +326,3 @@ def plot(path: Path, rows: list[dict], curves: dict) -> None:
     fig.tight_layout()
     atomic_write(path, lambda p: fig.savefig(p))
     plt.close(fig)
-
-
-# -- the analysis table (issue: model only what the scene requires) -----------------------------
-ANALYSIS_FAMILIES = {
-    # name: (synth family, kwargs, quick kwargs, task)
-    "static": ("static_single", {"frames": 8, "size": (64, 64)}, {"frames": 3, "size": (24, 24)}, "hdr-video"),
-    "pan": ("pan_hdr", {"frames": 12, "size": (96, 96)}, {"frames": 4, "size": (24, 24)}, "hdr-video"),
-    "moving": ("moving_object", {"frames": 12, "size": (96, 96)}, {"frames": 4, "size": (32, 32)}, "hdr-video"),
-    "shake": ("shake_blur", {"frames": 10, "size": (96, 96)}, {"frames": 3, "size": (48, 48)}, "deblur-video"),  # 48 px: smaller frames have too few tiles to compare sharpness
-    "mfme": ("mfme_stack", {"size": (96, 96)}, {"size": (24, 24)}, "fuse-stack"),
-}
-FULL_MODEL = {"layers": 2, "tone_mapper": "learned", "blur": "3x3", "max_offset": 5.0, "flow_loss": True}  # the paper's (n = 3, s = 5); presets.model_overrides
-
-
-def analysis_job(name: str, variant: str, out: Path, preset: str, quick: bool, overrides_cfg: list[str]) -> dict:
-    """Train ``name`` with the analysed model (variant "chosen") or the full model ("full")."""
-    from layercam import synth
-    from layercam.vision.analyse import model_summary
-    from layercam.core.presets import load_config, model_overrides
-    from layercam.pipelines.evaluate import EvaluateStage
-    from layercam.pipelines.tasks import run_task
-
-    fam, kw, qkw, task = ANALYSIS_FAMILIES[name]
-    scene = getattr(synth, fam)(**(qkw if quick else kw))
-    cfg = load_config(preset, (model_overrides(**FULL_MODEL) if variant == "full" else []) + list(overrides_cfg))
-    extra = {}
-    if task == "fuse-stack":
-        extra.update(focus_index=np.asarray(scene.meta["focus_index"]), times=np.asarray(scene.exposure_times))
-    t0 = time.perf_counter()
-    ctx = run_task(task, scene.clip, scene_exposures(scene), cfg, out / name / variant, progress=False, extra_stages=[EvaluateStage(scene, baselines=(), **extra)])
-    wall = sum(v["seconds"] for k, v in ctx.times.items() if k != "evaluate")
-    m = ctx.results["evaluate"].metrics
-    metric, value = ("psnr_mu", m["psnr_mu"]) if "psnr_mu" in m else ("psnr", m["psnr"])
-    return {"family": name, "variant": variant, **model_summary(ctx.resolved.settings), "metric": metric, "value": round(float(value), 2), "wall_s": round(wall, 1),
-            "total_s": round(time.perf_counter() - t0, 1), "reasons": dict(ctx.resolved.reasons)}
-
-
-def run_analysis_table(out: Path, preset: str = "fast", quick: bool = False, families: list[str] | None = None, progress: bool = True, overrides_cfg: list[str] | None = None) -> list[dict]:
-    """For each synthetic family: the analysed model against the full model forced on the same clip."""
-    from layercam.io.atomic import ensure_writable_dir
-
-    out = ensure_writable_dir(out)
-    ov = list(overrides_cfg or []) + (["train.steps=20", "train.bootstrap_steps=2", "train.batch=512"] if quick else [])
-    rows = []
-    for name in families or list(ANALYSIS_FAMILIES):
-        for variant in ("chosen", "full"):
-            r = analysis_job(name, variant, out, preset, quick, ov)
-            rows.append(r)
-            if progress:
-                print(f"{name:>7} {variant:>6}: layers {r['layers']} tone {r['tone_mapper']:<7} blur {r['blur']:<4} flow {str(r['flow_loss']):<5} {r['metric']} {r['value']:6.2f}  {r['wall_s']:6.1f} s")
-    write_analysis_table(out, rows)
-    return rows
-
-
-def write_analysis_table(out: Path, rows: list[dict]) -> None:
-    """``analysis_table.json`` and the markdown table ``analysis_table.md``."""
-    from layercam.io.atomic import atomic_write
-
-    def text(path: Path, body: str) -> None:
-        atomic_write(path, lambda p: p.write_text(body))
-
-    text(out / "analysis_table.json", json.dumps(rows, indent=1))
-    md = ["| scene | model | layers | tone mapper | blur (s) | flow loss | quality | wall s |", "|---|---|---|---|---|---|---|---|"]
-    for r in rows:
-        blur = "off" if r["blur"] == "off" else f"{r['blur']} ({r['max_offset']:g})"
-        md.append(f"| {r['family']} | {r['variant']} | {r['layers']} | {r['tone_mapper']} | {blur} | {'on' if r['flow_loss'] else 'off'} | {r['metric']} {r['value']:.2f} | {r['wall_s']:.1f} |")
-    text(out / "analysis_table.md", "\n".join(md) + "\n")

@@ -2,7 +2,8 @@
 
 Each ``*_figure`` function takes arrays and returns a :class:`matplotlib.figure.Figure` built
 without ``pyplot``: no global figure state, safe under the Agg backend and in headless kernels;
-Jupyter displays the returned figure, a script saves it with ``fig.savefig(path)``. The arrays come from a loaded run through the library
+Jupyter displays the returned figure, a script saves it with ``fig.savefig(path)``. The arrays come
+from a loaded run through the library
 (``layercam.scene.render``: ``render_frame``, ``sample_atlas``, ``splat_coverage``, ``checker_overlay``;
 ``model.tone.curve``, ``model.exposure.values``, ``model.blur.kernels``); nothing here
 re-implements the model.
@@ -24,6 +25,8 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
+from layercam.io.figures import crf_figure, figure as _figure
+
 __all__ = [
     "LAYER_NAMES",
     "align_crf",
@@ -41,17 +44,9 @@ __all__ = [
 LAYER_NAMES = ("background", "foreground")
 
 
-def _figure(nrows: int, ncols: int, cell: tuple[float, float] = (2.2, 2.2), squeeze: bool = False, **kw):
-    """A pyplot-free figure and its ``(nrows, ncols)`` axes array."""
-    from matplotlib.figure import Figure
-
-    fig = Figure(figsize=(cell[0] * ncols, cell[1] * nrows), dpi=90, layout="constrained")
-    axes = fig.subplots(nrows, ncols, squeeze=squeeze, **kw)
-    return fig, axes
-
-
 def _image_axis(ax, img, title: str | None = None, **kw) -> None:
-    ax.imshow(np.clip(np.asarray(img, dtype=np.float32), 0, 1) if np.ndim(img) == 3 else img, interpolation="nearest", **kw)
+    ax.imshow(np.clip(np.asarray(img, dtype=np.float32), 0, 1) if np.ndim(img) == 3 else img,
+              interpolation="nearest", **kw)
     ax.set_xticks([])
     ax.set_yticks([])
     if title:
@@ -70,7 +65,8 @@ def _layer_name(i: int, n_layers: int) -> str:
 
 
 # -- arrays ----------------------------------------------------------------------------------------
-def align_crf(z: np.ndarray, curve: np.ndarray, truth: Callable[[np.ndarray], np.ndarray], search: float = 24.0, step: float = 0.05) -> tuple[np.ndarray, np.ndarray]:
+def align_crf(z: np.ndarray, curve: np.ndarray, truth: Callable[[np.ndarray], np.ndarray],
+              search: float = 24.0, step: float = 0.05) -> tuple[np.ndarray, np.ndarray]:
     """A ground-truth CRF in the learned curve's units: ``(truth_curve (K, 3), shift (3,) stops)``.
 
     The learned curve is ``c = T(log2 r + log2 dt)`` with irradiance known only up to a scale per
@@ -99,7 +95,8 @@ def align_crf(z: np.ndarray, curve: np.ndarray, truth: Callable[[np.ndarray], np
 
 
 # -- figures ---------------------------------------------------------------------------------------
-def atlas_figure(atlases: Sequence[np.ndarray], coverage: Sequence[np.ndarray] | None = None, camera: Sequence[np.ndarray] | None = None, titles: Sequence[str] | None = None):
+def atlas_figure(atlases: Sequence[np.ndarray], coverage: Sequence[np.ndarray] | None = None,
+                 camera: Sequence[np.ndarray] | None = None, titles: Sequence[str] | None = None):
     """Each layer's atlas over its ``[-1, 1]^2`` uv square, one row per layer.
 
     Columns: ``atlases`` (per layer an ``(R, R, 3)`` display image in ``[0, 1]``, e.g. the linear
@@ -148,14 +145,16 @@ def _resize_nearest(img: np.ndarray, hw: tuple[int, int]) -> np.ndarray:
     return img[ys][:, xs]
 
 
-def alpha_figure(alpha: np.ndarray | None, frames: np.ndarray | None = None, max_frames: int = 6, truth: np.ndarray | None = None):
+def alpha_figure(alpha: np.ndarray | None, frames: np.ndarray | None = None, max_frames: int = 6,
+                 truth: np.ndarray | None = None):
     """Alpha mattes over time: a row of frames (when given), a row of ``alpha (T, H, W)`` and, with
     ``truth (T, H, W)`` (a ground-truth mask), a row of ``alpha - truth`` titled with the IoU of
     ``alpha > 0.5``. A one-layer run (``alpha`` None) gets a figure that says so."""
     if alpha is None:
         fig, axes = _figure(1, 1, cell=(4.0, 1.2))
         axes[0, 0].axis("off")
-        axes[0, 0].text(0.5, 0.5, "one layer: no alpha matte (nothing moves on its own)", ha="center", va="center", fontsize=9)
+        axes[0, 0].text(0.5, 0.5, "one layer: no alpha matte (nothing moves on its own)",
+             ha="center", va="center", fontsize=9)
         return fig
     from layercam.core.metrics import iou
 
@@ -176,7 +175,9 @@ def alpha_figure(alpha: np.ndarray | None, frames: np.ndarray | None = None, max
                 _image_axis(ax, alpha[t], f"alpha, mean {alpha[t].mean():.2f}", cmap="gray", vmin=0, vmax=1)
             else:
                 gt = np.asarray(arr[t], dtype=np.float32)
-                _image_axis(ax, alpha[t] - gt, f"alpha - true mask\nIoU {iou(alpha[t] > 0.5, gt > 0.5):.2f}", cmap="coolwarm", vmin=-1, vmax=1)
+                _image_axis(ax, alpha[t] - gt,
+                            f"alpha - true mask\nIoU {iou(alpha[t] > 0.5, gt > 0.5):.2f}",
+                            cmap="coolwarm", vmin=-1, vmax=1)
     return fig
 
 
@@ -202,37 +203,8 @@ def uv_checker_figure(overlays: Sequence[np.ndarray], frame_index: Sequence[int]
     return fig
 
 
-def crf_figure(z: np.ndarray, curve: np.ndarray, truth: np.ndarray | None = None, shift: np.ndarray | None = None, data_range: tuple[float, float] | None = None):
-    """Per-channel CRF: one panel per R, G, B with the learned curve ``(K, 3)`` over ``z`` stops and,
-    when known, the ground truth ``(K, 3)`` (already aligned, see :func:`align_crf`; ``shift`` is
-    then printed in the legend). ``data_range`` shades the stops that the clip's pixels cover."""
-    z = np.asarray(z, dtype=np.float64)
-    curve = np.asarray(curve, dtype=np.float64)
-    if curve.shape != (z.shape[0], 3):
-        raise ValueError(f"crf_figure expects curve (K, 3) over z (K,), got {curve.shape} and {z.shape}")
-    fig, axes = _figure(1, 3, cell=(2.6, 2.3), sharey=True)
-    for c, (name, col) in enumerate(zip("RGB", ("tab:red", "tab:green", "tab:blue"))):
-        ax = axes[0, c]
-        if data_range is not None:
-            ax.axvspan(*data_range, color="0.9", zorder=0, label="seen in the clip")
-        ax.plot(z, curve[:, c], color=col, lw=1.6, label="learned")
-        if truth is not None:
-            lab = "ground truth" + ("" if shift is None else f" ({shift[c]:+.2f} stops)")
-            ax.plot(z, np.asarray(truth)[:, c], color="k", ls="--", lw=1.0, label=lab)
-            inside = np.ones(len(z), bool) if data_range is None else (z >= data_range[0]) & (z <= data_range[1])
-            rmse = float(np.sqrt(np.mean((np.asarray(truth)[inside, c] - curve[inside, c]) ** 2)))
-            ax.set_title(f"{name}: RMSE {rmse:.3f}" + ("" if data_range is None else " where seen"), fontsize=8)
-        else:
-            ax.set_title(name, fontsize=8)
-        ax.set_xlabel("log2 r + log2 dt (stops)", fontsize=7)
-        ax.grid(alpha=0.3)
-        ax.tick_params(labelsize=6)
-        ax.legend(fontsize=6, loc="upper left")
-    axes[0, 0].set_ylabel("pixel value", fontsize=7)
-    return fig
-
-
-def exposures_figure(learned: np.ndarray, given: np.ndarray | None = None, truth: np.ndarray | None = None, kind: str = ""):
+def exposures_figure(learned: np.ndarray, given: np.ndarray | None = None,
+                     truth: np.ndarray | None = None, kind: str = ""):
     """Per-frame log2 exposure: the learned (or given, when fixed) values, the starting values the
     run was given, and the ground truth when known (all relative to frame 0)."""
     learned = np.asarray(learned, dtype=np.float64).reshape(-1)
@@ -245,7 +217,8 @@ def exposures_figure(learned: np.ndarray, given: np.ndarray | None = None, truth
     if given is not None:
         g = np.asarray(given, dtype=np.float64).reshape(-1)
         ax.plot(t, g - g[0], "x", color="0.5", ms=7, label="start (given / measured)")
-    ax.plot(t, learned - learned[0], "o-", color="tab:purple", ms=5, lw=1, label="model" + (f" ({kind})" if kind else ""))
+    ax.plot(t, learned - learned[0], "o-", color="tab:purple", ms=5, lw=1,
+            label="model" + (f" ({kind})" if kind else ""))
     ax.set_xlabel("frame", fontsize=7)
     ax.set_ylabel("log2 exposure rel. frame 0 (EV)", fontsize=7)
     ax.set_xticks(t)
@@ -255,25 +228,30 @@ def exposures_figure(learned: np.ndarray, given: np.ndarray | None = None, truth
     return fig
 
 
-def kernels_figure(offsets: np.ndarray | None, weights: np.ndarray | None, pixels: np.ndarray | None = None, frame: np.ndarray | None = None, labels: Sequence[str] | None = None, max_offset: float | None = None):
+def kernels_figure(offsets: np.ndarray | None, weights: np.ndarray | None,
+                   pixels: np.ndarray | None = None, frame: np.ndarray | None = None,
+                   labels: Sequence[str] | None = None, max_offset: float | None = None):
     """The blur generator's PSFs at a few pixels (``model.blur.kernels(xy, t)``).
 
     ``offsets (M, K, 2)`` pixel displacements (x, y) and ``weights (M, K)`` of each kernel; each
     panel shows the samples as discs of area proportional to the weight, coloured by weight, with
     the pixel's own 1-px patch grid for scale (and, with ``max_offset``, the dotted square the
     offsets are bounded by); ``+`` marks the kernel's weighted centre. ``pixels (M, 2)`` (x, y
-    pixel coordinates) are marked on ``frame (H, W, 3)`` in a first panel. A run without a blur generator (``offsets`` None) gets
+    pixel coordinates) are marked on ``frame (H, W, 3)`` in a first panel. A run without a blur
+    generator (``offsets`` None) gets
     a figure that says so.
     """
     if offsets is None or weights is None:
         fig, axes = _figure(1, 1, cell=(4.0, 1.2))
         axes[0, 0].axis("off")
-        axes[0, 0].text(0.5, 0.5, "no blur generator in this run (blur off): the camera is sharp", ha="center", va="center", fontsize=9)
+        axes[0, 0].text(0.5, 0.5, "no blur generator in this run (blur off): the camera is sharp",
+             ha="center", va="center", fontsize=9)
         return fig
     offsets = np.asarray(offsets, dtype=np.float32)
     weights = np.asarray(weights, dtype=np.float32)
     if offsets.ndim != 3 or offsets.shape[2] != 2 or weights.shape != offsets.shape[:2]:
-        raise ValueError(f"kernels_figure expects offsets (M, K, 2) and weights (M, K), got {offsets.shape} and {weights.shape}")
+        raise ValueError("kernels_figure expects offsets (M, K, 2) and weights (M, K), got "
+                         f"{offsets.shape} and {weights.shape}")
     M, K = weights.shape
     extra = frame is not None
     fig, axes = _figure(1, M + int(extra), cell=(1.9, 2.0))
@@ -294,8 +272,11 @@ def kernels_figure(offsets: np.ndarray | None, weights: np.ndarray | None, pixel
             ax.axhline(g, color="0.85", lw=0.5, zorder=0)
             ax.axvline(g, color="0.85", lw=0.5, zorder=0)
         if bound is not None:
-            ax.plot([-bound, bound, bound, -bound, -bound], [-bound, -bound, bound, bound, -bound], ls=":", color="0.5", lw=0.8)
-        sc = ax.scatter(offsets[m, :, 0], offsets[m, :, 1], s=600 * weights[m] / max(float(weights.max()), 1e-6) + 2, c=weights[m], cmap="viridis", vmin=0, vmax=1, edgecolors="k", linewidths=0.3)
+            ax.plot([-bound, bound, bound, -bound, -bound], [-bound, -bound, bound, bound, -bound],
+                    ls=":", color="0.5", lw=0.8)
+        sc = ax.scatter(offsets[m, :, 0], offsets[m, :, 1],
+                        s=600 * weights[m] / max(float(weights.max()), 1e-6) + 2, c=weights[m],
+                        cmap="viridis", vmin=0, vmax=1, edgecolors="k", linewidths=0.3)
         cx, cy = (weights[m][:, None] * offsets[m]).sum(0)
         ax.plot([cx], [cy], "+", color="red", ms=8)
         ax.set_xlim(-lim, lim)
@@ -332,7 +313,9 @@ def error_overlay(frame: np.ndarray, pred: np.ndarray, truth: np.ndarray) -> np.
     return out
 
 
-def layer_bench_figure(frames: np.ndarray, alpha: np.ndarray, truth: np.ndarray, atlases: Sequence[np.ndarray], boot: np.ndarray | None = None, title: str = "", max_frames: int = 5):
+def layer_bench_figure(frames: np.ndarray, alpha: np.ndarray, truth: np.ndarray,
+                       atlases: Sequence[np.ndarray], boot: np.ndarray | None = None,
+                       title: str = "", max_frames: int = 5):
     """One real clip's two-layer run against its true masks: for up to ``max_frames`` frames spread
     over the clip, rows of the frame, the foreground ``alpha (T, H, W)``, the true mask
     ``truth (T, H, W)``, alpha's errors (:func:`error_overlay`, titled with the frame's IoU) and,
@@ -343,7 +326,8 @@ def layer_bench_figure(frames: np.ndarray, alpha: np.ndarray, truth: np.ndarray,
     frames = np.asarray(frames, dtype=np.float32)
     T, H, W = frames.shape[:3]
     idx = _pick(T, max_frames)
-    rows = [("frame", None), ("alpha", alpha), ("true mask", truth), ("alpha errors", alpha)] + ([("bootstrap errors", boot)] if boot is not None else [])
+    rows = [("frame", None), ("alpha", alpha), ("true mask", truth),
+            ("alpha errors", alpha)] + ([("bootstrap errors", boot)] if boot is not None else [])
     from matplotlib.figure import Figure
 
     cw = 2.3
@@ -356,9 +340,12 @@ def layer_bench_figure(frames: np.ndarray, alpha: np.ndarray, truth: np.ndarray,
             if name == "frame":
                 _image_axis(ax, frames[t], f"frame {t}")
             elif name in ("alpha", "true mask"):
-                _image_axis(ax, arr[t], f"{name}" + (f", mean {arr[t].mean():.2f}" if name == "alpha" else ""), cmap="gray", vmin=0, vmax=1)
+                _image_axis(ax, arr[t],
+                            f"{name}" + (f", mean {arr[t].mean():.2f}" if name == "alpha" else ""),
+                            cmap="gray", vmin=0, vmax=1)
             else:
-                _image_axis(ax, error_overlay(frames[t], arr[t], truth[t]), f"{name}: IoU {iou(arr[t] > 0.5, truth[t] > 0.5):.2f}")
+                _image_axis(ax, error_overlay(frames[t], arr[t], truth[t]),
+                            f"{name}: IoU {iou(arr[t] > 0.5, truth[t] > 0.5):.2f}")
     n_at = len(atlases)
     sub = gs[len(rows), :].subgridspec(1, n_at + 1, width_ratios=[1] * n_at + [max(1.5, len(idx) - n_at)])
     for k, at in enumerate(atlases):

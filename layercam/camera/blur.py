@@ -41,7 +41,7 @@ __all__ = ["patch_offsets_base", "sample_positions", "apply_patch_blur", "BlurGe
 _LN2 = math.log(2.0)
 LOGIT_BOUND = 1e4  # weight logits are clamped to +-this before the softmax
 _TINY = 1e-30  # floor on weights before their log (gradients stay finite where a weight is 0)
-# how the model builds and trains it (layercam.scene.model)
+# how the model builds and trains it (layercam.engine.model)
 INIT_CENTRE_WEIGHT = 0.2  # the PSFs start blurry: a near-sharp start (0.9) lets the scene absorb the blur
 WARMUP = 0.2  # share of training with the PSFs held at their start while the scene takes shape: trained from
               # step 0, every PSF collapsed to a delta within 25 steps
@@ -70,7 +70,8 @@ def sample_positions(xy: torch.Tensor, offsets_px: torch.Tensor, frame_hw: tuple
     if xy.ndim != 2 or xy.shape[1] != 2:
         raise ValueError(f"sample_positions expects xy (N, 2), got {tuple(xy.shape)}")
     if offsets_px.ndim != 3 or offsets_px.shape[0] != xy.shape[0] or offsets_px.shape[2] != 2:
-        raise ValueError(f"sample_positions expects offsets (N, K, 2) with N={xy.shape[0]}, got {tuple(offsets_px.shape)}")
+        raise ValueError(f"sample_positions expects offsets (N, K, 2) with N={xy.shape[0]}, got "
+                         f"{tuple(offsets_px.shape)}")
     h, w = frame_hw
     scale = offsets_px.new_tensor([2.0 / w, 2.0 / h])
     return xy[:, None, :].to(offsets_px.dtype) + offsets_px * scale
@@ -103,7 +104,8 @@ def apply_patch_blur(log2_r_patch: torch.Tensor, weights: torch.Tensor) -> torch
     if log2_r_patch.ndim != 3:
         raise ValueError(f"apply_patch_blur expects log2_r_patch (N, K, C), got {tuple(log2_r_patch.shape)}")
     if weights.shape != log2_r_patch.shape[:2]:
-        raise ValueError(f"apply_patch_blur expects weights (N, K) = {tuple(log2_r_patch.shape[:2])}, got {tuple(weights.shape)}")
+        raise ValueError("apply_patch_blur expects weights (N, K) = "
+                         f"{tuple(log2_r_patch.shape[:2])}, got {tuple(weights.shape)}")
     log_w = torch.log(weights.float().clamp_min(_TINY))
     return _apply_log_weights(log2_r_patch, log_w).to(log2_r_patch.dtype)
 
@@ -201,7 +203,8 @@ class BlurGenerator(nn.Module):
         frac = (tb - i0.float())[:, None]
         return gather_rows(self.embedding, i0) * (1 - frac) + gather_rows(self.embedding, i1) * frac
 
-    def _inputs(self, xy: torch.Tensor, t: torch.Tensor | None, depth: torch.Tensor | None, t_blur: torch.Tensor | None) -> torch.Tensor:
+    def _inputs(self, xy: torch.Tensor, t: torch.Tensor | None, depth: torch.Tensor | None,
+                t_blur: torch.Tensor | None) -> torch.Tensor:
         n = xy.shape[0]
         if xy.ndim != 2 or xy.shape[1] != 2:
             raise ValueError(f"BlurGenerator expects xy (N, 2), got {tuple(xy.shape)}")
@@ -213,7 +216,8 @@ class BlurGenerator(nn.Module):
         if self.use_depth:
             if depth is None or depth.shape != (n, 1):
                 got = None if depth is None else tuple(depth.shape)
-                raise ValueError(f"this BlurGenerator was built with use_depth=True: pass depth (N, 1) with N={n}, got {got}")
+                raise ValueError("this BlurGenerator was built with use_depth=True: pass depth "
+                                 f"(N, 1) with N={n}, got {got}")
             feats.append(depth.float())
         return torch.cat(feats, dim=1)
 
@@ -232,7 +236,9 @@ class BlurGenerator(nn.Module):
             disp = disp - (log_w.exp()[:, :, None] * disp).sum(1, keepdim=True)
         return disp, log_w
 
-    def kernels(self, xy: torch.Tensor, t: torch.Tensor | None = None, *, depth: torch.Tensor | None = None, t_blur: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+    def kernels(self, xy: torch.Tensor, t: torch.Tensor | None = None, *,
+                depth: torch.Tensor | None = None,
+                t_blur: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
         """The PSF at ``M`` pixels: ``xy (M, 2)`` normalised, ``t (M,)`` long (or ``t_blur (M,)`` float).
 
         Returns ``(offsets (M, K, 2), weights (M, K))``: each sample's displacement from the pixel
@@ -279,7 +285,9 @@ class BlurGenerator(nn.Module):
         return _apply_log_weights(patch, log_w)
 
     def extra_repr(self) -> str:
-        return f"n={self.n}, max_offset={self.max_offset:g}, n_frames={self.n_frames}, frame_hw={self.frame_hw}, use_depth={self.use_depth}, zero_mean_offsets={self.zero_mean_offsets}"
+        return (f"n={self.n}, max_offset={self.max_offset:g}, n_frames={self.n_frames}, "
+                f"frame_hw={self.frame_hw}, use_depth={self.use_depth}, "
+                f"zero_mean_offsets={self.zero_mean_offsets}")
 
 
 @torch.no_grad()
@@ -290,7 +298,7 @@ def psf_summary(blur: "BlurGenerator", hw: tuple[int, int], grid: int = 24) -> d
     length of the PSF's weighted centre). The lattice leaves out a border as wide as the patch can
     reach (``n // 2 + 2 s`` px, at most a quarter of the frame): there samples fall outside the
     frame and nothing constrains the PSF."""
-    from layercam.engine.sampler import normalise_xy
+    from layercam.scene.coords import normalise_xy
 
     h, w = hw
     reach = blur.n // 2 + 2 * blur.max_offset

@@ -71,7 +71,8 @@ DENOISE_SIGMA = 1.0     # px: the Gaussian window of the export's adaptive Wiene
 
 def exposure_weight(frame: np.ndarray, levels: np.ndarray | None = None) -> np.ndarray:
     """``(H, W, 3)`` in [0, 1]: how well each channel of ``frame`` is exposed (smooth ramps from 0
-    at the 8-bit floor and at the clipping ``levels (3,)`` (default :data:`layercam.core.visibility.CLIP_LEVEL`) to 1 in between,
+    at the 8-bit floor and at the clipping ``levels (3,)`` (default
+    :data:`layercam.core.visibility.CLIP_LEVEL`) to 1 in between,
     ``EXPOSED``)."""
     a, b, c, d = EXPOSED
     lv = np.full(3, CLIP_LEVEL, np.float32) if levels is None else np.asarray(levels, np.float32)
@@ -89,10 +90,12 @@ def frame_noise(frame: np.ndarray, exposed: np.ndarray, floor: float = NOISE_FLO
     compression error, and the frame's own measurement would then be kept for it, flickering)."""
     from layercam.core.visibility import noise_sigma
 
-    return np.maximum(np.array([noise_sigma(frame[..., c], exposed[..., c] > 0.5) for c in range(3)], np.float32), floor)
+    return np.maximum(np.array([noise_sigma(frame[..., c], exposed[..., c] > 0.5)
+                                for c in range(3)], np.float32), floor)
 
 
-def disagreement(frame: np.ndarray, pred: np.ndarray, sigma: np.ndarray, exposed: np.ndarray, window: float = WINDOW_SIGMA) -> np.ndarray:
+def disagreement(frame: np.ndarray, pred: np.ndarray, sigma: np.ndarray, exposed: np.ndarray,
+                 window: float = WINDOW_SIGMA) -> np.ndarray:
     """``(H, W)``: the local mean (Gaussian window of ``window`` px, over the exposed pixels only)
     of the squared residual ``frame - pred`` in units of the noise ``sigma (3,)``, averaged over the
     channels: about 1 where the model explains the frame within its noise."""
@@ -105,7 +108,8 @@ def disagreement(frame: np.ndarray, pred: np.ndarray, sigma: np.ndarray, exposed
     return num / np.maximum(den, 1e-3)
 
 
-def fidelity_weight(frame: np.ndarray, pred: np.ndarray, kappa: float = KAPPA, levels: np.ndarray | None = None) -> tuple[np.ndarray, dict]:
+def fidelity_weight(frame: np.ndarray, pred: np.ndarray, kappa: float = KAPPA,
+                    levels: np.ndarray | None = None) -> tuple[np.ndarray, dict]:
     """``(H, W, 3)`` in [0, 1]: how much of the frame's disagreement with the model's rendering
     ``pred`` to keep (the module's docstring), and a summary ``{"noise", "mean_weight"}``;
     ``levels (3,)``: the clipping levels (:func:`layercam.core.visibility.clip_levels`)."""
@@ -115,7 +119,9 @@ def fidelity_weight(frame: np.ndarray, pred: np.ndarray, kappa: float = KAPPA, l
     rho = disagreement(frame, pred, sigma, exposed)
     wiener = np.clip(1.0 - kappa / np.maximum(rho, 1e-6), 0.0, 1.0)
     w = wiener[..., None] * exposed
-    return w.astype(np.float32), {"noise": [round(float(s), 5) for s in sigma], "mean_weight": round(float(w.mean()), 4), "sigma": sigma, "sigma_measured": measured}
+    return w.astype(np.float32), {"noise": [round(float(s), 5) for s in sigma],
+                                  "mean_weight": round(float(w.mean()), 4), "sigma": sigma,
+                                  "sigma_measured": measured}
 
 
 def _levels(model, log2_dt: float, levels: np.ndarray, floor=FLOOR) -> tuple[np.ndarray, np.ndarray]:
@@ -127,7 +133,8 @@ def _levels(model, log2_dt: float, levels: np.ndarray, floor=FLOOR) -> tuple[np.
             inverse_tone(model, np.asarray(levels, np.float32)[None], log2_dt)[0])
 
 
-def clip_bounds(model, frame: np.ndarray, log2_dt: float, levels: np.ndarray, sigma: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+def clip_bounds(model, frame: np.ndarray, log2_dt: float, levels: np.ndarray,
+                sigma: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """``(lower, upper)`` log2 irradiance ``(H, W, 3)`` that ``frame``'s clipped (at ``levels
     (3,)``) and floor channels imply at its exposure ``log2_dt`` (``-inf`` / ``inf`` elsewhere).
     With the frame's noise ``sigma (3,)`` the bounds are ``NOISE_MARGIN`` noise deviations looser: a
@@ -146,13 +153,16 @@ def clip_bounds(model, frame: np.ndarray, log2_dt: float, levels: np.ndarray, si
     return lower, upper
 
 
-def unseen(model, z: np.ndarray, log2_dts, levels: np.ndarray, stack: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """````(above, below, bound)``: ``above``, ``below`` bool ``(H, W, 3)`` where the log2 irradiance ``z`` is beyond the clipping
+def unseen(model, z: np.ndarray, log2_dts, levels: np.ndarray,
+           stack: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """````(above, below, bound)``: ``above``, ``below`` bool ``(H, W, 3)`` where the log2
+    irradiance ``z`` is beyond the clipping
     point of the shortest of the exposures ``log2_dts`` or below the floor of the longest (no frame
     of the clip can have seen it), and ``bound (H, W, 3)``, what each side must keep to (the clip
     level of the shortest exposure above, the floor of the longest below). With ``stack (N, H, W,
     3)``, the clip's frames registered into this view (a static scene; or :func:`stack_extremes` of
-    them, computed once), the test is on the data instead: clipped, or at the floor, in every frame (a model that fits its floors loosely can
+    them, computed once), the test is on the data instead: clipped, or at the floor, in every frame
+    (a model that fits its floors loosely can
     stay above the longest exposure's floor where every frame is black)."""
     lo_dt, hi_dt = float(np.min(log2_dts)), float(np.max(log2_dts))
     z_clip = _levels(model, lo_dt, levels)[1]
@@ -193,7 +203,8 @@ def smooth_within(z: np.ndarray, mask: np.ndarray, sigma: float = UNSEEN_SIGMA) 
     return out
 
 
-def correction(model, frame: np.ndarray, t: int, levels: np.ndarray | None = None, chunk: int = 65536, kappa: float = KAPPA, geometry: bool = False) -> dict:
+def correction(model, frame: np.ndarray, t: int, levels: np.ndarray | None = None,
+               chunk: int = 65536, kappa: float = KAPPA, geometry: bool = False) -> dict:
     """What ``frame (H, W, 3)`` (frame ``t``) says about the model: ``{"model_log2_r"}`` the
     model's log2 irradiance, ``"delta"`` the frame's disagreement with it through the inverse camera,
     ``"weight"`` the share of it to keep (:func:`fidelity_weight`), ``"exposed"``
@@ -212,14 +223,20 @@ def correction(model, frame: np.ndarray, t: int, levels: np.ndarray | None = Non
     log2_dt = float(dts[int(t)])
     levels = np.full(3, CLIP_LEVEL, np.float32) if levels is None else np.asarray(levels, np.float32)
     w, info = fidelity_weight(frame, out["ldr"], kappa, levels)
-    fit = ((np.clip(out["ldr"], 0.0, 1.0) - np.asarray(frame, np.float32)) ** 2).mean(-1)  # the model through its camera against the frame
+    # the model through its camera against the frame
+    fit = ((np.clip(out["ldr"], 0.0, 1.0) - np.asarray(frame, np.float32)) ** 2).mean(-1)
     info["fit_map"] = fit
     delta = inverse_tone(model, frame, log2_dt) - inverse_tone(model, out["ldr"], log2_dt)
-    return {"model_log2_r": out["log2_r"], "delta": delta, "weight": w, "exposed": exposure_weight(frame, levels), "log2_dts": dts, "levels": levels, "info": info,
+    return {"model_log2_r": out["log2_r"], "delta": delta, "weight": w,
+            "exposed": exposure_weight(frame, levels), "log2_dts": dts, "levels": levels,
+            "info": info,
             **{k: out[k] for k in geo}}
 
 
-def merge_neighbours(own: tuple[np.ndarray, np.ndarray], neighbours: list[tuple[np.ndarray, np.ndarray, np.ndarray]], frame: np.ndarray, model, log2_dt: float, levels: np.ndarray, sigma: np.ndarray, exposed: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+def merge_neighbours(own: tuple[np.ndarray, np.ndarray],
+                     neighbours: list[tuple[np.ndarray, np.ndarray, np.ndarray]], frame: np.ndarray,
+                     model, log2_dt: float, levels: np.ndarray, sigma: np.ndarray,
+                     exposed: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Frame ``t``'s corrected log2 irradiance merged with its neighbours' where they agree with
     what frame ``t`` recorded, as a merge of a bracket weighs its exposures:
     ``sum a_n z_n / sum a_n`` over the frame (``own = (z_t, a_t)``) and ``neighbours`` (each
@@ -257,7 +274,9 @@ def merge_neighbours(own: tuple[np.ndarray, np.ndarray], neighbours: list[tuple[
         zw = warp(z_n, move)
         aw = warp(a_n, move) * ok[..., None]
         c = tone_map_log2(model, zw, log2_dt)  # the neighbour's irradiance as this frame would have recorded it
-        r = np.where(good, c - f, np.where(clipped, np.maximum(levels - c, 0.0), np.where(floor, np.maximum(c - FLOOR, 0.0), 0.0)))
+        r = np.where(good, c - f,
+                     np.where(clipped, np.maximum(levels - c, 0.0),
+                              np.where(floor, np.maximum(c - FLOOR, 0.0), 0.0)))
         rho = cv2.GaussianBlur(((r / s) ** 2 * counted).sum(-1), (0, 0), WINDOW_SIGMA) / np.maximum(den_r, 1e-3)
         agree = np.where(checkable, np.exp(-0.5 * rho / MERGE_KAPPA**2), 0.0)[..., None]
         num += aw * agree * zw
@@ -306,7 +325,8 @@ def denoise_log2(z: np.ndarray, var: np.ndarray, sigma: float = DENOISE_SIGMA) -
 def merge_weight(exposed: np.ndarray, log2_dt: float, log2_dts) -> np.ndarray:
     """A frame's weight in :func:`merge_neighbours`: its well-exposedness ``(H, W, 3)`` times its
     exposure time relative to the clip's longest, ``2^(log2_dt - max log2_dts)``."""
-    return (np.asarray(exposed, np.float32) * np.float32(2.0 ** (float(log2_dt) - float(np.max(log2_dts))))).astype(np.float32)
+    return (np.asarray(exposed, np.float32)
+            * np.float32(2.0 ** (float(log2_dt) - float(np.max(log2_dts))))).astype(np.float32)
 
 
 def neighbour_fill(neighbours: list[tuple[np.ndarray, np.ndarray, np.ndarray]]) -> tuple[np.ndarray, np.ndarray] | None:
@@ -325,15 +345,20 @@ def neighbour_fill(neighbours: list[tuple[np.ndarray, np.ndarray, np.ndarray]]) 
         part = warp(wd, f) * ok[..., None]
         num = part if num is None else num + part
         den = wn if den is None else den + wn
-    return None if num is None else ((num / np.maximum(den, 1.0)).astype(np.float32), np.minimum(den, 1.0).astype(np.float32))
+    return None if num is None else ((num / np.maximum(den, 1.0)).astype(np.float32),
+                                     np.minimum(den, 1.0).astype(np.float32))
 
 
-def faithful_log2(model, frame: np.ndarray, t: int, levels: np.ndarray | None = None, stack: np.ndarray | None = None, chunk: int = 65536, kappa: float = KAPPA, corr: dict | None = None, fill: tuple[np.ndarray, np.ndarray] | None = None, merge: list | None = None, clipped: str = "model", denoise: bool = False) -> dict:
+def faithful_log2(model, frame: np.ndarray, t: int, levels: np.ndarray | None = None,
+                  stack: np.ndarray | None = None, chunk: int = 65536, kappa: float = KAPPA,
+                  corr: dict | None = None, fill: tuple[np.ndarray, np.ndarray] | None = None,
+                  merge: list | None = None, clipped: str = "model", denoise: bool = False) -> dict:
     """Frame ``t``'s log2 irradiance ``(H, W, 3)``: the model's, corrected where it disagrees with
     ``frame (H, W, 3)`` beyond the frame's noise (:func:`correction`, or ``corr`` when computed
     already), where the frame did not see well by the neighbours' corrections ``fill`` (``(fill,
     support)``, :func:`neighbour_fill`), kept within the bounds of the frame's clipping (at the clip's
-    ``levels (3,)``, :func:`layercam.core.visibility.clip_levels`; default :data:`layercam.core.visibility.CLIP_LEVEL`) and floor,
+    ``levels (3,)``, :func:`layercam.core.visibility.clip_levels`; default
+    :data:`layercam.core.visibility.CLIP_LEVEL`) and floor,
     smooth where no frame of the clip saw it (:func:`unseen`; ``stack``: the clip's frames
     registered into this view, for a static scene) (the module's docstring); ``merge``: the
     neighbours' ``(z_n, a_n, flow)`` to merge with where they agree (:func:`merge_neighbours`);
@@ -349,7 +374,8 @@ def faithful_log2(model, frame: np.ndarray, t: int, levels: np.ndarray | None = 
     if fill is not None:
         z = z + (1.0 - c["exposed"]) * fill[0]
     if merge:  # the neighbours' measurements where they agree with this frame's (merge_neighbours)
-        z, _ = merge_neighbours((z, merge_weight(c["exposed"], log2_dt, dts)), merge, frame, model, log2_dt, levels, info["sigma"], c["exposed"])
+        z, _ = merge_neighbours((z, merge_weight(c["exposed"], log2_dt, dts)), merge, frame, model,
+                                log2_dt, levels, info["sigma"], c["exposed"])
     above, below, bound = unseen(model, out["log2_r"], dts, levels, stack)
     hidden = above | below
     z = np.where(hidden, smooth_within(out["log2_r"], hidden), z)

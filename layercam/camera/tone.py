@@ -111,7 +111,8 @@ def initial_log2(frames: np.ndarray, log2_dt: np.ndarray, tone: str, slope: floa
     values, counts = [], []
     for t, f in enumerate(frames):  # a frame at a time: its distinct values and their counts, not the clip's pixels
         c = np.clip(f.mean(-1), 0.02, 0.98)
-        zt = np.log2(np.maximum(srgb_decode(c), 1e-6)) if tone == "fixed" else np.log(c / (1 - c)) / (slope * math.log(2))
+        zt = np.log2(np.maximum(srgb_decode(c), 1e-6)) if tone == "fixed" else np.log(c
+            / (1 - c)) / (slope * math.log(2))
         v, k = np.unique((zt - dt[t]).astype(np.float32), return_counts=True)
         values.append(v)
         counts.append(k)

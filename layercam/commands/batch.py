@@ -24,7 +24,8 @@ from pathlib import Path
 
 from layercam.core.errors import LayercamError
 
-MANIFEST_HELP = """manifest: a CSV file, one job per line (a header line is optional; lines starting with # are comments):
+MANIFEST_HELP = """manifest: a CSV file, one job per line (a header line is optional; lines starting with # are
+comments):
 
   command,input,output,options
   hdr-video,clips/beach.mp4,runs/beach,--preset fast --ev-step 3
@@ -90,7 +91,10 @@ def register(sub) -> argparse.ArgumentParser:
     b.add_argument("--dry-run", action="store_true", help="list what would run and what would be skipped; run nothing")
     b.add_argument("--stop-on-error", action="store_true", help="stop at the first failed job (default: go on)")
     b.add_argument("--summary", metavar="FILE", help="also write the summary as JSON to FILE")
-    b.add_argument("--ray", metavar="auto|ADDRESS", help="run the jobs as tasks on a Ray cluster (one GPU each when it has GPUs, else one CPU; auto: this machine's cluster, else one started here); default: one after another")
+    b.add_argument("--ray", metavar="auto|ADDRESS",
+                   help="run the jobs as tasks on a Ray cluster (one GPU each when it has GPUs, "
+                        "else one CPU; auto: this machine's cluster, else one started here); "
+                        "default: one after another")
     return b
 
 
@@ -155,9 +159,11 @@ def _run_on_ray(jobs: list[Job], base: Path, args) -> int:
             i, job = todo[n]
             job.status, job.reason, job.seconds = status, reason, seconds
             head = _head(i, len(jobs), job)
-            print(f"{head}: done in {job.seconds:.0f} s" if status == "done" else f"{head}: FAILED: {job.reason}", flush=True)
+            print(f"{head}: done in {job.seconds:.0f} s" if status == "done"
+                  else f"{head}: FAILED: {job.reason}", flush=True)
             if status == "failed" and args.stop_on_error:
-                print("stopping at the first failure (--stop-on-error): the jobs still running are cancelled", flush=True)
+                print("stopping at the first failure (--stop-on-error): the jobs still running are "
+                      "cancelled", flush=True)
                 break
     except KeyboardInterrupt:
         print("\ninterrupted: run the same batch again to go on (finished jobs are skipped)", file=sys.stderr)
@@ -190,14 +196,16 @@ def read_manifest(path: Path) -> list[Job]:
             cells = [c.strip() for c in next(csv.reader([line], strict=True), [])]
         except csv.Error:
             guess = [c.strip() for c in line.split(",")] + ["", "", ""]
-            jobs.append(Job(n, guess[0], guess[1], guess[2], [], "failed", "unclosed quote in this line; close it (the line was not run)"))
+            jobs.append(Job(n, guess[0], guess[1], guess[2], [], "failed",
+                            "unclosed quote in this line; close it (the line was not run)"))
             continue
         if not any(cells) or cells[0].startswith("#"):
             continue
         if not jobs and cells[0].lower() == "command":  # header
             continue
         if len(cells) < 3 or len(cells) > 4:
-            raise LayercamError(f"{path} line {n}: expected command,input,output,options (got {len(cells)} fields; quote options that hold a comma)")
+            raise LayercamError(f"{path} line {n}: expected command,input,output,options (got "
+                                f"{len(cells)} fields; quote options that hold a comma)")
         command, inp, out = cells[:3]
         if command not in commands:
             raise LayercamError(f"{path} line {n}: unknown command {command!r} (one of {', '.join(sorted(commands))})")
@@ -277,7 +285,8 @@ def run_job(job: Job, base: Path) -> None:
     with open(out / LOG_FILE, "a", encoding="utf-8") as log:
         log.write(f"\n=== {time.strftime('%Y-%m-%d %H:%M:%S')}  layercam {shlex.join(job.argv())}\n")
         log.flush()
-        proc = subprocess.Popen([sys.executable, "-m", "layercam", *job.argv()], cwd=base, stdout=log, stderr=subprocess.STDOUT)
+        proc = subprocess.Popen([sys.executable, "-m", "layercam", *job.argv()], cwd=base,
+                                stdout=log, stderr=subprocess.STDOUT)
         try:
             code = proc.wait()
         except KeyboardInterrupt:  # the job got the Ctrl-C too: let it save its checkpoint
@@ -295,7 +304,8 @@ def run_job(job: Job, base: Path) -> None:
         job.status, job.reason = "failed", "finished without writing report.json"
     else:
         job.status = "done"
-        rec = {"job": job.signature(), "report_sha1": _sha1(rep), "finished": time.strftime("%Y-%m-%d %H:%M:%S"), "seconds": round(job.seconds, 1)}
+        rec = {"job": job.signature(), "report_sha1": _sha1(rep),
+               "finished": time.strftime("%Y-%m-%d %H:%M:%S"), "seconds": round(job.seconds, 1)}
         atomic_write(out / JOB_FILE, lambda p: p.write_text(json.dumps(rec, indent=1)))
 
 
@@ -323,11 +333,16 @@ def report(jobs: list[Job], summary_path: str | None) -> int:
     if summary_path:
         from layercam.io.atomic import atomic_write
 
-        rows = [{"line": j.line, "command": j.command, "input": j.input, "output": j.output, "options": j.options, "status": j.status, "reason": j.reason, "seconds": round(j.seconds, 1)} for j in jobs]
+        rows = [{"line": j.line, "command": j.command, "input": j.input, "output": j.output,
+                 "options": j.options, "status": j.status, "reason": j.reason,
+                 "seconds": round(j.seconds, 1)} for j in jobs]
         try:
-            atomic_write(Path(summary_path), lambda p: p.write_text(json.dumps({"counts": counts, "jobs": rows}, indent=1)))
+            atomic_write(Path(summary_path),
+                         lambda p: p.write_text(json.dumps({"counts": counts, "jobs": rows},
+                                                           indent=1)))
         except (LayercamError, OSError) as e:  # said, but a failed job still decides the exit status
-            print(f"error: cannot write the summary {summary_path}: {getattr(e, 'strerror', None) or e}", file=sys.stderr)
+            print(f"error: cannot write the summary {summary_path}: "
+                  f"{getattr(e, 'strerror', None) or e}", file=sys.stderr)
             code = code or 2
     return code
 

@@ -6,7 +6,8 @@ import argparse
 from pathlib import Path
 
 from layercam.core.presets import settings_help
-from layercam.cli import EPILOG, before_stages, common_model_args, default_out, finish, input_args, load_cfg, open_clip, window_args
+from layercam.cli import (EPILOG, before_stages, common_model_args, default_out, finish, input_args,
+                          load_cfg, open_clip, window_args)
 
 
 def register(sub) -> argparse.ArgumentParser:
@@ -42,9 +43,11 @@ def run(args) -> int:
     with before_stages(out):
         clip = open_clip(args, cfg, out, "deblur-video", args.resize, args.max_frames, args.stride)
         if clip.T < 2:
-            raise LayercamError("deblur-video needs at least 2 frames (the blur of one frame is explained by the others)")
+            raise LayercamError("deblur-video needs at least 2 frames (the blur of one frame is "
+                                "explained by the others)")
         exposures = parse_exposures(args.exposures, clip, args.ev_step, args.force_ev_step)
         masks = load_masks(args.masks, clip) if args.masks else None
-    ctx = run_task("deblur-video", clip, exposures, cfg, out, masks=masks, progress=not args.quiet, window=args.window, ray=args.ray)
+    ctx = run_task("deblur-video", clip, exposures, cfg, out, masks=masks, progress=not args.quiet,
+                   window=args.window, ray=args.ray)
     finish(ctx)
     return 0

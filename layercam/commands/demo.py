@@ -23,21 +23,24 @@ def run(args) -> int:
 
     from layercam import synth
     from layercam.io import Exposures
-    from layercam.pipelines.evaluate import EvaluateStage
+    from layercam.bench.evaluate import EvaluateStage
     from layercam.pipelines.tasks import run_task
 
     cfg = load_cfg(args)
     scene = synth.pan_hdr(frames=args.frames, size=(args.size, args.size), ev_step=args.ev_step, seed=0)
     log2 = np.log2(scene.exposure_times / scene.exposure_times.min())
     phase = (np.arange(len(log2)) % 2).astype(np.int64)
-    exposures = Exposures(log2, "none", phase, f"alt (ev-step {args.ev_step}, known)", f"synthetic: exposures alternate by {args.ev_step} EV")
-    ctx = run_task("demo", scene.clip, exposures, cfg, Path(args.out), progress=not args.quiet, extra_stages=[EvaluateStage(scene)])
+    exposures = Exposures(log2, "none", phase, f"alt (ev-step {args.ev_step}, known)",
+                          f"synthetic: exposures alternate by {args.ev_step} EV")
+    ctx = run_task("demo", scene.clip, exposures, cfg, Path(args.out), progress=not args.quiet,
+                   extra_stages=[EvaluateStage(scene)])
     ev = ctx.results["evaluate"]
     rows = [("layercam (" + cfg.preset + ")", ev.metrics)] + list(ev.baselines.items())
     print("\nHDR against ground truth (one scale per channel aligned):")
     print(f"  {'method':<22} {'PSNR-mu':>8} {'PSNR-L':>8} {'SSIM-mu':>8} {'wall s':>8}")
     for name, m in rows:
-        print(f"  {name:<22} {m['psnr_mu']:>8.2f} {m['psnr_l']:>8.2f} {m['ssim_mu']:>8.3f} {m.get('wall_s', float('nan')):>8.1f}")
+        print(f"  {name:<22} {m['psnr_mu']:>8.2f} {m['psnr_l']:>8.2f} {m['ssim_mu']:>8.3f} "
+              f"{m.get('wall_s', float('nan')):>8.1f}")
     print(f"outputs: {ctx.run_dir}")
     return 0
 

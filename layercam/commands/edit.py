@@ -61,18 +61,26 @@ def register(sub) -> argparse.ArgumentParser:
     e = sub.add_parser(
         "edit",
         help="re-render a finished run with an edited (RGBA) atlas composited onto one layer",
-        description="Composites an edited RGBA atlas image onto one layer's learned atlas and re-renders every frame: LDR through the learned camera and linear HDR.",
+        description="Composites an edited RGBA atlas image onto one layer's learned atlas and "
+                    "re-renders every frame: LDR through the learned camera and linear HDR.",
         epilog=EXAMPLES,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     e.add_argument("run", help="a finished layercam run folder (holds checkpoint.pt and atlases/)")
-    e.add_argument("--layer", type=number(int, 0), default=1, help="the layer whose atlas was edited: 0 background, 1 foreground (default 1)")
-    e.add_argument("--atlas", required=True, help="the edited atlas, an RGBA PNG over the same uv square as atlases/layer{k}.png")
-    e.add_argument("--window", type=number(int, 0), metavar="K", help="a long clip's run (windows/): the window whose atlas you painted on, windows/wK/atlases/layer{k}.png; carried to the other windows through the frames they share")
+    e.add_argument("--layer", type=number(int, 0), default=1,
+                   help="the layer whose atlas was edited: 0 background, 1 foreground (default 1)")
+    e.add_argument("--atlas", required=True,
+                   help="the edited atlas, an RGBA PNG over the same uv square as "
+                        "atlases/layer{k}.png")
+    e.add_argument("--window", type=number(int, 0), metavar="K",
+                   help="a long clip's run (windows/): the window whose atlas you painted on, "
+                        "windows/wK/atlases/layer{k}.png; carried to the other windows through the "
+                        "frames they share")
     e.add_argument("--out", help="output folder (default: RUN/edit)")
     e.add_argument("--overwrite", action="store_true", help="replace an earlier edit in the output folder")
     e.add_argument("--fps", type=FPS, help="video frame rate (default: the run's)")
-    e.add_argument("--device", choices=["cpu", "cuda", "auto"], default="auto", help="auto (default: CUDA when present, else the CPU), cpu or cuda")
+    e.add_argument("--device", choices=["cpu", "cuda", "auto"], default="auto",
+                   help="auto (default: CUDA when present, else the CPU), cpu or cuda")
     e.add_argument("--quiet", action="store_true")
     return e
 
@@ -152,7 +160,8 @@ def render_edited_frame(model, t: int, hw: tuple[int, int], layer: int, edit: di
     return {"hdr": hdr, "ldr": ldr, "edit_alpha": seen.astype(np.float32)}
 
 
-def carry_edit(edit: dict, src, dst, pairs: list[tuple[int, int]], hw: tuple[int, int], layer: int, res: tuple[int, int]) -> dict:
+def carry_edit(edit: dict, src, dst, pairs: list[tuple[int, int]], hw: tuple[int, int], layer: int,
+               res: tuple[int, int]) -> dict:
     """An edit on ``src``'s atlas of ``layer`` carried to ``dst``'s (two windows' models) through
     frames both render: ``pairs`` of the same frame's index in each. Every pixel where the layer is
     seen in both looks the edit up at its ``src`` atlas coordinates (:func:`sample_edit`) and leaves
@@ -199,7 +208,7 @@ def run(args) -> int:
 
     from layercam.io.atomic import partials_removed_on_error
     from layercam.io.lock import run_lock
-    from layercam.pipelines.windows import INDEX
+    from layercam.pipelines.windows.index import INDEX
 
     run_dir = Path(args.run)
     finished = (run_dir / "checkpoint.pt").is_file() or (run_dir / INDEX).is_file()
@@ -216,7 +225,8 @@ def _edit_target(args, run_dir: Path, L: int) -> Path:
     """The edit's output folder, after checking ``--layer`` against the run's ``L`` layers and that
     the folder holds no edit (unless ``--overwrite``)."""
     if not 0 <= args.layer < L:
-        raise LayercamError(f"--layer {args.layer}: this run has {L} layer{'s' if L > 1 else ''} (0{'' if L == 1 else f'..{L - 1}'})")
+        raise LayercamError(f"--layer {args.layer}: this run has {L} layer{'s' if L > 1 else ''} "
+                            f"(0{'' if L == 1 else f'..{L - 1}'})")
     if args.layer > 0:
         _say_faded(run_dir)
     out = _out_dir(args, run_dir)
@@ -230,7 +240,7 @@ def _say_faded(run_dir: Path) -> None:
     of that layer shows only where alpha is left."""
     import sys
 
-    from layercam.pipelines.tasks import FADED
+    from layercam.pipelines.stages import FADED
 
     try:
         warnings = json.loads((run_dir / "report.json").read_text()).get("warnings") or []
@@ -247,23 +257,25 @@ def _edit(args, run_dir: Path) -> int:
     from layercam.io import write_exr, write_video
     from layercam.io.atomic import commit_staged, ensure_writable_dir, staging_dir
     from layercam.pipelines.runner import write_json
-    from layercam.pipelines.stages import device_of
+    from layercam.engine.resolve import device_of
     from layercam.core.progress import bar as progress_bar
     from layercam.scene.render import tonemap_display
 
-    from layercam.pipelines import windows
+    from layercam.pipelines.windows import index as windows
 
     index = windows.read_index(run_dir)
     if index is not None:
         return _edit_windows(args, run_dir, index)
     if args.window is not None:
-        raise LayercamError(f"--window {args.window}: {run_dir} is one model, not a long clip's windows; leave --window out")
+        raise LayercamError(f"--window {args.window}: {run_dir} is one model, not a long clip's "
+                            "windows; leave --window out")
     model, meta = load_run_model(run_dir, device_of(args.device))
     L = model.scene.n_layers
     out = _edit_target(args, run_dir, L)
     edit = load_edit(model, run_dir, args.layer, Path(args.atlas))
     if not (edit["alpha"] > 0).any():
-        raise LayercamError(f"{args.atlas}: nothing to composite (fully transparent, or identical to the exported atlas)")
+        raise LayercamError(f"{args.atlas}: nothing to composite (fully transparent, or identical "
+                            "to the exported atlas)")
     ensure_writable_dir(out)  # before any frame is rendered
     stage = staging_dir(out, "edit")
     (stage / "hdr").mkdir()
@@ -288,7 +300,9 @@ def _edit(args, run_dir: Path) -> int:
         "run": str(run_dir), "layer": args.layer, "atlas": str(Path(args.atlas).resolve()),
         "log2_dt_png": edit["log2_dt"], "unchanged_px_left_to_learned_atlas": edit["unchanged_px"],
         "frames": T, "edit_visible_fraction_per_frame": cover,
-        "outputs": {"hdr": "hdr/frame_*.exr (linear)", "edited.mp4": "through the learned camera at each frame's exposure", "preview.mp4": "HDR, display tonemapped"},
+        "outputs": {"hdr": "hdr/frame_*.exr (linear)",
+                    "edited.mp4": "through the learned camera at each frame's exposure",
+                    "preview.mp4": "HDR, display tonemapped"},
     })
     commit_staged(stage, out, EDIT_OUTPUTS)
     if not args.quiet:
@@ -302,17 +316,20 @@ def _edit_windows(args, run_dir: Path, index: dict) -> int:
     from layercam.core.interrupts import reached
     from layercam.io import write_exr, write_video
     from layercam.io.atomic import commit_staged, ensure_writable_dir, staging_dir
-    from layercam.pipelines import windows
+    from layercam.pipelines.windows import index as windows
+    from layercam.pipelines.windows.plan import per_pixel
     from layercam.pipelines.runner import write_json
-    from layercam.pipelines.stages import device_of
+    from layercam.engine.resolve import device_of
     from layercam.core.progress import bar as progress_bar
     from layercam.scene.render import tonemap_display
 
     plan, folders = windows.index_plan(index, run_dir), windows.window_folders(run_dir, index)
     n = plan.count
     if args.window is None:
-        raise LayercamError(f"{run_dir} holds a long clip as {n} windows, each with its own atlases: say which window's atlas you painted on with "
-                            f"--window K (0..{n - 1}; window K's is {folders[0].relative_to(run_dir).parent}/wK/atlases/layer{args.layer}.png)")
+        raise LayercamError(f"{run_dir} holds a long clip as {n} windows, each with its own "
+                            "atlases: say which window's atlas you painted on with "
+                            f"--window K (0..{n - 1}; window K's is "
+                            f"{folders[0].relative_to(run_dir).parent}/wK/atlases/layer{args.layer}.png)")
     K = args.window
     if not 0 <= K < n:
         raise LayercamError(f"--window {K}: this run has {n} windows (0..{n - 1})")
@@ -326,7 +343,8 @@ def _edit_windows(args, run_dir: Path, index: dict) -> int:
     edits: list = [None] * n
     edits[K] = load_edit(models[K], folders[K], args.layer, Path(args.atlas))
     if not (edits[K]["alpha"] > 0).any():
-        raise LayercamError(f"{args.atlas}: nothing to composite (fully transparent, or identical to window {K}'s exported atlas)")
+        raise LayercamError(f"{args.atlas}: nothing to composite (fully transparent, or identical "
+                            f"to window {K}'s exported atlas)")
     ensure_writable_dir(out)  # before any frame is rendered
     how = {K: "painted"}
     for j in [*range(K + 1, n), *range(K - 1, -1, -1)]:
@@ -334,7 +352,9 @@ def _edit_windows(args, run_dir: Path, index: dict) -> int:
         a, b = max(plan.windows[i][0], plan.windows[j][0]), min(plan.windows[i][1], plan.windows[j][1])
         png = folders[j] / "atlases" / f"layer{args.layer}.png"
         res = read_rgba(png)[1].shape if png.exists() else edits[i]["alpha"].shape
-        edits[j] = carry_edit(edits[i], models[i], models[j], [(t - plan.windows[i][0], t - plan.windows[j][0]) for t in range(a, b)], hw, args.layer, res)
+        edits[j] = carry_edit(edits[i], models[i], models[j],
+                              [(t - plan.windows[i][0], t - plan.windows[j][0])
+                               for t in range(a, b)], hw, args.layer, res)
         edits[j]["irr"] = edits[j]["irr"] * np.float32(gains[j] / gains[i])  # in window j's irradiance
         how[j] = f"carried from window {i} through frames {a}..{b - 1}"
     stage = staging_dir(out, "edit")
@@ -345,8 +365,10 @@ def _edit_windows(args, run_dir: Path, index: dict) -> int:
         reached("edit", t)
         ws = plan.weights(t, hw)  # as the export joined them: per pixel where the run kept the windows' fits
         parts = [(w, render_edited_frame(models[k], t - plan.windows[k][0], hw, args.layer, edits[k])) for k, w in ws]
-        r = {key: sum(windows.per_pixel(w, p[key]) * p[key] for w, p in parts).astype(np.float32) for key in ("ldr", "edit_alpha")}
-        r["hdr"] = sum(windows.per_pixel(w * gains[k], p["hdr"]) * p["hdr"] for (k, _), (w, p) in zip(ws, parts)).astype(np.float32)
+        r = {key: sum(per_pixel(w, p[key]) * p[key] for w, p in parts).astype(np.float32)
+             for key in ("ldr", "edit_alpha")}
+        r["hdr"] = sum(per_pixel(w * gains[k], p["hdr"]) * p["hdr"] for (k, _),
+                       (w, p) in zip(ws, parts)).astype(np.float32)
         if not np.isfinite(r["hdr"]).all():
             raise LayercamError(f"frame {t}: non-finite irradiance after the edit; nothing written for it")
         write_exr(stage / "hdr" / f"frame_{t:05d}.exr", r["hdr"])
@@ -358,12 +380,16 @@ def _edit_windows(args, run_dir: Path, index: dict) -> int:
     write_video(stage / "preview.mp4", tonemap_display(np.stack(hdrs))[0], fps=fps)
     write_json(stage / "edit.json", {
         "run": str(run_dir), "layer": args.layer, "atlas": str(Path(args.atlas).resolve()), "window": K,
-        "windows": [{"frames": list(plan.windows[k]), "edit": how[k], "edit_alpha_sum": float(edits[k]["alpha"].sum())} for k in range(n)],
+        "windows": [{"frames": list(plan.windows[k]), "edit": how[k],
+                     "edit_alpha_sum": float(edits[k]["alpha"].sum())} for k in range(n)],
         "log2_dt_png": edits[K]["log2_dt"], "unchanged_px_left_to_learned_atlas": edits[K]["unchanged_px"],
         "frames": T, "edit_visible_fraction_per_frame": cover,
-        "outputs": {"hdr": "hdr/frame_*.exr (linear)", "edited.mp4": "through the learned camera at each frame's exposure", "preview.mp4": "HDR, display tonemapped"},
+        "outputs": {"hdr": "hdr/frame_*.exr (linear)",
+                    "edited.mp4": "through the learned camera at each frame's exposure",
+                    "preview.mp4": "HDR, display tonemapped"},
     })
     commit_staged(stage, out, EDIT_OUTPUTS)
     if not args.quiet:
-        print(f"done: {out}  (edit visible in {sum(c > 0 for c in cover)} of {T} frames; painted on window {K}, carried to the others through their overlaps)")
+        print(f"done: {out}  (edit visible in {sum(c > 0 for c in cover)} of {T} frames; painted "
+              f"on window {K}, carried to the others through their overlaps)")
     return 0

@@ -34,10 +34,14 @@ def register(sub) -> argparse.ArgumentParser:
     f.add_argument("inputs", nargs="+", metavar="IMAGES", help="two or more image files, or one folder of images")
     f.add_argument("--out", help="run folder (default: runs/<first image name>)")
     g = f.add_argument_group("input")
-    g.add_argument("--exposures", default="auto", help="auto (EXIF times when every image has one, else one exposure) | times.txt (one time per image) | "
+    g.add_argument("--exposures", default="auto",
+                   help="auto (EXIF times when every image has one, else one exposure) | times.txt "
+                        "(one time per image) | "
                    "EVs, one per image in order, like 0,-2,2 | exif | learn | none (default: auto)")
     g.add_argument("--resize", help="scale factor (0.5) or size WxH")
-    g.add_argument("--reference", help="the view to fuse into: middle, first, last or an image index (default: middle; export.reference)")
+    g.add_argument("--reference",
+                   help="the view to fuse into: middle, first, last or an image index (default: "
+                        "middle; export.reference)")
     common_model_args(f)
     return f
 
@@ -60,7 +64,7 @@ def pick_exposures(spec: str, clip):
 def run(args) -> int:
     from layercam.core.errors import LayercamError
     from layercam.cli import before_stages, open_clip
-    from layercam.pipelines.export_context import resolve_reference
+    from layercam.core.geometry import reference_index
     from layercam.pipelines.tasks import run_task
 
     if args.reference is not None:
@@ -71,11 +75,12 @@ def run(args) -> int:
         clip = open_clip(args, cfg, out, "fuse-stack", args.resize)
         if clip.T < 2:
             raise LayercamError(f"fuse-stack needs at least 2 images, got {clip.T}")
-        resolve_reference(cfg.export.reference, clip.T)  # a bad --reference fails now, not after training
+        reference_index(cfg.export.reference, clip.T)  # a bad --reference fails now, not after training
         exposures = pick_exposures(args.exposures, clip)
     ctx = run_task("fuse-stack", clip, exposures, cfg, out, progress=not args.quiet)
     finish(ctx)
     if not args.quiet:
         ex = ctx.results["export"].summary
-        print(f"fused into the view of image {ex['reference']} ({ex['reference_name']}): {out / 'fused.exr'}, {out / 'fused.png'}")
+        print(f"fused into the view of image {ex['reference']} ({ex['reference_name']}): "
+              f"{out / 'fused.exr'}, {out / 'fused.png'}")
     return 0

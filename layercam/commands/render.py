@@ -43,76 +43,38 @@ def register(sub) -> argparse.ArgumentParser:
     r = sub.add_parser(
         "render",
         help="re-render a finished run at a new exposure or focus, or as a sweep video",
-        description="Re-renders a finished run (its checkpoint.pt) keeping parts of the learned camera: the tone mapper at a new exposure, the blur generator at an interpolated focus.",
+        description="Re-renders a finished run (its checkpoint.pt) keeping parts of the learned "
+                    "camera: the tone mapper at a new exposure, the blur generator at an "
+                    "interpolated focus.",
         epilog=EXAMPLES,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     r.add_argument("run", help="a finished layercam run folder (holds checkpoint.pt)")
-    r.add_argument("--exposure", type=number(float, -24, high=24), metavar="EV", help="stops relative to the run's reference exposure (median of its frames')")
-    r.add_argument("--focus", type=number(float, 0), metavar="F", help="fractional training-image index whose blur to render, e.g. 0.5")
+    r.add_argument("--exposure", type=number(float, -24, high=24), metavar="EV",
+                   help="stops relative to the run's reference exposure (median of its frames')")
+    r.add_argument("--focus", type=number(float, 0), metavar="F",
+                   help="fractional training-image index whose blur to render, e.g. 0.5")
     r.add_argument("--sweep", choices=["exposure", "focus"], help="a video sweeping over exposure or focus")
-    r.add_argument("--range", dest="sweep_range", metavar="A,B", help="sweep range (default: -4,4 EV; focus: first,last image)")
+    r.add_argument("--range", dest="sweep_range", metavar="A,B",
+                   help="sweep range (default: -4,4 EV; focus: first,last image)")
     r.add_argument("--steps", type=number(int, 2, high=1000), default=25, help="sweep steps (default 25)")
-    r.add_argument("--frame", type=number(int, 0), help="the view for --focus and sweeps (default: the run's reference image, else the middle frame; a long clip's windows: rendered by the window that holds it)")
+    r.add_argument("--frame", type=number(int, 0),
+                   help="the view for --focus and sweeps (default: the run's reference image, else "
+                        "the middle frame; a long clip's windows: rendered by the window that "
+                        "holds it)")
     r.add_argument("--keep-blur", action="store_true", help="exposure renders: keep each frame's learned blur")
-    r.add_argument("--fps", type=FPS, help="video frame rate (default: the input's; the input's sound is kept only at its rate)")
+    r.add_argument("--fps", type=FPS,
+                   help="video frame rate (default: the input's; the input's sound is kept only at "
+                        "its rate)")
     r.add_argument("--out", help="output folder (default: RUN/render)")
     r.add_argument("--overwrite", action="store_true", help="replace earlier renders of the same name")
-    r.add_argument("--device", choices=["cpu", "cuda", "auto"], default="auto", help="auto (default: CUDA when present, else the CPU), cpu or cuda")
+    r.add_argument("--device", choices=["cpu", "cuda", "auto"], default="auto",
+                   help="auto (default: CUDA when present, else the CPU), cpu or cuda")
     r.add_argument("--quiet", action="store_true")
     from layercam.commands.hdr_video import hdr_video_args
 
     hdr_video_args(r, render=True)
     return r
-
-
-# -- rendering functions (used by the command and the tests) ----------------------------------------
-def exposure_at(model, f: float) -> float:
-    """log2 exposure at a fractional frame index (linear between neighbouring frames)."""
-    import numpy as np
-
-    v = model.exposure.values().detach().cpu().numpy().astype(np.float64)
-    return float(np.interp(f, np.arange(len(v)), v))
-
-
-def exposure_frames(model, meta: dict, ev: float, keep_blur: bool = False, chunk: int = 65536, z0: float | None = None):
-    """Every frame at ``ev`` stops from the reference exposure (``z0``, default the model's):
-    ``(T, H, W, 3)``."""
-    import numpy as np
-
-    from layercam.scene.render import render_frame
-
-    hw = tuple(meta["frame_hw"])
-    z = (model.exposure.reference() if z0 is None else z0) + ev
-    return np.stack([render_frame(model, t, hw, "ldr", log2_dt=z, blur=keep_blur, chunk=chunk)["ldr"] for t in range(int(meta["n_frames"]))])
-
-
-def exposure_sweep(model, meta: dict, evs, frame: int, keep_blur: bool = False, z0: float | None = None):
-    """One view at each of ``evs`` (stops from the reference exposure, ``z0`` or the model's):
-    ``(N, H, W, 3)``."""
-    import numpy as np
-
-    from layercam.scene.render import render_frame
-
-    hw = tuple(meta["frame_hw"])
-    z0 = model.exposure.reference() if z0 is None else z0
-    return np.stack([render_frame(model, frame, hw, "ldr", log2_dt=z0 + float(e), blur=keep_blur)["ldr"] for e in evs])
-
-
-def focus_sweep(model, meta: dict, fs, frame: int, ev: float | None = None, z0: float | None = None):
-    """One view with the blur of each fractional image index in ``fs``: ``(N, H, W, 3)``; at the
-    exposure interpolated at each ``f``, or at ``ev`` stops from the reference (``z0`` or the
-    model's) when given."""
-    import numpy as np
-
-    from layercam.scene.render import render_frame
-
-    hw = tuple(meta["frame_hw"])
-    out = []
-    for f in fs:
-        z = exposure_at(model, float(f)) if ev is None else (model.exposure.reference() if z0 is None else z0) + ev
-        out.append(render_frame(model, frame, hw, "ldr", log2_dt=z, t_blur=float(f), blur=True)["ldr"])
-    return np.stack(out)
 
 
 # -- command -------------------------------------------------------------------------------------
@@ -135,7 +97,7 @@ def _check_ev(ev: float | None) -> None:
 
 def run_audio(meta: dict, fps: float) -> dict | None:
     """The sound a video of the run's frames at ``fps`` carries over: the run's (its checkpoint's
-    ``audio``, :func:`layercam.io.clip.audio_plan`) when ``fps`` is the input's, else None."""
+    ``audio``, :func:`layercam.io.inputs.audio_plan`) when ``fps`` is the input's, else None."""
     a = meta.get("audio")
     return a if a and abs(float(fps) - float(meta.get("fps") or 24.0)) < 1e-6 else None
 
@@ -167,12 +129,13 @@ def _products(args, out: Path) -> dict:
 
 def run(args) -> int:
     from layercam.io.lock import run_lock
-    from layercam.pipelines.windows import INDEX
+    from layercam.pipelines.windows.index import INDEX
 
     if args.nits_white is not None and args.hdr_format is None:
         raise LayercamError("--nits-white sets the HDR video's diffuse white: give --hdr-format pq|hlg with it")
     if args.exposure is None and args.focus is None and args.sweep is None and args.hdr_format is None:
-        raise LayercamError("nothing to render: give --exposure EV, --focus F, --sweep exposure|focus or --hdr-format pq|hlg")
+        raise LayercamError("nothing to render: give --exposure EV, --focus F, --sweep "
+                            "exposure|focus or --hdr-format pq|hlg")
     from layercam.io.atomic import partials_removed_on_error
 
     finished = Path(args.run, "checkpoint.pt").is_file() or Path(args.run, INDEX).is_file()
@@ -196,7 +159,7 @@ class _Views:
         import numpy as np
 
         from layercam.engine.checkpoint import load_run_model
-        from layercam.pipelines import windows
+        from layercam.pipelines.windows import index as windows
 
         index = windows.read_index(run)
         if index is None:
@@ -212,7 +175,9 @@ class _Views:
             self.T = int(index["frames"])
             gains = windows.index_gains(index)
             self.z0 = windows.clip_reference(self.models, gains)
-            self.shift = [-float(np.log2(g)) for g in gains]  # window k at z renders as window 0 at z + shift: its irradiance is gain x window 0's
+            self.shift = [-float(np.log2(g)) for g in gains]  # window k at z renders as window 0 at
+                                                              # z + shift: its irradiance is gain x
+                                                              # window 0's
         self.has_blur = self.models[0].blur is not None
         self.reference = self.metas[0].get("reference") if self.plan is None else None
 
@@ -227,18 +192,24 @@ class _Views:
 
         if self.plan is None:
             return self.models[0].exposure.values().detach().cpu().tolist()
-        return [float(sum(w * (float(self.models[k].exposure.values().detach().cpu().numpy()[t - self.start(k)]) - self.shift[k]) for k, w in self.plan.weights(t))) for t in np.arange(self.T)]
+        return [float(sum(w
+                          * (float(self.models[k].exposure.values().detach().cpu().numpy()[t
+            - self.start(k)]) - self.shift[k]) for k, w in self.plan.weights(t)))
+                for t in np.arange(self.T)]
 
     def exposure_frames(self, ev: float, keep_blur: bool):
         """Every frame at ``ev`` stops from the clip's reference, ``(T, H, W, 3)``; a window's frames
         joined with its neighbour's by the export's cross-fade."""
         import numpy as np
 
+        from layercam.scene.render import exposure_frames
+
         if self.plan is None:
             return exposure_frames(self.models[0], self.metas[0], ev, keep_blur, z0=self.z0)
-        from layercam.pipelines.windows import per_pixel
+        from layercam.pipelines.windows.plan import per_pixel
 
-        per = [exposure_frames(m, meta, ev, keep_blur, z0=self.z0 + d) for m, meta, d in zip(self.models, self.metas, self.shift)]
+        per = [exposure_frames(m, meta, ev, keep_blur, z0=self.z0 + d) for m, meta,
+               d in zip(self.models, self.metas, self.shift)]
         hw = per[0].shape[1:3]
 
         def joined(t: int):
@@ -257,12 +228,14 @@ def _render(args) -> int:
     from layercam.io import write_png, write_video
     from layercam.io.atomic import commit_staged, ensure_writable_dir, staging_dir
     from layercam.pipelines.runner import write_json
-    from layercam.pipelines.stages import device_of
+    from layercam.engine.resolve import device_of
+    from layercam.scene.render import exposure_sweep, focus_sweep
 
     v = _Views(Path(args.run), device_of(args.device))
     T = v.T
     if (args.focus is not None or args.sweep == "focus") and not v.has_blur:
-        raise LayercamError(f"{args.run}: this run has no blur generator (blur was off), so there is no focus to change")
+        raise LayercamError(f"{args.run}: this run has no blur generator (blur was off), so there "
+                            "is no focus to change")
     if args.focus is not None and not (0 <= args.focus <= T - 1):
         raise LayercamError(f"--focus must lie between 0 and {T - 1} (the training images' indices), got {args.focus}")
     if args.frame is not None and not 0 <= args.frame < T:
@@ -278,7 +251,9 @@ def _render(args) -> int:
         lo, hi = (0, T - 1) if v.plan is None else (v.plan.windows[k][0], v.plan.windows[k][1] - 1)
         sweep_range = _range(args.sweep_range, (float(lo), float(hi)))
         if not (lo <= min(sweep_range) and max(sweep_range) <= hi):
-            where = "" if v.plan is None else f" (the images of window {k}, which holds view {view}: each window's blur generator knows its own images)"
+            where = ("" if v.plan is None
+                     else f" (the images of window {k}, which holds view {view}: each window's "
+                          "blur generator knows its own images)")
             raise LayercamError(f"focus --range must lie within {lo}..{hi}{where}, got {args.sweep_range}")
     out = ensure_writable_dir(_out_dir(args))
     products = _products(args, out)
@@ -291,13 +266,16 @@ def _render(args) -> int:
     if "hdr" in products:  # checked before any work
         hdr_frames = sorted((Path(args.run) / "hdr").glob("frame_*.exr"))
         if len(hdr_frames) != T:
-            raise LayercamError(f"{args.run}: --hdr-format needs the run's linear HDR frames, hdr/frame_*.exr ({T}); found {len(hdr_frames)} (hdr-video runs have them)")
+            raise LayercamError(f"{args.run}: --hdr-format needs the run's linear HDR frames, "
+                                f"hdr/frame_*.exr ({T}); found {len(hdr_frames)} (hdr-video runs "
+                                "have them)")
         from layercam.io.hdr_video import missing_for_hdr
-        from layercam.io.video import ffmpeg_exe
+        from layercam.io.ffmpeg import ffmpeg_exe
 
         missing = missing_for_hdr()
         if missing:
-            raise LayercamError(f"cannot write an HDR video: ffmpeg ({ffmpeg_exe()}) has no {missing}; imageio-ffmpeg >= 0.8 ships an ffmpeg with it")
+            raise LayercamError(f"cannot write an HDR video: ffmpeg ({ffmpeg_exe()}) has no "
+                                f"{missing}; imageio-ffmpeg >= 0.8 ships an ffmpeg with it")
 
     def one(view: int):
         """The model of the window holding ``view``, its meta, the window's first frame and the
@@ -312,21 +290,35 @@ def _render(args) -> int:
         stage = staging_dir(out, products["sweep"][-1])
         if args.sweep == "exposure":
             evs = np.linspace(a, b, args.steps)
-            _write_sweep(stage, "exposure", exposure_sweep(model, meta, evs, view - a0, args.keep_blur, z0=zk), args.fps or fps, {**base, "what": "exposure sweep", "view": view, "ev": evs.tolist(), "blur": args.keep_blur})
+            _write_sweep(stage, "exposure",
+                         exposure_sweep(model, meta, evs, view - a0, args.keep_blur, z0=zk),
+                         args.fps or fps,
+                         {**base, "what": "exposure sweep", "view": view, "ev": evs.tolist(),
+                          "blur": args.keep_blur})
         else:
             fs = np.linspace(a, b, args.steps)
-            _write_sweep(stage, "focus", focus_sweep(model, meta, fs - a0, view - a0, args.exposure, z0=zk), args.fps or fps, {**base, "what": "focus sweep", "view": view, "focus": fs.tolist(), "exposure_ev": args.exposure})
+            _write_sweep(stage, "focus",
+                         focus_sweep(model, meta, fs - a0, view - a0, args.exposure, z0=zk),
+                         args.fps or fps,
+                         {**base, "what": "focus sweep", "view": view, "focus": fs.tolist(),
+                          "exposure_ev": args.exposure})
         commit_staged(stage, out, products["sweep"])
         say(f"{args.sweep} sweep {a:+g}..{b:+g} of view {view}: {out / products['sweep'][1]}")
     if "focus" in products:
         png, side = products["focus"]
-        view = args.frame if args.frame is not None else (int(v.reference) if v.reference is not None else int(round(args.focus)))
+        view = args.frame if args.frame is not None else (int(v.reference)
+                                                          if v.reference is not None
+                                                          else int(round(args.focus)))
         model, meta, a0, zk = one(view)
         if v.plan is not None and not 0 <= args.focus - a0 <= len(meta["names"]) - 1:
-            raise LayercamError(f"--focus {args.focus:g} and view {view} lie in different windows: each window's blur generator knows its own images ({a0}..{a0 + len(meta['names']) - 1} for view {view})")
+            raise LayercamError(f"--focus {args.focus:g} and view {view} lie in different windows: "
+                                "each window's blur generator knows its own images "
+                                f"({a0}..{a0 + len(meta['names']) - 1} for view {view})")
         stage = staging_dir(out, side)
         write_png(stage / png, focus_sweep(model, meta, [args.focus - a0], view - a0, args.exposure, z0=zk)[0])
-        write_json(stage / side, {**base, "what": "focus", "focus": args.focus, "view": view, "exposure_ev": args.exposure})
+        write_json(stage / side,
+                   {**base, "what": "focus", "focus": args.focus, "view": view,
+                    "exposure_ev": args.exposure})
         commit_staged(stage, out, products["focus"])
         say(f"focus {args.focus:g} of view {view}: {out / png}")
     if "exposure" in products:
@@ -335,9 +327,16 @@ def _render(args) -> int:
         frames = v.exposure_frames(args.exposure, args.keep_blur)
         _write_steps(stage / name, frames, write_png, prefix="frame_", width=5)
         if T > 1:
-            write_video(stage / name / "video.mp4", frames, fps=args.fps or fps, audio=run_audio(meta0, args.fps or fps))
-        write_json(stage / name / "render.json", {**base, "what": "exposure", "ev": args.exposure, "log2_exposure": z0 + args.exposure, "blur": args.keep_blur,
-                                                  **({} if v.plan is None else {"windows": v.plan.to_dict()["windows"], "join": "each window's frames, cross-faded over the overlaps by their fits as in the export"})})
+            write_video(stage / name / "video.mp4", frames, fps=args.fps or fps,
+                        audio=run_audio(meta0, args.fps or fps))
+        write_json(stage / name / "render.json",
+                   {**base, "what": "exposure", "ev": args.exposure,
+                    "log2_exposure": z0 + args.exposure, "blur": args.keep_blur,
+                                                  **({} if v.plan is None
+                                                     else {"windows": v.plan.to_dict()["windows"],
+                                                           "join": "each window's frames, "
+                                                                   "cross-faded over the overlaps "
+                                                                   "by their fits as in the export"})})
         commit_staged(stage, out, products["exposure"])
         say(f"{T} frames at {args.exposure:+g} EV: {out / name}")
     if "hdr" in products:
@@ -349,9 +348,14 @@ def _render(args) -> int:
         stage = staging_dir(out, side)
         gain = 2.0 ** (args.exposure or 0.0)
         nits = args.nits_white or 203.0
-        info = write_hdr_video(stage / video, lambda: (read_exr(p) * gain for p in hdr_frames), args.fps or fps, args.hdr_format, white_radiance(v.models[0]), nits,
-                               meta0.get("primaries", "bt709"), audio=run_audio(meta0, args.fps or fps), progress=not args.quiet)  # fmt: skip
-        write_json(stage / side, {**base, "what": "HDR video of the run's hdr/ frames", "exposure_ev": args.exposure, **info, "anchor": ANCHOR})
+        info = write_hdr_video(stage / video, lambda: (read_exr(p) * gain for p in hdr_frames),
+                               args.fps or fps, args.hdr_format, white_radiance(v.models[0]), nits,
+                               meta0.get("primaries", "bt709"),
+                               audio=run_audio(meta0, args.fps or fps), progress=not args.quiet)
+                               # fmt: skip
+        write_json(stage / side,
+                   {**base, "what": "HDR video of the run's hdr/ frames",
+                    "exposure_ev": args.exposure, **info, "anchor": ANCHOR})
         commit_staged(stage, out, products["hdr"])
         if info["audio"] and not info["audio"]["kept"]:
             print(f"warning: {video} is written without the input's sound: {info['audio']['why']}", flush=True)

@@ -65,7 +65,8 @@ def _float(x) -> np.ndarray:
 def _rgb_to_xyz(prim) -> np.ndarray:
     """The 3x3 matrix from linear RGB of primaries ``prim`` (D65 white) to CIE XYZ (white Y = 1)."""
     xy = np.asarray(prim, np.float64)
-    cols = np.stack([xy[:, 0] / xy[:, 1], np.ones(3), (1 - xy[:, 0] - xy[:, 1]) / xy[:, 1]])  # XYZ of each primary at Y = 1
+    # XYZ of each primary at Y = 1
+    cols = np.stack([xy[:, 0] / xy[:, 1], np.ones(3), (1 - xy[:, 0] - xy[:, 1]) / xy[:, 1]])
     w = np.array([D65[0] / D65[1], 1.0, (1 - D65[0] - D65[1]) / D65[1]])
     return cols * np.linalg.solve(cols, w)[None, :]
 
@@ -82,7 +83,8 @@ def primaries_matrix(src: str, dst: str = "bt2020") -> np.ndarray:
 
 def pq_encode(nits: np.ndarray) -> np.ndarray:
     """SMPTE ST 2084 inverse EOTF: display light in cd/m2 (``>= 0``, any shape; float32 stays
-    float32, else float64) -> PQ signal in [0, 1] (10000 cd/m2 -> 1). Negative light is taken as 0. The formula goes on past 10000
+    float32, else float64) -> PQ signal in [0, 1] (10000 cd/m2 -> 1). Negative light is taken as 0.
+    The formula goes on past 10000
     (towards 1.99 at infinity), monotone: :func:`eetf` places a source peak above PQ's with it."""
     y = np.maximum(_float(nits), 0.0) / PQ_PEAK
     p = y**_M1

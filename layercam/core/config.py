@@ -31,6 +31,7 @@ from layercam.core.errors import LayercamError
 from layercam.core.values import check_value
 
 AUTO = "auto"
+DEFAULT_PRESET = "balanced"  # the preset a command and a Config start from when none is named
 
 
 class Section:
@@ -39,7 +40,9 @@ class Section:
 
     def __setattr__(self, name, value):
         if getattr(self, "_frozen", False):
-            raise dataclasses.FrozenInstanceError(f"settings are resolved once (layercam.engine.resolve): cannot set {getattr(self, '_name', '')}{name}")
+            raise dataclasses.FrozenInstanceError("settings are resolved once "
+                                                  "(layercam.engine.resolve): cannot set "
+                                                  f"{getattr(self, '_name', '')}{name}")
         object.__setattr__(self, name, value)
 
 
@@ -53,12 +56,16 @@ def freeze(cfg: "Config") -> "Config":
     return cfg
 
 
-def setting(default: Any, lo: float | None = None, hi: float | None = None, *, above: float | None = None, below: float | None = None, check=None, keyed: bool = True) -> Any:
+def setting(default: Any, lo: float | None = None, hi: float | None = None, *,
+            above: float | None = None, below: float | None = None, check=None,
+            keyed: bool = True) -> Any:
     """A dataclass field with a range: ``lo <= v <= hi``, ``v > above``, ``v < below`` (numbers;
     ``"auto"`` is not range-checked) and ``check(v) -> str | None`` (a message when wrong).
     ``keyed=False``: the setting cannot change a stage's result (how often to save), so it is left
     out of the cache keys (:meth:`Config.key_dict`)."""
-    return field(default=default, metadata={"lo": lo, "hi": hi, "above": above, "below": below, "check": check, "keyed": keyed})
+    return field(default=default,
+                 metadata={"lo": lo, "hi": hi, "above": above, "below": below, "check": check,
+                           "keyed": keyed})
 
 
 def _odd(v) -> str | None:
@@ -78,12 +85,17 @@ class ModelConfig(Section):
     """What the model contains. ``auto``: decided for the clip by :func:`layercam.engine.resolve.resolve`
     from what the analysis measured; anything else forces the choice (``--layers``, ``--blur``, ...)."""
 
-    layers: Literal["auto", 1, 2] = AUTO              # 1: one atlas (static or rigid scene); 2: a foreground layer for an
+    layers: Literal["auto", 1, 2] = AUTO              # 1: one atlas (static or rigid scene); 2: a
+                                                      # foreground layer for an
                                                       # object moving on its own (an alpha field, twice the atlases)
-    tone_mapper: Literal["auto", "learned", "fixed"] = AUTO  # learned CRF (needs exposures that differ) | the fixed sRGB curve
+    tone_mapper: Literal["auto", "learned", "fixed"] = AUTO  # learned CRF (needs exposures that
+                                                             # differ) | the fixed sRGB curve
     exposures: Literal["auto", "given", "learned"] = AUTO  # learned where the exposure spec leaves them unknown
-    blur: Literal["auto", "on", "off"] = AUTO           # the blur generator: sharp output from blurry frames, at 2-3 x the time
-    flow_loss: bool | Literal["auto"] = AUTO            # flow consistency: keeps moving content registered; nothing to do on a static scene
+    blur: Literal["auto", "on", "off"] = AUTO           # the blur generator: sharp output from
+                                                        # blurry frames, at 2-3 x the time
+    flow_loss: bool | Literal["auto"] = AUTO            # flow consistency: keeps moving content
+                                                        # registered; nothing to do on a static
+                                                        # scene
 
 
 @dataclass
@@ -91,18 +103,23 @@ class SceneConfig(Section):
     """Scene model: deformation, atlas and alpha fields of each layer (fixed sizes and constants:
     :mod:`layercam.scene.fields`)."""
 
-    encoding: Literal["grid", "pe"] = "grid"  # atlas encoding: dense multi-resolution 2D grids (fast) | positional encoding
+    encoding: Literal["grid", "pe"] = "grid"  # atlas encoding: dense multi-resolution 2D grids
+                                              # (fast) | positional encoding
                                               # (the paper's PE(7) -> MLP: 1-2 orders of magnitude slower on a CPU)
-    grid_levels: int = setting(6, 1, 16)     # grid levels between 16 cells and the atlas's extent: finer detail vs fitting
+    grid_levels: int = setting(6, 1, 16)     # grid levels between 16 cells and the atlas's extent:
+                                             # finer detail vs fitting
                                              # the frames' noise (quality: 8)
     atlas_width: int = setting(64, 1)        # atlas MLP width and depth: capacity vs time per step (paper: 512 x 4)
     atlas_depth: int = setting(2, 0)         # ... its hidden layers
-    deformation: Literal["homography", "mlp"] = "homography"  # per-frame homography + bounded residual MLP (starts exact
+    deformation: Literal["homography", "mlp"] = "homography"  # per-frame homography + bounded
+                                                              # residual MLP (starts exact
                                              # from the flow) | one MLP of (x, y, t) (paper: fitted to its start first)
-    deform_width: int = setting(64, 1)       # the deformation MLP's width and depth: non-rigid detail vs time (paper: 256 x 4)
+    deform_width: int = setting(64, 1)       # the deformation MLP's width and depth: non-rigid
+                                             # detail vs time (paper: 256 x 4)
     deform_depth: int = setting(2, 0)        # ... its hidden layers
     bootstrap: Literal["flow", "identity"] = "flow"  # the mappings' start: chained flow homographies | identity (paper)
-    alpha_encoding: Literal["pe", "grid"] = "grid"  # alpha from a positional encoding alone (smooth outlines, the paper's)
+    alpha_encoding: Literal["pe", "grid"] = "grid"  # alpha from a positional encoding alone (smooth
+                                                    # outlines, the paper's)
                                              # | also dense (x, y, t) grids (thin parts; memory grows with the frames)
 
 
@@ -110,7 +127,8 @@ class SceneConfig(Section):
 class ToneConfig(Section):
     """Tone mapper: three per-channel MLPs of log2 r' + log2 dt (paper: 2 layers of 128)."""
 
-    width: int = setting(64, 1)      # each channel's MLP: width and depth (paper: 128 x 2); a wider curve fits more bends
+    width: int = setting(64, 1)      # each channel's MLP: width and depth (paper: 128 x 2); a wider
+                                     # curve fits more bends
     depth: int = setting(2, 0)       # ... its hidden layers
     lut: int = setting(1024, 0, check=_lut)  # the curves evaluated on this many knots and interpolated (error < 1e-4):
                                      # a step's tone mapping costs the knots, not the batch; 0: per pixel (paper)
@@ -121,22 +139,30 @@ class BlurConfig(Section):
     """Blur generator (paper Sec. 3.2): an n x n patch per pixel, offsets bounded by max_offset pixels
     (its nets' sizes and schedule: :mod:`layercam.camera.blur`)."""
 
-    n: int = setting(3, 1, 15, check=_odd)  # patch side, n^2 scene look-ups per pixel: 3 as the paper, whose learned offsets
-                                            # reach wide blur (5 fitted no better where the blur is wide, at 2.8x the cost)
-    max_offset: float | Literal["auto"] = setting(AUTO, 0.0, 64.0)  # s, px: how far the patch may spread; too little cannot
-                                                                    # model the blur, too much lets it fit noise; auto: measured
+    n: int = setting(3, 1, 15, check=_odd)  # patch side, n^2 scene look-ups per pixel: 3 as the
+                                            # paper, whose learned offsets
+                                            # reach wide blur (5 fitted no better where the blur is
+                                            # wide, at 2.8x the cost)
+    max_offset: float | Literal["auto"] = setting(AUTO, 0.0, 64.0)  # s, px: how far the patch may
+                                                                    # spread; too little cannot
+                                                                    # model the blur, too much lets
+                                                                    # it fit noise; auto: measured
 
 
 @dataclass
 class LossConfig(Section):
-    """Loss terms whose weight a preset or a clip changes (the paper's fixed weights: :mod:`layercam.scene.model`)."""
+    """Loss terms whose weight a preset or a clip changes (the paper's fixed weights: :mod:`layercam.engine.model`)."""
 
     robust: float | Literal["auto"] = setting(AUTO, 0.0, 1.0)  # colour error: 0 MSE (paper); c > 0 Cauchy
-                                                 # c^2 ln(1 + (e / c)^2), errors past c (pixel value) count less: a bracket's
-                                                 # shots that disagree bend the curve less, but edges fit less; auto: 0.05
+                                                 # c^2 ln(1 + (e / c)^2), errors past c (pixel
+                                                 # value) count less: a bracket's
+                                                 # shots that disagree bend the curve less, but
+                                                 # edges fit less; auto: 0.05
                                                  # for fuse-stack without a blur generator, MSE elsewhere
-    alpha_flow_keep: float = setting(0.25, 0.0, 1.0)  # two layers: share of the alpha flow weight kept once the flow has
-                                                 # decayed (1: all through, as Kasten et al.): holds alpha on its object in a
+    alpha_flow_keep: float = setting(0.25, 0.0, 1.0)  # two layers: share of the alpha flow weight
+                                                      # kept once the flow has
+                                                 # decayed (1: all through, as Kasten et al.): holds
+                                                 # alpha on its object in a
                                                  # long fit, but a short fit (fast: 0) refines alpha better without it
 
 
@@ -151,20 +177,27 @@ class TrainConfig(Section):
     seed: int = setting(0, 0, 2**63 - 1)    # every random draw of training: the same seed, the same result
     autocast: Literal["auto", "none", "bf16"] = AUTO  # bf16 mixed precision: about 2x on a GPU, bf16's rounding in the
                                             # fields; auto: bf16 on a GPU that has it, fp32 elsewhere
-    checkpoint_every: int = setting(500, 0, keyed=False)  # steps between checkpoints: work lost to a crash vs time spent saving
+    checkpoint_every: int = setting(500, 0, keyed=False)  # steps between checkpoints: work lost to
+                                                          # a crash vs time spent saving
                                             # (0: only at the end and on Ctrl-C)
     device: str = setting("auto", check=_device)  # auto: CUDA when torch sees a GPU, else the CPU
-    passes_per_frame: float = setting(2.0, 0.0)  # at most this many passes over the clip's pixels per frame of the clip:
-                                            # more fit a short stack's noise and take time (0: no cap, the preset's steps;
+    passes_per_frame: float = setting(2.0, 0.0)  # at most this many passes over the clip's pixels
+                                                 # per frame of the clip:
+                                            # more fit a short stack's noise and take time (0: no
+                                            # cap, the preset's steps;
                                             # paper: 0)
 
 
 @dataclass
 class FlowConfig(Section):
-    method: Literal["dis_ultrafast", "dis_fast", "dis_medium", "raft", "raft_small", "raft_large"] = "dis_medium"  # OpenCV
-                                            # DIS (no weights; faster is coarser) | torchvision RAFT from raft_weights ("raft":
-                                            # the variant the file holds): finer on large motion, ~0.5-1.5 s a pair on a CPU
-    raft_weights: str = ""                  # a local torchvision RAFT state dict for the raft methods (never downloaded)
+    method: Literal["dis_ultrafast", "dis_fast", "dis_medium", "raft", "raft_small",
+                    "raft_large"] = "dis_medium"  # OpenCV
+                                            # DIS (no weights; faster is coarser) | torchvision RAFT
+                                            # from raft_weights ("raft":
+                                            # the variant the file holds): finer on large motion,
+                                            # ~0.5-1.5 s a pair on a CPU
+    raft_weights: str = ""                  # a local torchvision RAFT state dict for the raft
+                                            # methods (never downloaded)
 
 
 @dataclass
@@ -184,36 +217,54 @@ class SegmentConfig(Section):
                                             # motion (its atlas holds it still) | the identity (the paper's start)
     margin: float = setting(0.6, above=0.0, hi=1.0)  # the share of the foreground atlas the masked object fills at the
                                             # start: more texels for it, less slack for what the masks missed
-    detector: str = ""                      # a torchvision Mask R-CNN weights file (layercam.vision.segment.detect); "": the motion masks alone
-    detector_score: float = setting(0.5, 0.0, 1.0)   # the detector's instances scoring at least this: lower finds more, and more wrongly
-    detector_overlap: float = setting(0.3, above=0.0, hi=1.0)  # an instance replaces a frame's mask where this share of it lies
+    detector: str = ""                      # a torchvision Mask R-CNN weights file
+                                            # (layercam.vision.segment.detect); "": the motion masks
+                                            # alone
+    detector_score: float = setting(0.5, 0.0, 1.0)   # the detector's instances scoring at least
+                                                     # this: lower finds more, and more wrongly
+    detector_overlap: float = setting(0.3, above=0.0, hi=1.0)  # an instance replaces a frame's mask
+                                                               # where this share of it lies
                                             # in the mask: lower trusts the detector over the motion
-    detector_size: int = setting(800, 64, 4096)  # the short side (px) the detector sees: more finds smaller objects, slower
+    detector_size: int = setting(800, 64, 4096)  # the short side (px) the detector sees: more finds
+                                                 # smaller objects, slower
 
 
 @dataclass
 class ExportConfig(Section):
     half: bool = True                       # EXR half floats: half the disk, 3e-4 relative error
-    reference: int | Literal["middle", "first", "last"] = "middle"  # fuse-stack: the view fused into (an index may be negative)
-    faithful: bool = True                   # each frame's HDR agrees with the frame where it saw well (layercam/camera/faithful.py):
-                                            # the frame's own detail and noise; off: the model alone (smoother, may miss detail)
-    merge_neighbours: Literal["auto", "on", "off"] = AUTO  # faithful: each frame's measurement merged with its neighbours'
-                                            # where they agree with it: less noise and flicker, but a static scene's pixels
+    reference: int | Literal["middle", "first", "last"] = "middle"  # fuse-stack: the view fused
+                                                                    # into (an index may be
+                                                                    # negative)
+    faithful: bool = True                   # each frame's HDR agrees with the frame where it saw
+                                            # well (layercam/camera/faithful.py):
+                                            # the frame's own detail and noise; off: the model alone
+                                            # (smoother, may miss detail)
+    merge_neighbours: Literal["auto", "on", "off"] = AUTO  # faithful: each frame's measurement
+                                                           # merged with its neighbours'
+                                            # where they agree with it: less noise and flicker, but
+                                            # a static scene's pixels
                                             # only; auto: on for a video from a static camera
-    clipped_everywhere: Literal["model", "clip"] = "model"  # faithful, where every frame clipped: the model's level (smoothed;
-                                            # right for a soft filmic shoulder) | at most the shortest exposure's clipping point
+    clipped_everywhere: Literal["model", "clip"] = "model"  # faithful, where every frame clipped:
+                                                            # the model's level (smoothed;
+                                            # right for a soft filmic shoulder) | at most the
+                                            # shortest exposure's clipping point
                                             # (the least the data says; right for a hard-clipping camera)
-    denoise: Literal["auto", "on", "off"] = AUTO  # faithful: an adaptive Wiener filter against the frame's own noise read
-                                            # through the camera: less noise, softer fine texture; auto: on for a stack's fused view
-    hdr_format: Literal["pq", "hlg", "none"] = "pq"  # hdr.mp4 (hdr-video): HDR10 (SMPTE ST 2084: HDR TVs, phones, YouTube),
-                                            # HLG (ARIB STD-B67: also right on SDR screens) or none (no file, no encode time)
-    nits_white: float = setting(203.0, above=0.0, hi=1000.0)  # hdr.mp4: cd/m2 of diffuse white (BT.2408's reference white):
+    denoise: Literal["auto", "on", "off"] = AUTO  # faithful: an adaptive Wiener filter against the
+                                                  # frame's own noise read
+                                            # through the camera: less noise, softer fine texture;
+                                            # auto: on for a stack's fused view
+    hdr_format: Literal["pq", "hlg", "none"] = "pq"  # hdr.mp4 (hdr-video): HDR10 (SMPTE ST 2084:
+                                                     # HDR TVs, phones, YouTube),
+                                            # HLG (ARIB STD-B67: also right on SDR screens) or none
+                                            # (no file, no encode time)
+    nits_white: float = setting(203.0, above=0.0, hi=1000.0)  # hdr.mp4: cd/m2 of diffuse white
+                                                              # (BT.2408's reference white):
                                             # brighter pictures vs less room above white before the roll-off
 
 
 @dataclass
 class Config(Section):
-    preset: str = "balanced"
+    preset: str = DEFAULT_PRESET
     model: ModelConfig = field(default_factory=ModelConfig)
     scene: SceneConfig = field(default_factory=SceneConfig)
     tone: ToneConfig = field(default_factory=ToneConfig)
@@ -229,7 +280,9 @@ class Config(Section):
 
     def key_dict(self, *names: str) -> dict:
         """:meth:`section_dict` without the settings that cannot change a result (``keyed=False``)."""
-        return {n: {f.name: getattr(getattr(self, n), f.name) for f in dataclasses.fields(getattr(self, n)) if f.metadata.get("keyed", True)} for n in names}
+        return {n: {f.name: getattr(getattr(self, n), f.name)
+                    for f in dataclasses.fields(getattr(self, n)) if f.metadata.get("keyed", True)}
+                for n in names}
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)

@@ -6,7 +6,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from layercam.core.metrics import MetricInputError, PSNR_CAP, _REL_FLOOR, _finite_gt, _pair, _psnr_masked, _ssim_arrays, ldr_metrics, mu_law
+from layercam.core.metrics import (MetricInputError, PSNR_CAP, _REL_FLOOR, _finite_gt, _pair,
+                                   _psnr_masked, _ssim_arrays, ldr_metrics, mu_law)
 
 
 # -- sharp frames against ground truth (deblurring) ------------------------------------------------
@@ -17,7 +18,8 @@ def _translate(img: np.ndarray, dx: float, dy: float) -> np.ndarray:
     return cv2.warpAffine(img, m, img.shape[1::-1], flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT_101)
 
 
-def best_shift(pred: np.ndarray, gt: np.ndarray, crop: int, max_shift: float = 3.0) -> tuple[np.ndarray, tuple[float, float]]:
+def best_shift(pred: np.ndarray, gt: np.ndarray, crop: int,
+               max_shift: float = 3.0) -> tuple[np.ndarray, tuple[float, float]]:
     """Translate ``pred (H, W, 3)`` by the shift (within ``max_shift`` px, 0.25 px steps) that
     minimises its squared error to ``gt`` inside a ``crop``-pixel border: a deblurred frame may show
     any instant of the exposure, and the blurry frame its blur's centre, so both are compared at
@@ -45,7 +47,8 @@ def score_frames(pred: np.ndarray, gt: np.ndarray, crop: int, align: bool) -> li
             p, shift = best_shift(p, g, max(crop, 4))
         c = (slice(crop, p.shape[0] - crop), slice(crop, p.shape[1] - crop)) if crop else (slice(None), slice(None))
         m = ldr_metrics(np.clip(p[c], 0, 1), g[c])
-        rows.append({"psnr": round(m["psnr"], 3), "ssim": round(m["ssim"], 4), "shift": [round(shift[0], 2), round(shift[1], 2)]})
+        rows.append({"psnr": round(m["psnr"], 3), "ssim": round(m["ssim"], 4),
+                     "shift": [round(shift[0], 2), round(shift[1], 2)]})
     return rows
 
 

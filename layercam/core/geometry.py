@@ -7,7 +7,7 @@ centre of the pixel in column ``i``, row ``j`` at ``(i, j)``, as OpenCV, flow ve
 H - 0.5]`` (:func:`frame_corners`), and the same image at another size maps by
 :func:`layercam.vision.scale.pixel_scaling`. **Normalised frame coordinates** are ``[-1, 1]`` over
 the frame's edges (x along the width): ``x_n = (2 x + 1) / W - 1`` (:func:`normalised_frame_matrix`,
-:func:`layercam.engine.sampler.normalise_xy`, ``grid_sample(align_corners=False)``). Atlas
+:func:`layercam.scene.coords.normalise_xy`, ``grid_sample(align_corners=False)``). Atlas
 coordinates ``uv`` live in ``[-1, 1]^2``. Homographies are ``(3, 3)`` float64 arrays acting on
 column vectors ``(x, y, 1)`` of pixel coordinates.
 
@@ -70,6 +70,23 @@ def middle_frame(n: int) -> int:
     return int(n) // 2
 
 
+def reference_index(ref, n: int) -> int:
+    """The image a stack is fused into (``export.reference``) among ``n``: "middle" (the default,
+    :func:`middle_frame`), "first", "last" or an index (negative counts from the end)."""
+    from layercam.core.errors import LayercamError
+
+    named = {"middle": middle_frame(n), "first": 0, "last": n - 1}
+    if isinstance(ref, str) and ref.strip().lower() in named:
+        return named[ref.strip().lower()]
+    try:
+        i = int(ref)
+    except (TypeError, ValueError):
+        raise LayercamError(f"reference must be middle, first, last or an image index, got {ref!r}") from None
+    if not -n <= i < n:
+        raise LayercamError(f"reference image {i} is out of range for {n} images")
+    return i % n
+
+
 def normalised_frame_matrix(h: int, w: int) -> np.ndarray:
     """Pixel coordinates -> normalised ``[-1, 1]`` coordinates (this module's conventions)."""
     return np.array([[2.0 / w, 0, 1.0 / w - 1], [0, 2.0 / h, 1.0 / h - 1], [0, 0, 1]], dtype=np.float64)
@@ -88,7 +105,8 @@ def chain_homographies(pair_h: np.ndarray, ref: int) -> np.ndarray:
 
 def frame_corners(h: int, w: int) -> np.ndarray:
     """``(3, 4)``: the outer corners of an ``h x w`` frame in pixel coordinates, homogeneous columns."""
-    return np.array([[-0.5, -0.5, 1], [w - 0.5, -0.5, 1], [-0.5, h - 0.5, 1], [w - 0.5, h - 0.5, 1]], dtype=np.float64).T
+    return np.array([[-0.5, -0.5, 1], [w - 0.5, -0.5, 1], [-0.5, h - 0.5, 1],
+                     [w - 0.5, h - 0.5, 1]], dtype=np.float64).T
 
 
 def atlas_box(h: int, w: int) -> np.ndarray:
@@ -115,7 +133,8 @@ def atlas_mappings(h: int, w: int, pixel_maps: np.ndarray, margin: float = 0.9) 
     return fit_into_atlas(pixel_maps, (lo + hi) / 2, (hi - lo).max() / 2, margin, h, w)
 
 
-def fit_into_atlas(pixel_maps: np.ndarray, centre: np.ndarray, half: float, margin: float, h: int, w: int) -> np.ndarray:
+def fit_into_atlas(pixel_maps: np.ndarray, centre: np.ndarray, half: float, margin: float, h: int,
+                   w: int) -> np.ndarray:
     """Pixel maps ``(T, 3, 3)`` -> normalised frame coordinates to atlas ``uv``, with the reference
     view's square of half-side ``half`` around ``centre`` (pixels) scaled to ``[-margin, margin]^2``."""
     s = margin / max(half, 1e-6)

@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from layercam.core.errors import LayercamError
-from layercam.core.config import SECTIONS, Config, validate
+from layercam.core.config import DEFAULT_PRESET, SECTIONS, Config, validate
 
 
 def model_overrides(layers=None, tone_mapper=None, blur=None, max_offset=None, flow_loss=None) -> list[str]:
@@ -77,7 +77,7 @@ def preset_tag(preset: str) -> str:
     return Path(preset).stem if preset.endswith(".toml") else preset
 
 
-def load_config(preset: str = "balanced", overrides: list[str] | None = None) -> Config:
+def load_config(preset: str = DEFAULT_PRESET, overrides: list[str] | None = None) -> Config:
     """Defaults, then the preset file's values, then each ``section.field=value`` override; checked."""
     cfg = Config(preset=preset_tag(preset))
     data = _read_preset(preset)
@@ -99,7 +99,8 @@ def load_config(preset: str = "balanced", overrides: list[str] | None = None) ->
 
 def describe_settings() -> list[tuple[str, Any, str]]:
     """Every setting as ``(section.field, default, comment)``: the comment beside its field in
-    :mod:`layercam.core.config` (what it trades), continued on the comment-only lines under it."""
+    :mod:`layercam.core.config` (what it trades; on any line of a field written over several),
+    continued on the comment-only lines under it."""
     import ast
     import inspect
 
@@ -110,8 +111,8 @@ def describe_settings() -> list[tuple[str, Any, str]]:
         for n in ast.parse("\n".join(src)).body[0].body:
             if not isinstance(n, ast.AnnAssign):
                 continue
-            i = n.lineno - 1
-            words = [src[i].split("#", 1)[1].strip()] if "#" in src[i] else []
+            words = [src[i].split("#", 1)[1].strip() for i in range(n.lineno - 1, n.end_lineno) if "#" in src[i]]
+            i = n.end_lineno - 1
             while i + 1 < len(src) and src[i + 1].strip().startswith("#"):
                 i += 1
                 words.append(src[i].strip()[1:].strip())
@@ -124,7 +125,8 @@ def settings_help(width: int = 100) -> str:
     import textwrap
 
     rows = describe_settings()
-    lines = [f"settings (--set section.field=VALUE; {len(rows)} in all; the defaults before a preset; a run's resolved values: report.json):"]
+    lines = [f"settings (--set section.field=VALUE; {len(rows)} in all; the defaults before a "
+             "preset; a run's resolved values: report.json):"]
     for key, default, comment in rows:
         lines.append(f"  {key} = {default!r}")
         lines += textwrap.wrap(comment, width, initial_indent="      ", subsequent_indent="      ")

@@ -27,7 +27,8 @@ def _describe(hint) -> str:
         if typing.get_origin(alt) is Literal:
             choices += [str(c) for c in typing.get_args(alt)]
         else:
-            kinds.append({bool: "true/false (on/off)", int: "an integer", float: "a number", str: "text"}.get(alt, str(alt)))
+            kinds.append({bool: "true/false (on/off)", int: "an integer", float: "a number",
+                          str: "text"}.get(alt, str(alt)))
     if not kinds:
         return "one of " + ", ".join(choices)
     return " or ".join(kinds + choices)

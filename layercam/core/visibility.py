@@ -91,7 +91,8 @@ def clip_levels(frames: np.ndarray, min_share: float = 0.002, spike: float = 3.0
         hist = hists[c]
         top = int(np.flatnonzero(hist).max())
         below = hist[max(top - 4, 0) : top]
-        if top >= lowest * 255 and hist[top] >= min_share * count and (below.size == 0 or hist[top] >= spike * below.max()):
+        if top >= lowest * 255 and hist[top] >= min_share * count and (below.size == 0
+            or hist[top] >= spike * below.max()):
             out[c] = min((top - 0.5) / 255, CLIP_LEVEL)
     return out
 

@@ -23,10 +23,11 @@ FORMAT = 3
 def build_model(resolved, meta: dict):
     """The (untrained) model that ``resolved`` (:class:`layercam.engine.resolve.Resolved`) and ``meta``
     describe (``meta["sizes"]``, when there, are the derived sizes it was trained with)."""
-    from layercam.scene.model import ImplicitCameraModel
+    from layercam.engine.model import ImplicitCameraModel
 
     return ImplicitCameraModel(
-        resolved, torch.as_tensor(np.asarray(meta["h0"]), dtype=torch.float32), np.asarray(meta["log2_dt"], dtype=np.float32),
+        resolved, torch.as_tensor(np.asarray(meta["h0"]), dtype=torch.float32),
+        np.asarray(meta["log2_dt"], dtype=np.float32),
         meta.get("exposure_learn", "none"), None if meta.get("phase") is None else np.asarray(meta["phase"]),
         float(meta["init_log2"]), tuple(meta["frame_hw"]), meta.get("sizes"),
     )
@@ -37,7 +38,8 @@ def save_run_model(path: Path, model, meta: dict) -> None:
     later change to a derivation cannot change the shapes a saved run is rebuilt with)."""
     from layercam.io.atomic import atomic_write
 
-    state = {**meta, "format": FORMAT, "state": model.state_dict(), "settings": model.resolved.to_dict(), "sizes": dict(model.sizes)}
+    state = {**meta, "format": FORMAT, "state": model.state_dict(),
+             "settings": model.resolved.to_dict(), "sizes": dict(model.sizes)}
     atomic_write(path, lambda tmp: torch.save(state, tmp))
 
 
@@ -46,7 +48,8 @@ def model_from_checkpoint(ck: dict, where: str = "checkpoint"):
     from layercam.engine.resolve import Resolved
 
     if ck.get("format") != FORMAT:
-        raise LayercamError(f"{where}: saved by an earlier layercam (checkpoint format {ck.get('format', 1)}, this one reads {FORMAT}); "
+        raise LayercamError(f"{where}: saved by an earlier layercam (checkpoint format "
+                            f"{ck.get('format', 1)}, this one reads {FORMAT}); "
                             "run the command that made the run again to train it anew")
     model = build_model(Resolved.from_dict(ck["settings"]), ck)
     model.load_state_dict(ck["state"])

@@ -30,7 +30,8 @@ def _ray():
     try:
         import ray
     except ImportError:
-        raise LayercamError(f"--ray needs Ray, which is not installed here: {INSTALL} (or run without --ray, in sequence)") from None
+        raise LayercamError(f"--ray needs Ray, which is not installed here: {INSTALL} (or run "
+                            "without --ray, in sequence)") from None
     return ray
 
 

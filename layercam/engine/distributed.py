@@ -115,7 +115,8 @@ def session(device: str):
     try:
         dist.init_process_group(backend, timeout=BARRIER_TIMEOUT)
     except (RuntimeError, ValueError) as e:
-        raise LayercamError(f"cannot join the torch.distributed process group ({backend}): {str(e).splitlines()[0]}") from None
+        raise LayercamError(f"cannot join the torch.distributed process group ({backend}): "
+                            f"{str(e).splitlines()[0]}") from None
     clean = False
     try:
         yield
@@ -176,32 +177,22 @@ def loss_fn(model):
     buffers = {"forward_sync_buffers": False} if "forward_sync_buffers" in params else {"broadcast_buffers": False}
     ddp = DistributedDataParallel(
         LossModule(model),
-        device_ids=[dev.index if dev.index is not None else torch.cuda.current_device()] if dev.type == "cuda" else None,
+        device_ids=[dev.index if dev.index is not None else torch.cuda.current_device()]
+        if dev.type == "cuda" else None,
         find_unused_parameters=True,
         **buffers,
     )
     return _Losses(ddp)
 
 
-# -- `--nproc N`: local workers through torch's elastic launcher -----------------------------------
-def add_args(p) -> None:
-    """``--nproc`` for a command that supports data-parallel training."""
-    from layercam.cli import number
-
-    p.add_argument(
-        "--nproc", type=number(int, 1), default=1, metavar="N",
-        help="train with N data-parallel processes on this machine (torch.distributed: gloo on CPU, nccl "
-        "with --device cuda, one GPU each); or start the command under torchrun (multi-node) instead. "
-        "Default 1: one process, which on a few CPU cores is as fast",
-    )
-
-
+# -- `--nproc N` (layercam.cli.nproc_args): local workers through torch's elastic launcher --------
 def launch_requested(args) -> bool:
     n = getattr(args, "nproc", 1) or 1
     if n < 1:
         raise LayercamError(f"--nproc must be at least 1, got {n}")
     if n > 1 and env_world_size() > 1:
-        raise LayercamError("--nproc is for a plain command; under torchrun, leave it out (torchrun sets the process count)")
+        raise LayercamError("--nproc is for a plain command; under torchrun, leave it out "
+                            "(torchrun sets the process count)")
     return n > 1
 
 
@@ -250,7 +241,8 @@ def launch(args, device: str) -> int:
     except ChildFailedError as e:
         r, failure = e.get_first_failure()
         code = failure.exitcode if failure.exitcode and failure.exitcode > 0 else 1
-        print(f"error: worker rank {r} of {n} failed (exit code {failure.exitcode}); its message is above", file=sys.stderr)
+        print(f"error: worker rank {r} of {n} failed (exit code {failure.exitcode}); its message "
+              "is above", file=sys.stderr)
         return code
     finally:
         for k, v in saved.items():

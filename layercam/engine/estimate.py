@@ -9,10 +9,11 @@ motion is not known before the flow), so that what is said before the work is an
 the analysis can choose; the run says it again once the analysis has chosen and the flow has measured
 how far the camera moves (:func:`layercam.pipelines.tasks.run_task`). The model's parameters are counted
 exactly (the model is built on PyTorch's meta device: no memory); what a training step keeps per sample is measured on a
-small stand-in of the model (:func:`kept_for_backward`); the other working sets are per-pixel
+small stand-in of the model (:func:`layercam.engine.model_cost.kept_for_backward`); the other working sets are per-pixel
 costs measured on this project's runs (``docs/measurements.md``), scaled by what each
 stage holds at once: a pair of frames (flow), at most ``analyse.MOTION_PAIRS`` pairs (analysis), a
-window of at most ``segment.long.SEG_FRAMES`` frames at the finder's working size (two-layer bootstrap), the model, its optimiser and
+window of at most ``segment.long.SEG_FRAMES`` frames at the finder's working size (two-layer
+bootstrap), the model, its optimiser and
 a batch (training), a frame and a render chunk (export). None of them grows with the clip's length
 except the alpha grid's slices up to ``scene.fields.ALPHA_GRID_CELLS`` (and, before the analysis, the
 widest atlas the frames could span, up to the grid's cap: :func:`widest_atlas`); the disk does.
@@ -31,32 +32,39 @@ from pathlib import Path
 
 import numpy as np
 
+from layercam.core.config import AUTO
 from layercam.core.errors import LayercamError
+from layercam.engine.model_cost import floats_per_sample, kept_for_backward, model_parts
 
 # measured costs, see docs/measurements.md: this process after its imports, and per pixel / per sample
 # of what each stage holds at once. Fitted to readings of /proc (kB / 1024: MiB, 2^20 B), so in MiB
 # and scaled by MIB to bytes (the estimate is said in bytes: 1 GB = 1e9 B)
 MIB = 2**20 / 1e6
-BASE = 700e6 * MIB       # python, torch, OpenCV and layercam imported, a clip opened (VmRSS 680-700 MiB on this machine)
+BASE = 700e6 * MIB       # python, torch, OpenCV and layercam imported, a clip opened (VmRSS 680-700
+                         # MiB on this machine)
 FLOW_PER_PX = 180.0 * MIB      # per working-grid pixel of a pair: the two frames, flows, checks, DIS
 ANALYSIS_PER_PX = 28.0 * MIB   # per working-grid pixel of each pair measured (flow in float32, residuals, chains)
 SEG_PER_PX = 23.0 * MIB        # two layers, a clip segmented whole: per pixel of the flow's grid of each frame
-SEG_WORK_PER_PX = 70.0 * MIB   # two layers, a clip segmented in windows: per pixel of the finder's working size of each window frame
+SEG_WORK_PER_PX = 70.0 * MIB   # two layers, a clip segmented in windows: per pixel of the finder's
+                               # working size of each window frame
 BOOT_PER_PX = 24.0 * MIB       # one layer: per frame pixel (a frame and its temporaries)
-EXPORT_PER_PX = 455.0 * MIB    # per frame pixel: the faithful export's arrays for a frame and its two neighbours and their
-EXPORT_FIXED = 240e6 * MIB     # geometry kept for the atlases, and what it holds at any frame size (the writers, the atlases'
-                               # images): fitted to fast's exports of 24 frames at 427x240..1920x1080 (within 0..14%) and Basler's
+EXPORT_PER_PX = 455.0 * MIB    # per frame pixel: the faithful export's arrays for a frame and its
+                               # two neighbours and their
+EXPORT_FIXED = 240e6 * MIB     # geometry kept for the atlases, and what it holds at any frame size
+                               # (the writers, the atlases'
+                               # images): fitted to fast's exports of 24 frames at
+                               # 427x240..1920x1080 (within 0..14%) and Basler's
 RENDER_SHARE = 0.25      # a render chunk's pixel holds this share of what a training sample keeps (no autograd: the
-                         # networks' layers one at a time): fast 1600 B measured against 6144 kept, paper 9 kB against 38 kB
+                         # networks' layers one at a time): fast 1600 B measured against 6144 kept,
+                         # paper 9 kB against 38 kB
 RENDER_CHUNK = 65536     # pixels rendered at once (layercam.scene.render: frames, atlases, the tone mapping of both)
-PARAM_BYTES = 23.3 * MIB # per model parameter in training: value, Adam's two moments, a dense part's gradient (the sparse
-                         # grid levels' are rows) and what the step's scratch adds: fitted to fast's training peaks on twelve
+PARAM_BYTES = 23.3 * MIB # per model parameter in training: value, Adam's two moments, a dense
+                         # part's gradient (the sparse
+                         # grid levels' are rows) and what the step's scratch adds: fitted to fast's
+                         # training peaks on twelve
                          # clips, 64x64 to 1920x1080, 0.35-75 M parameters (within -12..+8%)
-PROBE = (1024, 2048)     # samples of the two forward passes that measure what a training step keeps (kept_for_backward)
 GRAD_FACTOR = 1.4        # a training step's peak over what autograd keeps for the backward pass (a layer's gradients
                          # at a time besides): paper, 2 layers, 64x64 frames: 1.39; fast 2.0 (there 67 MB in all)
-PROBE_HW = 64            # the stand-in clip's side (px) and its frames (below): what a sample keeps does not depend
-PROBE_FRAMES = 4         # on the clip's size, only on the model's structure
 
 
 def _fmt(b: float) -> str:
@@ -69,8 +77,6 @@ def _fmt(b: float) -> str:
 def costliest(cfg, task: str, frames: int, hw: tuple[int, int] = (2, 2)):
     """A copy of ``cfg`` with each model ``auto`` at its costliest plausible choice (see the module;
     two layers need frames of 2 pixels or more across: a 1x1 clip is one layer)."""
-    from layercam.core.config import AUTO
-
     c = cfg.copy()
     m, b = c.model, c.blur
     if m.layers == AUTO:
@@ -88,29 +94,24 @@ def costliest(cfg, task: str, frames: int, hw: tuple[int, int] = (2, 2)):
     return c
 
 
-def _resolved(cfg, task: str, frames: int, hw: tuple[int, int]):
-    """``cfg`` as the run's :class:`~layercam.engine.resolve.Resolved`: itself when resolved already (after
-    the analysis), else with its ``auto`` at their costliest (:func:`costliest`) and resolved for a
-    clip of ``frames`` frames of ``hw`` with nothing measured."""
-    from layercam.engine.resolve import Resolved, resolve
+def bound(cfg, task: str, frames: int, hw: tuple[int, int]):
+    """``cfg`` as the settings the estimate costs: the run's resolution itself when given one (after
+    the analysis: :class:`~layercam.engine.resolve.Resolved`), else (before it) the costliest model
+    :func:`costliest` allows, under the step cap that :func:`layercam.engine.resolve.cap` puts on a
+    clip of ``frames`` frames of ``hw`` (fewer grid levels, a smaller batch at its floor) and with
+    nothing measured (the camera not static; the colour loss's scale as given, else MSE; the
+    device and precision leave no trace in the cost). Nothing is resolved here: the run resolves
+    once, after the analysis."""
+    from layercam.core.config import freeze
+    from layercam.engine.resolve import ClipShape, Resolved, cap
 
     if isinstance(cfg, Resolved):
         return cfg
-    return resolve(costliest(cfg, task, frames, hw), frames=frames, hw=hw, task=task)
-
-
-def _identity_meta(r, frames: int, hw: tuple[int, int], extent: float | None = None) -> dict:
-    """What :func:`~layercam.engine.checkpoint.build_model` needs to build the model ``r`` (resolved)
-    for ``frames`` frames of ``hw`` before any frame is seen: identity mappings, and the sizes of
-    an atlas whose frames span ``extent`` frame pixels across (None: the identity's own)."""
-    from layercam.core.geometry import atlas_mappings, atlas_pixels
-    from layercam.scene.layered import sizes_for_extent
-
-    m = r.settings.model
-    h0 = np.stack([atlas_mappings(*hw, np.repeat(np.eye(3)[None], frames, 0))] * int(m.layers))
-    px = atlas_pixels(h0, hw) if extent is None else extent
-    return {"h0": h0, "log2_dt": np.zeros(frames, np.float32), "init_log2": 0.0, "frame_hw": hw,
-            "sizes": sizes_for_extent(px, hw, fine=m.blur == "on" or (r.static and m.layers == 1))}
+    c = costliest(cfg, task, frames, hw)
+    cap(c, ClipShape(frames, *hw), {})
+    if c.loss.robust == AUTO:
+        c.loss.robust = 0.0
+    return Resolved(freeze(c))
 
 
 def widest_atlas(frames: int, hw: tuple[int, int]) -> float:
@@ -122,42 +123,6 @@ def widest_atlas(frames: int, hw: tuple[int, int]) -> float:
 
     one = atlas_pixels(atlas_mappings(*hw, np.eye(3)[None])[None], hw)
     return max(one, min(float(GRID_RES_RANGE[1]), frames * one))
-
-
-def _model_parts(r, frames: int, hw: tuple[int, int], extent: float) -> dict:
-    """Parameters by part of the model ``r`` (resolved) builds for ``frames`` frames of ``hw`` and
-    an atlas ``extent`` frame pixels across, counted on the meta device."""
-    import torch
-
-    from layercam.engine.checkpoint import build_model
-
-    H, W = hw
-    meta = _identity_meta(r, frames, hw, extent)  # on the host: the meta device holds no values
-    try:
-        with torch.device("meta"):
-            model = build_model(r, meta)
-    except ValueError as e:  # a model these frames cannot hold (two layers of 1x1 frames): said before the work
-        raise LayercamError(f"the model asked for does not fit {W}x{H} frames: {e}") from None
-    parts: dict[str, int] = {}
-    for name, p in model.named_parameters():
-        parts[_part(name)] = parts.get(_part(name), 0) + p.numel()
-    return parts
-
-
-def _part(name: str) -> str:
-    if ".alpha.grid" in name:
-        return "alpha grid"
-    if ".alpha." in name:
-        return "alpha MLP"
-    if ".enc" in name:
-        return "atlas grids"
-    if ".atlases." in name:
-        return "atlas MLP"
-    if ".deformations." in name:
-        return "deformation"
-    if name.startswith("blur"):
-        return "blur generator"
-    return "tone mapper and exposures"
 
 
 SETTINGS = {  # the settings that size each part, named in a refusal (the alpha grid follows the frame: --resize)
@@ -175,98 +140,18 @@ def _settings(cfg, keys) -> str:
     return ", ".join(f"{k}={getattr(getattr(cfg, k.split('.')[0]), k.split('.')[1])}" for k in keys)
 
 
-def kept_for_backward(r) -> tuple[float, float]:
-    """``(fixed, per_sample)``: the bytes autograd keeps for the backward pass of one training step
-    of the model the resolved settings ``r`` build, ``fixed + per_sample * batch``, measured: the
-    model's loss (every term it computes at the start of training, masks and flow matches
-    included) evaluated on the CPU for a stand-in clip (``PROBE_FRAMES`` frames of ``PROBE_HW``
-    px: the tensors a sample keeps follow the model's structure, not the clip's size) at the two
-    batch sizes of ``PROBE``, its saved tensors counted once each (parameters not: they are
-    :data:`PARAM_BYTES`'s). Random weights and samples; no gradient is computed. Measured once per
-    resolved settings in a process (a run estimates before its work and again after the analysis)."""
-    import json
-
-    key = json.dumps(r.to_dict(), sort_keys=True, default=str)
-    if key not in _KEPT:
-        _KEPT[key] = _measure_kept(r)
-    return _KEPT[key]
-
-
-_KEPT: dict[str, tuple[float, float]] = {}  # kept_for_backward's measures, by resolved settings
-
-
-def _measure_kept(r) -> tuple[float, float]:
-    import torch
-
-    from layercam.engine.checkpoint import build_model
-    from layercam.engine.sampler import PROBES
-
-    T = PROBE_FRAMES
-    m = r.settings.model
-    meta = _identity_meta(r, T, (PROBE_HW, PROBE_HW))
-    with torch.random.fork_rng():
-        torch.manual_seed(0)
-        model = build_model(r, meta)
-        if model.scene.alpha is not None:
-            model.loss_weights.alpha_mask = 1.0
-        if r.settings.train.bootstrap_steps > 0:
-            model.loss_weights.bootstrap = 1.0
-        params = {p.untyped_storage().data_ptr() for p in model.parameters()}
-        kept = []
-        for n in PROBE:
-            t = torch.randint(0, T, (n,))
-            batch = {"t": t, "xy": torch.rand(n, 2) * 2 - 1, "rgb": torch.rand(n, 3), "mask": (torch.rand(n) < 0.5).float(),
-                     "probe": torch.rand(PROBES, 3)}
-            if m.flow_loss:
-                batch.update(t_match=(t + 1).clamp(max=T - 1), xy_match=torch.rand(n, 2) * 2 - 1, match_ok=torch.ones(n, dtype=torch.bool))
-            seen: dict[int, int] = {}
-
-            def pack(x, seen=seen):
-                st = x.untyped_storage()
-                if st.data_ptr() not in params:
-                    seen[st.data_ptr()] = st.nbytes()
-                return x
-
-            with torch.autograd.graph.saved_tensors_hooks(pack, lambda x: x):
-                model.loss_dict(batch)
-            kept.append(float(sum(seen.values())))
-    per = max((kept[1] - kept[0]) / (PROBE[1] - PROBE[0]), 0.0)
-    return max(kept[0] - per * PROBE[0], 0.0), per
-
-
-def floats_per_sample(cfg) -> dict:
-    """Floats one training sample carries through each part's networks (their inputs and each
-    layer's output), by part (as :data:`SETTINGS` names them), for the resolved settings ``cfg``:
-    which part a batch's activations are most for (:func:`kept_for_backward` measures how much)."""
-    from layercam.scene import fields as f
-
-    s, L = cfg.scene, int(cfg.model.layers)
-    mlp = lambda i, w, d, o=1: i + w * (d + 1) * 2 + o  # noqa: E731 - pre- and post-activation per hidden layer
-    n = int(cfg.blur.n) if cfg.model.blur == "on" else 1
-    k = n * n * (2 if cfg.model.flow_loss else 1)  # each sample's n x n PSF taps, and its match for the flow loss
-    out = {"deformation": k * L * mlp(3 * (1 + 2 * f.DEFORM_PE_FREQS), s.deform_width, s.deform_depth, 2),
-           "atlas grids": k * L * (s.grid_levels * f.GRID_FEATURES * 4 if s.encoding == "grid" else 2 * (1 + 2 * f.ATLAS_PE_FREQS)),
-           "atlas MLP": k * L * mlp(0, s.atlas_width, s.atlas_depth, 3),
-           "tone mapper and exposures": k * 3 * mlp(1, cfg.tone.width, cfg.tone.depth)}
-    if L > 1:
-        out["alpha grid"] = k * (f.ALPHA_GRID_LEVELS * f.ALPHA_GRID_FEATURES * 8 if s.alpha_encoding == "grid" else 0)
-        out["alpha MLP"] = k * mlp(3 * (1 + 2 * f.ALPHA_PE_FREQS), f.ALPHA_WIDTH, f.ALPHA_DEPTH)
-    if n > 1:
-        out["blur generator"] = (2 if cfg.model.flow_loss else 1) * 2 * mlp(16, 64, 4, n * n)
-    return out
-
-
-def estimate(info: dict, cfg, task: str = "hdr-video", windows: list | None = None, extent: float | None = None) -> dict:
+def estimate(info: dict, cfg, task: str = "hdr-video", windows: list | None = None,
+             extent: float | None = None) -> dict:
     """Peak memory and disk of a run on a clip of ``info`` (:func:`layercam.io.probe_clip`:
     ``frames``, ``width``, ``height``, ``bit_depth``) with ``cfg`` (the settings as given, a
     :class:`~layercam.core.config.Config`, or as resolved after the analysis, a
     :class:`~layercam.engine.resolve.Resolved`): ``{"memory": bytes, "disk": bytes, "stages": {stage:
     bytes}, "disk_parts": {...}, "params": {...}, "largest": str, "settings": str}``; ``largest``
     names the costliest stage or part and ``settings`` what sizes it. ``windows``: a long clip's
-    windows ``[(a, b), ...]`` (``pipelines/windows.py``): one model of the longest window at a time
+    windows ``[(a, b), ...]`` (``layercam.pipelines.windows``): one model of the longest window at a time
     in memory; on disk each window's masks, checkpoints and outputs, besides the joined outputs.
     ``extent``: how many frame pixels the widest window's frames span across its atlas, as the flow
-    measured it (``pipelines.window_plan.extent``); None: the widest it can be (:func:`widest_atlas`)."""
+    measured it (``layercam.pipelines.windows.plan.extent``); None: the widest it can be (:func:`widest_atlas`)."""
     from layercam.vision.analyse import MOTION_PAIRS
     from layercam.vision.scale import working_size
     from layercam.vision.segment import WORK_SHORT
@@ -276,15 +161,16 @@ def estimate(info: dict, cfg, task: str = "hdr-video", windows: list | None = No
     H, W = int(info["height"]), int(info["width"])
     px = H * W
     spans = [int(b) - int(a) for a, b in windows] if windows and len(windows) > 1 else [T]
-    r = _resolved(cfg, task, T, (H, W))
+    r = bound(cfg, task, T, (H, W))
     rc = r.settings
-    params = _model_parts(r, max(spans), (H, W), widest_atlas(max(spans), (H, W)) if extent is None else extent)
+    params = model_parts(r, max(spans), (H, W), widest_atlas(max(spans), (H, W)) if extent is None else extent)
     n_params = sum(params.values())
     h, w = working_size((H, W))
     wpx = h * w
     batch = int(rc.train.batch)
     per_part = floats_per_sample(rc)
-    if PARAM_BYTES * n_params < available_memory():  # a model that cannot be trained here is refused on its parameters alone
+    if PARAM_BYTES * n_params < available_memory():  # a model that cannot be trained here is
+                                                     # refused on its parameters alone
         fixed, per = kept_for_backward(r)
     else:
         fixed, per = 0.0, 0.0
@@ -292,10 +178,14 @@ def estimate(info: dict, cfg, task: str = "hdr-video", windows: list | None = No
     stages = {
         "flow": FLOW_PER_PX * wpx + 24.0 * px if T > 1 else 0.0,
         "analysis": ANALYSIS_PER_PX * min(T - 1, MOTION_PAIRS) * wpx,
-        "bootstrap": (BOOT_PER_PX * px if rc.model.layers == 1 else SEG_PER_PX * T * wpx + 16.0 * px if not windowed(T, (H, W), (h, w))
-                      else SEG_WORK_PER_PX * min(T, SEG_FRAMES) * math.prod(working_size((h, w), WORK_SHORT)) + 16.0 * px),  # windows at the finder's size
+        "bootstrap": (BOOT_PER_PX * px if rc.model.layers == 1 else SEG_PER_PX * T * wpx + 16.0 * px
+                      if not windowed(T, (H, W), (h, w))
+                      else SEG_WORK_PER_PX * min(T, SEG_FRAMES)
+                      * math.prod(working_size((h, w), WORK_SHORT)) + 16.0 * px),
+                      # windows at the finder's size
         "train": PARAM_BYTES * n_params + GRAD_FACTOR * fixed + sample * batch,
-        "export": 4.0 * n_params + EXPORT_FIXED + EXPORT_PER_PX * px + RENDER_SHARE * per * RENDER_CHUNK,  # the atlases render whole chunks at any frame size
+        "export": 4.0 * n_params + EXPORT_FIXED + EXPORT_PER_PX * px
+        + RENDER_SHARE * per * RENDER_CHUNK,  # the atlases render whole chunks at any frame size
     }
     store = 1 if int(info.get("bit_depth") or 8) <= 8 else (2 if int(info.get("bit_depth")) <= 16 else 4)
     disk = {
@@ -318,9 +208,13 @@ def estimate(info: dict, cfg, task: str = "hdr-video", windows: list | None = No
     else:
         largest = f"the {stage} stage on {W}x{H} frames"
         settings = "--resize"
-    return {"memory": BASE + max(stages.values()), "disk": sum(disk.values()), "stages": {k: round(v) for k, v in stages.items()},
-            "disk_parts": {k: round(v) for k, v in disk.items()}, "params": params, "largest": largest, "settings": settings,
-            "frames": T, "size": [W, H], "windows": len(spans), "assumed": {"layers": rc.model.layers, "blur": "off" if rc.model.blur == "off" else f"{rc.blur.n}x{rc.blur.n}"}}
+    return {"memory": BASE + max(stages.values()), "disk": sum(disk.values()),
+            "stages": {k: round(v) for k, v in stages.items()},
+            "disk_parts": {k: round(v) for k, v in disk.items()}, "params": params,
+            "largest": largest, "settings": settings,
+            "frames": T, "size": [W, H], "windows": len(spans),
+            "assumed": {"layers": rc.model.layers,
+                        "blur": "off" if rc.model.blur == "off" else f"{rc.blur.n}x{rc.blur.n}"}}
 
 
 def available_memory() -> float:
@@ -366,7 +260,8 @@ def summary_line(est: dict) -> str:
     """One line for the run's printout: ``estimate: peak memory 2.1 GB (train), disk 1.3 GB``."""
     stage = max(est["stages"], key=est["stages"].get)
     win = f" in {est['windows']} windows" if est.get("windows", 1) > 1 else ""
-    return f"estimate: peak memory {_fmt(est['memory'])} ({stage}), disk {_fmt(est['disk'])} for {est['frames']} frames {est['size'][0]}x{est['size'][1]}{win}"
+    return (f"estimate: peak memory {_fmt(est['memory'])} ({stage}), disk {_fmt(est['disk'])} for "
+            f"{est['frames']} frames {est['size'][0]}x{est['size'][1]}{win}")
 
 
 def check(est: dict, run_dir: Path, used_disk: float = 0.0) -> None:
@@ -374,10 +269,12 @@ def check(est: dict, run_dir: Path, used_disk: float = 0.0) -> None:
     what is free where the run folder is (less ``used_disk``, what the run already holds there)."""
     mem, have = est["memory"], available_memory()
     if mem > have:
-        raise LayercamError(f"this run needs about {_fmt(mem)} of memory, {_fmt(have)} is available: most for {est['largest']}; "
+        raise LayercamError(f"this run needs about {_fmt(mem)} of memory, {_fmt(have)} is "
+                            f"available: most for {est['largest']}; "
                             f"lower {est['settings']}{' or --resize' if est['settings'] != '--resize' else ''}")
     need, free = est["disk"] - used_disk, free_disk(run_dir)
     if need > free:
         big = max(est["disk_parts"], key=est["disk_parts"].get)
-        raise LayercamError(f"this run needs about {_fmt(est['disk'])} of disk in {run_dir}, {_fmt(free)} is free (most for the {big}); "
+        raise LayercamError(f"this run needs about {_fmt(est['disk'])} of disk in {run_dir}, "
+                            f"{_fmt(free)} is free (most for the {big}); "
                             f"free some space, or use --resize, --max-frames or --stride")

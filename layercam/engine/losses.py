@@ -1,8 +1,15 @@
-"""Loss terms as pure functions. The model weights them and returns ``{name: weighted_term}``."""
+"""Loss terms as pure functions. The model weights them and returns ``{name: weighted_term}``; the
+schedules of those weights over training (:class:`WeightSchedule`: :class:`FlowDecay`,
+:class:`BootstrapPhase`, :class:`MaskTaper`) are trainer callbacks the model returns
+(``model.training_callbacks``)."""
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import torch
+
+from layercam.engine.train import Callback, Trainer
 
 
 def color_loss(pred: torch.Tensor, target: torch.Tensor, robust: float = 0.0) -> torch.Tensor:
@@ -71,7 +78,8 @@ def alpha_flow_loss(alpha: torch.Tensor, alpha_match: torch.Tensor, valid: torch
     return (d * v).sum() / v.sum().clamp_min(1.0)
 
 
-def mask_loss(alpha: torch.Tensor, mask: torch.Tensor, balance: float = 1.0, max_pos_weight: float = 10.0, keep: torch.Tensor | None = None) -> torch.Tensor:
+def mask_loss(alpha: torch.Tensor, mask: torch.Tensor, balance: float = 1.0,
+              max_pos_weight: float = 10.0, keep: torch.Tensor | None = None) -> torch.Tensor:
     """Alpha against masks: binary cross-entropy, ``alpha (N, 1)`` and ``mask (N,)`` in {0, 1}.
     With ``balance`` 1 it is class-balanced: foreground pixels weigh ``n_bg / n_fg`` (at most
     ``max_pos_weight``), so that a small object is not learnt as "all background" first (plain BCE
@@ -86,3 +94,65 @@ def mask_loss(alpha: torch.Tensor, mask: torch.Tensor, balance: float = 1.0, max
     pos_w = ((k.sum() - n_fg) / n_fg.clamp_min(1.0)).clamp(1.0, max_pos_weight).detach()
     w = torch.where(m > 0.5, 1.0 + balance * (pos_w - 1.0), torch.ones_like(m)) * k
     return (w * torch.nn.functional.binary_cross_entropy(a, m, reduction="none")).sum() / w.sum().clamp_min(1e-12)
+
+
+class WeightSchedule(Callback):
+    """Sets the model's loss weights named in ``keys`` to their starting values (read at the first
+    step) times :meth:`factor` of the step."""
+
+    keys: tuple = ()
+
+    def factor(self, trainer: Trainer, step: int) -> float:  # pragma: no cover - interface
+        raise NotImplementedError
+
+    def on_step(self, trainer, step):
+        w = trainer.model.loss_weights
+        starts = self.__dict__.setdefault("_starts", {})
+        k = self.factor(trainer, step)
+        for key in self.keys:
+            setattr(w, key, starts.setdefault(key, getattr(w, key)) * k)
+
+
+@dataclass
+class FlowDecay(WeightSchedule):
+    """The ``keys`` weights decay linearly from their start to ``floor`` (a share of it) at ``end``
+    (a fraction of training): the flow's to 0, the alpha flow term's (its own instance) to
+    ``loss.alpha_flow_keep``."""
+
+    end: float
+    keys: tuple = ("flow",)
+    floor: float = 0.0
+
+    def factor(self, trainer, step):
+        frac = step / max(trainer.cfg.steps, 1)
+        k = max(0.0, 1.0 - frac / max(self.end, 1e-9)) if self.end > 0 else 1.0
+        return self.floor + (1.0 - self.floor) * k
+
+
+@dataclass
+class BootstrapPhase(WeightSchedule):
+    """During the first ``steps``, fit the deformation to its bootstrap mapping (and masks to alpha)."""
+
+    steps: int
+    keys: tuple = ("bootstrap", "alpha_mask")
+
+    def factor(self, trainer, step):
+        return 1.0 if step < self.steps else 0.0
+
+
+@dataclass
+class MaskTaper(WeightSchedule):
+    """Alpha against its bootstrap masks: full weight during the first ``steps``, then decaying
+    linearly to ``floor`` (a share of the start) at ``end`` (a fraction of training, the flow
+    decay's end), instead of stopping at once: on DAVIS libby the alpha field had not yet taken the
+    mask's shape after 100 steps."""
+
+    steps: int
+    end: float
+    floor: float = 0.0
+    keys: tuple = ("alpha_mask",)
+
+    def factor(self, trainer, step):
+        stop = max(int(self.end * trainer.cfg.steps), self.steps + 1)
+        k = 1.0 if step < self.steps else max(0.0, 1.0 - (step - self.steps) / (stop - self.steps))
+        return max(k, self.floor)

@@ -113,7 +113,8 @@ class Adam(torch.optim.Adam):
             self._scratch[key] = tab
         return tab
 
-    def _catch_up(self, p: torch.Tensor, st: dict, group: dict, rows: torch.Tensor, upto: int, write: bool = False) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
+    def _catch_up(self, p: torch.Tensor, st: dict, group: dict, rows: torch.Tensor, upto: int,
+                  write: bool = False) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
         """Rows ``rows`` brought to step ``upto``: their moments decayed over the steps since
         ``st["last"]``, and the coasting those steps did (at the current learning rate and step
         ``upto``'s bias correction). Returns the moments ``(m, v)`` and the coasting, a change to
@@ -141,9 +142,11 @@ class Adam(torch.optim.Adam):
 
     def _rows_step(self, p: torch.Tensor, grad: torch.Tensor, group: dict) -> None:
         if group["weight_decay"] or group["amsgrad"] or group["maximize"]:
-            raise ValueError("layercam.engine.optim.Adam: sparse gradients support plain Adam only (no weight decay, amsgrad, maximize)")
+            raise ValueError("layercam.engine.optim.Adam: sparse gradients support plain Adam only "
+                             "(no weight decay, amsgrad, maximize)")
         if grad.sparse_dim() != 1:
-            raise ValueError(f"layercam.engine.optim.Adam: a sparse gradient must name rows (sparse_dim 1), got {grad.sparse_dim()}")
+            raise ValueError("layercam.engine.optim.Adam: a sparse gradient must name rows "
+                             f"(sparse_dim 1), got {grad.sparse_dim()}")
         state = self.state[p]
         if not state:
             state["step"] = torch.tensor(0.0, dtype=torch.float32)

@@ -6,18 +6,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-
-def normalise_xy(x: torch.Tensor, y: torch.Tensor, w: int, h: int) -> torch.Tensor:
-    """Pixel coordinates (:mod:`layercam.core.geometry`'s convention: centres at integers) -> ``(N, 2)``
-    normalised coordinates in ``[-1, 1]`` over the frame's edges."""
-    return torch.stack([(x + 0.5) / w * 2 - 1, (y + 0.5) / h * 2 - 1], dim=1)
-
-
-def pixel_grid(h: int, w: int, device="cpu") -> torch.Tensor:
-    """All pixel centres of an ``h x w`` frame, row-major, as ``(h*w, 2)`` normalised coordinates."""
-    ys, xs = torch.meshgrid(torch.arange(h, device=device, dtype=torch.float32), torch.arange(w, device=device, dtype=torch.float32), indexing="ij")
-    return normalise_xy(xs.flatten(), ys.flatten(), w, h)
-
+from layercam.scene.coords import normalise_xy
 
 PROBES = 256  # rows of a batch's "probe" draws
 PROBE_SEED = 104729  # their stream's seed, from the sampler's
@@ -80,7 +69,8 @@ class PixelSampler:
         return torch.from_numpy(np.ascontiguousarray(gather(a, *host))).to(device=self.device, dtype=dtype)
 
     def state_dict(self) -> dict:
-        return {"gen": self.gen.get_state(), "probe_gen": self.probe_gen.get_state(), "seed": self.seed, "draws": self.draws}
+        return {"gen": self.gen.get_state(), "probe_gen": self.probe_gen.get_state(),
+                "seed": self.seed, "draws": self.draws}
 
     def load_state_dict(self, s: dict) -> None:
         """Continues the saved stream. A state saved by another stream (another data-parallel
@@ -101,7 +91,8 @@ class PixelSampler:
         host = [i.cpu().numpy() for i in (t, y, x)]
         return torch.from_numpy(np.ascontiguousarray(self.frames.gather(*host))).to(self.device)
 
-    def flow_at(self, ti: torch.Tensor, y: torch.Tensor, x: torch.Tensor, forward: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    def flow_at(self, ti: torch.Tensor, y: torch.Tensor, x: torch.Tensor,
+                forward: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Flow of pair ``ti`` at frame pixels ``(x, y)``, forward or backward: ``(N, 2)`` in frame
         pixels and the consistency flag ``(N,)``; read at the nearest pixel of the flow's grid."""
         if (self.fh, self.fwid) == (self.H, self.W):
@@ -114,7 +105,8 @@ class PixelSampler:
             f = f * torch.tensor([self.W / self.fwid, self.H / self.fh], device=f.device)
         if self.fw_ok is None:
             return f, torch.ones(len(ti), dtype=torch.bool, device=f.device)
-        return f, torch.where(forward, self._gather(self.fw_ok, ti, fy, fx, dtype=torch.bool), self._gather(self.bw_ok, ti, fy, fx, dtype=torch.bool))
+        return f, torch.where(forward, self._gather(self.fw_ok, ti, fy, fx, dtype=torch.bool),
+                              self._gather(self.bw_ok, ti, fy, fx, dtype=torch.bool))
 
     def sample(self, n: int) -> dict:
         g = self.gen

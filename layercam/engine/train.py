@@ -1,9 +1,8 @@
 """One training loop for every task. It knows no model: it sums ``model.loss_dict(batch)``.
 
-Schedules are callbacks (nerfstudio's shape), called before each step with the step index; the
-model says which it needs (``model.training_callbacks``). Those here change named fields of the
-model's ``loss_weights``: :class:`FlowDecay` (the paper's flow weight decaying to 0),
-:class:`BootstrapPhase` and :class:`MaskTaper`.
+Schedules are callbacks (nerfstudio's shape, :class:`Callback`), called before each step with the
+step index; the model says which it needs (``model.training_callbacks``: the schedules of its loss
+weights, :mod:`layercam.engine.losses`).
 Guards: a non-finite loss or gradient (or a gradient norm that overflows) skips the step, halves
 the learning rate and logs an event in the history (``report.json`` "train.events"); after
 ``MAX_BAD_STEPS`` in a row training stops with a clear error, keeping the last good checkpoint.
@@ -38,68 +37,6 @@ class Callback:
         pass
 
 
-class WeightSchedule(Callback):
-    """Sets the model's loss weights named in ``keys`` to their starting values (read at the first
-    step) times :meth:`factor` of the step."""
-
-    keys: tuple = ()
-
-    def factor(self, trainer: "Trainer", step: int) -> float:  # pragma: no cover - interface
-        raise NotImplementedError
-
-    def on_step(self, trainer, step):
-        w = trainer.model.loss_weights
-        starts = self.__dict__.setdefault("_starts", {})
-        k = self.factor(trainer, step)
-        for key in self.keys:
-            setattr(w, key, starts.setdefault(key, getattr(w, key)) * k)
-
-
-@dataclass
-class FlowDecay(WeightSchedule):
-    """The ``keys`` weights decay linearly from their start to ``floor`` (a share of it) at ``end``
-    (a fraction of training): the flow's to 0, the alpha flow term's (its own instance) to
-    ``loss.alpha_flow_keep``."""
-
-    end: float
-    keys: tuple = ("flow",)
-    floor: float = 0.0
-
-    def factor(self, trainer, step):
-        frac = step / max(trainer.cfg.steps, 1)
-        k = max(0.0, 1.0 - frac / max(self.end, 1e-9)) if self.end > 0 else 1.0
-        return self.floor + (1.0 - self.floor) * k
-
-
-@dataclass
-class BootstrapPhase(WeightSchedule):
-    """During the first ``steps``, fit the deformation to its bootstrap mapping (and masks to alpha)."""
-
-    steps: int
-    keys: tuple = ("bootstrap", "alpha_mask")
-
-    def factor(self, trainer, step):
-        return 1.0 if step < self.steps else 0.0
-
-
-@dataclass
-class MaskTaper(WeightSchedule):
-    """Alpha against its bootstrap masks: full weight during the first ``steps``, then decaying
-    linearly to ``floor`` (a share of the start) at ``end`` (a fraction of training, the flow
-    decay's end), instead of stopping at once: on DAVIS libby the alpha field had not yet taken the
-    mask's shape after 100 steps."""
-
-    steps: int
-    end: float
-    floor: float = 0.0
-    keys: tuple = ("alpha_mask",)
-
-    def factor(self, trainer, step):
-        stop = max(int(self.end * trainer.cfg.steps), self.steps + 1)
-        k = 1.0 if step < self.steps else max(0.0, 1.0 - (step - self.steps) / (stop - self.steps))
-        return max(k, self.floor)
-
-
 @dataclass
 class TrainResult:
     steps: int
@@ -112,7 +49,9 @@ class TrainResult:
 
 
 class Trainer:
-    def __init__(self, model, sampler, cfg: TrainConfig, ckpt_path: Path | None = None, callbacks=(), progress: bool = True, desc: str = "train", max_bad_steps: int | None = None):
+    def __init__(self, model, sampler, cfg: TrainConfig, ckpt_path: Path | None = None,
+                 callbacks=(), progress: bool = True, desc: str = "train",
+                 max_bad_steps: int | None = None):
         self.model, self.sampler, self.cfg = model, sampler, cfg
         self.max_bad_steps = MAX_BAD_STEPS if max_bad_steps is None else max_bad_steps
         self.ckpt_path = Path(ckpt_path) if ckpt_path else None
@@ -157,7 +96,9 @@ class Trainer:
         if not distributed.is_main():
             return True  # rank 0 writes it (all ranks hold the same model)
         if not self.finite_state():
-            self.history.append({"step": self.step, "event": "non-finite parameters: checkpoint not written, previous one kept"})
+            self.history.append({"step": self.step,
+                                 "event": "non-finite parameters: checkpoint not written, previous "
+                                          "one kept"})
             return False
         state = self.state(final)
         if sampler_state is not None:
@@ -168,7 +109,10 @@ class Trainer:
         except (OSError, RuntimeError) as e:  # torch reports a full disk as a RuntimeError of its zip writer
             with contextlib.suppress(OSError):
                 tmp.unlink()
-            raise LayercamError(f"cannot write the checkpoint {self.ckpt_path} (is the disk full?): {str(e).splitlines()[0] if str(e) else type(e).__name__}; the previous checkpoint is kept") from None
+            raise LayercamError(f"cannot write the checkpoint {self.ckpt_path} (is the disk "
+                                "full?): "
+                                f"{str(e).splitlines()[0] if str(e) else type(e).__name__}; the "
+                                "previous checkpoint is kept") from None
         tmp.replace(self.ckpt_path)
         return True
 
@@ -180,7 +124,8 @@ class Trainer:
         if "opt" in s:  # a final checkpoint has none: nothing is left to train
             self.opt.load_state_dict(s["opt"])
         elif s["step"] < self.cfg.steps:
-            raise LayercamError(f"{self.ckpt_path} is a finished training's checkpoint (step {s['step']}), not one to train on to step {self.cfg.steps}")
+            raise LayercamError(f"{self.ckpt_path} is a finished training's checkpoint (step "
+                                f"{s['step']}), not one to train on to step {self.cfg.steps}")
         self.step, self.history = s["step"], s["history"]
         self.lr_scale, self.bad_total = s["lr_scale"], s.get("bad_total", 0)
         self.sampler.load_state_dict(s["sampler"])
@@ -237,7 +182,9 @@ class Trainer:
                     bad_run += 1
                     self.bad_total += 1
                     self.lr_scale *= 0.5
-                    self.history.append({"step": self.step, "event": f"{bad}: step skipped, lr halved (x{self.lr_scale:g})"})
+                    self.history.append({"step": self.step,
+                                         "event": f"{bad}: step skipped, lr halved "
+                                                  f"(x{self.lr_scale:g})"})
                     if bad_run >= self.max_bad_steps:
                         err = LayercamError(
                             f"training diverged: {bad_run} non-finite steps in a row at step {self.step} ({bad}); "
@@ -276,9 +223,11 @@ class Trainer:
             bar.close()
         self.opt.flush()  # sparse grid rows: the coasting since their last gradient (layercam/engine/optim.py)
         if not self.finite_state():
-            raise LayercamError(f"training ended with non-finite parameters at step {self.step}; " + self._kept_message())
+            raise LayercamError(f"training ended with non-finite parameters at step {self.step}; "
+                                + self._kept_message())
         self.save(final=True)
-        return TrainResult(self.step, time.perf_counter() - t0, self.history, last, self.bad_total, resumed, time.process_time() - c0)
+        return TrainResult(self.step, time.perf_counter() - t0, self.history, last, self.bad_total,
+                           resumed, time.process_time() - c0)
 
     @staticmethod
     def _check(loss: torch.Tensor, terms: dict, params: list) -> str:
@@ -287,7 +236,8 @@ class Trainer:
             names = [k for k, v in terms.items() if not bool(torch.isfinite(v.detach()).all())]
             return f"non-finite loss ({', '.join(names) or 'total'})"
         loss.backward()
-        grads = [p.grad._values() if p.grad.is_sparse else p.grad for p in params if p.grad is not None]  # sparse: its rows
+        grads = [p.grad._values() if p.grad.is_sparse else p.grad for p in params
+                 if p.grad is not None]  # sparse: its rows
         if grads and not bool(torch.isfinite(torch.nn.utils.get_total_norm(grads))):
             return "non-finite gradient norm"
         return ""

@@ -17,7 +17,8 @@ from typing import Callable
 
 from layercam.core.errors import LayercamError
 
-__all__ = ["atomic_write", "ensure_writable_dir", "staging_dir", "commit_staged", "replace_entry", "temp_name", "write_failure", "partials_removed_on_error"]
+__all__ = ["atomic_write", "ensure_writable_dir", "staging_dir", "commit_staged", "replace_entry",
+           "temp_name", "write_failure", "partials_removed_on_error"]
 
 
 def write_failure(path: Path, e: BaseException) -> LayercamError | None:
@@ -26,11 +27,15 @@ def write_failure(path: Path, e: BaseException) -> LayercamError | None:
     the ``RuntimeError`` torch's zip writer and OpenEXR raise for a full disk."""
     first = (str(e).splitlines() or [type(e).__name__])[0]
     if isinstance(e, OSError):
-        said = " (the disk is full)" if e.errno in (errno.ENOSPC, errno.EDQUOT) else " (is the disk full?)" if e.errno is None else ""
+        said = (" (the disk is full)" if e.errno in (errno.ENOSPC, errno.EDQUOT)
+                else " (is the disk full?)" if e.errno is None else "")
         return LayercamError(f"cannot write {path}{said}: {e.strerror or first}")  # no errno: PIL's short write
     if isinstance(e, RuntimeError) and "No space left on device" in str(e):  # OpenEXR's writer
         return LayercamError(f"cannot write {path} (the disk is full): {first}")
-    if isinstance(e, RuntimeError) and any(k in first for k in ("inline_container", "iostream error", "Failed to write")):
+    if isinstance(e,
+                  RuntimeError) and any(k in first
+                                        for k in ("inline_container", "iostream error",
+                                                  "Failed to write")):
         return LayercamError(f"cannot write {path} (is the disk full?): {first}")
     return None
 

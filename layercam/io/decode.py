@@ -16,7 +16,10 @@ from layercam.io.frames import DiskArray, Frames
 from layercam.io.lock import pid_alive
 from layercam.io.images import read_exif_exposure, read_image
 from layercam.io.video import iter_video, probe_video
-from layercam.io.clip import Clip, FRAMES_VERSION, _EXIF_SUFFIXES, _alpha_note, _check_count, _expand_inputs, _resize, _source_key, _target_size, _unique_names, audio_plan, parse_resize, primaries_of
+from layercam.io.clip import Clip
+from layercam.io.inputs import (FRAMES_VERSION, EXIF_SUFFIXES, alpha_note, audio_plan, check_count,
+                                expand_inputs, parse_resize, primaries_of, resize, source_key,
+                                 target_size, unique_names)
 
 
 def probe_clip(
@@ -31,10 +34,10 @@ def probe_clip(
     the first image's (8 for a video). Reads a video's header and the first image only, so that a
     run can say what it will cost (:mod:`layercam.engine.estimate`) before anything is decoded. Bad input
     raises ``LayercamError`` as ``load_clip`` does."""
-    _check_count("stride", stride, 1)
-    _check_count("max_frames", max_frames, 1)
+    check_count("stride", stride, 1)
+    check_count("max_frames", max_frames, 1)
     rs = parse_resize(resize)
-    kind, what = _expand_inputs(inputs)
+    kind, what = expand_inputs(inputs)
     if kind == "video":
         info = probe_video(what)
         w, h = info["size"]
@@ -47,7 +50,7 @@ def probe_clip(
         h, w = img.shape[:2]
     if max_frames is not None:
         n = max_frames if n is None else min(n, max_frames)
-    tw, th = _target_size(rs, w, h)
+    tw, th = target_size(rs, w, h)
     return {"kind": kind, "frames": n, "width": tw, "height": th, "source_size": (w, h), "bit_depth": depth}
 
 
@@ -114,7 +117,8 @@ def _cached_clip(folder: Path) -> Clip | None:
     meta = dict(info["meta"], frames_cache=str(folder), _fingerprint=info["fingerprint"])
     if meta.get("source_size") is not None:
         meta["source_size"] = tuple(meta["source_size"])
-    return Clip(frames=Frames(raw), source=info["source"], names=info["names"], fps=info["fps"], bit_depth=info["bit_depth"],
+    return Clip(frames=Frames(raw), source=info["source"], names=info["names"], fps=info["fps"],
+                bit_depth=info["bit_depth"],
                 exif_exposures=info["exif_exposures"], meta=meta)
 
 
@@ -141,10 +145,10 @@ def load_clip(
     Images of differing sizes raise ``LayercamError`` naming the file unless resize is "WxH".
     Every user-input problem raises ``LayercamError`` with a one-line message.
     """
-    _check_count("stride", stride, 1)
-    _check_count("max_frames", max_frames, 1)
+    check_count("stride", stride, 1)
+    check_count("max_frames", max_frames, 1)
     rs = parse_resize(resize)
-    kind, what = _expand_inputs(inputs)
+    kind, what = expand_inputs(inputs)
     source = os.fspath(inputs) if isinstance(inputs, (str, os.PathLike)) else ",".join(
         os.fspath(p) for p in inputs
     )
@@ -152,7 +156,7 @@ def load_clip(
     if cache is not None:
         from layercam.io.atomic import ensure_writable_dir
 
-        key = _source_key(kind, what, stride, max_frames, rs)
+        key = source_key(kind, what, stride, max_frames, rs)
         folder = Path(cache) / f"frames-{key}"
         found = _cached_clip(folder)
         if found is not None:
@@ -166,7 +170,8 @@ def load_clip(
         shutil.rmtree(partial, ignore_errors=True)
         partial.mkdir()
     try:
-        clip = (_decode_video if kind == "video" else _decode_images)(what, source, max_frames, stride, rs, None if folder is None else partial)
+        clip = (_decode_video if kind == "video" else _decode_images)(what, source, max_frames,
+            stride, rs, None if folder is None else partial)
         if folder is not None:
             _keep(clip, partial, folder)
             clip = _cached_clip(folder)
@@ -185,11 +190,14 @@ def _keep(clip: Clip, partial: Path, folder: Path) -> None:
     import json
 
     raw = clip.frames.raw
-    info = {"version": FRAMES_VERSION, "dtype": raw.dtype.str, "shape": list(raw.shape), "source": clip.source, "names": clip.names,
-            "fps": clip.fps, "bit_depth": clip.bit_depth, "exif_exposures": clip.exif_exposures, "fingerprint": clip.fingerprint(),
+    info = {"version": FRAMES_VERSION, "dtype": raw.dtype.str, "shape": list(raw.shape),
+            "source": clip.source, "names": clip.names,
+            "fps": clip.fps, "bit_depth": clip.bit_depth, "exif_exposures": clip.exif_exposures,
+            "fingerprint": clip.fingerprint(),
             "meta": {k: (list(v) if isinstance(v, tuple) else v) for k, v in clip.meta.items()}}
     os.fsync(raw._fd)
-    (partial / ".made").touch()  # decoded by this command: removed again if it fails before its stages (cli.before_stages)
+    (partial / ".made").touch()  # decoded by this command: removed again if it fails before its
+                                 # stages (cli.before_stages)
     (partial / "clip.json").write_text(json.dumps(info))
     raw.close()
     try:
@@ -207,11 +215,11 @@ def _decode_video(path: Path, source: str, max_frames, stride: int, rs, folder: 
             reached("decode", sink.n)
             if sink.n == 0:
                 w, h = info["size"]
-                tw, th = _target_size(rs, w, h)
+                tw, th = target_size(rs, w, h)
             if (tw, th) == (w, h):
                 sink.add(frame)
             else:
-                sink.add(_quantise(_resize(frame.astype(np.float32) / 255.0, (tw, th)), np.uint8))
+                sink.add(_quantise(resize(frame.astype(np.float32) / 255.0, (tw, th)), np.uint8))
     except BaseException:
         sink.abandon()
         raise
@@ -225,12 +233,14 @@ def _decode_video(path: Path, source: str, max_frames, stride: int, rs, folder: 
         fps=info["fps"],
         bit_depth=8,
         exif_exposures=None,
-        meta={"kind": "video", "frame_indices": idx, "n_source_frames": None, "source_size": info["size"], "video": header,
+        meta={"kind": "video", "frame_indices": idx, "n_source_frames": None,
+              "source_size": info["size"], "video": header,
               "primaries": primaries_of(header.get("primaries")), "audio": audio, "notes": notes},
     )
 
 
-def _decode_images(all_paths: list[Path], source: str, max_frames, stride: int, rs, folder: Path | None, depth: int = 8) -> Clip:
+def _decode_images(all_paths: list[Path], source: str, max_frames, stride: int, rs,
+                   folder: Path | None, depth: int = 8) -> Clip:
     idx = list(range(0, len(all_paths), stride))
     if max_frames is not None:
         idx = idx[:max_frames]
@@ -251,22 +261,22 @@ def _decode_images(all_paths: list[Path], source: str, max_frames, stride: int, 
             h, w = img.shape[:2]
             if size0 is None:
                 size0 = (w, h)
-                target = _target_size(rs, w, h)
+                target = target_size(rs, w, h)
             elif (w, h) != size0 and not (rs is not None and rs[0] == "size"):
                 raise LayercamError(
                     f"{p.name} is {w}x{h} but {paths[0].name} is {size0[0]}x{size0[1]}; "
                     "give --resize WxH to bring all frames to one size"
                 )
-            sink.add(_quantise(_resize(img, target), dtype))
+            sink.add(_quantise(resize(img, target), dtype))
             depths.append(d)
     except BaseException:
         sink.abandon()
         raise
-    exif = [read_exif_exposure(p) if p.suffix.lower() in _EXIF_SUFFIXES else None for p in paths]
+    exif = [read_exif_exposure(p) if p.suffix.lower() in EXIF_SUFFIXES else None for p in paths]
     return Clip(
         frames=Frames(sink.finish()),
         source=source,
-        names=_unique_names(paths),
+        names=unique_names(paths),
         fps=24.0,
         bit_depth=max(depths),
         exif_exposures=exif,
@@ -277,7 +287,7 @@ def _decode_images(all_paths: list[Path], source: str, max_frames, stride: int, 
             "source_size": size0,
             "paths": [str(p) for p in paths],
             "primaries": primaries_of(None),
-            "notes": [_alpha_note(alphas, len(paths))] if alphas else [],
+            "notes": [alpha_note(alphas, len(paths))] if alphas else [],
         },
     )
 

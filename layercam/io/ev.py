@@ -65,10 +65,13 @@ def check_ev_step(step: float, measured: np.ndarray, per_pixel: bool, force: boo
     if not far:
         return ""
     g = max(far, key=lambda v: abs(step - v))
-    said = f"--ev-step {step:g}, but the frames measure {g:.1f} EV between neighbouring exposures (assuming a gamma-2.2 camera curve)"
+    said = (f"--ev-step {step:g}, but the frames measure {g:.1f} EV between neighbouring exposures "
+            "(assuming a gamma-2.2 camera curve)")
     contradicts = per_pixel and not (g / 2 <= step <= 2 * g)
     if contradicts and not force:
-        raise LayercamError(f"{said}: more than {EV_WARN:g} EV and a factor of 2 apart, the HDR would be wrong; leave --ev-step out to learn the ratio, or give --force-ev-step to use it anyway")
+        raise LayercamError(f"{said}: more than {EV_WARN:g} EV and a factor of 2 apart, the HDR "
+                            "would be wrong; leave --ev-step out to learn the ratio, or give "
+                            "--force-ev-step to use it anyway")
     return f"{said}; using {step:g} (leave --ev-step out to learn the ratio)"
 
 

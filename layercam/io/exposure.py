@@ -13,19 +13,20 @@ from __future__ import annotations
 import os
 import re
 from dataclasses import dataclass, field
-from fractions import Fraction
 from pathlib import Path
 
 import numpy as np
 
 from layercam.core.errors import LayercamError
 from layercam.io.clip import Clip
+from layercam.io.times import read_times
 from layercam.io.ev import _measure_phase_ev, _pair_diffs, _pairs_measured_per_pixel, check_ev_step, measure_pair_ev
 
-__all__ = ["Exposures", "parse_exposures", "measure_pair_ev", "parse_time"]
+__all__ = ["Exposures", "parse_exposures", "measure_pair_ev"]
 
 _EV_MIN, _EV_MAX = 0.5, 12.0
-MAX_SPAN_EV = 120.0  # exposures of one clip at most this many stops apart: 2^120 and the scene's own range within float32 (2^128)
+MAX_SPAN_EV = 120.0  # exposures of one clip at most this many stops apart: 2^120 and the scene's
+                     # own range within float32 (2^128)
 
 
 @dataclass
@@ -59,9 +60,12 @@ class Exposures:
             if self.phase.shape != self.log2_dt.shape:
                 raise ValueError("phase and log2_dt must have the same length")
         if self.log2_dt.size and not np.isfinite(self.log2_dt).all():
-            raise LayercamError(f"exposures ({self.spec}): an exposure is beyond the range of numbers (check the times or EVs given)")
+            raise LayercamError(f"exposures ({self.spec}): an exposure is beyond the range of "
+                                "numbers (check the times or EVs given)")
         if self.log2_dt.size and float(np.ptp(self.log2_dt)) > MAX_SPAN_EV:
-            raise LayercamError(f"exposures ({self.spec}) span {float(np.ptp(self.log2_dt)):.3g} stops; at most {MAX_SPAN_EV:g} are supported (check the times or EVs given)")
+            raise LayercamError(f"exposures ({self.spec}) span {float(np.ptp(self.log2_dt)):.3g} "
+                                f"stops; at most {MAX_SPAN_EV:g} are supported (check the times or "
+                                "EVs given)")
 
     @property
     def T(self) -> int:  # noqa: N802
@@ -78,26 +82,13 @@ class Exposures:
             return 0
         return int(1 + np.count_nonzero(np.diff(vals) > 0.1))
 
-
-# ----------------------------------------------------------------------------- measurement
+    @property
+    def varies(self) -> bool:
+        """The frames' exposures differ, given or to be learned (a sharp clip then has an HDR too)."""
+        return self.count_distinct > 1 or self.learn != "none"
 
 
 # ----------------------------------------------------------------------------- parsing helpers
-
-
-def parse_time(tok: str) -> float:
-    """Parse an exposure time in seconds: ``0.01``, ``1/125``, ``2.5``. Raises ValueError for
-    what is not a number; a time beyond float range reads as ``inf`` (``1e400/1``) or ``0.0``
-    (``1/1e400``), which the callers refuse as not a positive finite time."""
-    tok = tok.strip().rstrip("s")
-    if "/" in tok:
-        num, den = tok.split("/", 1)
-        q = Fraction(num.strip()) / Fraction(den.strip())  # exact: no overflow on the way
-        try:
-            return float(q)
-        except OverflowError:
-            return float("inf") if q > 0 else float("-inf")
-    return float(tok)
 
 
 def _frame_phase(clip: Clip, n: int) -> np.ndarray:
@@ -133,7 +124,8 @@ def _alt(clip: Clip, n: int, spec: str, ev_step: float | None, force_ev_step: bo
     measured, stray = _measure_phase_ev(clip.frames, phase, n)  # EV per phase, phase 0 at 0
     if stray > _EV_MIN:  # frames of the same phases differ more than two exposures must: another cycle
         other = "alt3" if n == 2 else "alt"
-        raise LayercamError(f"'{spec}': the frames do not repeat every {n} exposures (frames of the same phases differ by {stray:.1f} EV); "
+        raise LayercamError(f"'{spec}': the frames do not repeat every {n} exposures (frames of "
+                            f"the same phases differ by {stray:.1f} EV); "
                             f"try --exposures {other}, an EV cycle, or learn")
     order = np.argsort(measured)  # darkest first
     rank = np.empty(n, dtype=np.int64)
@@ -189,7 +181,8 @@ def _cycle(clip: Clip, spec: str, each: bool = False) -> Exposures:
         raise LayercamError(f"empty exposure cycle {spec!r}")
     n = len(evs)
     if each and 1 < n != clip.T:
-        raise LayercamError(f"--exposures {spec!r} gives {n} EVs for {clip.T} images; a stack needs one per image, in order")
+        raise LayercamError(f"--exposures {spec!r} gives {n} EVs for {clip.T} images; a stack "
+                            "needs one per image, in order")
     if n > clip.T:
         raise LayercamError(f"exposure cycle {spec!r} has {n} entries for {clip.T} frames (at most one per frame)")
     phase = _frame_phase(clip, n)
@@ -246,76 +239,7 @@ def _learn(clip: Clip, spec: str) -> Exposures:
 
 
 def _read_time_file(path: Path, clip: Clip, spec: str) -> Exposures:
-    try:
-        text = path.read_text(encoding="utf-8", errors="replace")
-    except OSError as e:
-        raise LayercamError(f"cannot read exposure file {path}: {e.strerror or e}") from None
-    named: list[tuple[str, float]] = []
-    plain: list[float] = []
-    for lineno, raw in enumerate(text.splitlines(), 1):
-        line = raw.split("#", 1)[0].strip()
-        if not line:
-            continue
-        toks = line.replace(",", " ").split()
-        try:
-            plain.append(parse_time(toks[0]))
-            val = plain[-1]
-            name = None
-        except (ValueError, ZeroDivisionError):
-            name = toks[0]
-            val = None
-            for t in toks[1:]:
-                try:
-                    val = parse_time(t)
-                    break
-                except (ValueError, ZeroDivisionError):
-                    continue
-            if val is None:
-                raise LayercamError(
-                    f"{path.name} line {lineno}: no exposure time in {line[:60]!r}"
-                ) from None
-            named.append((name, val))
-        if not (np.isfinite(val) and val > 0):
-            raise LayercamError(f"{path.name} line {lineno}: an exposure time must be a positive finite number of seconds, got {toks[0 if name is None else 1]}")
-    if named and plain:
-        raise LayercamError(f"{path.name} mixes lines with and without file names")
-    if not named and not plain:
-        raise LayercamError(f"exposure file {path} lists no times")
-
-    how = ""
-    if named:
-        table = {}
-        for name, v in named:
-            table[name] = v
-            table[Path(name).stem] = v
-        missing = [n for n in clip.names if n not in table]
-        if not missing:
-            secs = np.array([table[n] for n in clip.names], dtype=np.float64)
-            how = " (matched by file name)"
-        elif len(named) == clip.T:
-            secs = np.array([v for _, v in named], dtype=np.float64)
-            how = " (in file order; names did not match the frames)"
-        else:
-            raise LayercamError(
-                f"exposure file {path.name} has no time for frame {missing[0]} ({len(named)} times for {clip.T} frames)"
-            )
-    else:
-        vals = np.asarray(plain, dtype=np.float64)
-        idx = clip.meta.get("frame_indices") if isinstance(clip.meta, dict) else None
-        n_src = clip.meta.get("n_source_frames") if isinstance(clip.meta, dict) else None
-        if len(vals) == clip.T:
-            secs = vals
-        elif (
-            idx is not None
-            and len(idx) == clip.T
-            and len(vals) > max(idx)
-            and (n_src is None or len(vals) == n_src)
-        ):
-            secs = vals[np.asarray(idx)]
-            how = f" (selected {clip.T} of {len(vals)} by frame index)"
-        else:
-            expect = clip.T if n_src in (None, clip.T) else f"{clip.T} (or {n_src} source)"
-            raise LayercamError(f"exposure file lists {len(vals)} times for {expect} frames")
+    secs, how = read_times(path, clip)
     return Exposures(
         log2_dt=_normalise(np.log2(secs)),
         learn="none",
@@ -326,7 +250,8 @@ def _read_time_file(path: Path, clip: Clip, spec: str) -> Exposures:
     )
 
 
-def parse_exposures(spec: str | None, clip: Clip, ev_step: float | None = None, force_ev_step: bool = False, each: bool = False) -> Exposures:
+def parse_exposures(spec: str | None, clip: Clip, ev_step: float | None = None,
+                    force_ev_step: bool = False, each: bool = False) -> Exposures:
     """Decide the exposure of each frame of ``clip`` from ``spec``.
 
     spec:

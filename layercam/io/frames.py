@@ -54,7 +54,8 @@ class DiskArray:
     ``a.close()`` (or garbage collection) closes the file. ``offset``: the byte where row 0 begins.
     """
 
-    def __init__(self, path: str | os.PathLike, dtype, shape: tuple, writable: bool = False, _fd: int | None = None, offset: int = 0):
+    def __init__(self, path: str | os.PathLike, dtype, shape: tuple, writable: bool = False,
+                 _fd: int | None = None, offset: int = 0):
         self.path, self.dtype, self.shape = Path(path), np.dtype(dtype), tuple(int(s) for s in shape)
         self.row_shape = self.shape[1:]
         self.row_bytes = int(np.prod(self.row_shape, dtype=np.int64)) * self.dtype.itemsize
@@ -64,7 +65,8 @@ class DiskArray:
         if size < self._offset + self.nbytes:
             os.close(self._fd)
             self._fd = None
-            raise ValueError(f"{self.path} holds {size} bytes, not the {self.nbytes} of a {self.dtype} array {self.shape}")
+            raise ValueError(f"{self.path} holds {size} bytes, not the {self.nbytes} of a "
+                             f"{self.dtype} array {self.shape}")
         self._map = None
 
     def rows(self, t0: int, t1: int) -> "DiskArray":
@@ -73,7 +75,8 @@ class DiskArray:
         t0, t1 = max(int(t0), 0), max(min(int(t1), len(self)), max(int(t0), 0))
         v = object.__new__(type(self))
         v.__dict__.update(self.__dict__)
-        v.shape, v._offset, v._map, v._owner = (t1 - t0, *self.row_shape), self._offset + t0 * self.row_bytes, None, self
+        v.shape, v._offset, v._map, v._owner = ((t1 - t0, *self.row_shape),
+                                                self._offset + t0 * self.row_bytes, None, self)
         return v
 
     @classmethod
@@ -137,7 +140,8 @@ class DiskArray:
             out = self.read(a, b)
         else:  # a strided read, row by row
             idx = range(a, b, step)
-            out = np.stack([self.read(i, i + 1)[0] for i in idx]) if len(idx) else np.empty((0, *self.row_shape), self.dtype)
+            out = np.stack([self.read(i, i + 1)[0] for i in idx]) if len(idx) else np.empty(
+                (0, *self.row_shape), self.dtype)
         if squeeze:
             out = out[0]
         return out[rest] if rest else out
@@ -172,7 +176,8 @@ class DiskArray:
     def __setitem__(self, key, value) -> None:
         rows = _index_rows(key, len(self))
         if not self.writable or rows is None or rows[2] != 1 or rows[3]:
-            raise TypeError("a DiskArray is written whole rows at a time: a[t] = row or a[t0:t1] = rows, opened with DiskArray.create")
+            raise TypeError("a DiskArray is written whole rows at a time: a[t] = row or a[t0:t1] = "
+                            "rows, opened with DiskArray.create")
         a, b = rows[0], rows[1]
         v = np.ascontiguousarray(np.broadcast_to(np.asarray(value, self.dtype), (b - a, *self.row_shape)))
         buf, off, done = memoryview(v.reshape(-1).view(np.uint8)), self._offset + a * self.row_bytes, 0
@@ -308,7 +313,8 @@ class Frames:
         raise AttributeError(f"'Frames' object has no attribute {name!r}")
 
 
-_WHOLE = ("mean", "max", "min", "sum", "std", "reshape", "copy", "ravel", "flatten", "transpose", "tolist", "any", "all", "clip", "squeeze", "T")
+_WHOLE = ("mean", "max", "min", "sum", "std", "reshape", "copy", "ravel", "flatten", "transpose",
+          "tolist", "any", "all", "clip", "squeeze", "T")
 
 
 def _whole(op: str):
@@ -319,7 +325,8 @@ def _whole(op: str):
     return f
 
 
-for _op in ("__add__", "__radd__", "__sub__", "__rsub__", "__mul__", "__rmul__", "__truediv__", "__rtruediv__", "__pow__",
+for _op in ("__add__", "__radd__", "__sub__", "__rsub__", "__mul__", "__rmul__", "__truediv__",
+            "__rtruediv__", "__pow__",
             "__lt__", "__le__", "__gt__", "__ge__", "__neg__", "__abs__"):
     setattr(Frames, _op, _whole(_op))
 

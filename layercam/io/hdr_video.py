@@ -42,32 +42,37 @@ import numpy as np
 from layercam.core import bt2100
 from layercam.core.errors import LayercamError
 
-__all__ = ["FORMATS", "TRANSFER", "HdrMapping", "missing_for_hdr", "write_hdr_video", "read_hdr_video", "probe_video", "sdr_view", "ANCHOR"]
+__all__ = ["FORMATS", "TRANSFER", "HdrMapping", "missing_for_hdr", "write_hdr_video", "ANCHOR"]
 
 FORMATS = ("pq", "hlg", "none")
 TRANSFER = {"pq": "smpte2084", "hlg": "arib-std-b67"}
-CRF = 10  # x265's quality: the codec's error within 2% of the light on most well-exposed pixels (docs/measurements.md); 18 left 3%
+CRF = 10  # x265's quality: the codec's error within 2% of the light on most well-exposed pixels
+          # (docs/measurements.md); 18 left 3%
 PRESET = "fast"  # as medium's error and size, in three quarters of its time
 MIN_SIDE = 16  # libx265 refuses smaller frames
-NARROW = 64  # narrower frames are encoded padded to this width and cropped back (libx265 4.3's 10-bit encoder crashes at widths 34..48)
-ANCHOR = ("diffuse white = the radiance an SDR camera at the run's reference exposure (the median of its frames') records as signal 1.0: "
-          "the learned camera's half signal at that exposure taken as sRGB's 0.5, i.e. 21.4% of white; it is shown at nits_white cd/m2 "
+NARROW = 64  # narrower frames are encoded padded to this width and cropped back (libx265 4.3's
+             # 10-bit encoder crashes at widths 34..48)
+ANCHOR = ("diffuse white = the radiance an SDR camera at the run's reference exposure (the median "
+          "of its frames') records as signal 1.0: "
+          "the learned camera's half signal at that exposure taken as sRGB's 0.5, i.e. 21.4% of "
+          "white; it is shown at nits_white cd/m2 "
           "(BT.2408's HDR reference white, where SDR's 100% lands)")
 
 
 @functools.lru_cache(maxsize=8)
 def _ffmpeg_text(exe: str, *args: str) -> str:
     try:
-        res = subprocess.run([exe, "-hide_banner", *args], stdin=subprocess.DEVNULL, capture_output=True, text=True, timeout=60)
+        res = subprocess.run([exe, "-hide_banner", *args], stdin=subprocess.DEVNULL,
+                             capture_output=True, text=True, timeout=60)
     except (OSError, subprocess.SubprocessError):
         return ""
     return res.stdout + res.stderr
 
 
 def missing_for_hdr(exe: str | None = None) -> str | None:
-    """What the ffmpeg ``exe`` (default: :func:`layercam.io.video.ffmpeg_exe`) lacks to write HDR
+    """What the ffmpeg ``exe`` (default: :func:`layercam.io.ffmpeg.ffmpeg_exe`) lacks to write HDR
     video: None, or a phrase naming it ("libx265 encoder")."""
-    from layercam.io.video import ffmpeg_exe
+    from layercam.io.ffmpeg import ffmpeg_exe
 
     exe = exe or ffmpeg_exe()
     if not re.search(r"^\s*V\S*\s+libx265\s", _ffmpeg_text(exe, "-encoders"), re.M):
@@ -96,7 +101,8 @@ class HdrMapping:
     peak: float = bt2100.DISPLAY_PEAK
 
     @classmethod
-    def anchored(cls, fmt: str, white: float, nits_white: float = bt2100.REFERENCE_WHITE, primaries: str = "bt709") -> "HdrMapping":
+    def anchored(cls, fmt: str, white: float, nits_white: float = bt2100.REFERENCE_WHITE,
+                 primaries: str = "bt709") -> "HdrMapping":
         """The mapping that shows radiance ``white`` (diffuse white) at ``nits_white`` cd/m2."""
         if fmt not in TRANSFER:
             raise LayercamError(f"HDR format must be one of {', '.join(TRANSFER)}, got {fmt!r}")
@@ -104,7 +110,8 @@ class HdrMapping:
             raise LayercamError(f"diffuse white must be a positive radiance, got {white}")
         if not (math.isfinite(nits_white) and 0 < nits_white <= bt2100.DISPLAY_PEAK):
             raise LayercamError(f"nits_white must be in (0, {bt2100.DISPLAY_PEAK:g}] cd/m2, got {nits_white}")
-        target = nits_white if fmt == "pq" else bt2100.DISPLAY_PEAK * (nits_white / bt2100.DISPLAY_PEAK) ** (1 / bt2100.hlg_gamma())
+        target = nits_white if fmt == "pq" else bt2100.DISPLAY_PEAK * (nits_white
+            / bt2100.DISPLAY_PEAK) ** (1 / bt2100.hlg_gamma())
         return cls(fmt, target / white, primaries)
 
     @functools.cached_property
@@ -146,7 +153,8 @@ class HdrMapping:
         if self.fmt == "pq":
             return m * ratio
         ys = (lin @ np.asarray(bt2100.LUMA_2020, np.float32)) * ratio / bt2100.DISPLAY_PEAK
-        return (bt2100.DISPLAY_PEAK * np.power(np.maximum(ys, 1e-12), bt2100.hlg_gamma() - 1) * m * ratio / bt2100.DISPLAY_PEAK).astype(np.float32)
+        return (bt2100.DISPLAY_PEAK * np.power(np.maximum(ys, 1e-12), bt2100.hlg_gamma() - 1) * m
+                * ratio / bt2100.DISPLAY_PEAK).astype(np.float32)
 
     def signal(self, img: np.ndarray) -> np.ndarray:
         """Non-linear R'G'B' in [0, 1] ``(H, W, 3)`` float32."""
@@ -185,7 +193,8 @@ def _master_display(primaries: str, hi: float) -> str:
     return f"G{xy(g)}B{xy(b)}R{xy(r)}WP{xy(w)}L({round(min(max(hi, 5.0), bt2100.PQ_PEAK) * 10000)},1)"
 
 
-def write_hdr_video(path: str | os.PathLike, frames: Callable[[], Iterable[np.ndarray]], fps: float, fmt: str, white: float,
+def write_hdr_video(path: str | os.PathLike, frames: Callable[[], Iterable[np.ndarray]], fps: float,
+                    fmt: str, white: float,
                     nits_white: float = bt2100.REFERENCE_WHITE, primaries: str = "bt709", audio: dict | None = None,
                     crf: int = CRF, progress: bool = False) -> dict:
     """Write ``path`` (an mp4, atomically): the linear HDR frames that each call of ``frames()``
@@ -195,7 +204,8 @@ def write_hdr_video(path: str | os.PathLike, frames: Callable[[], Iterable[np.nd
     (:func:`layercam.io.video.mux_audio`). Returns what it wrote (the report's ``hdr_video``).
     Raises ``LayercamError`` (one line) when ffmpeg lacks libx265 or fails."""
     from layercam.io.atomic import ensure_writable_dir, temp_name
-    from layercam.io.video import _last_line, ffmpeg_exe, finish_with_audio, mp4_complete, rate_text
+    from layercam.io.ffmpeg import ffmpeg_exe, last_line, rate_text
+    from layercam.io.video import finish_with_audio, mp4_complete
     from layercam.core.progress import bar
 
     t0 = time.perf_counter()
@@ -217,7 +227,8 @@ def write_hdr_video(path: str | os.PathLike, frames: Callable[[], Iterable[np.nd
     if n == 0:
         raise LayercamError(f"no frames for {path.name}")
     if min(size) < MIN_SIDE:
-        raise LayercamError(f"cannot write {path.name}: libx265 encodes frames of at least {MIN_SIDE} px a side, these are {size[1]}x{size[0]}")
+        raise LayercamError(f"cannot write {path.name}: libx265 encodes frames of at least "
+                            f"{MIN_SIDE} px a side, these are {size[1]}x{size[0]}")
     cll, fall = 0.0, 0.0
     for img in frames():  # pass 2: the light levels of what the reference display shows
         m = mp.display_max(img)
@@ -230,12 +241,16 @@ def write_hdr_video(path: str | os.PathLike, frames: Callable[[], Iterable[np.nd
     h, w = size[0] + size[0] % 2, size[1] + size[1] % 2
     pad = max(0, NARROW - w)  # encoded wider, cropped back by the stream's conformance window
     side = _side_data_options(exe)
-    params = [f"log-level=error", "colorprim=bt2020", f"transfer={trc}", "colormatrix=bt2020nc", "range=limited", "chromaloc=0",
+    params = [f"log-level=error", "colorprim=bt2020", f"transfer={trc}", "colormatrix=bt2020nc",
+              "range=limited", "chromaloc=0",
               f"master-display={master}", f"max-cll={max_cll},{max_fall}", "hdr10=1"]
     colour = ["-color_primaries", "bt2020", "-color_trc", trc, "-colorspace", "bt2020nc", "-color_range", "tv"]
-    cmd = [exe, "-hide_banner", "-loglevel", "error", "-y", "-f", "rawvideo", "-pix_fmt", "yuv420p10le", "-s", f"{w + pad}x{h}", "-framerate", rate_text(fps),
-           *(["-mastering_display", master, "-content_light", f"{max_cll},{max_fall}"] if side else []), *colour, "-i", "-",
-           "-c:v", "libx265", "-preset", PRESET, "-crf", str(crf), "-profile:v", "main10", "-pix_fmt", "yuv420p10le", "-x265-params", ":".join(params),
+    cmd = [exe, "-hide_banner", "-loglevel", "error", "-y", "-f", "rawvideo", "-pix_fmt",
+           "yuv420p10le", "-s", f"{w + pad}x{h}", "-framerate", rate_text(fps),
+           *(["-mastering_display", master, "-content_light", f"{max_cll},{max_fall}"] if side
+             else []), *colour, "-i", "-",
+           "-c:v", "libx265", "-preset", PRESET, "-crf", str(crf), "-profile:v", "main10",
+           "-pix_fmt", "yuv420p10le", "-x265-params", ":".join(params),
            *colour, "-chroma_sample_location", "left", *(["-bsf:v", f"hevc_metadata=crop_right={pad}"] if pad else []),
            "-tag:v", "hvc1", "-movflags", "+faststart"]  # fmt: skip
     tmp = temp_name(path)
@@ -243,7 +258,8 @@ def write_hdr_video(path: str | os.PathLike, frames: Callable[[], Iterable[np.nd
         proc = subprocess.Popen([*cmd, str(tmp)], stdin=subprocess.PIPE, stdout=subprocess.DEVNULL, stderr=log)
         try:
             try:
-                for img in bar(frames(), total=n, desc=f"{path.name} ({fmt})", unit="frame", enabled=progress):  # pass 3: encode
+                for img in bar(frames(), total=n, desc=f"{path.name} ({fmt})", unit="frame",
+                               enabled=progress):  # pass 3: encode
                     proc.stdin.write(_yuv420(mp.signal(_even(np.asarray(img, np.float32), pad))))
                 proc.stdin.close()
             except (BrokenPipeError, OSError):
@@ -259,118 +275,14 @@ def write_hdr_video(path: str | os.PathLike, frames: Callable[[], Iterable[np.nd
     if rc != 0 or not tmp.is_file() or not mp4_complete(tmp):
         tmp.unlink(missing_ok=True)
         full = " (is the disk full?)" if "No space left" in text or rc == 0 else ""
-        raise LayercamError(f"cannot write {path}{full}: ffmpeg failed ({_last_line(text)})")
+        raise LayercamError(f"cannot write {path}{full}: ffmpeg failed ({last_line(text)})")
 
     sound = finish_with_audio(tmp, path, audio)
-    return {"file": path.name, "format": fmt, "transfer": trc, "codec": "hevc main10 yuv420p10le bt2020nc", "frames": n, "fps": rate_text(fps),
+    return {"file": path.name, "format": fmt, "transfer": trc,
+            "codec": "hevc main10 yuv420p10le bt2020nc", "frames": n, "fps": rate_text(fps),
             "nits_white": nits_white, "white_radiance": white, "scale": float(mp.scale), "primaries_in": primaries,
-            "source_peak": round(mp.source_peak, 2), "display_peak": mp.peak, "rolled_off": bool(mp.source_peak > mp.peak),
-            "max_cll": max_cll, "max_fall": max_fall, "master_display": master, "metadata": "mp4 boxes and SEI" if side else "SEI",
+            "source_peak": round(mp.source_peak, 2), "display_peak": mp.peak,
+            "rolled_off": bool(mp.source_peak > mp.peak),
+            "max_cll": max_cll, "max_fall": max_fall, "master_display": master,
+            "metadata": "mp4 boxes and SEI" if side else "SEI",
             "audio": sound, "seconds": round(time.perf_counter() - t0, 2)}  # fmt: skip
-
-
-# -- reading back: checks and figures --------------------------------------------------------------
-def _decode(path: Path, pix_fmt: str, args: tuple[str, ...] = ()) -> tuple[bytes, str]:
-    from layercam.io.video import ffmpeg_exe
-
-    res = subprocess.run([ffmpeg_exe(), "-nostdin", "-hide_banner", "-i", str(path), *args, "-map", "0:v:0", "-f", "rawvideo", "-pix_fmt", pix_fmt, "-"],
-                         stdin=subprocess.DEVNULL, capture_output=True)  # fmt: skip
-    text = res.stderr.decode("utf-8", "replace")
-    if res.returncode != 0:
-        from layercam.io.video import _last_line
-
-        raise LayercamError(f"cannot read video {path}: {_last_line(text)}")
-    return res.stdout, text
-
-
-def read_hdr_video(path: str | os.PathLike) -> tuple[np.ndarray, dict]:
-    """Decode an HDR video written by :func:`write_hdr_video` (whole, for checks and figures) ->
-    ``(light (T, H, W, 3) float32, info)``: BT.2020 linear light in cd/m2 as the reference display
-    shows it (PQ: the EOTF; HLG: the inverse OETF and the 1000 cd/m2 display's OOTF). ``info``:
-    :func:`probe_video`, and ``signal``: the non-linear R'G'B' ``(T, H, W, 3)``."""
-    path = Path(path)
-    info = probe_video(path)
-    if info.get("transfer") not in ("smpte2084", "arib-std-b67"):
-        raise LayercamError(f"{path} is not PQ or HLG (transfer {info.get('transfer')})")
-    data, text = _decode(path, "yuv420p10le")
-    w, h = info["width"], info["height"]
-    n = len(data) // (w * h * 3)  # 2 bytes x 1.5 samples per pixel
-    planes = np.frombuffer(data[: n * w * h * 3], "<u2").reshape(n, -1)
-    y = planes[:, : w * h].reshape(n, h, w).astype(np.float64)
-    uv = planes[:, w * h :].reshape(n, 2, h // 2, w // 2).astype(np.float64)
-    up = np.repeat(uv, 2, axis=2)  # rows: each chroma row serves two
-    full = np.empty((n, 2, h, w))
-    full[..., 0::2] = up
-    nxt = np.concatenate([up[..., 1:], up[..., -1:]], -1)
-    full[..., 1::2] = 0.5 * (up + nxt)  # left-sited: the odd columns lie between two samples
-    sig = bt2100.ycbcr_decode(np.stack([y, full[:, 0], full[:, 1]], -1))
-    if info["transfer"] == "smpte2084":
-        light = bt2100.pq_decode(sig)
-    else:
-        light = bt2100.hlg_ootf(bt2100.hlg_inverse_oetf(sig))
-    info["signal"] = sig.astype(np.float32)
-    return light.astype(np.float32), info
-
-
-def sdr_view(light: np.ndarray, source_peak: float, white: float = bt2100.REFERENCE_WHITE) -> np.ndarray:
-    """HDR display light ``(..., 3)`` (BT.2020, cd/m2) as an SDR screen shows it when the player tone
-    maps it (as mpv / libplacebo do): diffuse white ``white`` becomes SDR's 100%, the light above it
-    is rolled off by the BT.2390 EETF from ``source_peak`` (the file's MaxCLL) to ``white`` on each
-    pixel's largest component, then BT.2020 -> BT.709 (clipped to its gamut) and the sRGB curve.
-    Returns ``(..., 3)`` float32 in [0, 1]."""
-    from layercam.core.colour import srgb_encode
-
-    light = np.maximum(np.asarray(light, np.float64), 0.0)
-    m = light.max(-1)
-    ratio = np.where(m > 0, bt2100.eetf(m, max(source_peak, white), white) / np.maximum(m, 1e-30), 1.0)
-    rgb = (light * ratio[..., None] / white) @ bt2100.primaries_matrix("bt2020", "bt709").T
-    return srgb_encode(np.clip(rgb, 0.0, 1.0)).astype(np.float32)
-
-
-_NUM = r"([\d.]+)"
-
-
-def probe_video(path: str | os.PathLike) -> dict:
-    """What ffprobe's ``-show_streams`` would say of a video's first video stream, from the bundled
-    ffmpeg (which ships without ffprobe): its header (``ffmpeg -i``) and its first frame's side data
-    (the ``showinfo`` filter). Keys: ``codec``, ``profile``, ``pix_fmt``, ``color_range``,
-    ``color_space``, ``color_primaries``, ``transfer``, ``width``, ``height``, ``fps``, ``duration``,
-    ``audio``; ``stream_side_data`` and ``frame_side_data`` (lines), ``mastering_display``
-    (``{"r", "g", "b", "wp": (x, y), "min", "max"}`` from the stream, else the frame) and
-    ``content_light`` (``{"max_cll", "max_fall"}``), None where absent."""
-    from layercam.io.video import parse_header
-
-    path = Path(path)
-    if not path.is_file():
-        raise LayercamError(f"video not found: {path}")
-    _, text = _decode(path, "gray", ("-frames:v", "1", "-vf", "showinfo"))  # the decoded first frame's side data
-    head = text.split("Output #0", 1)[0]
-    out = dict(parse_header(text))
-    m = re.search(r"Stream #0:\d+[^:]*: Video: (\w+)(?: \(([^)]*)\))?[^,]*, (\w+)(?:\(([^)]*)\))?, (\d+)x(\d+)", head)
-    if not m:
-        raise LayercamError(f"{path} has no video stream")
-    out.update(codec=m.group(1), profile=m.group(2), pix_fmt=m.group(3), width=int(m.group(5)), height=int(m.group(6)),
-               color_range=None, color_space=None, color_primaries=None, transfer=None)  # fmt: skip
-    for tok in (m.group(4) or "").split(", "):
-        parts = tok.split("/")
-        if tok in ("tv", "pc"):
-            out["color_range"] = tok
-        elif len(parts) == 3:
-            out["color_space"], out["color_primaries"], out["transfer"] = parts
-        elif tok and tok not in ("progressive",) and " " not in tok:
-            out["color_space"] = out["color_primaries"] = out["transfer"] = tok
-    block = re.search(r"Stream #0:\d+[^:]*: Video:.*?\n((?:\s{4,}.*\n)*)", head)
-    stream_lines = [ln.strip() for ln in (block.group(1).splitlines() if block else [])]
-    side = stream_lines[stream_lines.index("Side data:") + 1 :] if "Side data:" in stream_lines else []
-    out["stream_side_data"] = [ln for ln in side if ":" in ln and not ln.startswith(("Metadata", "handler_name", "vendor_id", "encoder"))]
-    out["frame_side_data"] = re.findall(r"side data - ([^\n]*)", text)
-    out["mastering_display"] = out["content_light"] = None
-    for line in out["stream_side_data"] + out["frame_side_data"]:
-        md = re.search(rf"r\({_NUM}[, ]\s*{_NUM}\) g\({_NUM}[, ]\s*{_NUM}\) b\({_NUM}[, ]\s*{_NUM}\) wp\({_NUM}[, ]\s*{_NUM}\) min_luminance={_NUM}, max_luminance={_NUM}", line)
-        if md and out["mastering_display"] is None:
-            v = [float(x) for x in md.groups()]
-            out["mastering_display"] = {"r": tuple(v[0:2]), "g": tuple(v[2:4]), "b": tuple(v[4:6]), "wp": tuple(v[6:8]), "min": v[8], "max": v[9]}
-        cl = re.search(r"MaxCLL=(\d+), MaxFALL=(\d+)", line)
-        if cl and out["content_light"] is None:
-            out["content_light"] = {"max_cll": int(cl.group(1)), "max_fall": int(cl.group(2))}
-    return out

@@ -48,7 +48,8 @@ def read_image(path: str | os.PathLike, return_bit_depth: bool = False, return_a
 
     Returns ``img`` or, with ``return_bit_depth=True``, ``(img, bit_depth)`` where bit_depth is
     8, 16 or 32 (float); with ``return_alpha=True`` also the fraction of pixels that the dropped
-    alpha channel made transparent in any part (None without an alpha channel), last. Raises ``LayercamError`` if the file is missing or cannot be decoded.
+    alpha channel made transparent in any part (None without an alpha channel), last. Raises
+    ``LayercamError`` if the file is missing or cannot be decoded.
     """
     import cv2
 

@@ -33,7 +33,8 @@ def _owner_record() -> dict:
     return {
         "pid": os.getpid(),
         "host": socket.gethostname(),
-        "command": " ".join(["layercam", *sys.argv[1:]]) if sys.argv and "layercam" in sys.argv[0] else " ".join(sys.argv),
+        "command": " ".join(["layercam", *sys.argv[1:]]) if sys.argv and "layercam" in sys.argv[0]
+        else " ".join(sys.argv),
         "since": time.strftime("%Y-%m-%d %H:%M:%S"),
     }
 
@@ -78,7 +79,8 @@ def _acquire(path: Path, say) -> int:
                 return fd
             os.close(fd)
             owner = lock_owner(path.parent)
-            raise LayercamError(f"{path.parent} is in use by {_describe(owner)}; wait for it to finish or choose another --out") from None
+            raise LayercamError(f"{path.parent} is in use by {_describe(owner)}; wait for it to "
+                                "finish or choose another --out") from None
         try:
             same = os.fstat(fd).st_ino == os.stat(path).st_ino
         except FileNotFoundError:
@@ -93,7 +95,8 @@ def _acquire(path: Path, say) -> int:
             except ValueError:
                 prev = None
             here = prev and prev.get("host") == socket.gethostname()
-            state = "no longer running" if here and not pid_alive(int(prev.get("pid", -1))) else "ended without removing it"
+            state = "no longer running" if here and not pid_alive(int(prev.get("pid",
+                -1))) else "ended without removing it"
             say(f"taking over a stale lock of {_describe(prev)}: {state}")
         os.ftruncate(fd, 0)
         os.lseek(fd, 0, os.SEEK_SET)

@@ -13,7 +13,8 @@ from pathlib import Path
 import numpy as np
 
 from layercam.core.errors import LayercamError
-from layercam.io.clip import Clip, _resize, natural_key
+from layercam.io.clip import Clip
+from layercam.io.inputs import natural_key, resize
 
 __all__ = ["MASK_SUFFIXES", "list_masks", "load_masks"]
 
@@ -92,7 +93,7 @@ def load_masks(folder: str | os.PathLike, clip: Clip, own_size: bool = False) ->
     h, w = shape if own_size else (clip.H, clip.W)
 
     def read(p) -> np.ndarray:  # the mask's share of the object at the clip's pixels, > 0.5
-        return _resize(_read_mask(p) / peak, (w, h)) > 0.5 if peak > 0 else np.zeros((h, w), bool)
+        return resize(_read_mask(p) / peak, (w, h)) > 0.5 if peak > 0 else np.zeros((h, w), bool)
 
     cache = (clip.meta or {}).get("frames_cache")
     if cache:  # a clip kept on disk: its masks too, a mask read at a time

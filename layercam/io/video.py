@@ -2,8 +2,9 @@
 binary bundled with imageio-ffmpeg (works offline). Imported lazily inside the functions.
 
 What the input's header says (frame rate, variable rate, duration, sound, colour primaries) comes
-with the frames (``read_video(..., with_info=True)``, :func:`parse_header`); the videos written keep
-the input's frame rate as a fraction (:func:`rate_text`: 30000/1001, not 29.97) and carry its sound
+with the frames (``read_video(..., with_info=True)``, :func:`layercam.io.ffmpeg.parse_header`); the videos
+written keep the input's frame rate as a fraction (:func:`layercam.io.ffmpeg.rate_text`: 30000/1001,
+not 29.97) and carry its sound
 over (:func:`mux_audio`, ``VideoWriter(audio=...)``).
 """
 
@@ -20,8 +21,10 @@ from pathlib import Path
 import numpy as np
 
 from layercam.core.errors import LayercamError
+from layercam.io.ffmpeg import ffmpeg_exe, last_line, ntsc, parse_header, rate_text
 
-__all__ = ["VideoWriter", "VIDEO_SUFFIXES", "iter_video", "probe_video", "read_video", "write_video", "mux_audio", "parse_header", "rate_text", "ffmpeg_exe"]
+__all__ = ["VideoWriter", "VIDEO_SUFFIXES", "iter_video", "probe_video", "read_video",
+           "write_video", "mux_audio", "mp4_complete"]
 
 VIDEO_SUFFIXES: tuple[str, ...] = (".mp4", ".mov", ".avi", ".mkv", ".m4v", ".webm", ".gif")
 
@@ -41,72 +44,8 @@ _OUT_STREAM = re.compile(r"Output #0.*?Stream #0:0.*?: Video: rawvideo[^\n]*?, (
 _DURATION = re.compile(r"Duration: (\d+):(\d+):([\d.]+)")
 
 
-def ffmpeg_exe() -> str:
-    """The ffmpeg binary every video goes through: imageio-ffmpeg's (``IMAGEIO_FFMPEG_EXE`` names
-    another)."""
-    import imageio_ffmpeg
-
-    return imageio_ffmpeg.get_ffmpeg_exe()
-
-
-def _ntsc(fps: float) -> float:
-    """``fps`` as printed by ffmpeg (two decimals: 29.97) -> the NTSC rate it stands for
-    (30000/1001) when it is one, else ``fps``."""
-    n = round(fps * 1.001)
-    if n >= 10 and abs(fps - n / 1.001) < 0.006 and abs(fps - round(fps)) > 0.006:
-        return n * 1000 / 1001
-    return fps
-
-
-def rate_text(fps: float) -> str:
-    """A frame rate as ffmpeg reads it exactly: ``"30000/1001"`` for NTSC rates, ``"25/2"``, ``"24"``."""
-    from fractions import Fraction
-
-    n = round(fps * 1.001)
-    if abs(fps - n * 1000 / 1001) < 1e-9 * fps and abs(fps - round(fps)) > 1e-6:
-        return f"{n * 1000}/1001"
-    return str(Fraction(fps).limit_denominator(1001))
-
-
-_STREAM = re.compile(r"Stream #0:\d+[^:]*: (Video|Audio): ([^\n]*)")
-_TAGGED = ("bt709", "bt2020", "bt470bg", "smpte170m", "smpte240m", "smpte432", "smpte431", "bt470m", "film", "smpte428", "jedec-p22")
-
-
-def parse_header(text: str) -> dict:
-    """What ffmpeg's log says about its input file (the part before ``Output #0``): ``fps`` (the
-    average rate, None when not said), ``tbr`` (the rate ffmpeg guesses, that a constant-rate
-    decode uses), ``variable`` (the two differ by more than 0.1%), ``duration`` (seconds or None),
-    ``video`` (its codec line), ``audio`` (the first audio stream's codec, or None) and
-    ``primaries`` (the colour primaries the video is tagged with, or None)."""
-    head = text.split("Output #0", 1)[0]
-    out: dict = {"fps": None, "tbr": None, "variable": False, "duration": None, "video": None, "audio": None, "primaries": None}
-    m = re.search(r"Duration: (\d+):(\d+):(\d+(?:\.\d+)?)", head)
-    if m:
-        out["duration"] = int(m.group(1)) * 3600 + int(m.group(2)) * 60 + float(m.group(3))
-    for kind, line in _STREAM.findall(head):
-        if kind == "Audio" and out["audio"] is None:
-            out["audio"] = line.split()[0].rstrip(",")
-        elif kind == "Video" and out["video"] is None:
-            out["video"] = line
-            rates = {k: float(v) * (1000 if k_ else 1) for v, k_, k in re.findall(r"([\d.]+)(k?) (fps|tbr)\b", line)}
-            out["fps"], out["tbr"] = rates.get("fps"), rates.get("tbr")
-            if out["fps"] and out["tbr"]:
-                out["variable"] = abs(out["fps"] - out["tbr"]) > 1e-3 * out["tbr"]
-            colour = re.search(r", \w+\(([^)]*)\)", line)
-            for tok in (colour.group(1).split(", ") if colour else []):
-                parts = tok.split("/")
-                name = parts[1] if len(parts) == 3 else parts[0]
-                if name in _TAGGED:
-                    out["primaries"] = name
-    return out
-
-
-def _last_line(text: str) -> str:
-    lines = [ln.strip() for ln in text.splitlines() if ln.strip()]
-    return lines[-1][:160] if lines else "no output from ffmpeg"
-
-
-def iter_video(path: str | os.PathLike, max_frames: int | None = None, stride: int = 1, info: dict | None = None) -> Iterator[np.ndarray]:
+def iter_video(path: str | os.PathLike, max_frames: int | None = None, stride: int = 1,
+               info: dict | None = None) -> Iterator[np.ndarray]:
     """Decode a video file frame by frame: yields uint8 RGB ``(H, W, 3)`` frames, one in memory at
     a time. ``stride`` keeps every K-th frame (0, K, 2K, ...), then ``max_frames`` keeps the first
     N of those; decoding stops as soon as N are given. ``info``, when given, is filled before the
@@ -153,17 +92,18 @@ def iter_video(path: str | os.PathLike, max_frames: int | None = None, stride: i
                 m = _OUT_STREAM.search(text)
             if not m:
                 raise LayercamError(
-                    f"cannot read video {p}: not a video or corrupt ({_last_line(text)})"
+                    f"cannot read video {p}: not a video or corrupt ({last_line(text)})"
                 )
             w, h = int(m.group(1)), int(m.group(2))
             rate = re.search(r"([\d.]+) (?:fps|tbr)", m.group(3))
-            fps = _ntsc(float(rate.group(1))) if rate else 24.0
+            fps = ntsc(float(rate.group(1))) if rate else 24.0
             if not np.isfinite(fps) or fps <= 0:
                 fps = 24.0
             if info is not None:
                 dur = _DURATION.search(text)
                 secs = int(dur.group(1)) * 3600 + int(dur.group(2)) * 60 + float(dur.group(3)) if dur else None
-                info.update(size=(w, h), fps=fps, frames=int(round(secs * fps)) if secs else None, header=parse_header(text))
+                info.update(size=(w, h), fps=fps, frames=int(round(secs * fps)) if secs else None,
+                            header=parse_header(text))
             nbytes = w * h * 3
             assert proc.stdout is not None
             i = 0
@@ -184,7 +124,7 @@ def iter_video(path: str | os.PathLike, max_frames: int | None = None, stride: i
         if not given:
             log.seek(0)
             text = log.read().decode("utf-8", "replace")
-            raise LayercamError(f"video {p} has no decodable frames ({_last_line(text)})")
+            raise LayercamError(f"video {p} has no decodable frames ({last_line(text)})")
 
 
 def probe_video(path: str | os.PathLike) -> dict:
@@ -277,7 +217,8 @@ class VideoWriter:
         from fractions import Fraction
 
         self._gen = imageio_ffmpeg.write_frames(
-            str(self._tmp), (w + w % 2, h + h % 2), fps=Fraction(rate_text(self.fps)), codec="libx264", quality=None, macro_block_size=2,
+            str(self._tmp), (w + w % 2, h + h % 2), fps=Fraction(rate_text(self.fps)),
+            codec="libx264", quality=None, macro_block_size=2,
             pix_fmt_out="yuv420p", ffmpeg_log_level="error",
             output_params=["-crf", str(self.crf), "-preset", "medium", "-movflags", "+faststart"],
         )
@@ -337,19 +278,25 @@ def mux_audio(video: Path, audio: dict, out: Path) -> dict:
     why, and ``out`` is not written."""
     src = Path(audio["path"])
     if not src.is_file():
-        return {"kept": False, "codec": audio.get("codec"), "copied": False, "why": f"the input {src} is no longer there"}
+        return {"kept": False, "codec": audio.get("codec"), "copied": False,
+                "why": f"the input {src} is no longer there"}
     cut = ["-t", f"{float(audio['duration']):.6f}"] if audio.get("duration") else []
-    base = [ffmpeg_exe(), "-nostdin", "-hide_banner", "-loglevel", "error", "-y", "-i", str(video), *cut, "-i", str(src), "-map", "0:v:0", "-map", "1:a:0", "-c:v", "copy"]
+    base = [ffmpeg_exe(), "-nostdin", "-hide_banner", "-loglevel", "error", "-y", "-i", str(video),
+            *cut, "-i", str(src), "-map", "0:v:0", "-map", "1:a:0", "-c:v", "copy"]
     why = ""
     for copied, codec in ((True, ["-c:a", "copy"]), (False, ["-c:a", "aac", "-b:a", "256k"])):
-        res = subprocess.run([*base, *codec, "-movflags", "+faststart", str(out)], stdin=subprocess.DEVNULL, capture_output=True, text=True)
+        res = subprocess.run([*base, *codec, "-movflags", "+faststart", str(out)],
+                             stdin=subprocess.DEVNULL, capture_output=True, text=True)
         if res.returncode == 0 and out.is_file() and mp4_complete(out):
-            return {"kept": True, "codec": audio.get("codec"), "copied": copied, "why": "" if copied else f"{audio.get('codec')} cannot be copied into mp4 ({why}): encoded as AAC"}
-        why = _last_line(res.stderr)
+            return {"kept": True, "codec": audio.get("codec"), "copied": copied,
+                    "why": "" if copied
+                    else f"{audio.get('codec')} cannot be copied into mp4 ({why}): encoded as AAC"}
+        why = last_line(res.stderr)
         out.unlink(missing_ok=True)
         if "No space left" in res.stderr:
             raise LayercamError(f"cannot write {out.with_name(video.name)} (the disk is full): {why}")
-    return {"kept": False, "codec": audio.get("codec"), "copied": False, "why": f"ffmpeg could not carry it over ({why})"}
+    return {"kept": False, "codec": audio.get("codec"), "copied": False,
+            "why": f"ffmpeg could not carry it over ({why})"}
 
 
 def mp4_complete(path: str | os.PathLike) -> bool:

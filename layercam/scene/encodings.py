@@ -80,7 +80,8 @@ def bilinear_corners(uv: torch.Tensor, res: int) -> tuple[torch.Tensor, torch.Te
 
 def _sample(img: torch.Tensor, uv: torch.Tensor) -> torch.Tensor:
     """``grid_sample`` of ``img (1, F, r, r)`` at ``uv (N, 2)`` -> ``(N, F)``."""
-    return F.grid_sample(img, uv.view(1, -1, 1, 2), mode="bilinear", padding_mode="border", align_corners=False)[0, :, :, 0].t()
+    return F.grid_sample(img, uv.view(1, -1, 1, 2), mode="bilinear", padding_mode="border",
+                         align_corners=False)[0, :, :, 0].t()
 
 
 class SparseGridSample(torch.autograd.Function):
@@ -107,7 +108,8 @@ class SparseGridSample(torch.autograd.Function):
         grad_table = grad_uv = None
         if ctx.needs_input_grad[1]:
             g = torch.ops.aten.grid_sampler_2d_backward(
-                grad_out.t()[None, :, :, None], level_image(table, res), uv.view(1, -1, 1, 2), 0, 1, False, [False, True]
+                grad_out.t()[None, :, :, None], level_image(table, res), uv.view(1, -1, 1, 2), 0, 1,
+                False, [False, True]
             )[1]
             grad_uv = g.view(-1, 2).to(uv.dtype)
         if ctx.needs_input_grad[0]:
@@ -129,7 +131,8 @@ class DenseGrid2D(nn.Module):
     (``grids.<l>``, before the tables) load into this layout.
     """
 
-    def __init__(self, levels: int = 6, min_res: int = 16, max_res: int = 256, features: int = 4, init_std: float = 1e-2, sparse_cells: int = SPARSE_CELLS):
+    def __init__(self, levels: int = 6, min_res: int = 16, max_res: int = 256, features: int = 4,
+                 init_std: float = 1e-2, sparse_cells: int = SPARSE_CELLS):
         super().__init__()
         if levels < 1 or min_res < 2 or max_res < min_res:
             raise ValueError("DenseGrid2D: need levels >= 1 and 2 <= min_res <= max_res")
@@ -174,18 +177,22 @@ class DenseGrid3D(nn.Module):
     to ``frames``): the coarse levels are shared by neighbouring frames, the finest holds one slice
     per frame. With ``max_cells``, the finest level holds at most that many cells: a long clip's
     levels then have the slices of a clip of ``max_cells / max_res^2`` frames, each shared by
-    neighbouring frames (the parameters do not grow with the clip). Trilinear sampling (``align_corners=False``: frame ``t``'s slice of the
+    neighbouring frames (the parameters do not grow with the clip). Trilinear sampling
+    (``align_corners=False``: frame ``t``'s slice of the
     finest level sits at ``(2t + 1) / frames - 1``), borders clamp.
     """
 
-    def __init__(self, levels: int, max_res: int, frames: int, features: int = 2, init_std: float = 1e-2, max_cells: int = 0):
+    def __init__(self, levels: int, max_res: int, frames: int, features: int = 2,
+                 init_std: float = 1e-2, max_cells: int = 0):
         super().__init__()
         if levels < 1 or max_res < 2 or frames < 1:
             raise ValueError("DenseGrid3D: need levels >= 1, max_res >= 2 and frames >= 1")
         if max_cells:  # a long clip: neighbouring frames share slices, the finest level holding at most max_cells cells
             frames = min(frames, max(max_cells // max(max_res, 4) ** 2, 2))
-        self.shapes = [(max(frames // 2 ** (levels - 1 - l), min(frames, 2)), max(max_res // 2 ** (levels - 1 - l), 4)) for l in range(levels)]
-        self.grids = nn.ParameterList([nn.Parameter(torch.randn(1, features, d, r, r) * init_std) for d, r in self.shapes])
+        self.shapes = [(max(frames // 2 ** (levels - 1 - l), min(frames, 2)),
+                        max(max_res // 2 ** (levels - 1 - l), 4)) for l in range(levels)]
+        self.grids = nn.ParameterList([nn.Parameter(torch.randn(1, features, d, r, r) * init_std)
+                                       for d, r in self.shapes])
         self.out_dim = levels * features
 
     def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs):
@@ -193,7 +200,8 @@ class DenseGrid3D(nn.Module):
         kept one slice per frame however long the clip): levels take the saved shapes."""
         for i, g in enumerate(self.grids):
             saved = state_dict.get(f"{prefix}grids.{i}")
-            if saved is not None and saved.shape != g.shape and saved.shape[:2] == g.shape[:2] and saved.shape[3:] == g.shape[3:]:
+            if (saved is not None and saved.shape != g.shape and saved.shape[:2] == g.shape[:2]
+                and saved.shape[3:] == g.shape[3:]):
                 self.grids[i] = nn.Parameter(torch.empty_like(saved, device=g.device))
                 self.shapes[i] = (int(saved.shape[2]), int(saved.shape[3]))
         super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
@@ -202,5 +210,6 @@ class DenseGrid3D(nn.Module):
         if xyt.ndim != 2 or xyt.shape[1] != 3:
             raise ValueError(f"DenseGrid3D expects (N, 3), got {tuple(xyt.shape)}")
         g = xyt.view(1, -1, 1, 1, 3).to(self.grids[0].dtype)
-        feats = [F.grid_sample(grid, g, mode="bilinear", padding_mode="border", align_corners=False)[0, :, :, 0, 0] for grid in self.grids]
+        feats = [F.grid_sample(grid, g, mode="bilinear", padding_mode="border",
+                               align_corners=False)[0, :, :, 0, 0] for grid in self.grids]
         return torch.cat(feats, dim=0).t()

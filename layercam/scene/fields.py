@@ -39,7 +39,8 @@ class AtlasField(nn.Module):
             # touch (4 corners each), and always from SPARSE_CELLS on: a step's cost then grows with the
             # batch, not the grid
             sparse = SPARSE_CELLS if batch is None else min(SPARSE_CELLS, 4 * batch)
-            self.enc = DenseGrid2D(cfg.grid_levels, min(GRID_MIN_RES, max_res), max_res, GRID_FEATURES, sparse_cells=sparse)
+            self.enc = DenseGrid2D(cfg.grid_levels, min(GRID_MIN_RES, max_res), max_res,
+                                   GRID_FEATURES, sparse_cells=sparse)
         elif cfg.encoding == "pe":
             self.enc = PositionalEncoding(2, ATLAS_PE_FREQS)
         else:
@@ -113,14 +114,14 @@ class Deformation(nn.Module):
         return uv + self.residual_scale * torch.tanh(res)
 
 
-ALPHA_GRID_CELLS = 1 << 24  # cells of each alpha grid level at most (64 frames at 512 x 512; a longer clip's frames share slices)
+ALPHA_GRID_MAX = 512  # cells across the alpha grid's finest level at most (T x 512^2 x 2 floats)
+ALPHA_GRID_CELLS = 1 << 24  # cells of each alpha grid level at most (64 frames at 512 x 512; a
+                            # longer clip's frames share slices)
 
 
 def alpha_grid_capped(cfg: SceneConfig, n_frames: int, frame_hw: tuple[int, int]) -> bool:
     """Whether ``ALPHA_GRID_CELLS`` shapes the alpha grid of a clip of ``n_frames`` (its finest level,
     :func:`layercam.scene.layered.derived_sizes`, over the frames)."""
-    from layercam.scene.layered import ALPHA_GRID_MAX
-
     r = int(min(max(frame_hw), ALPHA_GRID_MAX))
     return cfg.alpha_encoding == "grid" and n_frames * r * r > ALPHA_GRID_CELLS
 

@@ -13,10 +13,9 @@ import math
 
 import numpy as np
 
-from layercam.scene.fields import LOG2_R_BOUND, AlphaField, AtlasField, Deformation
+from layercam.scene.fields import ALPHA_GRID_MAX, LOG2_R_BOUND, AlphaField, AtlasField, Deformation
 
 GRID_RES_RANGE = (32, 2048)  # the atlas grid's finest level, cells across, at least / at most
-ALPHA_GRID_MAX = 512         # cells across the alpha grid's finest level at most (T x 512^2 x 2 floats)
 
 
 def derived_sizes(h0, frame_hw: tuple[int, int], fine: bool) -> dict:
@@ -51,19 +50,24 @@ class LayeredScene(nn.Module):
     step (which grid levels train sparsely, :class:`layercam.scene.fields.AtlasField`).
     """
 
-    def __init__(self, cfg, h0: torch.Tensor, sizes: dict, init_log2: float = 0.0, residual: bool = True, still_background: bool = False, batch: int | None = None):
+    def __init__(self, cfg, h0: torch.Tensor, sizes: dict, init_log2: float = 0.0,
+                 residual: bool = True, still_background: bool = False, batch: int | None = None):
         super().__init__()
         if h0.ndim != 4:
             raise ValueError(f"h0 must be (L, T, 3, 3), got {tuple(h0.shape)}")
         self.n_layers, self.n_frames = h0.shape[0], h0.shape[1]
         still_bg = self.n_layers > 1 and still_background
-        self.deformations = nn.ModuleList([Deformation(cfg, h0[i], residual=residual, still=i == 0 and still_bg) for i in range(self.n_layers)])
-        self.atlases = nn.ModuleList([AtlasField(cfg, sizes["grid_max_res"], init_log2, batch) for _ in range(self.n_layers)])
+        self.deformations = nn.ModuleList([Deformation(cfg, h0[i], residual=residual,
+                                                       still=i == 0 and still_bg)
+                                           for i in range(self.n_layers)])
+        self.atlases = nn.ModuleList([AtlasField(cfg, sizes["grid_max_res"], init_log2, batch)
+                                      for _ in range(self.n_layers)])
         self.alpha = AlphaField(cfg, self.n_frames, sizes["alpha_grid_res"]) if self.n_layers > 1 else None
 
     def mappings(self, xy: torch.Tensor, t: torch.Tensor) -> dict:
         """Only the geometry: ``uv`` per layer and ``alpha`` (what the flow losses compare)."""
-        return {"uv": [d(xy, t) for d in self.deformations], "alpha": self.alpha(xy, t) if self.alpha is not None else None}
+        return {"uv": [d(xy, t) for d in self.deformations],
+                "alpha": self.alpha(xy, t) if self.alpha is not None else None}
 
     def forward(self, xy: torch.Tensor, t: torch.Tensor) -> dict:
         if xy.ndim != 2 or xy.shape[1] != 2 or t.shape != xy.shape[:1]:

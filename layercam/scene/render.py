@@ -7,14 +7,15 @@ import numpy as np
 import torch
 
 from layercam.core.colour import REC709, luma, srgb_encode
-from layercam.engine.sampler import pixel_grid
+from layercam.scene.coords import pixel_grid
 
 
 FRAME_OUTPUTS = ("hdr", "log2_r", "layers", "ldr", "uv", "alpha")
 
 
 @torch.no_grad()
-def render_frame(model, t: int, hw: tuple[int, int], what=("hdr",), *, log2_dt: float | None = None, blur: bool = False, t_blur: float | None = None, centred: bool = False,
+def render_frame(model, t: int, hw: tuple[int, int], what=("hdr",), *, log2_dt: float | None = None,
+                 blur: bool = False, t_blur: float | None = None, centred: bool = False,
                  stride: int = 1, chunk: int = 65536) -> dict:
     """Frame ``t`` of a trained model at ``hw = (H, W)``, rendered in chunks of ``chunk`` pixels on
     the model's device (``chunk / K`` with a ``K``-sample blur patch); the one full-frame renderer of
@@ -59,7 +60,8 @@ def render_frame(model, t: int, hw: tuple[int, int], what=("hdr",), *, log2_dt: 
             v = got[k]()
             if v is not None:
                 parts[k].append(v.float().cpu())
-    shapes = {"hdr": (h, w, 3), "log2_r": (h, w, 3), "ldr": (h, w, 3), "alpha": (h, w), "uv": (-1, h, w, 2), "layers": (-1, h, w, 3)}
+    shapes = {"hdr": (h, w, 3), "log2_r": (h, w, 3), "ldr": (h, w, 3), "alpha": (h, w),
+              "uv": (-1, h, w, 2), "layers": (-1, h, w, 3)}
     res = {}
     for k, v in parts.items():
         if not v:
@@ -70,7 +72,8 @@ def render_frame(model, t: int, hw: tuple[int, int], what=("hdr",), *, log2_dt: 
     return res
 
 
-def _through_camera(model, xy, t, out: dict, log2_dt: float | None, blur: bool, t_blur: float | None, centred: bool = False) -> torch.Tensor:
+def _through_camera(model, xy, t, out: dict, log2_dt: float | None, blur: bool,
+                    t_blur: float | None, centred: bool = False) -> torch.Tensor:
     """The scene output ``out`` at ``xy, t`` as the camera records it: ``(N, 3)``."""
     log2_r = out["log2_r"]
     if blur:
@@ -230,3 +233,39 @@ def inverse_tone(model, rgb: np.ndarray, log2_dt: float, z_range: float = 24.0, 
         lo, hi = max(cv[0], 1.0 / 255), min(cv[-1], 254.0 / 255)
         out[..., c] = np.interp(np.clip(rgb[..., c], lo, hi), cv, zs) - float(log2_dt)
     return out
+
+
+# -- the clip again with new camera settings (layercam render) ---------------------------------------
+def exposure_at(model, f: float) -> float:
+    """log2 exposure at a fractional frame index (linear between neighbouring frames)."""
+    v = model.exposure.values().detach().cpu().numpy().astype(np.float64)
+    return float(np.interp(f, np.arange(len(v)), v))
+
+
+def exposure_frames(model, meta: dict, ev: float, keep_blur: bool = False, chunk: int = 65536, z0: float | None = None):
+    """Every frame at ``ev`` stops from the reference exposure (``z0``, default the model's):
+    ``(T, H, W, 3)``."""
+    hw = tuple(meta["frame_hw"])
+    z = (model.exposure.reference() if z0 is None else z0) + ev
+    return np.stack([render_frame(model, t, hw, "ldr", log2_dt=z, blur=keep_blur,
+                                  chunk=chunk)["ldr"] for t in range(int(meta["n_frames"]))])
+
+
+def exposure_sweep(model, meta: dict, evs, frame: int, keep_blur: bool = False, z0: float | None = None):
+    """One view at each of ``evs`` (stops from the reference exposure, ``z0`` or the model's):
+    ``(N, H, W, 3)``."""
+    hw = tuple(meta["frame_hw"])
+    z0 = model.exposure.reference() if z0 is None else z0
+    return np.stack([render_frame(model, frame, hw, "ldr", log2_dt=z0 + float(e), blur=keep_blur)["ldr"] for e in evs])
+
+
+def focus_sweep(model, meta: dict, fs, frame: int, ev: float | None = None, z0: float | None = None):
+    """One view with the blur of each fractional image index in ``fs``: ``(N, H, W, 3)``; at the
+    exposure interpolated at each ``f``, or at ``ev`` stops from the reference (``z0`` or the
+    model's) when given."""
+    hw = tuple(meta["frame_hw"])
+    out = []
+    for f in fs:
+        z = exposure_at(model, float(f)) if ev is None else (model.exposure.reference() if z0 is None else z0) + ev
+        out.append(render_frame(model, frame, hw, "ldr", log2_dt=z, t_blur=float(f), blur=True)["ldr"])
+    return np.stack(out)

@@ -16,7 +16,8 @@ from pathlib import Path
 import numpy as np
 
 
-def write_pan_hdr(out: Path, frames: int = 48, size: tuple[int, int] = (1080, 1920), ev_step: float = 3.0, seed: int = 0, progress: bool = False) -> dict:
+def write_pan_hdr(out: Path, frames: int = 48, size: tuple[int, int] = (1080, 1920),
+                  ev_step: float = 3.0, seed: int = 0, progress: bool = False) -> dict:
     """Writes the clip into ``out`` (skipped when ``scene.json`` there already describes it) and
     returns what ``scene.json`` holds. ``size`` is ``(H, W)``. Peak memory: the canvas and a frame."""
     from layercam import synth
@@ -25,7 +26,8 @@ def write_pan_hdr(out: Path, frames: int = 48, size: tuple[int, int] = (1080, 19
     from layercam.core.progress import bar
 
     out = ensure_writable_dir(Path(out))
-    want = {"family": "pan_hdr", "frames": int(frames), "size": [int(size[0]), int(size[1])], "ev_step": float(ev_step), "seed": int(seed)}
+    want = {"family": "pan_hdr", "frames": int(frames), "size": [int(size[0]), int(size[1])],
+            "ev_step": float(ev_step), "seed": int(seed)}
     done = out / "scene.json"
     if done.exists() and json.loads(done.read_text()).get("args") == want:
         return json.loads(done.read_text())
@@ -35,7 +37,9 @@ def write_pan_hdr(out: Path, frames: int = 48, size: tuple[int, int] = (1080, 19
     for t, (hdr, ldr) in enumerate(bar(each, total=frames, desc="synth", unit="frame", enabled=progress)):
         write_png(out / "frames" / f"frame_{t:05d}.png", ldr)
         write_exr(out / "truth" / f"frame_{t:05d}.exr", hdr, half=False)
-    atomic_write(out / "times.txt", lambda p: p.write_text("".join(f"frame_{t:05d} {v:g}\n" for t, v in enumerate(times))))
+    atomic_write(out / "times.txt",
+                 lambda p: p.write_text("".join(f"frame_{t:05d} {v:g}\n" for t,
+                                                v in enumerate(times))))
     info = {"args": want, "gain": meta["gain"], "crf": "srgb", "exposure_times": [float(v) for v in times],
             "frames": "frames/frame_*.png", "truth": "truth/frame_*.exr (linear, float32)"}
     atomic_write(done, lambda p: p.write_text(json.dumps(info, indent=1)))
@@ -50,7 +54,9 @@ def truth_frame(out: Path, t: int) -> np.ndarray:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m layercam.synth.disk", description="Write a synthetic pan_hdr clip with ground truth to disk, frame by frame.")
+    p = argparse.ArgumentParser(prog="python -m layercam.synth.disk",
+                                description="Write a synthetic pan_hdr clip with ground truth to "
+                                            "disk, frame by frame.")
     p.add_argument("out")
     p.add_argument("--size", default="1080x1920", help="HxW (default 1080x1920)")
     p.add_argument("--frames", type=int, default=48)

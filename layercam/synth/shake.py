@@ -82,7 +82,8 @@ def shake_blur(
     else:
         canvas = np.asarray(canvas, np.float32)
         if canvas.ndim != 3 or canvas.shape[2] != 3 or canvas.shape[0] < csize[0] or canvas.shape[1] < csize[1]:
-            raise LayercamError(f"canvas {canvas.shape} cannot hold this path: it needs (H, W, 3) of at least {csize[0]}x{csize[1]}")
+            raise LayercamError(f"canvas {canvas.shape} cannot hold this path: it needs (H, W, 3) "
+                                f"of at least {csize[0]}x{csize[1]}")
         ctr_abs = ctr + off + np.array([canvas.shape[1] - csize[1], canvas.shape[0] - csize[0]]) / 2.0
         if exposures != "single":
             raise LayercamError("a given canvas is exposed as given: exposures must be 'single'")

@@ -6,7 +6,8 @@ from __future__ import annotations
 import numpy as np
 
 from layercam.synth.camera import SynthScene, _alternating, _check_common, _expose, _make_clip
-from layercam.synth.canvas import _affine, _affine_flow, _blob_alpha, _canvas_for_path, _emitters_along, _pan_path, _warp, hdr_canvas
+from layercam.synth.canvas import (_affine, _affine_flow, _blob_alpha, _canvas_for_path,
+                                   _emitters_along, _pan_path, _warp, hdr_canvas)
 
 
 # --------------------------------------------------------------------------------------------

@@ -14,17 +14,16 @@ from __future__ import annotations
 
 import numpy as np
 
-from layercam.core.colour import REC601, luma
 from layercam.core.errors import LayercamError
-from layercam.core.geometry import pixel_grid, warp  # noqa: F401 - warp: the flow's backward warp, imported from here too
+from layercam.core.geometry import pixel_grid, warp  # noqa: F401 - warp: the flow's backward warp,
+                                                     # imported from here too
+from layercam.vision.flow_input import check_frame, check_frames, normalise_for_flow, pair_progress
 
 __all__ = [
     "FLOW_METHODS",
-    "NORMALISERS",
     "compute_flow",
     "flow_consistency",
     "global_homographies",
-    "normalise_for_flow",
     "pair_arrays",
     "residual_motion",
     "warp",
@@ -33,82 +32,11 @@ __all__ = [
 FLOW_METHODS = ("dis_ultrafast", "dis_fast", "dis_medium")
 _DIS_FINEST_MIN = 128  # px on the short side of DIS's finest pyramid level (see _dis)
 _DIS_MIN = 16  # OpenCV DIS needs frames of at least about 12 px; smaller ones are edge-padded
-NORMALISERS = ("rank", "equalize", "clahe", "rank_clahe", "grey")
-
-
-# --------------------------------------------------------------------------------------------
-# Exposure-invariant preprocessing
-# --------------------------------------------------------------------------------------------
-
-
-def _check_frame(frame) -> np.ndarray:
-    f = np.asarray(frame)
-    if f.ndim == 3 and f.shape[2] == 1:
-        f = f[..., 0]
-    if f.ndim not in (2, 3) or (f.ndim == 3 and f.shape[2] != 3):
-        raise LayercamError(f"expected a frame (H,W,3) or (H,W), got shape {f.shape}")
-    return f
-
-
-def _grey(frame: np.ndarray) -> np.ndarray:
-    f = np.asarray(frame, dtype=np.float64)
-    return luma(f, REC601) if f.ndim == 3 else f
-
-
-def _midrank(g: np.ndarray, samples: int | None = None) -> np.ndarray:
-    """Rank transform with ties at their mid rank, scaled to [0,1] (``(H,W)`` float64). With
-    ``samples``, ranks among an even subsample of at most that many values (a 1080p channel: one
-    sort of 131,072 values instead of 2 million)."""
-    flat = g.ravel()
-    srt = np.sort(flat if samples is None else flat[:: -(-flat.size // samples)])
-    lo = np.searchsorted(srt, flat, side="left")
-    hi = np.searchsorted(srt, flat, side="right")
-    return ((lo + hi - 1) / 2.0 / max(srt.size - 1, 1)).reshape(g.shape)
-
-
-def normalise_for_flow(frame, method: str = "rank") -> np.ndarray:
-    """Exposure-invariant greyscale ``(H,W)`` uint8 for flow from a frame ``(H,W,3)`` in [0,1].
-
-    method "rank" (default): luma -> rank transform (global histogram equalisation with ties
-    at their mid rank), which removes any monotone tone curve, e.g. an exposure change through
-    a CRF, up to clipping. Chosen by measurement: DIS-medium mean end-point error against the
-    known motion on 12 alternating-exposure (+3 EV, sRGB) ``synth.pan_hdr`` clips (seeds 0-5,
-    128x128 and 192x256, 5 pairs each, pixels staying in view): rank 0.084 px, equalize
-    0.092, rank_clahe 0.125, clahe 0.42, plain grey 0.89 (max 1.48); with DIS-fast rank 0.17,
-    equalize 0.18, clahe 0.39, grey 0.83.
-    Others: "equalize" (``cv2.equalizeHist`` of 8-bit luma), "clahe", "rank_clahe", "grey".
-    """
-    import cv2
-
-    f = _check_frame(frame)
-    if method not in NORMALISERS:
-        raise LayercamError(f"unknown flow normaliser {method!r}; choose one of {NORMALISERS}")
-    g = _grey(np.clip(np.asarray(f, np.float64), 0.0, 1.0))
-    if method == "grey":
-        return np.round(g * 255.0).astype(np.uint8)
-    if method == "equalize":
-        return cv2.equalizeHist(np.round(g * 255.0).astype(np.uint8))
-    if method == "clahe":
-        c = cv2.createCLAHE(clipLimit=3.0, tileGridSize=(8, 8))
-        return c.apply(np.round(g * 255.0).astype(np.uint8))
-    r = np.round(_midrank(g) * 255.0).astype(np.uint8)
-    if method == "rank_clahe":
-        r = cv2.createCLAHE(clipLimit=2.0, tileGridSize=(8, 8)).apply(r)
-    return r
 
 
 # --------------------------------------------------------------------------------------------
 # Dense flow (DIS)
 # --------------------------------------------------------------------------------------------
-
-
-def _check_frames(frames) -> np.ndarray:
-    f = np.asarray(frames)
-    if f.ndim != 4 or f.shape[3] != 3:
-        raise LayercamError(f"expected frames (T,H,W,3), got shape {f.shape}")
-    if f.shape[0] < 1:
-        raise LayercamError("need at least one frame")
-    return f
 
 
 def _dis(method: str, shape: tuple[int, int]):
@@ -129,16 +57,6 @@ def _dis(method: str, shape: tuple[int, int]):
     return dis
 
 
-def _progress(it, total: int, enabled: bool, desc: str):
-    if not enabled:
-        return it
-    try:
-        from tqdm import tqdm
-    except ImportError:  # pragma: no cover - tqdm is a dependency
-        return it
-    return tqdm(it, total=total, desc=desc, unit="pair", leave=False, disable=None)
-
-
 def compute_flow(
     frames,
     method: str = "dis_medium",
@@ -154,7 +72,7 @@ def compute_flow(
     Returns ``(fw, bw)``, each ``(T-1,H,W,2)`` float32 (``(0,H,W,2)`` when T == 1):
     ``fw[t]`` from frame t to t+1, ``bw[t]`` from t+1 to t.
     """
-    f = _check_frames(frames)
+    f = check_frames(frames)
     t, h, w = f.shape[:3]
     if method in ("raft", "raft_small", "raft_large"):
         if not weights_path:
@@ -169,7 +87,9 @@ def compute_flow(
         )
     fw = np.zeros((max(t - 1, 0), h, w, 2), np.float32)
     bw = np.zeros_like(fw)
-    for i, (a, b) in enumerate(_progress(dis_pairs(iter(f), method, normaliser), t - 1, progress, f"flow ({method})")):
+    for i, (a,
+            b) in enumerate(pair_progress(dis_pairs(iter(f), method, normaliser), t - 1, progress,
+                                          f"flow ({method})")):
         fw[i], bw[i] = a, b
     return fw, bw
 
@@ -185,7 +105,7 @@ def dis_pairs(frames, method: str = "dis_medium", normaliser: str = "rank"):
     first = next(it, None)
     if first is None:
         return
-    f0 = _check_frame(first)
+    f0 = check_frame(first)
     h, w = f0.shape[:2]
     dis = _dis(method, (h, w))
     # DIS refuses frames smaller than its patches: edge-pad tiny frames to _DIS_MIN, crop the flow
@@ -240,7 +160,8 @@ def flow_consistency(fw, bw, abs_tol: float = 1.0, rel_tol: float = 0.05) -> np.
 SIMPLER_SHARE = 0.9  # see global_homographies
 
 
-def global_homographies(fw, grid: int = 32, thresh: float = 1.0, seed: int = 0, mask=None, min_points: int = 24) -> np.ndarray:
+def global_homographies(fw, grid: int = 32, thresh: float = 1.0, seed: int = 0, mask=None,
+                        min_points: int = 24) -> np.ndarray:
     """Per-pair homography ``(T-1,3,3)`` (frame t -> t+1 pixel coordinates), fitted with RANSAC
     (reprojection threshold ``thresh`` px) to ``grid x grid`` flow correspondences.
 
@@ -261,11 +182,14 @@ def global_homographies(fw, grid: int = 32, thresh: float = 1.0, seed: int = 0, 
     out = np.repeat(np.eye(3)[None], n, 0)
     cv2.setRNGSeed(seed)
     for i in range(n):  # a pair at a time (flows kept on disk are read pair by pair)
-        out[i] = pair_homography(np.asarray(fw[i], np.float32), None if mask is None else np.asarray(mask[i]), grid, thresh, min_points)
+        out[i] = pair_homography(np.asarray(fw[i], np.float32),
+                                 None if mask is None else np.asarray(mask[i]), grid, thresh,
+                                 min_points)
     return out.astype(np.float64)
 
 
-def pair_homography(f: np.ndarray, mask: np.ndarray | None = None, grid: int = 32, thresh: float = 1.0, min_points: int = 24) -> np.ndarray:
+def pair_homography(f: np.ndarray, mask: np.ndarray | None = None, grid: int = 32,
+                    thresh: float = 1.0, min_points: int = 24) -> np.ndarray:
     """One pair's homography ``(3,3)`` for :func:`global_homographies` (which seeds OpenCV's RNG
     once for all pairs: a caller fitting pairs as they come seeds it once too)."""
     import cv2
@@ -295,12 +219,15 @@ def pair_homography(f: np.ndarray, mask: np.ndarray | None = None, grid: int = 3
     shift = np.median(d, axis=0)
     # the simplest model that explains nearly as many points (Occam): identity, translation,
     # homography (RANSAC fits a zoom to the flow noise between two differently focused images)
-    explained = {"identity": int((np.linalg.norm(d, axis=1) < thresh).sum()), "translation": int((np.linalg.norm(d - shift, axis=1) < thresh).sum())}
+    explained = {"identity": int((np.linalg.norm(d, axis=1) < thresh).sum()),
+                 "translation": int((np.linalg.norm(d - shift, axis=1) < thresh).sum())}
     if hm is not None and np.all(np.isfinite(hm)):
         pts = np.concatenate([src, np.ones((len(src), 1), np.float32)], 1) @ hm.T
         explained["homography"] = int((np.linalg.norm(pts[:, :2] / pts[:, 2:] - (src + d), axis=1) < thresh).sum())
     best = max(explained.values())
-    kind = next(k for k in ("identity", "translation", "homography") if k in explained and explained[k] >= SIMPLER_SHARE * best) if best else "translation"
+    kind = next(k for k in ("identity", "translation", "homography")
+                if k in explained
+                and explained[k] >= SIMPLER_SHARE * best) if best else "translation"
     if kind != "homography":
         hm = np.eye(3)
         if kind == "translation":
@@ -317,7 +244,8 @@ def pair_arrays(frames, fw, bw) -> dict:
 
     fw_ok = flow_consistency(fw, bw)
     vis = pair_visible(frames, fw)
-    return {"fw_ok": fw_ok, "bw_ok": flow_consistency(bw, fw), "vis": vis, "homs": global_homographies(fw, mask=vis & fw_ok)}
+    return {"fw_ok": fw_ok, "bw_ok": flow_consistency(bw, fw), "vis": vis,
+            "homs": global_homographies(fw, mask=vis & fw_ok)}
 
 
 def _homography_flow(hm: np.ndarray, h: int, w: int) -> np.ndarray:

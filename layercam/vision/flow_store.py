@@ -22,8 +22,10 @@ import numpy as np
 
 from layercam.core.interrupts import reached
 from layercam.io.frames import DiskArray
+from layercam.vision import scale
 
-ARRAYS = {"fw": (np.float16, 2), "bw": (np.float16, 2), "fw_ok": (np.bool_, 0), "bw_ok": (np.bool_, 0), "vis": (np.bool_, 0)}
+ARRAYS = {"fw": (np.float16, 2), "bw": (np.float16, 2), "fw_ok": (np.bool_, 0),
+          "bw_ok": (np.bool_, 0), "vis": (np.bool_, 0)}
 
 
 @dataclass(frozen=True, eq=False)
@@ -33,7 +35,7 @@ class FlowArrays(Mapping):
     consistency, ``vis`` ``(N, h, w)`` both frames see the pixel well, ``homs`` ``(N, 3, 3)`` each
     pair's global homography. The arrays are anything that indexes like an ndarray (the flow
     stage's :class:`~layercam.io.frames.DiskArray`, or arrays in memory); a field may be None where a
-    reader left it out (:func:`layercam.vision.scale.at_frame_size`'s ``keys``).
+    reader left it out (:func:`at_frame_size`'s ``keys``).
 
     Also a read-only mapping of the arrays present (``fl["fw"]``), the contract of the vision
     functions that take any mapping of flows (``layercam.vision.flow.compute_flow``'s dict)."""
@@ -64,7 +66,9 @@ class FlowArrays(Mapping):
 
     def rows(self, a: int, b: int) -> "FlowArrays":
         """Pairs ``a .. b - 1`` (views of arrays on disk: nothing read)."""
-        return replace(self, **{k: (v.rows(a, b) if hasattr(v, "rows") else np.asarray(v)[a:b]) for k, v in self.items()})
+        return replace(self,
+                       **{k: (v.rows(a, b) if hasattr(v, "rows") else np.asarray(v)[a:b]) for k,
+                          v in self.items()})
 
     def __getitem__(self, k: str):
         v = getattr(self, k, None) if k in _NAMES else None
@@ -83,14 +87,14 @@ _NAMES = tuple(f.name for f in fields(FlowArrays))
 
 
 
-def compute(frames, out: Path, cfg, progress: bool = False) -> dict:
+def compute(frames, out: Path, cfg, progress: bool = False, device: str = "cpu") -> dict:
     """Flow of the clip ``frames`` (``(T,H,W,3)``, read a frame at a time) with the ``flow``
-    settings ``cfg`` into ``out``; returns the stage's summary. Pair for pair the arrays the
+    settings ``cfg`` into ``out`` (RAFT on ``device``); returns the stage's summary. Pair for pair the arrays the
     whole-clip functions give (``flow.compute_flow``, ``flow.pair_arrays``): the same DIS object
     over the pairs, OpenCV's RNG seeded once for the homographies."""
     import cv2
 
-    from layercam.vision import flow, raft, scale
+    from layercam.vision import flow, raft
     from layercam.core.progress import bar
     from layercam.core.visibility import visible
 
@@ -99,7 +103,8 @@ def compute(frames, out: Path, cfg, progress: bool = False) -> dict:
     n = max(T - 1, 0)
     work = scale.working_size((H, W))
     h, w = work
-    arrays = {k: DiskArray.create(out / f"{k}.raw", dt, (n, h, w, 2) if c else (n, h, w)) for k, (dt, c) in ARRAYS.items()}
+    arrays = {k: DiskArray.create(out / f"{k}.raw", dt, (n, h, w, 2) if c else (n, h, w)) for k,
+              (dt, c) in ARRAYS.items()}
     homs = np.repeat(np.eye(3)[None], n, 0)
     last2: list = []  # the pair's two frames, as the flow read them
 
@@ -111,7 +116,7 @@ def compute(frames, out: Path, cfg, progress: bool = False) -> dict:
             yield f
 
     if cfg.method.startswith("raft"):
-        model = raft.raft_model(cfg.raft_weights, None if cfg.method == "raft" else cfg.method[5:])
+        model = raft.raft_model(cfg.raft_weights, None if cfg.method == "raft" else cfg.method[5:], device)
         pairs = raft.raft_pairs(feed(), model)
     else:
         pairs = flow.dis_pairs(feed(), cfg.method)
@@ -136,7 +141,10 @@ def compute(frames, out: Path, cfg, progress: bool = False) -> dict:
         a.flush()
         a.close()
     np.save(out / "homs.npy", homs.astype(np.float64))
-    (out / "flow.json").write_text(json.dumps({"pairs": n, "working_size": [h, w], "arrays": {k: [np.dtype(dt).str, c] for k, (dt, c) in ARRAYS.items()}}))
+    (out
+     / "flow.json").write_text(json.dumps({"pairs": n, "working_size": [h, w],
+                                           "arrays": {k: [np.dtype(dt).str, c] for k,
+                                                      (dt, c) in ARRAYS.items()}}))
     if n == 0:
         return {"pairs": 0}
     px = n * h * w
@@ -153,3 +161,25 @@ def load(out: Path) -> FlowArrays | None:
     h, w = info["working_size"]
     fl = {k: DiskArray(out / f"{k}.raw", dt, (n, h, w, 2) if c else (n, h, w)) for k, (dt, c) in info["arrays"].items()}
     return FlowArrays.of({**fl, "homs": np.load(out / "homs.npy")})
+
+
+def at_frame_size(fl, hw: tuple[int, int], keys: tuple | None = None):
+    """The flow stage's arrays (flows ``fw``/``bw``, masks ``fw_ok``/``bw_ok``/``vis``, homographies
+    ``homs``), computed at a working size, at the frames' size ``hw``: flows upsampled (in frame
+    pixels), masks by nearest pixel, homographies rescaled. ``keys``: only these (the others are
+    left out); ``fl`` itself when the sizes agree. A :class:`~layercam.vision.flow_store.FlowArrays`
+    gives one (the left-out arrays None), any other mapping a dict."""
+    if fl is None:
+        return None
+    work = tuple(fl["fw"].shape[1:3])
+    if work == tuple(hw):
+        return fl
+    out = {}
+    for k in keys or tuple(fl):
+        if k in ("fw", "bw"):
+            out[k] = scale.upsample_flow(fl[k], hw)
+        elif k in ("fw_ok", "bw_ok", "vis"):
+            out[k] = scale.upsample_mask(fl[k], hw)
+        elif k == "homs":
+            out[k] = scale.rescale_homographies(fl[k], work, hw)
+    return FlowArrays.of(out) if isinstance(fl, FlowArrays) else out

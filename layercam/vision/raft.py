@@ -7,7 +7,7 @@ import os
 import numpy as np
 
 from layercam.core.errors import LayercamError
-from layercam.vision.flow import _check_frames, _progress, normalise_for_flow
+from layercam.vision.flow_input import check_frames, normalise_for_flow, pair_progress
 
 
 def raft_flow(
@@ -25,18 +25,18 @@ def raft_flow(
     downloaded. Frames are normalised with ``normalise_for_flow`` (rank) and replicated to RGB,
     padded (replicate) to multiples of 8, at least 128.
     """
-    f = _check_frames(frames)
+    f = check_frames(frames)
     t, h, w = f.shape[:3]
     fw = np.zeros((max(t - 1, 0), h, w, 2), np.float32)
     bw = np.zeros_like(fw)
     model = raft_model(weights_path, variant, device)
-    for i, (a, b) in enumerate(_progress(raft_pairs(iter(f), model, iters), t - 1, progress, "flow (raft)")):
+    for i, (a, b) in enumerate(pair_progress(raft_pairs(iter(f), model, iters), t - 1, progress, "flow (raft)")):
         fw[i], bw[i] = a, b
     return fw, bw
 
 
 def raft_model(weights_path: str, variant: str | None = None, device: str | None = None):
-    """A torchvision RAFT (eval mode, on ``device``: CUDA when torch sees one by default) from a
+    """A torchvision RAFT (eval mode, on ``device``, the CPU by default: a run passes its own) from a
     local state dict (see :func:`raft_flow`); one-line ``LayercamError`` for a missing or wrong file."""
     if not weights_path or not os.path.isfile(weights_path):
         raise LayercamError(f"RAFT weights file not found: {weights_path!r}")
@@ -63,7 +63,7 @@ def raft_model(weights_path: str, variant: str | None = None, device: str | None
     if model is None:
         raise LayercamError(f"{weights_path!r} is not a torchvision RAFT "
                             f"{variant or 'large/small'} state dict")
-    dev = torch.device(device or ("cuda" if torch.cuda.is_available() else "cpu"))
+    dev = torch.device(device or "cpu")
     return model.eval().to(dev)
 
 

@@ -1,6 +1,7 @@
 """Flow at a working size: frames whose short side is longer than ``WORKING_SHORT_SIDE`` are flowed on
-scaled copies; flows, masks and homographies are carried back to the frame's size (``at_frame_size``,
-or ``AtFrameSize``, read a pair at a time)."""
+scaled copies; flows, masks and homographies are carried back to the frame's size (``AtFrameSize``,
+read a pair at a time;
+:func:`layercam.vision.flow_store.at_frame_size`, the flow stage's arrays)."""
 
 from __future__ import annotations
 
@@ -83,31 +84,8 @@ def upsample_mask(ok: np.ndarray, hw: tuple[int, int]) -> np.ndarray:
     n, h, w = ok.shape[:3]
     if (h, w) == tuple(hw):
         return np.asarray(ok, bool)
-    return np.stack([cv2.resize(m.astype(np.uint8), (hw[1], hw[0]), interpolation=cv2.INTER_NEAREST).astype(bool) for m in ok])
-
-
-def at_frame_size(fl, hw: tuple[int, int], keys: tuple | None = None):
-    """The flow stage's arrays (flows ``fw``/``bw``, masks ``fw_ok``/``bw_ok``/``vis``, homographies
-    ``homs``), computed at a working size, at the frames' size ``hw``: flows upsampled (in frame
-    pixels), masks by nearest pixel, homographies rescaled. ``keys``: only these (the others are
-    left out); ``fl`` itself when the sizes agree. A :class:`~layercam.vision.flow_store.FlowArrays`
-    gives one (the left-out arrays None), any other mapping a dict."""
-    if fl is None:
-        return None
-    work = tuple(fl["fw"].shape[1:3])
-    if work == tuple(hw):
-        return fl
-    out = {}
-    for k in keys or tuple(fl):
-        if k in ("fw", "bw"):
-            out[k] = upsample_flow(fl[k], hw)
-        elif k in ("fw_ok", "bw_ok", "vis"):
-            out[k] = upsample_mask(fl[k], hw)
-        elif k == "homs":
-            out[k] = rescale_homographies(fl[k], work, hw)
-    from layercam.vision.flow_store import FlowArrays
-
-    return FlowArrays.of(out) if isinstance(fl, FlowArrays) else out
+    return np.stack([cv2.resize(m.astype(np.uint8), (hw[1], hw[0]),
+                                interpolation=cv2.INTER_NEAREST).astype(bool) for m in ok])
 
 
 class AtFrameSize:

@@ -2,7 +2,8 @@
 
 For a pair (a, b): b is resampled into a's view by the pair's homography; b's grey levels are
 mapped onto a's by matching the quantiles of both, smoothed by ``MATCH_SIGMA``, over the
-pixels both see well (exposure and camera curve drop out, the blur does not); then per tile the band-pass energy (Laplacian of a Gaussian of ``BAND`` px) of
+pixels both see well (exposure and camera curve drop out, the blur does not); then per tile the
+band-pass energy (Laplacian of a Gaussian of ``BAND`` px) of
 each frame, less what its noise puts there, is compared with that of the other frame blurred by a
 Gaussian of sigma ``s``. The ``s`` that brings the sharper frame to the blurrier one's energy is
 the tile's relative blur: positive when b is the blurrier, negative when a is.
@@ -104,7 +105,8 @@ def _blur_to_reach(table: np.ndarray, target: np.ndarray) -> np.ndarray:
     return out
 
 
-def pair_relative_blur(fa: np.ndarray, fb: np.ndarray, hom: np.ndarray | None = None, exclude: np.ndarray | None = None) -> np.ndarray:
+def pair_relative_blur(fa: np.ndarray, fb: np.ndarray, hom: np.ndarray | None = None,
+                       exclude: np.ndarray | None = None) -> np.ndarray:
     """Signed relative blur (Gaussian sigma, px) of frame ``fb`` against ``fa`` (both ``(H, W, 3)``
     in [0, 1]) on each tile both see well: ``(n,)`` float32, positive where ``fb`` is the blurrier.
     ``hom (3, 3)`` maps ``fa``'s pixels to ``fb``'s (identity when None); ``exclude (H, W)`` bool
@@ -116,8 +118,10 @@ def pair_relative_blur(fa: np.ndarray, fb: np.ndarray, hom: np.ndarray | None = 
     flags = cv2.WARP_INVERSE_MAP
     ga = grey(fa)
     gb = cv2.warpPerspective(grey(fb), hom, (w, h), flags=cv2.INTER_LINEAR | flags, borderMode=cv2.BORDER_REPLICATE)
-    inside = cv2.warpPerspective(np.ones((h, w), np.uint8), hom, (w, h), flags=cv2.INTER_NEAREST | flags, borderValue=0) > 0
-    okb = cv2.warpPerspective(well_exposed(fb).astype(np.uint8), hom, (w, h), flags=cv2.INTER_NEAREST | flags, borderValue=0) > 0
+    inside = cv2.warpPerspective(np.ones((h, w), np.uint8), hom, (w, h),
+                                 flags=cv2.INTER_NEAREST | flags, borderValue=0) > 0
+    okb = cv2.warpPerspective(well_exposed(fb).astype(np.uint8), hom, (w, h),
+                              flags=cv2.INTER_NEAREST | flags, borderValue=0) > 0
     m = well_exposed(fa) & okb & inside
     if exclude is not None:
         m &= ~(cv2.dilate(np.asarray(exclude, np.uint8), np.ones((5, 5), np.uint8)) > 0)

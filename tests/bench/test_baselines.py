@@ -83,7 +83,8 @@ def test_lucky_regions_takes_the_sharp_neighbour_in_each_frames_view():
     out = baselines.lucky_regions(blurry, radius=2)
     assert out.shape == blurry.shape and out.dtype == np.float32
     c = slice(6, -6)  # away from the borders the flow cannot see past
-    gain = [metrics.ldr_metrics(out[t][c, c], sharp[t][c, c])["psnr"] - metrics.ldr_metrics(blurry[t][c, c], sharp[t][c, c])["psnr"] for t in (1, 3)]
+    gain = [metrics.ldr_metrics(out[t][c, c], sharp[t][c, c])["psnr"]
+            - metrics.ldr_metrics(blurry[t][c, c], sharp[t][c, c])["psnr"] for t in (1, 3)]
     assert min(gain) > 1.0, gain  # the sharp frame 2, warped into frames 1 and 3
     assert np.allclose(out[2][c, c], blurry[2][c, c], atol=0.02)  # the sharpest frame keeps itself
 

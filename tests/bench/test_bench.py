@@ -10,7 +10,8 @@ import json
 import numpy as np
 import pytest
 
-from layercam.bench.synthetic import run_analysis_table, speedups, time_to_reach
+from layercam.bench.analysis import run_analysis_table
+from layercam.bench.synthetic import speedups, time_to_reach
 from layercam.cli import main
 
 
@@ -64,7 +65,8 @@ def test_a_setting_reaches_every_preset_job(tmp_path):
     """``--set KEY=VALUE`` (here a training seed, for a spread over seeds) reaches each preset's run
     and is written in the row's note."""
     out = tmp_path / "bench"
-    assert main(["bench", "--quick", "--out", str(out), "--presets", "fast", "--threads", "1", "--set", "train.seed=3", "--quiet"]) == 0
+    assert main(["bench", "--quick", "--out", str(out), "--presets", "fast", "--threads", "1",
+                 "--set", "train.seed=3", "--quiet"]) == 0
     report = json.loads((out / "pan" / "fast" / "report.json").read_text())
     assert report["settings"]["train"]["seed"] == 3
     rows = [r for r in csv.DictReader(open(out / "bench.csv")) if r["method"] == "layercam"]
@@ -110,22 +112,26 @@ def test_quick_analysis_table_chosen_against_full(tmp_path):
 def test_scaling_table_writes_csv_and_plot(tmp_path, capsys):
     """``bench --table scaling`` on two tiny sizes: a row per size and method, costs and quality measured."""
     out = tmp_path / "sc"
-    argv = ["bench", "--table", "scaling", "--out", str(out), "--sizes", "16x16,24x32", "--frames", "4", "--presets", "fast",
+    argv = ["bench", "--table", "scaling", "--out", str(out), "--sizes", "16x16,24x32", "--frames",
+            "4", "--presets", "fast",
             "--threads", "1", "--set", "train.steps=30"]
     assert main(argv) == 0
     rows = list(csv.DictReader(open(out / "scaling.csv")))
-    assert [(r["size"], r["method"]) for r in rows] == [("16x16", "debevec"), ("16x16", "layercam"), ("24x32", "debevec"), ("24x32", "layercam")]
+    assert [(r["size"], r["method"]) for r in rows] == [("16x16", "debevec"), ("16x16", "layercam"),
+                                                        ("24x32", "debevec"), ("24x32", "layercam")]
     for r in rows:
         assert float(r["wall_s"]) > 0 and float(r["peak_mem_mb"]) > 0 and np.isfinite(float(r["psnr_mu"]))
     lc = [r for r in rows if r["method"] == "layercam"]
     assert all(int(r["steps"]) == 30 and float(r["steps_per_s"]) > 0 and float(r["train_s"]) > 0 for r in lc)
     assert [int(r["pixels"]) for r in lc] == [256, 768]
     assert (out / "scaling.png").stat().st_size > 1000
-    again = ["bench", "--table", "scaling", "--out", str(out), "--sizes", "16x16", "--frames", "4", "--presets", "balanced",
+    again = ["bench", "--table", "scaling", "--out", str(out), "--sizes", "16x16", "--frames", "4",
+             "--presets", "balanced",
              "--no-baseline", "--threads", "1", "--set", "train.steps=20", "--quiet"]
     assert main(again) == 0  # a later run adds its rows to the table
     rows = list(csv.DictReader(open(out / "scaling.csv")))
-    assert [(r["size"], r["method"], r["preset"]) for r in rows][:3] == [("16x16", "debevec", ""), ("16x16", "layercam", "fast"), ("16x16", "layercam", "balanced")]
+    assert [(r["size"], r["method"], r["preset"]) for r in rows][:3] == [("16x16", "debevec", ""),
+        ("16x16", "layercam", "fast"), ("16x16", "layercam", "balanced")]
     assert len(rows) == 5 and rows[2]["steps"] == "20"
     assert main(["bench", "--table", "scaling", "--out", str(out), "--sizes", "4x4"]) == 2
     assert "sizes start at 8x8" in capsys.readouterr().err

@@ -13,7 +13,8 @@ def test_quick_blur_table_writes_shake_and_mfme(tmp_path, capsys):
     """--quick on a 32x32 shake clip and the 3-image stack, two seeds: every number measured, the
     seeds' mean and std from their own runs."""
     out = tmp_path / "blur"
-    argv = ["bench", "--table", "blur", "--quick", "--cases", "shake,mfme-3", "--variants", "s5", "--seeds", "0,1", "--out", str(out)]
+    argv = ["bench", "--table", "blur", "--quick", "--cases", "shake,mfme-3", "--variants", "s5",
+            "--seeds", "0,1", "--out", str(out)]
     assert main(argv) == 0
     shake = json.loads((out / "shake.json").read_text())
     assert len(shake["blur_length"]) == 4 and shake["largest"] == int(np.argmax(shake["blur_length"]))

@@ -22,7 +22,8 @@ def test_step_sets_leave_each_step_out():
 def test_summary_is_the_sets_mean_and_worst_clip():
     def row(clip, iou):
         return {"clip": clip, "preset": "fast", "frames": 3, "size": "8x8", "flow_s": 1.0,
-                "sets": {k: {"iou": iou, "iou_min": iou / 2, "inside": 0.9, "seconds": 0.1} for k in finder.step_sets()}}
+                "sets": {k: {"iou": iou, "iou_min": iou / 2, "inside": 0.9, "seconds": 0.1}
+                         for k in finder.step_sets()}}
 
     rows = [row("a", 0.5), row("b", 0.8)]
     summary = finder.summarise(rows)
@@ -36,7 +37,8 @@ def test_summary_is_the_sets_mean_and_worst_clip():
 def test_finder_table_on_a_real_clip_and_resume(shared_data, tmp_path):
     if not (shared_data / "layers_davis_dog").is_dir():
         pytest.skip(f"{shared_data / 'layers_davis_dog'} is absent")
-    rows = finder.run_finder_table(tmp_path, shared_data, ["dog"], ("fast",), resize="0.2", max_frames=8, progress=False)
+    rows = finder.run_finder_table(tmp_path, shared_data, ["dog"], ("fast",), resize="0.2",
+                                   max_frames=8, progress=False)
     (r,) = rows
     assert r["frames"] == 8 and set(r["sets"]) == set(finder.step_sets())
     assert all(0.0 <= v["iou_min"] <= v["iou"] <= 1.0 and 0.0 <= v["inside"] <= 1.0 for v in r["sets"].values())
@@ -46,5 +48,6 @@ def test_finder_table_on_a_real_clip_and_resume(shared_data, tmp_path):
     # a finished clip is read back, not run again
     res = tmp_path / "results" / "finder-dog-fast.json"
     res.write_text(json.dumps({**r, "flow_s": -1.0}))
-    assert finder.run_finder_table(tmp_path, shared_data, ["dog"], ("fast",), resize="0.2", max_frames=8, progress=False)[0]["flow_s"] == -1.0
+    assert finder.run_finder_table(tmp_path, shared_data, ["dog"], ("fast",), resize="0.2",
+                                   max_frames=8, progress=False)[0]["flow_s"] == -1.0
     assert np.isfinite(r["flow_s"])

@@ -12,8 +12,12 @@ from layercam.cli import main
 
 
 def test_table_takes_medians_and_hdr_mp4s_share():
-    rows = [{"format": "none", "export_s": 10.0}, {"format": "pq", "export_s": 12.0, "hdr_video": {"seconds": 2.0}, "round_trip": {"kbit_s": 200.0, "median_lum_error": 0.01}},
-            {"format": "none", "export_s": 14.0}, {"format": "pq", "export_s": 14.0, "hdr_video": {"seconds": 4.0}, "round_trip": {"kbit_s": 210.0, "median_lum_error": 0.02}}]
+    rows = [{"format": "none", "export_s": 10.0},
+            {"format": "pq", "export_s": 12.0, "hdr_video": {"seconds": 2.0},
+             "round_trip": {"kbit_s": 200.0, "median_lum_error": 0.01}},
+            {"format": "none", "export_s": 14.0},
+            {"format": "pq", "export_s": 14.0, "hdr_video": {"seconds": 4.0},
+             "round_trip": {"kbit_s": 210.0, "median_lum_error": 0.02}}]
     md = table(rows, ["none", "pq"], 2).splitlines()
     assert md[2] == "| none | 12.0 | 0.0 |  |  |  |  |"
     assert md[3] == "| pq | 13.0 | 3.0 | +30.0% | 210.0 | 0.02 |  |"  # medians; the last round trip
@@ -41,7 +45,8 @@ def test_quick_hdr_video_table_round_trips_and_draws(tmp_path, capsys):
 
 
 def test_hdr_video_bad_format_and_missing_clip_are_one_line_errors(tmp_path, capsys):
-    assert main(["bench", "--table", "hdr-video", "--variants", "pq,dolby", "--out", str(tmp_path / "h"), "--data", str(tmp_path)]) == 2
+    assert main(["bench", "--table", "hdr-video", "--variants", "pq,dolby", "--out",
+                 str(tmp_path / "h"), "--data", str(tmp_path)]) == 2
     assert "dolby" in capsys.readouterr().err
     assert main(["bench", "--table", "hdr-video", "--out", str(tmp_path / "h"), "--data", str(tmp_path / "none")]) == 2
     err = capsys.readouterr().err

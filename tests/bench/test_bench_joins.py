@@ -9,7 +9,7 @@ import pytest
 
 from layercam.bench.joins import centred, forth_and_back, pair_flicker, per_frame_psnr_mu, two_windows
 from layercam.cli import main
-from layercam.pipelines.window_plan import overlap_for, split
+from layercam.pipelines.windows.plan import overlap_for, split
 
 
 def test_two_windows_cut_any_length_in_two():
@@ -45,7 +45,8 @@ def test_pair_flicker_on_static_pixels():
 
 
 def test_unknown_joins_case_and_missing_data_are_one_line_errors(tmp_path, capsys):
-    assert main(["bench", "--table", "joins", "--cases", "nope", "--out", str(tmp_path / "j"), "--data", str(tmp_path)]) == 2
+    assert main(["bench", "--table", "joins", "--cases", "nope", "--out", str(tmp_path / "j"),
+                 "--data", str(tmp_path)]) == 2
     assert "unknown case 'nope'" in capsys.readouterr().err
     assert main(["bench", "--table", "joins", "--out", str(tmp_path / "j"), "--data", str(tmp_path / "none")]) == 2
     err = capsys.readouterr().err
@@ -58,13 +59,15 @@ def test_quick_joins_on_the_composite(shared_data, tmp_path):
     """--quick: the composite (a real person over a real radiance map, truth per frame) 24 frames
     long at 48x64, one model and two windows of 14 frames; a second call reuses both runs."""
     out = tmp_path / "joins"
-    argv = ["bench", "--table", "joins", "--quick", "--cases", "composite", "--out", str(out), "--data", str(shared_data), "--quiet"]
+    argv = ["bench", "--table", "joins", "--quick", "--cases", "composite", "--out", str(out),
+            "--data", str(shared_data), "--quiet"]
     assert main(argv) == 0
     rep = json.loads((out / "joins.json").read_text())
     assert rep["window"] == "14" and rep["preset"] == "fast"
     r = rep["results"][0]
     assert r["case"] == "composite" and r["overlap"] == [10, 14] and r["join_pairs"] == [9, 10, 11, 12, 13]
-    assert len(r["psnr_single"]) == len(r["psnr_windows"]) == 24 and np.load(out / "composite" / "truth.npy").shape == (24, 48, 64, 3)
+    assert len(r["psnr_single"]) == len(r["psnr_windows"]) == 24 and np.load(out / "composite"
+        / "truth.npy").shape == (24, 48, 64, 3)
     assert np.isfinite(r["psnr_single_mean"]) and np.isfinite(r["psnr_windows_mean"]) and 0 <= r["worst_frame"] < 24
     assert np.isfinite(r["flicker_windows_join_mean"]) and 0 < r["static_share"] <= 1
     assert "| composite | two windows |" in (out / "joins.md").read_text() and (out / "joins.png").stat().st_size > 5000

@@ -17,11 +17,20 @@ def _result(out, case, tag, rows, code="abc1234"):
 
 def test_table_rows_in_order_with_truth_kind_clipped_share_and_analysis(tmp_path):
     _result(tmp_path, "ntire-000000", "prepare", [])
-    (tmp_path / "cases/ntire-000000/prepare/result.json").write_text(json.dumps({"rows": [], "job": {"case": "ntire-000000"}, "clipped_share": 0.125}))
-    analysis = {"choice": "2 layer(s), blur 3x3 (s 5), tone learned, flow loss on", "reasons": {"layers": "independent motion in 100% of frame pairs"}}
-    _result(tmp_path, "ntire-000000", "layercam-balanced", [{"method": "layercam", "preset": "balanced", "psnr_mu": 30.5, "wall_s": 100.0, "analysis": analysis}])
-    _result(tmp_path, "ntire-000000", "layercam-fast", [{"method": "layercam", "preset": "fast", "psnr_mu": 29.0, "wall_s": 10.0, "analysis": analysis}])
-    _result(tmp_path, "ntire-000000", "classical", [{"method": "debevec", "preset": "", "psnr_mu": 34.28, "wall_s": 0.1}, {"method": "robertson", "preset": "", "psnr_mu": 31.3, "wall_s": 0.1}])
+    (tmp_path
+     / "cases/ntire-000000/prepare/result.json").write_text(json.dumps({"rows": [],
+        "job": {"case": "ntire-000000"}, "clipped_share": 0.125}))
+    analysis = {"choice": "2 layer(s), blur 3x3 (s 5), tone learned, flow loss on",
+                "reasons": {"layers": "independent motion in 100% of frame pairs"}}
+    _result(tmp_path, "ntire-000000", "layercam-balanced",
+            [{"method": "layercam", "preset": "balanced", "psnr_mu": 30.5, "wall_s": 100.0,
+              "analysis": analysis}])
+    _result(tmp_path, "ntire-000000", "layercam-fast",
+            [{"method": "layercam", "preset": "fast", "psnr_mu": 29.0, "wall_s": 10.0,
+              "analysis": analysis}])
+    _result(tmp_path, "ntire-000000", "classical",
+            [{"method": "debevec", "preset": "", "psnr_mu": 34.28, "wall_s": 0.1},
+             {"method": "robertson", "preset": "", "psnr_mu": 31.3, "wall_s": 0.1}])
     _result(tmp_path, "taipei-3", "classical", [{"method": "debevec", "preset": "", "psnr_mu": 36.6, "wall_s": 0.1}])
     _result(tmp_path, "basler", "layercam-fast", [{"method": "layercam", "preset": "fast", "failed": "exit 2"}])
     _result(tmp_path, "not-a-case", "classical", [{"method": "x"}])

@@ -297,7 +297,7 @@ def test_t_blur_interpolates_between_frames():
 
 def test_in_model():
     from layercam.core.config import Config
-    from layercam.scene.model import ImplicitCameraModel
+    from layercam.engine.model import ImplicitCameraModel
 
     from conftest import decided
 

@@ -36,7 +36,8 @@ class _Flat(torch.nn.Module):
     dtype=DTYPES,
     autocast=AUTOCAST,
 )
-def test_blur_kernels_normalised_offsets_bounded_outputs_finite(n, max_offset, hw, logits, off_sign, level, dtype, autocast):
+def test_blur_kernels_normalised_offsets_bounded_outputs_finite(n, max_offset, hw, logits, off_sign,
+    level, dtype, autocast):
     torch.manual_seed(0)
     blur = BlurGenerator(n, max_offset, 2, hw, width=8, depth=2)
     k = n * n
@@ -60,8 +61,12 @@ def test_blur_kernels_normalised_offsets_bounded_outputs_finite(n, max_offset, h
 
 @props(40)
 @given(
-    patch=hnp.arrays(np.float32, (4, 5, 3), elements=st.one_of(st.sampled_from([-40.0, 40.0, 0.0]), st.floats(-40, 40, width=32))),
-    weights=hnp.arrays(np.float32, (4, 5), elements=st.one_of(st.sampled_from([0.0, 1e-45, 1.0]), st.floats(0, 1, width=32))),
+    patch=hnp.arrays(np.float32, (4, 5, 3),
+                     elements=st.one_of(st.sampled_from([-40.0, 40.0, 0.0]),
+                                        st.floats(-40, 40, width=32))),
+    weights=hnp.arrays(np.float32, (4, 5),
+                       elements=st.one_of(st.sampled_from([0.0, 1e-45, 1.0]),
+                                          st.floats(0, 1, width=32))),
     dtype=DTYPES,
 )
 def test_apply_patch_blur_is_a_finite_convex_blend(patch, weights, dtype):

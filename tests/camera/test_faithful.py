@@ -55,10 +55,12 @@ def test_export_agrees_with_the_frame_where_the_model_is_wrong(tiny_scene, tiny_
 
     from conftest import TINY
 
-    ctx = run_task("hdr-video", tiny_scene.clip, tiny_exposures, load_config("fast", TINY + ["train.steps=60"]), tmp_path / "run", progress=False)
+    ctx = run_task("hdr-video", tiny_scene.clip, tiny_exposures,
+                   load_config("fast", TINY + ["train.steps=60"]), tmp_path / "run", progress=False)
     model, t = ctx.model, 1
     frame = tiny_scene.clip.frames[t].copy()
-    frame[8:20, 8:20] = 0.5 + 0.4 * ((np.indices((12, 12)) // 3).sum(0) % 2)[..., None]  # a checkerboard of 3 px squares
+    # a checkerboard of 3 px squares
+    frame[8:20, 8:20] = 0.5 + 0.4 * ((np.indices((12, 12)) // 3).sum(0) % 2)[..., None]
     res = faithful.faithful_log2(model, frame, t)
     target = inverse_tone(model, frame, float(model.exposure.values()[t]))
     inside = (slice(10, 18), slice(10, 18))
@@ -66,7 +68,8 @@ def test_export_agrees_with_the_frame_where_the_model_is_wrong(tiny_scene, tiny_
     err_model = np.abs(res["model_log2_r"][inside] - target[inside]).mean()
     assert err_faithful < 0.25 * err_model, (err_faithful, err_model)
     sigma = faithful.frame_noise(frame, faithful.exposure_weight(frame))
-    lower, upper = faithful.clip_bounds(model, frame, float(model.exposure.values()[t]), np.full(3, 254.5 / 255, np.float32), sigma)
+    lower, upper = faithful.clip_bounds(model, frame, float(model.exposure.values()[t]),
+                                        np.full(3, 254.5 / 255, np.float32), sigma)
     assert (res["log2_r"] >= lower).all() and (res["log2_r"] <= upper).all()
     assert np.isfinite(res["log2_r"]).all()
 
@@ -87,7 +90,8 @@ def test_neighbour_fill_moves_corrections_along_the_flow():
     assert np.allclose(support[:2], 0.0) and np.allclose(support[2:, :13], 1.0)
     half, _ = faithful.neighbour_fill([(0.25 * full * delta, 0.25 * full, np.zeros((h, w, 2), np.float32))])
     assert np.allclose(half[:, 9:], 0.25)
-    two, _ = faithful.neighbour_fill([(full * delta, full, np.zeros((h, w, 2), np.float32)), (full * 0.0, full, np.zeros((h, w, 2), np.float32))])
+    two, _ = faithful.neighbour_fill([(full * delta, full, np.zeros((h, w, 2), np.float32)),
+                                      (full * 0.0, full, np.zeros((h, w, 2), np.float32))])
     assert np.allclose(two[:, 9:], 0.5)
     assert faithful.neighbour_fill([]) is None
 
@@ -123,7 +127,9 @@ def test_merge_takes_neighbours_that_agree_and_leaves_a_ghost_to_the_frame():
     a_t = faithful.merge_weight(faithful.exposure_weight(frame), 0.0, [0.0, 3.0])
     a_n = faithful.merge_weight(np.ones_like(frame), 3.0, [0.0, 3.0])
     flow = np.zeros(z.shape[:2] + (2,), np.float32)
-    merged, weight = faithful.merge_neighbours((z_t, a_t), [(z_n, a_n, flow)], frame, cam, 0.0, np.full(3, 254.5 / 255, np.float32), np.full(3, 0.01, np.float32))
+    merged, weight = faithful.merge_neighbours((z_t, a_t), [(z_n, a_n, flow)], frame, cam, 0.0,
+                                               np.full(3, 254.5 / 255, np.float32),
+                                               np.full(3, 0.01, np.float32))
     far = np.s_[:, 40:]
     err = lambda a: float(np.abs(a - z)[far].mean())  # noqa: E731
     assert err(merged) < 0.3 * err(z_t)
@@ -162,17 +168,22 @@ def test_clipped_in_every_frame_keeps_to_the_shortest_exposures_clipping_point()
     z_model[:, 12:] = 3.0 + 0.5 * np.sin(np.arange(12))[None, :, None]  # invented structure where both clipped
     frames = np.stack([np.clip(np.exp2(z_model + dt), 0, 1) ** (1 / 2.2) for dt in dts]).astype(np.float32)
     assert (frames[:, :, 12:] >= levels).all() and (frames[:, :, :12] < levels).all()
-    corr = {"model_log2_r": z_model, "delta": np.zeros_like(z_model), "weight": np.zeros_like(z_model), "exposed": faithful.exposure_weight(frames[0], levels),
+    corr = {"model_log2_r": z_model, "delta": np.zeros_like(z_model),
+            "weight": np.zeros_like(z_model),
+            "exposed": faithful.exposure_weight(frames[0], levels),
             "log2_dts": dts, "levels": levels, "info": {"sigma": np.full(3, 0.002, np.float32)}}
-    clip = faithful.faithful_log2(model, frames[0], 0, levels, frames, corr=dict(corr, info=dict(corr["info"])), clipped="clip")
+    clip = faithful.faithful_log2(model, frames[0], 0, levels, frames,
+                                  corr=dict(corr, info=dict(corr["info"])), clipped="clip")
     kept = faithful.faithful_log2(model, frames[0], 0, levels, frames, corr=dict(corr, info=dict(corr["info"])))
-    z_clip = float(np.log2(254.0 / 255) * 2.2)  # where the gamma camera reaches the last code inverse_tone reads at dt 0
+    z_clip = float(np.log2(254.0 / 255) * 2.2)  # where the gamma camera reaches the last code
+                                                # inverse_tone reads at dt 0
     assert clip["unseen"][:, 12:].all() and not clip["unseen"][:, :12].any()
     assert np.allclose(clip["log2_r"][:, 12:], z_clip, atol=0.02)  # flat, at the short frame's clipping point
     assert kept["log2_r"][:, 12:].mean() > z_clip + 2.5  # the model's level
     assert np.allclose(clip["log2_r"][:, :12], -3.0, atol=1e-4) and np.allclose(kept["log2_r"][:, :12], -3.0, atol=1e-4)
     with pytest.raises(ValueError, match="clipped-everywhere"):
-        faithful.faithful_log2(model, frames[0], 0, levels, frames, corr=dict(corr, info=dict(corr["info"])), clipped="bright")
+        faithful.faithful_log2(model, frames[0], 0, levels, frames,
+                               corr=dict(corr, info=dict(corr["info"])), clipped="bright")
 
 
 def test_a_compressed_frames_small_measured_noise_is_floored():
@@ -226,7 +237,9 @@ def test_denoise_removes_the_noise_and_keeps_edges_and_texture_above_it():
     step = float(out[:, 33:36].mean() - out[:, 28:31].mean())
     assert abs(step - 3.0) < 0.1
     stripes = out[:, 50:62].mean((0, 2))
-    assert float(stripes[0::4].mean() - stripes[2::4].mean()) > 0.35  # most of the 0.5 contrast kept (columns 50, 51 are bright)
+    assert float(stripes[0::4].mean() - stripes[2::4].mean()) > 0.35  # most of the 0.5 contrast
+                                                                      # kept (columns 50, 51 are
+                                                                      # bright)
     var[:, :16] = 0.0
     assert np.array_equal(faithful.denoise_log2(z, var)[:, :16], z[:, :16])
 
@@ -242,6 +255,7 @@ def test_an_isolated_floor_pixel_bounds_nothing_a_dark_region_does():
     frame = np.full((12, 12, 3), 0.3, np.float32)
     frame[6, 6, 0] = 0.0  # noise took it to 0
     frame[:, :3] = 0.0  # a dark region
-    lower, upper = faithful.clip_bounds(model, frame, 0.0, np.full(3, 254.5 / 255, np.float32), np.full(3, 0.01, np.float32))
+    lower, upper = faithful.clip_bounds(model, frame, 0.0, np.full(3, 254.5 / 255, np.float32),
+                                        np.full(3, 0.01, np.float32))
     assert np.isinf(upper[6, 6, 0]) and np.isfinite(upper[:, :2]).all()
     assert np.isinf(upper[:, 3:]).all()

@@ -15,7 +15,8 @@ from props import AUTOCAST, DTYPES, EV, Z, _autocast, _finite, _grads_finite, _s
 
 
 @props(30)
-@given(z=_z_values(), dtype=DTYPES, kind=st.sampled_from(["mlp", "lut", "fixed"]), scale=st.sampled_from([1.0, 30.0]), autocast=AUTOCAST)
+@given(z=_z_values(), dtype=DTYPES, kind=st.sampled_from(["mlp", "lut", "fixed"]),
+       scale=st.sampled_from([1.0, 30.0]), autocast=AUTOCAST)
 def test_tone_output_finite_in_unit_interval_with_finite_gradients(z, dtype, kind, scale, autocast):
     torch.manual_seed(0)
     tone = FixedTone() if kind == "fixed" else ToneMapper(8, 2, lut=64 if kind == "lut" else 0)
@@ -48,6 +49,7 @@ def test_initial_log2_finite_for_black_white_constant_frames(frames, value, log2
     from layercam.camera.tone import initial_log2
 
     shape = (len(log2), 2, 3, 3)
-    f = {"black": np.zeros(shape), "white": np.ones(shape), "constant": np.full(shape, value), "random": np.random.default_rng(0).random(shape)}[frames]
+    f = {"black": np.zeros(shape), "white": np.ones(shape), "constant": np.full(shape, value),
+         "random": np.random.default_rng(0).random(shape)}[frames]
     v = initial_log2(f.astype(np.float32), log2, tone, 0.6)
     assert np.isfinite(v) and abs(v) < LOG2_R_BOUND

@@ -91,9 +91,12 @@ def test_unclosed_quote_fails_that_line_only(tmp_path, capsys):
     from layercam.commands.batch import read_manifest
 
     m = tmp_path / "jobs.csv"
-    m.write_text('hdr-video,a.mp4,runs/a,"--preset fast\nhdr-video,b.mp4,runs/b,--preset fast --ev-step 3\nhdr-video,c.mp4,runs/c,--set "x\n')
+    m.write_text('hdr-video,a.mp4,runs/a,"--preset fast\nhdr-video,b.mp4,runs/b,--preset fast '
+                 '--ev-step 3\nhdr-video,c.mp4,runs/c,--set "x\n')
     jobs = read_manifest(m)
-    assert [(j.line, j.output, j.status) for j in jobs] == [(1, "runs/a", "failed"), (2, "runs/b", "pending"), (3, "runs/c", "failed")]
+    assert [(j.line, j.output, j.status) for j in jobs] == [(1, "runs/a", "failed"),
+                                                            (2, "runs/b", "pending"),
+                                                            (3, "runs/c", "failed")]
     assert "unclosed quote" in jobs[0].reason and "closing quotation" in jobs[2].reason
     assert jobs[1].options == ["--preset", "fast", "--ev-step", "3"]
     assert main(["batch", str(m), "--dry-run"]) == 1

@@ -57,7 +57,8 @@ def test_hdr_video_on_a_real_mp4_with_a_blur_generator_writes_psf_json(tmp_path,
 
     video = tmp_path / "clip.mp4"
     write_video(video, tiny_scene.clip.frames, fps=8)
-    argv = ["hdr-video", str(video), "--exposures", "alt", "--ev-step", "3", "--blur", "3x3", "--out", str(tmp_path / "run"), "--preset", "fast", "--quiet"]
+    argv = ["hdr-video", str(video), "--exposures", "alt", "--ev-step", "3", "--blur", "3x3",
+            "--out", str(tmp_path / "run"), "--preset", "fast", "--quiet"]
     for s in TINY + SMALL_BLUR + ["train.steps=20"]:
         argv += ["--set", s]
     assert main(argv) == 0

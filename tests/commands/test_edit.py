@@ -65,7 +65,8 @@ def test_edit_moves_with_the_object(two_layer_run, tmp_path):
         assert changed.sum() >= 6, f"frame {t}: the edit is not visible"
         ys, xs = np.nonzero(changed)
         cx, cy = scene.meta["object_centre"][t]
-        assert np.hypot(xs.mean() - cx, ys.mean() - cy) < 0.6 * scene.meta["object_radius"], (t, xs.mean(), ys.mean(), cx, cy)
+        assert np.hypot(xs.mean() - cx, ys.mean() - cy) < 0.6 * scene.meta["object_radius"], (t,
+                        xs.mean(), ys.mean(), cx, cy)
         near_object = cv2.dilate(scene.fg_mask[t].astype(np.uint8), np.ones((5, 5), np.uint8)) > 0
         assert near_object[changed].mean() > 0.95  # nothing lands on the background
         # in the camera's output the painted pixels are blue: the colour went through the camera
@@ -82,12 +83,14 @@ def test_edit_refuses_overwrite_bad_layer_and_empty_edits(two_layer_run, tmp_pat
     assert main(["edit", str(run), "--atlas", str(edited), "--out", str(out), "--quiet"]) == 2
     assert "already holds an edit" in capsys.readouterr().err
     assert main(["edit", str(run), "--atlas", str(edited), "--out", str(out), "--quiet", "--overwrite"]) == 0
-    assert main(["edit", str(run), "--layer", "2", "--atlas", str(edited), "--out", str(tmp_path / "e2"), "--quiet"]) == 2
+    assert main(["edit", str(run), "--layer", "2", "--atlas", str(edited), "--out",
+                 str(tmp_path / "e2"), "--quiet"]) == 2
     same = tmp_path / "same.png"
     shutil.copy(run / "atlases" / "layer1.png", same)
     assert main(["edit", str(run), "--atlas", str(same), "--out", str(tmp_path / "e3"), "--quiet"]) == 2
     assert "nothing to composite" in capsys.readouterr().err
-    assert main(["edit", str(run), "--atlas", str(tmp_path / "missing.png"), "--out", str(tmp_path / "e4"), "--quiet"]) == 2
+    assert main(["edit", str(run), "--atlas", str(tmp_path / "missing.png"), "--out",
+                 str(tmp_path / "e4"), "--quiet"]) == 2
 
 
 def test_inverse_tone_round_trip(two_layer_run):
@@ -122,7 +125,7 @@ def test_interrupted_edit_leaves_no_partial_edit_and_is_redone(two_layer_run, tm
 def test_edit_of_a_faded_foreground_repeats_the_runs_warning(two_layer_run, tmp_path, capsys):
     """A run whose report says its foreground faded: editing layer 1 says it again (the edit shows
     only where alpha is left); editing the background does not, nor does a run without it."""
-    from layercam.pipelines.tasks import FADED
+    from layercam.pipelines.stages import FADED
 
     run = tmp_path / "run"
     shutil.copytree(two_layer_run["run"], run)
@@ -131,10 +134,12 @@ def test_edit_of_a_faded_foreground_repeats_the_runs_warning(two_layer_run, tmp_
     assert main(["edit", str(run), "--atlas", str(edited), "--out", str(tmp_path / "e0"), "--quiet"]) == 0
     assert FADED not in capsys.readouterr().err  # the shared run did not fade
     rep = json.loads((run / "report.json").read_text())
-    rep["warnings"] = rep["warnings"] + [f"{FADED}: its alpha holds 0.00% of the frames, the motion masks it started from 2.91%"]
+    rep["warnings"] = rep["warnings"] + [f"{FADED}: its alpha holds 0.00% of the frames, the "
+                                         "motion masks it started from 2.91%"]
     (run / "report.json").write_text(json.dumps(rep))
     assert main(["edit", str(run), "--atlas", str(edited), "--out", str(tmp_path / "e1"), "--quiet"]) == 0
     assert f"warning: {FADED}: its alpha holds 0.00%" in capsys.readouterr().err
-    assert main(["edit", str(run), "--layer", "0", "--atlas", str(edited), "--out", str(tmp_path / "e2"), "--quiet"]) == 0
+    assert main(["edit", str(run), "--layer", "0", "--atlas", str(edited), "--out",
+                 str(tmp_path / "e2"), "--quiet"]) == 0
     assert FADED not in capsys.readouterr().err
 

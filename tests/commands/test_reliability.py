@@ -35,15 +35,18 @@ CORPUS = [
     ("masks-missing", ["hdr-video", "{video}", "--masks", "{tmp}/nomasks", "--out", "{fresh}"], "mask"),
     # exposures
     ("exposure-cycle-not-number", ["hdr-video", "{video}", "--exposures", "0,3,x", "--out", "{fresh}"], "exposure"),
-    ("exposure-cycle-too-long", ["hdr-video", "{video}", "--exposures", "0,1,2,3,4,5", "--out", "{fresh}"], "6 entries"),
+    ("exposure-cycle-too-long",
+     ["hdr-video", "{video}", "--exposures", "0,1,2,3,4,5", "--out", "{fresh}"], "6 entries"),
     ("exposure-count-wrong", ["hdr-video", "{video}", "--exposures", "{times3}", "--out", "{fresh}"], "3"),
     ("exposure-file-garbage", ["hdr-video", "{video}", "--exposures", "{garbage}", "--out", "{fresh}"], "garbage"),
     ("exposure-exif-on-video", ["hdr-video", "{video}", "--exposures", "exif", "--out", "{fresh}"], "exif"),
     ("exposure-unknown", ["hdr-video", "{video}", "--exposures", "sometimes", "--out", "{fresh}"], "sometimes"),
     ("ev-step-negative", ["hdr-video", "{video}", "--ev-step", "-3", "--out", "{fresh}"], "--ev-step"),
     ("ev-step-nan", ["hdr-video", "{video}", "--ev-step", "nan", "--out", "{fresh}"], "--ev-step"),
-    ("ev-step-100", ["hdr-video", "{frames}", "--ev-step", "100", "--out", "{run}"], "--force-ev-step"),  # issue 18 item 8
-    ("ev-step-without-alt", ["hdr-video", "{video}", "--exposures", "none", "--ev-step", "3", "--out", "{fresh}"], "alt"),
+    ("ev-step-100", ["hdr-video", "{frames}", "--ev-step", "100", "--out", "{run}"],
+     "--force-ev-step"),  # issue 18 item 8
+    ("ev-step-without-alt",
+     ["hdr-video", "{video}", "--exposures", "none", "--ev-step", "3", "--out", "{fresh}"], "alt"),
     # output
     ("out-under-proc", ["hdr-video", "{video}", "--out", "/proc/layercam-run"], "/proc/layercam-run"),
     ("out-is-a-file", ["hdr-video", "{video}", "--out", "{file}"], "is a file"),
@@ -52,36 +55,55 @@ CORPUS = [
     ("set-unknown-section", ["hdr-video", "{video}", "--set", "trian.steps=3", "--out", "{fresh}"], "trian"),
     ("set-no-equals", ["hdr-video", "{video}", "--set", "train.steps", "--out", "{fresh}"], "key=value"),
     ("set-not-a-number", ["hdr-video", "{video}", "--set", "train.steps=many", "--out", "{fresh}"], "many"),
-    ("steps-negative", ["hdr-video", "{frames}", "--ev-step", "3", "--set", "train.steps=-5", "--out", "{run}"], "train.steps"),  # item 5
-    ("lr-negative", ["hdr-video", "{frames}", "--ev-step", "3", "--set", "train.lr=-1", "--out", "{run}"], "train.lr"),  # item 6
-    ("lr-huge", ["hdr-video", "{frames}", "--ev-step", "3", "--set", "train.lr=1e6", "--out", "{run}"], "train.lr"),  # item 6
-    ("batch-0", ["hdr-video", "{frames}", "--ev-step", "3", "--set", "train.batch=0", "--out", "{run}"], "train.batch"),  # item 6
+    ("steps-negative",
+     ["hdr-video", "{frames}", "--ev-step", "3", "--set", "train.steps=-5", "--out", "{run}"],
+     "train.steps"),  # item 5
+    ("lr-negative",
+     ["hdr-video", "{frames}", "--ev-step", "3", "--set", "train.lr=-1", "--out", "{run}"],
+     "train.lr"),  # item 6
+    ("lr-huge",
+     ["hdr-video", "{frames}", "--ev-step", "3", "--set", "train.lr=1e6", "--out", "{run}"],
+     "train.lr"),  # item 6
+    ("batch-0",
+     ["hdr-video", "{frames}", "--ev-step", "3", "--set", "train.batch=0", "--out", "{run}"],
+     "train.batch"),  # item 6
     ("lr-nan", ["hdr-video", "{video}", "--set", "train.lr=nan", "--out", "{fresh}"], "train.lr"),  # item 7
     ("lr-inf", ["hdr-video", "{video}", "--set", "train.lr=inf", "--out", "{fresh}"], "train.lr"),  # item 7
     ("grid-lr-negative", ["hdr-video", "{video}", "--set", "train.grid_lr=-0.1", "--out", "{fresh}"], "train.grid_lr"),
     ("set-bad-choice", ["hdr-video", "{video}", "--set", "train.autocast=bogus", "--out", "{fresh}"], "bogus"),
-    ("set-offset-negative", ["deblur-video", "{video}", "--set", "blur.max_offset=-1", "--out", "{fresh}"], "blur.max_offset"),
-    ("set-alpha-flow-keep-above-one", ["hdr-video", "{video}", "--set", "loss.alpha_flow_keep=5", "--out", "{fresh}"], "loss.alpha_flow_keep"),
+    ("set-offset-negative",
+     ["deblur-video", "{video}", "--set", "blur.max_offset=-1", "--out", "{fresh}"],
+     "blur.max_offset"),
+    ("set-alpha-flow-keep-above-one",
+     ["hdr-video", "{video}", "--set", "loss.alpha_flow_keep=5", "--out", "{fresh}"],
+     "loss.alpha_flow_keep"),
     ("set-layers-3", ["hdr-video", "{video}", "--set", "model.layers=3", "--out", "{fresh}"], "model.layers"),
     ("nits-white-0", ["hdr-video", "{video}", "--nits-white", "0", "--out", "{fresh}"], "--nits-white"),  # issue 41
     ("nits-white-negative", ["hdr-video", "{video}", "--nits-white", "-5", "--out", "{fresh}"], "--nits-white"),
     ("nits-white-nan", ["hdr-video", "{video}", "--nits-white", "nan", "--out", "{fresh}"], "--nits-white"),
     ("nits-white-above-peak", ["hdr-video", "{video}", "--nits-white", "5000", "--out", "{fresh}"], "--nits-white"),
     ("hdr-format-unknown", ["hdr-video", "{video}", "--hdr-format", "dolby", "--out", "{fresh}"], "--hdr-format"),
-    ("set-nits-white-0", ["hdr-video", "{video}", "--set", "export.nits_white=0", "--out", "{fresh}"], "export.nits_white"),
-    ("set-hdr-format-unknown", ["hdr-video", "{video}", "--set", "export.hdr_format=hdr10", "--out", "{fresh}"], "export.hdr_format"),
+    ("set-nits-white-0",
+     ["hdr-video", "{video}", "--set", "export.nits_white=0", "--out", "{fresh}"],
+     "export.nits_white"),
+    ("set-hdr-format-unknown",
+     ["hdr-video", "{video}", "--set", "export.hdr_format=hdr10", "--out", "{fresh}"],
+     "export.hdr_format"),
     ("preset-unknown", ["hdr-video", "{video}", "--preset", "ludicrous", "--out", "{fresh}"], "ludicrous"),
     ("preset-broken-toml", ["hdr-video", "{video}", "--preset", "{badtoml}", "--out", "{fresh}"], "preset"),
     ("steps-0", ["hdr-video", "{video}", "--steps", "0", "--out", "{fresh}"], "--steps"),
     ("nproc-0", ["hdr-video", "{video}", "--nproc", "0", "--out", "{fresh}"], "--nproc"),
     ("unknown-option", ["hdr-video", "{video}", "--colour", "red", "--out", "{fresh}"], "--colour"),
     ("bad-choice", ["hdr-video", "{video}", "--blur", "7x7", "--out", "{fresh}"], "--blur"),
-    ("max-offset-negative", ["deblur-video", "{video}", "--max-offset", "-5", "--out", "{fresh}"], "--max-offset"),  # item 9
-    ("max-offset-nan", ["deblur-video", "{video}", "--max-offset", "nan", "--out", "{fresh}"], "--max-offset"),  # item 9
+    ("max-offset-negative", ["deblur-video", "{video}", "--max-offset", "-5", "--out", "{fresh}"],
+     "--max-offset"),  # item 9
+    ("max-offset-nan", ["deblur-video", "{video}", "--max-offset", "nan", "--out", "{fresh}"],
+     "--max-offset"),  # item 9
     ("deblur-one-frame", ["deblur-video", "{video}", "--max-frames", "1", "--out", "{fresh}"], "2 frames"),
     # fuse-stack
     ("fuse-one-image", ["fuse-stack", "{frames}/frame_000.png", "--out", "{fresh}"], "2 images"),
-    ("fuse-ev-list-short", ["fuse-stack", "{frames}", "--exposures", "0,2", "--out", "{fresh}"], "one per image"),  # a stack has no EV cycle
+    ("fuse-ev-list-short", ["fuse-stack", "{frames}", "--exposures", "0,2", "--out", "{fresh}"],
+     "one per image"),  # a stack has no EV cycle
     ("fuse-bad-reference", ["fuse-stack", "{frames}", "--reference", "7", "--out", "{fresh}"], "reference"),
     # render
     ("render-nothing", ["render", "{run}"], "nothing to render"),
@@ -99,21 +121,37 @@ CORPUS = [
     ("render-nits-white-alone", ["render", "{run}", "--nits-white", "300"], "--hdr-format"),
     ("render-nits-white-nan", ["render", "{run}", "--hdr-format", "hlg", "--nits-white", "nan"], "--nits-white"),
     # edit
-    ("edit-fps-negative", ["edit", "{run}", "--layer", "0", "--atlas", "{atlas}", "--fps", "-5", "--out", "{fresh}"], "--fps"),  # item 10
-    ("edit-out-is-a-file", ["edit", "{run}", "--layer", "0", "--atlas", "{atlas}", "--out", "{file}"], "is a file"),  # item 10
-    ("edit-out-under-proc", ["edit", "{run}", "--layer", "0", "--atlas", "{atlas}", "--out", "/proc/layercam-edit"], "/proc/layercam-edit"),  # item 10
+    ("edit-fps-negative",
+     ["edit", "{run}", "--layer", "0", "--atlas", "{atlas}", "--fps", "-5", "--out", "{fresh}"],
+     "--fps"),  # item 10
+    ("edit-out-is-a-file",
+     ["edit", "{run}", "--layer", "0", "--atlas", "{atlas}", "--out", "{file}"], "is a file"),
+    # item 10
+    ("edit-out-under-proc",
+     ["edit", "{run}", "--layer", "0", "--atlas", "{atlas}", "--out", "/proc/layercam-edit"],
+     "/proc/layercam-edit"),  # item 10
     ("edit-layer-missing", ["edit", "{run}", "--layer", "1", "--atlas", "{atlas}", "--out", "{fresh}"], "--layer"),
-    ("edit-atlas-missing", ["edit", "{run}", "--layer", "0", "--atlas", "{tmp}/none.png", "--out", "{fresh}"], "none.png"),
-    ("edit-atlas-unchanged", ["edit", "{run}", "--layer", "0", "--atlas", "{same}", "--out", "{fresh}"], "nothing to composite"),
+    ("edit-atlas-missing",
+     ["edit", "{run}", "--layer", "0", "--atlas", "{tmp}/none.png", "--out", "{fresh}"],
+     "none.png"),
+    ("edit-atlas-unchanged",
+     ["edit", "{run}", "--layer", "0", "--atlas", "{same}", "--out", "{fresh}"],
+     "nothing to composite"),
     # batch
     ("batch-missing-manifest", ["batch", "{tmp}/jobs.csv"], "jobs.csv"),
     ("batch-summary-is-a-folder", ["batch", "{manifest}", "--summary", "{tmp}"], "--summary"),  # item 11
-    ("batch-summary-under-proc", ["batch", "{manifest}", "--summary", "/proc/layercam/summary.json"], "/proc/layercam"),  # item 11
+    ("batch-summary-under-proc",
+     ["batch", "{manifest}", "--summary", "/proc/layercam/summary.json"], "/proc/layercam"),
+    # item 11
     # numbers out of range, sizes that cannot fit (issue 42): refused before any work
     ("resize-huge", ["hdr-video", "{video}", "--resize", "100000x100000", "--out", "{fresh}"], "--resize"),
     ("batch-huge", ["hdr-video", "{video}", "--set", "train.batch=1e12", "--out", "{fresh}"], "train.batch"),
-    ("atlas-width-huge", ["hdr-video", "{video}", "--set", "scene.atlas_width=1000000000", "--out", "{fresh}"], "scene.atlas_width"),
-    ("grid-features-huge", ["hdr-video", "{video}", "--set", "scene.grid_features=1000000000", "--out", "{fresh}"], "scene.grid_features"),
+    ("atlas-width-huge",
+     ["hdr-video", "{video}", "--set", "scene.atlas_width=1000000000", "--out", "{fresh}"],
+     "scene.atlas_width"),
+    ("grid-features-huge",
+     ["hdr-video", "{video}", "--set", "scene.grid_features=1000000000", "--out", "{fresh}"],
+     "scene.grid_features"),
     ("deblur-resize-huge", ["deblur-video", "{video}", "--resize", "100000x100000", "--out", "{fresh}"], "--resize"),
     ("fuse-resize-huge", ["fuse-stack", "{frames}", "--resize", "100000x100000", "--out", "{fresh}"], "--resize"),
     ("seed-huge", ["hdr-video", "{video}", "--set", "train.seed=1e30", "--out", "{fresh}"], "train.seed"),
@@ -148,7 +186,9 @@ def corpus(tmp_path_factory, tiny_frames):
     import subprocess
     import sys
 
-    r = subprocess.run([sys.executable, "-m", "layercam", *tiny_argv("hdr-video", frames, run, "--ev-step", "3")], capture_output=True, text=True, timeout=600)
+    r = subprocess.run([sys.executable, "-m", "layercam",
+                        *tiny_argv("hdr-video", frames, run, "--ev-step", "3")],
+                       capture_output=True, text=True, timeout=600)
     assert r.returncode == 0, r.stderr[-3000:]
     assert main(["render", str(run), "--exposure", "0", "--quiet"]) == 0
     paths = {"tmp": tmp, "run": run, "frames": frames, "rgba_stderr": r.stderr}
@@ -172,14 +212,19 @@ def corpus(tmp_path_factory, tiny_frames):
     painted[:8, :8] = (255, 0, 0, 255)
     cv2.imwrite(str(tmp / "atlas.png"), painted)
     (tmp / "manifest.csv").write_text(f"hdr-video,{video},{tmp / 'batch_out'},--preset fast\n")
-    paths.update(video=video, corrupt=tmp / "corrupt.mp4", empty=tmp / "empty", mixed=tmp / "mixed", times3=tmp / "times3.txt",
-                 garbage=tmp / "garbage.txt", badtoml=tmp / "broken.toml", times_huge=tmp / "times_huge.txt", times_tiny=tmp / "times_tiny.txt",
-                 binary_toml=tmp / "binary.toml", folder_toml=tmp / "folder.toml", file=tmp / "file", atlas=tmp / "atlas.png", same=tmp / "same.png", manifest=tmp / "manifest.csv")
+    paths.update(video=video, corrupt=tmp / "corrupt.mp4", empty=tmp / "empty", mixed=tmp / "mixed",
+                 times3=tmp / "times3.txt",
+                 garbage=tmp / "garbage.txt", badtoml=tmp / "broken.toml",
+                 times_huge=tmp / "times_huge.txt", times_tiny=tmp / "times_tiny.txt",
+                 binary_toml=tmp / "binary.toml", folder_toml=tmp / "folder.toml",
+                 file=tmp / "file", atlas=tmp / "atlas.png", same=tmp / "same.png",
+                 manifest=tmp / "manifest.csv")
     return paths
 
 
 def _snapshot(folder) -> dict:
-    return {str(p.relative_to(folder)): (p.stat().st_size, p.stat().st_mtime_ns) for p in sorted(folder.rglob("*")) if p.is_file()}
+    return {str(p.relative_to(folder)): (p.stat().st_size, p.stat().st_mtime_ns)
+            for p in sorted(folder.rglob("*")) if p.is_file()}
 
 
 @pytest.mark.parametrize("case, argv, needle", CORPUS, ids=[c[0] for c in CORPUS])
@@ -188,7 +233,8 @@ def test_bad_input_is_one_line_and_changes_nothing(corpus, tmp_path, capsys, cas
     argv = [a.format(fresh=fresh, **corpus) for a in argv]
     if argv[0] in ("hdr-video", "deblur-video", "fuse-stack", "demo"):
         own = {a.split("=")[0] for a in argv if "=" in a}  # a setting the case sets is not overridden by the tiny ones
-        argv += ["--quiet", *(["--preset", "fast"] if "--preset" not in argv else []), *[a for s in TINY if s.split("=")[0] not in own for a in ("--set", s)]]
+        argv += ["--quiet", *(["--preset", "fast"] if "--preset" not in argv else []),
+                 *[a for s in TINY if s.split("=")[0] not in own for a in ("--set", s)]]
     before = _snapshot(corpus["run"])
     code = main(argv)
     out, err = capsys.readouterr()
@@ -205,7 +251,8 @@ def test_bad_input_is_one_line_and_changes_nothing(corpus, tmp_path, capsys, cas
 def test_rgba_frames_say_once_that_alpha_is_dropped(corpus):
     """Issue 18 item 12: RGBA frames (alpha dropped) are said once, in the report too."""
     lines = [l for l in corpus["rgba_stderr"].splitlines() if "alpha" in l]
-    assert len(lines) == 1 and lines[0].startswith("warning: 4 of 4 frames have an alpha channel"), corpus["rgba_stderr"]
+    assert len(lines) == 1, corpus["rgba_stderr"]
+    assert lines[0].startswith("warning: 4 of 4 frames have an alpha channel"), corpus["rgba_stderr"]
     assert "2% of the pixels transparent" in lines[0]
     rep = json.loads((corpus["run"] / "report.json").read_text())
     assert rep["warnings"] == [lines[0].removeprefix("warning: ")]
@@ -232,7 +279,9 @@ def test_ev_step_against_the_frames(tiny_frames):
     assert forced.warnings and np.ptp(forced.log2_dt) == 100
 
 
-@pytest.mark.parametrize("text", ['{"key": "x"', "[]", "{}", "null", '{"key": 5, "names": 3}', '"abc"', '{"key": "../x", "names": []}'])
+@pytest.mark.parametrize("text",
+                         ['{"key": "x"', "[]", "{}", "null", '{"key": 5, "names": 3}', '"abc"',
+                          '{"key": "../x", "names": []}'])
 def test_a_corrupt_outputs_json_is_refused_before_any_stage(corpus, tmp_path, capsys, text):
     """A run folder whose outputs.json is not what layercam writes: one line, exit 2, before any
     stage runs (once it was found only when publishing, after training), and nothing written."""
@@ -242,7 +291,9 @@ def test_a_corrupt_outputs_json_is_refused_before_any_stage(corpus, tmp_path, ca
     shutil.copytree(corpus["run"], run)
     (run / "outputs.json").write_text(text)
     before = _snapshot(run)
-    code = main(["hdr-video", str(corpus["frames"]), "--ev-step", "3", "--out", str(run), "--quiet", "--preset", "fast", *SETTINGS, "--set", "train.seed=7"])
-    err = [ln for ln in capsys.readouterr().err.strip().splitlines() if not ln.startswith("warning: ")]  # the RGBA frames' note
+    code = main(["hdr-video", str(corpus["frames"]), "--ev-step", "3", "--out", str(run), "--quiet",
+                 "--preset", "fast", *SETTINGS, "--set", "train.seed=7"])
+    err = [ln for ln in capsys.readouterr().err.strip().splitlines()
+           if not ln.startswith("warning: ")]  # the RGBA frames' note
     assert code == 2 and len(err) == 1 and err[0].startswith("error: ") and "outputs.json" in err[0], err
     assert _snapshot(run) == before

@@ -29,7 +29,9 @@ def stack_run(tmp_path_factory):
     ev = sc.meta["ev"][idx]
     e = Exposures(ev - ev.min(), "none", None, "times", "test: known")
     run = tmp_path_factory.mktemp("render") / "run"
-    run_task("fuse-stack", clip, e, load_config("fast", TINY + SMALL_BLUR + ["train.steps=80", "model.blur=on"]), run, progress=False)  # 24 px: too small for the analysis to compare sharpness
+    run_task("fuse-stack", clip, e,
+             load_config("fast", TINY + SMALL_BLUR + ["train.steps=80", "model.blur=on"]), run,
+             progress=False)  # 24 px: too small for the analysis to compare sharpness
     return run, clip
 
 
@@ -40,7 +42,7 @@ def _load(run):
 
 
 def test_exposure_sweep_is_monotone_per_pixel(stack_run):
-    from layercam.commands.render import exposure_sweep
+    from layercam.scene.render import exposure_sweep
 
     run, _ = stack_run
     model, meta = _load(run)
@@ -73,8 +75,8 @@ def test_focus_interpolation_between_training_images(stack_run):
     between two indices the render moves smoothly from one to the other."""
     import torch
 
-    from layercam.commands.render import exposure_at, focus_sweep
-    from layercam.engine.sampler import pixel_grid
+    from layercam.scene.render import exposure_at, focus_sweep
+    from layercam.scene.coords import pixel_grid
 
     run, clip = stack_run
     model, meta = _load(run)
@@ -109,11 +111,15 @@ def test_render_focus_and_sweep_cli(stack_run):
     assert json.loads((out / "focus_0.50.json").read_text())["view"] == 1  # the fused view
     assert main(["render", str(run), "--sweep", "focus", "--steps", "4", "--out", str(out), "--quiet"]) == 0
     assert len(list((out / "sweep_focus").glob("step_*.png"))) == 4 and (out / "sweep_focus.mp4").is_file()
-    assert main(["render", str(run), "--sweep", "exposure", "--steps", "3", "--range=-2,2", "--out", str(out), "--quiet"]) == 0
+    assert main(["render", str(run), "--sweep", "exposure", "--steps", "3", "--range=-2,2", "--out",
+                 str(out), "--quiet"]) == 0
     assert len(list((out / "sweep_exposure").glob("step_*.png"))) == 3
 
 
-@pytest.mark.parametrize("argv, needle", [([], "nothing to render"), (["--focus", "5"], "--focus"), (["--exposure", "99"], "exposure"), (["--sweep", "focus", "--range", "0,x"], "range")])
+@pytest.mark.parametrize("argv, needle",
+                         [([], "nothing to render"), (["--focus", "5"], "--focus"),
+                          (["--exposure", "99"], "exposure"),
+                          (["--sweep", "focus", "--range", "0,x"], "range")])
 def test_render_refusals(stack_run, capsys, argv, needle):
     run, _ = stack_run
     assert main(["render", str(run), "--quiet", *argv]) == 2
@@ -137,7 +143,8 @@ def test_interrupted_render_is_redone_by_the_same_command(stack_run, tmp_path):
     run, clip = stack_run
     out, ref = tmp_path / "out", tmp_path / "ref"
     cmd = [sys.executable, "-m", "layercam", "render", str(run), "--exposure", "0.5", "--out", str(out), "--quiet"]
-    r = subprocess.run(cmd, env=dict(os.environ, LAYERCAM_SIGNAL_AT="render:2:KILL"), capture_output=True, text=True, timeout=300)
+    r = subprocess.run(cmd, env=dict(os.environ, LAYERCAM_SIGNAL_AT="render:2:KILL"),
+                       capture_output=True, text=True, timeout=300)
     assert r.returncode == -9, r.stderr[-2000:]
     assert not (out / "exposure_+0.50").exists() and list(out.glob(".partial-*/exposure_+0.50/frame_*.png"))
     r = subprocess.run(cmd, capture_output=True, text=True, timeout=300)

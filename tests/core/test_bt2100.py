@@ -9,7 +9,9 @@ import pytest
 from layercam.core import bt2100 as b
 
 
-@pytest.mark.parametrize("nits, signal", [(0.0, 0.0), (0.1, 0.0623), (1.0, 0.1499), (100.0, 0.5081), (203.0, 0.5807), (1000.0, 0.7518), (4000.0, 0.9026), (10000.0, 1.0)])
+@pytest.mark.parametrize("nits, signal",
+                         [(0.0, 0.0), (0.1, 0.0623), (1.0, 0.1499), (100.0, 0.5081),
+                          (203.0, 0.5807), (1000.0, 0.7518), (4000.0, 0.9026), (10000.0, 1.0)])
 def test_pq_reference_values(nits, signal):
     # ST 2084 / BT.2408 table: 100 cd/m2 -> 0.508, 203 (reference white) -> 0.58, 1000 -> 0.752, 10000 -> 1
     assert b.pq_encode(np.array(nits)) == pytest.approx(signal, abs=6e-5)
@@ -90,4 +92,5 @@ def test_eetf_knee_is_where_the_roll_off_starts():
     assert b.eetf_knee(800.0, 1000.0) == float("inf")
     x = np.geomspace(1, 1e4, 100).astype(np.float32)  # frames stay float32
     assert b.pq_encode(x).dtype == np.float32 and b.hlg_oetf(x / 1e4).dtype == np.float32
-    np.testing.assert_allclose(b.pq_encode(x), b.pq_encode(x.astype(np.float64)), atol=1e-5)  # a hundredth of a 10-bit code
+    # a hundredth of a 10-bit code
+    np.testing.assert_allclose(b.pq_encode(x), b.pq_encode(x.astype(np.float64)), atol=1e-5)

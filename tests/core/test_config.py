@@ -21,13 +21,17 @@ def test_every_preset_loads_and_round_trips(name):
 
 
 BAD = [
-    ("train.autocast=bogus", "train.autocast"), ("scene.bootstrap=bogus", "scene.bootstrap"), ("flow.method=bogus", "flow.method"),
+    ("train.autocast=bogus", "train.autocast"), ("scene.bootstrap=bogus", "scene.bootstrap"),
+    ("flow.method=bogus", "flow.method"),
     ("train.steps=-5", ">= 1"), ("train.steps=0", ">= 1"), ("train.batch=0", ">= 1"), ("train.steps=2.5", "integer"),
-    ("train.lr=-1", "> 0"), ("train.lr=0", "> 0"), ("train.lr=nan", "finite"), ("train.lr=inf", "finite"), ("train.grid_lr=1e6", "<= 1"),
-    ("blur.max_offset=-5", ">= 0"), ("blur.max_offset=nan", "finite"), ("blur.n=4", "odd"), ("loss.alpha_flow_keep=1.5", "<= 1"),
+    ("train.lr=-1", "> 0"), ("train.lr=0", "> 0"), ("train.lr=nan", "finite"),
+    ("train.lr=inf", "finite"), ("train.grid_lr=1e6", "<= 1"),
+    ("blur.max_offset=-5", ">= 0"), ("blur.max_offset=nan", "finite"), ("blur.n=4", "odd"),
+    ("loss.alpha_flow_keep=1.5", "<= 1"),
     ("segment.margin=2", "<= 1"),
     ("model.layers=3", "model.layers"), ("model.flow_loss=maybe", "model.flow_loss"), ("tone.lut=1", "tone.lut"),
-    ("train.device=gpu", "train.device"), ("flow.method=raft", "raft_weights"), ("flow.method=raft_small", "raft_weights"),
+    ("train.device=gpu", "train.device"), ("flow.method=raft", "raft_weights"),
+    ("flow.method=raft_small", "raft_weights"),
     ("scene.grid_max_res=8", "unknown setting"),
     ("nosection.x=1", "nosection"), ("train.stepz=3", "stepz"), ("train.steps", "key=value"),
 ]
@@ -47,7 +51,9 @@ def test_bad_preset_value_names_the_preset(tmp_path):
         load_config(str(p))
 
 
-@pytest.mark.parametrize("item", ["train.autocast=bogus", "scene.bootstrap=bogus", "flow.method=bogus", "train.steps=-5", "train.lr=nan"])
+@pytest.mark.parametrize("item",
+                         ["train.autocast=bogus", "scene.bootstrap=bogus", "flow.method=bogus",
+                          "train.steps=-5", "train.lr=nan"])
 def test_cli_refuses_before_any_stage_runs(item, tmp_path, capsys):
     from layercam.io import write_video
 
@@ -61,7 +67,9 @@ def test_cli_refuses_before_any_stage_runs(item, tmp_path, capsys):
 
 
 def test_flags_become_settings():
-    assert model_overrides(2, "fixed", "5x5", 2.0, "off") == ["model.layers=2", "model.tone_mapper=fixed", "model.blur=on", "blur.n=5", "blur.max_offset=2.0", "model.flow_loss=off"]
+    assert model_overrides(2, "fixed", "5x5", 2.0, "off") == ["model.layers=2",
+                           "model.tone_mapper=fixed", "model.blur=on", "blur.n=5",
+                           "blur.max_offset=2.0", "model.flow_loss=off"]
     cfg = load_config("fast", model_overrides(blur="off"))
     assert cfg.model.blur == "off" and cfg.blur.n == 3
     with pytest.raises(LayercamError, match="blur must be off or NxN"):
@@ -92,7 +100,8 @@ def test_every_section_is_reachable_by_set():
 def test_auto_is_left_to_the_analysis():
     cfg = load_config("balanced")
     autos = {f"{sec}.{k}" for sec, d in cfg.to_dict().items() if isinstance(d, dict) for k, v in d.items() if v == AUTO}
-    assert autos == {"model.layers", "model.tone_mapper", "model.exposures", "model.blur", "model.flow_loss", "blur.max_offset", "loss.robust",
+    assert autos == {"model.layers", "model.tone_mapper", "model.exposures", "model.blur",
+                     "model.flow_loss", "blur.max_offset", "loss.robust",
                      "train.autocast", "train.device", "export.merge_neighbours", "export.denoise"}
     paper = load_config("paper")  # the paper's n = 3, s = 5 are set, not derived
     assert (paper.blur.n, paper.blur.max_offset) == (3, 5.0)
@@ -126,9 +135,11 @@ def test_every_preset_trains_two_steps(name, tmp_path):
     scene = synth.moving_object(frames=4, size=(16, 16), seed=0)
     log2 = np.log2(scene.exposure_times / scene.exposure_times.min())
     ex = Exposures(log2, "none", np.arange(4) % 2, "alt", "test: known")
-    tiny = ["train.steps=2", "train.bootstrap_steps=1", "train.batch=64", "train.checkpoint_every=0", "flow.method=dis_fast"]
+    tiny = ["train.steps=2", "train.bootstrap_steps=1", "train.batch=64",
+            "train.checkpoint_every=0", "flow.method=dis_fast"]
     cfg = load_config(name, tiny + model_overrides(layers=2, blur="3x3"))
-    ctx = run_task("hdr-video", scene.clip, ex, cfg, tmp_path / "run", masks=scene.fg_mask.astype(np.float32), progress=False)
+    ctx = run_task("hdr-video", scene.clip, ex, cfg, tmp_path / "run",
+                   masks=scene.fg_mask.astype(np.float32), progress=False)
     assert ctx.results["train"].steps == 2 and ctx.model.blur is not None and ctx.model.scene.n_layers == 2
     assert len(list((tmp_path / "run" / "hdr").glob("*.exr"))) == 4 and (tmp_path / "run" / "psf.json").is_file()
 

@@ -4,7 +4,7 @@ import numpy as np
 import torch
 
 from layercam.core.geometry import frame_corners, normalised_frame_matrix, pixel_grid, warp
-from layercam.engine.sampler import normalise_xy
+from layercam.scene.coords import normalise_xy
 from layercam.vision.scale import pixel_scaling
 
 

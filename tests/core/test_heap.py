@@ -9,7 +9,8 @@ import pytest
 
 from layercam.core import heap
 
-pytestmark = pytest.mark.skipif(not Path("/proc/self/clear_refs").exists(), reason="needs Linux's /proc/self/clear_refs")
+pytestmark = pytest.mark.skipif(not Path("/proc/self/clear_refs").exists(),
+                                reason="needs Linux's /proc/self/clear_refs")
 
 
 _PEAK_SCRIPT = """

@@ -117,7 +117,8 @@ def test_highlight_psnr_mu_restricts_psnr_mu_to_the_mask():
     top = np.zeros((2, 8, 8), bool)
     top[:, :2] = True
     assert metrics.highlight_psnr_mu(pred, gt, np.ones_like(top)) == pytest.approx(metrics.psnr_mu(pred, gt))
-    assert metrics.highlight_psnr_mu(pred, gt, top) < metrics.psnr_mu(pred, gt) < metrics.highlight_psnr_mu(pred, gt, ~top)
+    assert metrics.highlight_psnr_mu(pred, gt, top) < metrics.psnr_mu(pred,
+                                     gt) < metrics.highlight_psnr_mu(pred, gt, ~top)
     with pytest.raises(metrics.MetricInputError):
         metrics.highlight_psnr_mu(pred, gt, np.zeros_like(top))
 

@@ -49,4 +49,5 @@ def test_clip_levels_and_unrecoverable_pixels():
     assert abs(levels[0] * 255 - 247.5) < 1e-3
     bad = visibility.unrecoverable(f, levels)
     assert bad[:4].all() and bad[8:10].all() and not bad[4:8].any() and not bad[10:].any()
-    assert (visibility.clip_levels(np.full((2, 4, 4, 3), 0.5, np.float32)) * 255 == 254.5).all()  # mid-grey is not clipping
+    # mid-grey is not clipping
+    assert (visibility.clip_levels(np.full((2, 4, 4, 3), 0.5, np.float32)) * 255 == 254.5).all()

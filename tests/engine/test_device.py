@@ -12,7 +12,8 @@ import torch
 
 from layercam.core.presets import load_config
 from layercam.core.errors import LayercamError
-from layercam.pipelines.stages import device_line, device_of
+from layercam.engine.resolve import device_of
+from layercam.pipelines.stages import device_line
 from layercam.pipelines.tasks import run_task
 
 from conftest import TINY, decided
@@ -36,7 +37,8 @@ def test_auto_is_the_default_and_resolves_to_what_torch_sees(monkeypatch):
 
 
 def test_a_run_says_where_it_trains(tiny_scene, tiny_exposures, tmp_path):
-    ctx = run_task("hdr-video", tiny_scene.clip, tiny_exposures, load_config("fast", TINY), tmp_path / "run", progress=False)
+    ctx = run_task("hdr-video", tiny_scene.clip, tiny_exposures, load_config("fast", TINY),
+                   tmp_path / "run", progress=False)
     want = device_of("auto")
     assert any(m.startswith(f"[train] device: {want} (auto: ") for m in ctx.log)
     tr = json.loads((tmp_path / "run" / "report.json").read_text())["train"]
@@ -45,13 +47,17 @@ def test_a_run_says_where_it_trains(tiny_scene, tiny_exposures, tmp_path):
 
 def _tiny_trainer(device: str, autocast: str = "none", steps: int = 30):
     from layercam.engine.sampler import PixelSampler
-    from layercam.scene.model import ImplicitCameraModel
+    from layercam.engine.model import ImplicitCameraModel
     from layercam.synth import pan_hdr
     from layercam.engine.train import Trainer
 
     scene = pan_hdr(frames=3, size=(24, 24), seed=2)
-    h0 = np.tile(np.diag([0.4, 0.4, 1.0])[None, None], (1, 3, 1, 1))  # the frames span 60 px of the atlas: a 64^2 level, trained sparsely
-    cfg = decided(load_config("fast", TINY + [f"train.steps={steps}", f"train.autocast={autocast}"]), h0, (24, 24), flow_loss=False)
+    h0 = np.tile(np.diag([0.4, 0.4, 1.0])[None, None], (1, 3, 1, 1))  # the frames span 60 px of the
+                                                                      # atlas: a 64^2 level, trained
+                                                                      # sparsely
+    cfg = decided(load_config("fast",
+                              TINY + [f"train.steps={steps}", f"train.autocast={autocast}"]), h0,
+                  (24, 24), flow_loss=False)
     log2_dt = np.log2(scene.exposure_times / scene.exposure_times.min())
     torch.manual_seed(0)
     model = ImplicitCameraModel(cfg, torch.as_tensor(h0, dtype=torch.float32), log2_dt, frame_hw=(24, 24)).to(device)

@@ -71,7 +71,8 @@ def test_two_gloo_processes_match_one_and_resume(tmp_path, tiny_scene):
     # torchrun, 2 processes, interrupted on rank 0 at step 30
     script = tmp_path / "interrupt.py"
     script.write_text(INTERRUPT_RANK0)
-    cmd = [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node", "2", str(script), *_argv(frames, two)]
+    cmd = [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node", "2",
+           str(script), *_argv(frames, two)]
     r = subprocess.run(cmd, capture_output=True, text=True, env=_env(), timeout=300)
     assert r.returncode != 0, "the interrupted run should fail"
     ckpts = list((two / "cache").glob("train-*/ckpt.pt"))
@@ -83,13 +84,15 @@ def test_two_gloo_processes_match_one_and_resume(tmp_path, tiny_scene):
     assert not (two / "layercam.lock").exists(), "rank 0 releases the run folder's lock when interrupted"
 
     # the same command with --nproc 2 (layercam's own launcher) resumes and finishes
-    r = subprocess.run([sys.executable, "-m", "layercam", *_argv(frames, two), "--nproc", "2"], capture_output=True, text=True, env=_env(), timeout=300)
+    r = subprocess.run([sys.executable, "-m", "layercam", *_argv(frames, two), "--nproc", "2"],
+                       capture_output=True, text=True, env=_env(), timeout=300)
     assert r.returncode == 0, r.stderr[-3000:]
     rep = json.loads((two / "report.json").read_text())
     tr = rep["train"]
     assert tr["processes"] == 2 and tr["resumed_from"] == 30 and tr["steps"] == 60
     assert rep["stages"]["flow"]["cached"] and rep["stages"]["bootstrap"]["cached"]
-    assert tr["final_loss"]["color"] < 0.5 * json.loads((one / "report.json").read_text())["train"]["first_loss"]["color"]
+    assert (tr["final_loss"]["color"] < 0.5
+            * json.loads((one / "report.json").read_text())["train"]["first_loss"]["color"])
     assert len(list((two / "hdr").glob("frame_*.exr"))) == tiny_scene.clip.T
     assert not (two / "layercam.lock").exists()
 
@@ -110,7 +113,9 @@ def test_ranks_draw_different_pixels_and_resume_their_own_stream(tiny_scene):
     a2 = PixelSampler(frames, seed=0)
     a2.load_state_dict(state)
     again = a2.sample(64)
-    assert np.array_equal(again["xy"].numpy(), nxt["xy"].numpy()) and np.array_equal(again["probe"].numpy(), nxt["probe"].numpy())
+    assert np.array_equal(again["xy"].numpy(),
+                          nxt["xy"].numpy()) and np.array_equal(again["probe"].numpy(),
+                          nxt["probe"].numpy())
     nxt = nxt["xy"]
     # another rank (another seed) does not replay rank 0's pixels
     seed1 = distributed._SEED_STRIDE  # rank 1's seed for train.seed=0

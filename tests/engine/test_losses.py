@@ -18,7 +18,9 @@ from props import DTYPES, _finite, props
 @props(40)
 @given(
     pred=hnp.arrays(np.float32, (16, 3), elements=st.floats(0, 1, width=32)),
-    target=hnp.arrays(np.float32, (16, 3), elements=st.one_of(st.sampled_from([0.0, 1.0, 1 / 255, 254 / 255]), st.floats(0, 1, width=32))),
+    target=hnp.arrays(np.float32, (16, 3),
+                      elements=st.one_of(st.sampled_from([0.0, 1.0, 1 / 255, 254 / 255]),
+                                         st.floats(0, 1, width=32))),
     dtype=DTYPES,
 )
 def test_color_loss_is_finite_and_the_robust_one_never_above_mse(pred, target, dtype):
@@ -43,8 +45,12 @@ def test_mask_loss_counts_only_the_pixels_it_keeps():
     keep = torch.rand(256, generator=g) > 0.5
     moved = alpha.clone()
     moved[~keep] = 1.0 - moved[~keep]  # alpha changed only where it is not kept
-    assert float(losses.mask_loss(moved, mask, keep=keep)) == pytest.approx(float(losses.mask_loss(alpha, mask, keep=keep)))
-    assert float(losses.mask_loss(alpha[keep], mask[keep])) == pytest.approx(float(losses.mask_loss(alpha, mask, keep=keep)))
+    assert float(losses.mask_loss(moved, mask,
+                                  keep=keep)) == pytest.approx(float(losses.mask_loss(alpha, mask,
+        keep=keep)))
+    assert float(losses.mask_loss(alpha[keep],
+                                  mask[keep])) == pytest.approx(float(losses.mask_loss(alpha, mask,
+        keep=keep)))
     assert float(losses.mask_loss(alpha, mask, keep=torch.zeros(256, dtype=torch.bool))) == 0.0
 
 

@@ -84,7 +84,9 @@ def test_dense_and_sparse_parameters_in_one_optimiser_and_its_state_round_trip()
     lin.load_state_dict(saved["lin"])
     opt2 = Adam([{"params": lin.parameters(), "lr": 1e-2}, {"params": emb.parameters(), "lr": 1e-1}], betas=(0.9, 0.99))
     opt2.load_state_dict(saved["opt"])
-    assert opt2.state[emb.weight]["last"].dtype == torch.int32  # a row's step stays an integer (torch casts state to the parameter's dtype)
+    assert opt2.state[emb.weight]["last"].dtype == torch.int32  # a row's step stays an integer
+                                                                # (torch casts state to the
+                                                                # parameter's dtype)
     step(opt2)
     assert torch.equal(emb.weight, after[0]) and torch.equal(lin.weight, after[1])
     assert emb.weight.grad.is_sparse and lin.weight.grad.layout == torch.strided  # gradients are left in place
@@ -109,7 +111,11 @@ def test_sparse_step_refuses_what_it_does_not_implement():
         opt.step()
 
 
-@pytest.mark.parametrize("device", ["cpu", pytest.param("cuda", marks=pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device"))])
+@pytest.mark.parametrize("device",
+                         ["cpu",
+                          pytest.param("cuda",
+                                       marks=pytest.mark.skipif(not torch.cuda.is_available(),
+    reason="no CUDA device"))])
 def test_lazy_rows_on_a_device(device):
     """The moments and the scratch live where the parameter does."""
     emb = torch.nn.Embedding(8, 2, sparse=True).to(device)

@@ -32,7 +32,8 @@ def local_ray():
 
 
 def _exrs(folder) -> dict:
-    return {p.relative_to(folder).as_posix(): read_exr(p) for p in sorted(folder.glob("**/*.exr")) if p.relative_to(folder).parts[0] not in ("cache", "previous")}
+    return {p.relative_to(folder).as_posix(): read_exr(p) for p in sorted(folder.glob("**/*.exr"))
+            if p.relative_to(folder).parts[0] not in ("cache", "previous")}
 
 
 def _same(a, b) -> None:
@@ -55,7 +56,9 @@ def test_batch_on_ray_matches_the_sequential_batch(local_ray, tmp_path, monkeypa
         for t, f in enumerate(sc.clip.frames):
             write_png(tmp_path / "seq" / "clips" / name / f"f{t}.png", f)
     opts = "--ev-step 3 --preset fast --quiet " + " ".join(f"--set {s}" for s in TINY)
-    (tmp_path / "seq" / "jobs.csv").write_text("command,input,output,options\n" + "".join(f"hdr-video,clips/{n},runs/{n},{opts}\n" for n in "abc"))
+    (tmp_path / "seq" / "jobs.csv").write_text("command,input,output,options\n"
+                                               + "".join(f"hdr-video,clips/{n},runs/{n},{opts}\n"
+                                                         for n in "abc"))
     shutil.copytree(tmp_path / "seq", tmp_path / "ray")
 
     assert main(["batch", str(tmp_path / "seq" / "jobs.csv")]) == 0
@@ -85,5 +88,7 @@ def test_windows_on_ray_match_the_sequential_run(local_ray, tmp_path, capsys):
     import torch
 
     for k in range(3):
-        a, b = (torch.load(r / "windows" / f"w{k:02d}" / "checkpoint.pt", weights_only=False)["state"] for r in (tmp_path / "ray", tmp_path / "seq"))
+        a, b = (torch.load(r / "windows" / f"w{k:02d}" / "checkpoint.pt",
+                           weights_only=False)["state"]
+                for r in (tmp_path / "ray", tmp_path / "seq"))
         assert all(torch.equal(a[n], b[n]) for n in b)

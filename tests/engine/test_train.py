@@ -33,7 +33,8 @@ class TwoParams(nn.Module):
         return {"color": ((self.a - 1) ** 2).sum() + ((self.b - 1) ** 2).sum()}
 
     def param_groups(self, lr, grid_lr):
-        return [{"params": [self.a], "lr": lr, "name": "mlp"}, {"params": [self.b], "lr": lr, "name": "blur", "start": 0.5}]
+        return [{"params": [self.a], "lr": lr, "name": "mlp"},
+                {"params": [self.b], "lr": lr, "name": "blur", "start": 0.5}]
 
 
 class Record:
@@ -244,7 +245,8 @@ def test_pipeline_logs_skipped_steps_in_report(tiny_scene, tiny_exposures, tmp_p
         assert np.isfinite(read_exr(p)).all()
 
 
-def test_pipeline_divergence_writes_failed_report_keeps_checkpoint_and_resumes(tiny_scene, tiny_exposures, tmp_path, monkeypatch):
+def test_pipeline_divergence_writes_failed_report_keeps_checkpoint_and_resumes(tiny_scene,
+    tiny_exposures, tmp_path, monkeypatch):
     cfg = load_config("fast", TINY + ["train.steps=20", "train.checkpoint_every=5"])
     monkeypatch.setattr("layercam.engine.train.MAX_BAD_STEPS", 4)
     _nan_loss_from(monkeypatch, lambda i: i >= 10)
@@ -266,11 +268,12 @@ def test_pipeline_divergence_writes_failed_report_keeps_checkpoint_and_resumes(t
 def test_mask_taper_decays_to_its_floor():
     from types import SimpleNamespace
 
-    from layercam.scene.model import LossWeights
-    from layercam.engine.train import MaskTaper
+    from layercam.engine.model import LossWeights
+    from layercam.engine.losses import MaskTaper
 
     for floor, last in ((0.0, 0.0), (1.0, 2.0), (0.25, 0.5)):
-        trainer = SimpleNamespace(model=SimpleNamespace(loss_weights=LossWeights(alpha_mask=2.0)), cfg=SimpleNamespace(steps=100))
+        trainer = SimpleNamespace(model=SimpleNamespace(loss_weights=LossWeights(alpha_mask=2.0)),
+                                  cfg=SimpleNamespace(steps=100))
         taper = MaskTaper(steps=10, end=0.5, floor=floor)
         seen = []
         for step in (0, 9, 30, 50, 99):

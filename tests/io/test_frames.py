@@ -37,7 +37,8 @@ def test_rows_of_a_disk_array_are_a_view_that_reads_and_travels(tmp_path):
     d = DiskArray.create(tmp_path / "a.raw", np.uint8, a.shape)
     d[0:6] = a
     v = d.rows(2, 5)
-    assert v.shape == (3, 4, 3) and np.array_equal(np.asarray(v), a[2:5]) and np.array_equal(v[-1], a[4]) and np.array_equal(v[1:], a[3:5])
+    assert v.shape == (3, 4, 3) and np.array_equal(np.asarray(v), a[2:5]) and np.array_equal(v[-1],
+                       a[4]) and np.array_equal(v[1:], a[3:5])
     t, y = np.array([0, 2, 1]), np.array([3, 0, 2])
     assert np.array_equal(v.gather(t, y), a[2:5][t, y]) and np.array_equal(v.rows(1, 2)[0], a[3])
     v[0] = 7
@@ -55,11 +56,11 @@ def test_rows_of_a_disk_array_are_a_view_that_reads_and_travels(tmp_path):
 
 
 def test_a_window_of_a_clip_on_disk_reads_nothing(tmp_path):
-    """A long clip's window (pipelines/windows.py) holds its frames, masks and flow as views of the
+    """A long clip's window (layercam.pipelines.windows) holds its frames, masks and flow as views of the
     whole clip's files."""
     from layercam.io import load_clip
-    from layercam.pipelines.window_plan import rows
-    from layercam.pipelines.window_plan import sub_clip, sub_flow
+    from layercam.pipelines.windows.plan import rows
+    from layercam.pipelines.windows.plan import sub_clip, sub_flow
     from layercam.vision.flow_store import FlowArrays
 
     v = _video(tmp_path / "v.mp4", n=5)
@@ -114,9 +115,12 @@ def test_a_video_is_decoded_once_into_the_cache_and_read_as_before(tmp_path):
     again = load_clip(v, cache=cache)  # mapped, not decoded again
     assert (folder / "frames.raw").stat().st_mtime_ns == stamp and again.fingerprint() == clip.fingerprint()
     assert load_clip(v).fingerprint() == clip.fingerprint()  # no cache: an unlinked temporary file
-    assert probe_clip(v)["frames"] == 6 and probe_clip(v, stride=2, resize=0.5) == {"kind": "video", "frames": 3, "width": 16, "height": 12, "source_size": (32, 24), "bit_depth": 8}
+    assert probe_clip(v)["frames"] == 6 and probe_clip(v, stride=2, resize=0.5) == {"kind": "video",
+                                                       "frames": 3, "width": 16, "height": 12,
+                                                       "source_size": (32, 24), "bit_depth": 8}
     small = load_clip(v, cache=cache, resize="16x12", max_frames=4)
-    assert small.frames.raw.dtype == np.uint8 and (small.T, small.H, small.W) == (4, 12, 16) and len(list(cache.glob("frames-*"))) == 2
+    assert small.frames.raw.dtype == np.uint8 and (small.T, small.H, small.W) == (4, 12,
+                                                   16) and len(list(cache.glob("frames-*"))) == 2
 
 
 def test_16bit_images_are_kept_in_16_bits(tmp_path):
@@ -142,7 +146,9 @@ def test_the_flow_store_holds_what_the_whole_clip_functions_give(tmp_path):
     summary = flow_store.compute(Frames(fr), tmp_path, FlowConfig(method="dis_fast"))
     got = flow_store.load(tmp_path)
     assert summary["pairs"] == 4 and isinstance(got.fw, DiskArray) and got.grid == (40, 48) and got.pairs == 4
-    assert np.array_equal(np.asarray(got["fw"]), fw.astype(np.float16)) and np.array_equal(np.asarray(got["bw"]), bw.astype(np.float16))
+    assert np.array_equal(np.asarray(got["fw"]),
+                          fw.astype(np.float16)) and np.array_equal(np.asarray(got["bw"]),
+                          bw.astype(np.float16))
     for k in ("fw_ok", "bw_ok", "vis", "homs"):
         assert np.array_equal(np.asarray(got[k]), want[k]), k
 
@@ -178,7 +184,7 @@ def test_the_alpha_grid_of_a_long_clip_stops_growing_and_old_grids_load():
 def test_a_long_two_layer_clip_is_segmented_in_windows_and_resumes(tmp_path, monkeypatch):
     """More frames than ``segment.long.SEG_FRAMES``: masks on disk, per window; the run finishes, and
     again (cached) gives the same outputs."""
-    from layercam.vision import segment
+    from layercam.vision.segment import long as seg_long
     from layercam import synth
     from layercam.core.presets import load_config
     from layercam.io import Exposures
@@ -186,8 +192,8 @@ def test_a_long_two_layer_clip_is_segmented_in_windows_and_resumes(tmp_path, mon
 
     from conftest import TINY
 
-    monkeypatch.setattr(segment.long, "SEG_FRAMES", 6)
-    monkeypatch.setattr(segment.long, "SEG_MARGIN", 1)
+    monkeypatch.setattr(seg_long, "SEG_FRAMES", 6)
+    monkeypatch.setattr(seg_long, "SEG_MARGIN", 1)
     scene = synth.moving_object(frames=10, size=(40, 40), seed=0)
     ex = Exposures(np.zeros(10), "none", None, "none", "test")
     cfg = load_config("fast", TINY + ["model.layers=2", "train.steps=20"])
@@ -198,10 +204,13 @@ def test_a_long_two_layer_clip_is_segmented_in_windows_and_resumes(tmp_path, mon
     import json
 
     mem = json.loads((tmp_path / "run" / "report.json").read_text())["memory"]
-    assert set(mem["estimate"]) == {"before", "after_analysis"} and mem["estimate"]["before"]["memory"] > 0 and mem["peak_rss_bytes"] > 0
+    assert (set(mem["estimate"]) == {"before", "after_analysis"}
+            and mem["estimate"]["before"]["memory"] > 0 and mem["peak_rss_bytes"] > 0)
     first = (tmp_path / "run" / "hdr" / "frame_00009.exr").read_bytes()
     again = run_task("hdr-video", scene.clip, ex, cfg, tmp_path / "run", progress=False)
-    assert all(t["cached"] for t in again.times.values()) and (tmp_path / "run" / "hdr" / "frame_00009.exr").read_bytes() == first
+    assert all(t["cached"]
+               for t in again.times.values()) and (tmp_path / "run" / "hdr"
+                                                   / "frame_00009.exr").read_bytes() == first
 
 
 def test_the_analysis_of_a_long_clip_reads_windows():
@@ -236,11 +245,14 @@ def test_the_estimate_grows_with_the_clip_on_disk_not_in_memory(tmp_path):
     cfg = load_config("fast")
     short, long = (estimate({"frames": n, "width": 854, "height": 480, "bit_depth": 8}, cfg) for n in (48, 768))
     assert long["memory"] < 1.3 * short["memory"] and long["disk"] > 4 * short["disk"]
-    assert long["disk_parts"]["frames"] == 16 * short["disk_parts"]["frames"] and long["disk_parts"]["flow"] > 16 * short["disk_parts"]["flow"]  # 767 pairs, 47
+    assert (long["disk_parts"]["frames"] == 16 * short["disk_parts"]["frames"]
+            and long["disk_parts"]["flow"] > 16 * short["disk_parts"]["flow"])  # 767 pairs, 47
     assert short["assumed"] == {"layers": 2, "blur": "off"}  # the analysis's costliest plausible choice
     win = estimate({"frames": 768, "width": 854, "height": 480, "bit_depth": 8}, cfg, windows=[(0, 400), (368, 768)])
-    assert win["windows"] == 2 and win["memory"] <= long["memory"] and win["disk"] > long["disk"]  # one window's model at a time, each window's files
-    assert win["disk_parts"]["checkpoints"] > long["disk_parts"]["checkpoints"] and win["disk_parts"]["frames"] == long["disk_parts"]["frames"]
+    # one window's model at a time, each window's files
+    assert win["windows"] == 2 and win["memory"] <= long["memory"] and win["disk"] > long["disk"]
+    assert (win["disk_parts"]["checkpoints"] > long["disk_parts"]["checkpoints"]
+            and win["disk_parts"]["frames"] == long["disk_parts"]["frames"])
     huge = estimate({"frames": 4, "width": 100000, "height": 100000, "bit_depth": 8}, cfg)
     with pytest.raises(LayercamError, match="--resize"):
         check(huge, tmp_path)

@@ -2,7 +2,7 @@
 decodes back to the EXRs' radiance; and the input's sound and frame rate kept in every video.
 
 Real encodes and decodes through the bundled ffmpeg (which has no ffprobe: the stream properties are
-read from ``ffmpeg -i`` and the first frame's side data, :func:`layercam.io.hdr_video.probe_video`).
+read from ``ffmpeg -i`` and the first frame's side data, :func:`layercam.io.hdr_video_read.probe_video`).
 """
 
 from __future__ import annotations
@@ -16,8 +16,8 @@ import pytest
 
 from layercam.cli import main
 from layercam.io import read_exr, write_video
-from layercam.io.hdr_video import probe_video, read_hdr_video
-from layercam.io.video import ffmpeg_exe
+from layercam.io.hdr_video_read import probe_video, read_hdr_video
+from layercam.io.ffmpeg import ffmpeg_exe
 
 from conftest import TINY
 
@@ -34,7 +34,9 @@ def _argv(command: str, inp, out, *extra: str) -> list[str]:
 
 def _sound(path: Path) -> np.ndarray:
     """The first audio stream of ``path`` as mono float32 at 48 kHz."""
-    res = subprocess.run([ffmpeg_exe(), "-nostdin", "-hide_banner", "-loglevel", "error", "-i", str(path), "-map", "0:a:0", "-f", "f32le", "-ac", "1", "-ar", "48000", "-"],
+    res = subprocess.run([ffmpeg_exe(), "-nostdin", "-hide_banner", "-loglevel", "error", "-i",
+                          str(path), "-map", "0:a:0", "-f", "f32le", "-ac", "1", "-ar", "48000",
+                          "-"],
                          capture_output=True, check=True)  # fmt: skip
     return np.frombuffer(res.stdout, np.float32)
 
@@ -59,9 +61,14 @@ def tone_clip(tmp_path_factory) -> Path:
 
     d = tmp_path_factory.mktemp("tone")
     frames = synth.pan_hdr(frames=8, size=(48, 80), ev_step=3.0, seed=1).clip.frames
-    write_video(d / "silent.mp4", [cv2.resize(f, (160, 96), interpolation=cv2.INTER_CUBIC).clip(0, 1) for f in frames], fps=FPS)
-    subprocess.run([ffmpeg_exe(), "-nostdin", "-hide_banner", "-loglevel", "error", "-y", "-i", str(d / "silent.mp4"), "-f", "lavfi", "-i", f"sine=frequency={TONE:g}:sample_rate=48000:duration=1",
-                    "-map", "0:v", "-map", "1:a", "-c:v", "copy", "-c:a", "aac", str(d / "tone.mp4")], check=True)  # fmt: skip
+    write_video(d / "silent.mp4",
+                [cv2.resize(f, (160, 96), interpolation=cv2.INTER_CUBIC).clip(0, 1)
+                 for f in frames], fps=FPS)
+    subprocess.run([ffmpeg_exe(), "-nostdin", "-hide_banner", "-loglevel", "error", "-y", "-i",
+                    str(d / "silent.mp4"), "-f", "lavfi", "-i",
+                    f"sine=frequency={TONE:g}:sample_rate=48000:duration=1",
+                    "-map", "0:v", "-map", "1:a", "-c:v", "copy", "-c:a", "aac",
+                    str(d / "tone.mp4")], check=True)  # fmt: skip
     return d / "tone.mp4"
 
 
@@ -74,19 +81,28 @@ def hdr_run(tone_clip, tmp_path_factory) -> Path:
 
 def test_hdr_mp4_is_hevc_main10_bt2020_pq_with_hdr10_metadata(hdr_run):
     p = probe_video(hdr_run / "hdr.mp4")
-    assert (p["codec"], p["profile"], p["pix_fmt"]) == ("hevc", "Main 10", "yuv420p10le") and "hvc1" in p["video"]  # the tag Apple's players want
-    assert (p["color_range"], p["color_space"], p["color_primaries"], p["transfer"]) == ("tv", "bt2020nc", "bt2020", "smpte2084")
+    assert (p["codec"], p["profile"], p["pix_fmt"]) == ("hevc", "Main 10",
+            "yuv420p10le") and "hvc1" in p["video"]  # the tag Apple's players want
+    assert (p["color_range"], p["color_space"], p["color_primaries"], p["transfer"]) == ("tv",
+            "bt2020nc", "bt2020", "smpte2084")
     rep = json.loads((hdr_run / "report.json").read_text())["export"]["hdr_video"]
     md, cl = p["mastering_display"], p["content_light"]
     assert md is not None and cl is not None, p["stream_side_data"] + p["frame_side_data"]
     # the stream (mp4 boxes) and the HEVC SEI both carry them: what players and ffprobe -show_streams read
-    assert any("Mastering display" in s for s in p["stream_side_data"]) and any("Content light level" in s for s in p["stream_side_data"])
-    assert any("Mastering display" in s for s in p["frame_side_data"]) and any("Content light level" in s for s in p["frame_side_data"])
-    assert md["r"] == (0.64, 0.33) and md["g"] == (0.3, 0.6) and md["b"] == (0.15, 0.06) and md["wp"] == (0.3127, 0.329)  # BT.709 content
-    assert (cl["max_cll"], cl["max_fall"]) == (rep["max_cll"], rep["max_fall"]) and 0 < cl["max_fall"] <= cl["max_cll"] <= 1000
+    assert any("Mastering display" in s
+               for s in p["stream_side_data"]) and any("Content light level" in s
+               for s in p["stream_side_data"])
+    assert any("Mastering display" in s
+               for s in p["frame_side_data"]) and any("Content light level" in s
+               for s in p["frame_side_data"])
+    assert md["r"] == (0.64, 0.33) and md["g"] == (0.3, 0.6) and md["b"] == (0.15,
+                       0.06) and md["wp"] == (0.3127, 0.329)  # BT.709 content
+    assert (cl["max_cll"], cl["max_fall"]) == (rep["max_cll"],
+            rep["max_fall"]) and 0 < cl["max_fall"] <= cl["max_cll"] <= 1000
     assert md["max"] == pytest.approx(max(rep["max_cll"], 5))
     assert p["fps"] == FPS and p["audio"] == "aac"
-    assert rep["input_primaries"]["name"] == "bt709" and "assumed" in rep["input_primaries"]["how"] and "reference exposure" in rep["anchor"]
+    assert (rep["input_primaries"]["name"] == "bt709" and "assumed" in rep["input_primaries"]["how"]
+            and "reference exposure" in rep["anchor"])
 
 
 def test_hdr_mp4_decodes_back_to_the_exrs_radiance(hdr_run):
@@ -113,24 +129,30 @@ def test_hdr_video_and_deblur_video_keep_the_sound(tone_clip, hdr_run, tmp_path)
     for name in ("hdr.mp4", "preview.mp4"):
         _assert_tone(hdr_run / name, 8)
     rep = json.loads((hdr_run / "report.json").read_text())
-    assert rep["input"]["audio"]["codec"] == "aac" and rep["export"]["sound"]["preview.mp4"]["copied"] and rep["export"]["hdr_video"]["audio"]["copied"]
+    assert (rep["input"]["audio"]["codec"] == "aac"
+            and rep["export"]["sound"]["preview.mp4"]["copied"]
+            and rep["export"]["hdr_video"]["audio"]["copied"])
     assert main(_argv("deblur-video", tone_clip, tmp_path / "deblur", "--max-frames", "6")) == 0
     _assert_tone(tmp_path / "deblur" / "deblurred.mp4", 6)  # cut with the clip
     assert probe_video(tmp_path / "deblur" / "deblurred.mp4")["fps"] == FPS
 
 
 def test_a_stride_drops_the_sound_and_says_so(tone_clip, tmp_path, capsys):
-    assert main(_argv("hdr-video", tone_clip, tmp_path / "run", "--ev-step", "3", "--stride", "3", "--hdr-format", "none")) == 0
+    assert main(_argv("hdr-video", tone_clip, tmp_path / "run", "--ev-step", "3", "--stride", "3",
+                      "--hdr-format", "none")) == 0
     err = capsys.readouterr().err
     said = [ln for ln in err.splitlines() if "sound" in ln]
     assert len(said) == 1 and said[0].startswith("warning: --stride 3"), err
-    assert probe_video(tmp_path / "run" / "preview.mp4")["audio"] is None and not (tmp_path / "run" / "hdr.mp4").exists()
+    assert probe_video(tmp_path / "run" / "preview.mp4")["audio"] is None and not (tmp_path / "run"
+                       / "hdr.mp4").exists()
 
 
 def test_render_writes_the_runs_hlg_video_with_its_sound(hdr_run):
     assert main(["render", str(hdr_run), "--hdr-format", "hlg", "--quiet"]) == 0
     p = probe_video(hdr_run / "render" / "hdr_hlg.mp4")
-    assert (p["codec"], p["profile"], p["pix_fmt"], p["color_space"], p["color_primaries"], p["transfer"]) == ("hevc", "Main 10", "yuv420p10le", "bt2020nc", "bt2020", "arib-std-b67")
+    assert (p["codec"], p["profile"], p["pix_fmt"], p["color_space"], p["color_primaries"],
+            p["transfer"]) == ("hevc", "Main 10", "yuv420p10le", "bt2020nc", "bt2020",
+            "arib-std-b67")
     assert p["content_light"] is not None and p["mastering_display"] is not None
     _assert_tone(hdr_run / "render" / "hdr_hlg.mp4", 8)
     light, info = read_hdr_video(hdr_run / "render" / "hdr_hlg.mp4")
@@ -157,7 +179,8 @@ exec "{real}" "$@"
     warned = [ln for ln in capsys.readouterr().err.splitlines() if ln.startswith("warning:")]
     assert len(warned) == 1 and "libx265" in warned[0] and "hdr.mp4 is not written" in warned[0], warned
     run = tmp_path / "run"
-    assert not (run / "hdr.mp4").exists() and (run / "preview.mp4").exists() and len(list((run / "hdr").glob("*.exr"))) == 8
+    assert not (run / "hdr.mp4").exists() and (run
+                / "preview.mp4").exists() and len(list((run / "hdr").glob("*.exr"))) == 8
     assert json.loads((run / "report.json").read_text())["export"]["hdr_video"]["format"] == "none"
     assert main(["render", str(run), "--hdr-format", "pq", "--quiet"]) == 2  # asked for by name: one error line
     assert capsys.readouterr().err.strip().count("\n") == 0
@@ -181,7 +204,9 @@ def test_the_mapping_puts_diffuse_white_at_203_nits_and_rolls_highlights_off():
     for mp in (pq, hlg):
         mp.source_peak = max(mp.peak_of(f) for f in img)
         d = mp.display(img)
-        assert d.max() <= 1000.0 * (1 + 1e-6) and np.all(np.diff(d[..., 0], axis=1) >= -1e-3), mp.fmt  # float32 rounding at the peak
+        # float32 rounding at the peak
+        assert d.max() <= 1000.0 * (1
+                                    + 1e-6) and np.all(np.diff(d[..., 0], axis=1) >= -1e-3), mp.fmt
         red = d[1] @ np.linalg.inv(bt2100.primaries_matrix("bt709", "bt2020")).T
         assert np.abs(red[:, 1:]).max() < 1e-3 * red[:, 0].max()  # still pure red, not pushed towards white
     assert np.all(pq.signal(img) <= 1.0) and np.all(hlg.signal(img) <= 1.0)

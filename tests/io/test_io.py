@@ -12,7 +12,8 @@ from hypothesis import given, strategies as st
 from hypothesis.extra import numpy as hnp
 
 from layercam.core.errors import LayercamError
-from layercam.io import Clip, atomic_write, ensure_writable_dir, load_clip, read_exr, read_image, write_exr, write_png, write_video
+from layercam.io import (Clip, atomic_write, ensure_writable_dir, load_clip, read_exr, read_image,
+                         write_exr, write_png, write_video)
 from layercam.io.images import read_exif_exposure
 
 from props import props
@@ -273,7 +274,8 @@ def test_real_exif_jpegs_and_tiffs():
 
 
 @props(20)
-@given(img=hnp.arrays(np.float32, st.tuples(st.integers(1, 5), st.integers(1, 5), st.just(3)), elements=st.floats(0, 65504, width=32)), half=st.booleans())
+@given(img=hnp.arrays(np.float32, st.tuples(st.integers(1, 5), st.integers(1, 5), st.just(3)),
+                      elements=st.floats(0, 65504, width=32)), half=st.booleans())
 def test_exr_roundtrip_finite_non_negative(img, half):
     from layercam.io import read_exr, write_exr
 
@@ -312,8 +314,10 @@ def test_a_full_disk_is_one_clear_error_and_leaves_no_temporary_file(tmp_path):
 
     for err, said in [
         (OSError(errno.ENOSPC, "No space left on device"), "(the disk is full): No space left on device"),
-        (RuntimeError("[enforce fail at inline_container.cc:672] . unexpected pos 96640 vs 96528"), "(is the disk full?)"),
-        (RuntimeError('Failed to write pixel data to image file "x.exr". No space left on device.'), "(the disk is full)"),
+        (RuntimeError("[enforce fail at inline_container.cc:672] . unexpected pos 96640 vs 96528"),
+         "(is the disk full?)"),
+        (RuntimeError('Failed to write pixel data to image file "x.exr". No space left on device.'),
+         "(the disk is full)"),
     ]:
         with pytest.raises(LayercamError, match="cannot write .*a.exr") as e:
             atomic_write(target, fails(err))

@@ -1,4 +1,5 @@
-"""Video files: mp4 written and read back, errors, a truncated file, exact frame rates, variable rates, and the input's sound carried over."""
+"""Video files: mp4 written and read back, errors, a truncated file, exact frame rates, variable
+rates, and the input's sound carried over."""
 
 from __future__ import annotations
 
@@ -88,7 +89,7 @@ def test_mp4_complete_tells_a_whole_video_from_a_truncated_one(tmp_path):
 def _ffmpeg(*args: str) -> None:
     import subprocess
 
-    from layercam.io.video import ffmpeg_exe
+    from layercam.io.ffmpeg import ffmpeg_exe
 
     subprocess.run([ffmpeg_exe(), "-nostdin", "-hide_banner", "-loglevel", "error", "-y", *args], check=True)
 
@@ -97,29 +98,36 @@ def _tone(path: Path) -> tuple[np.ndarray, int]:
     """The first audio stream of ``path`` decoded to mono float32 at 48 kHz."""
     import subprocess
 
-    from layercam.io.video import ffmpeg_exe
+    from layercam.io.ffmpeg import ffmpeg_exe
 
-    pcm = subprocess.run([ffmpeg_exe(), "-nostdin", "-hide_banner", "-loglevel", "error", "-i", str(path), "-map", "0:a:0", "-f", "f32le", "-ac", "1", "-ar", "48000", "-"],
+    pcm = subprocess.run([ffmpeg_exe(), "-nostdin", "-hide_banner", "-loglevel", "error", "-i",
+                          str(path), "-map", "0:a:0", "-f", "f32le", "-ac", "1", "-ar", "48000",
+                          "-"],
                          capture_output=True, check=True).stdout
     return np.frombuffer(pcm, np.float32), 48000
 
 
 def test_rate_text_is_exact_for_ntsc_rates_and_read_video_keeps_them(tmp_path):
-    from layercam.io.video import rate_text
+    from layercam.io.ffmpeg import rate_text
 
-    assert rate_text(24.0) == "24" and rate_text(12.5) == "25/2" and rate_text(30000 / 1001) == "30000/1001" and rate_text(24000 / 1001) == "24000/1001"
-    _ffmpeg("-f", "lavfi", "-i", "testsrc2=size=32x32:rate=30000/1001", "-frames:v", "5", "-pix_fmt", "yuv420p", str(tmp_path / "ntsc.mp4"))
+    assert rate_text(24.0) == "24" and rate_text(12.5) == "25/2" and rate_text(30000
+        / 1001) == "30000/1001" and rate_text(24000 / 1001) == "24000/1001"
+    _ffmpeg("-f", "lavfi", "-i", "testsrc2=size=32x32:rate=30000/1001", "-frames:v", "5",
+            "-pix_fmt", "yuv420p", str(tmp_path / "ntsc.mp4"))
     frames, fps = read_video(tmp_path / "ntsc.mp4")
     assert fps == pytest.approx(30000 / 1001, abs=1e-9)  # not ffmpeg's printed 29.97
     write_video(tmp_path / "back.mp4", frames, fps=fps)
-    from layercam.io.hdr_video import probe_video
+    from layercam.io.hdr_video_read import probe_video
 
-    assert "30000/1001" == rate_text(read_video(tmp_path / "back.mp4")[1]) and probe_video(tmp_path / "back.mp4")["tbr"] == pytest.approx(29.97)
+    assert "30000/1001" == rate_text(read_video(tmp_path / "back.mp4")[1]) and probe_video(tmp_path
+        / "back.mp4")["tbr"] == pytest.approx(29.97)
 
 
 def test_a_variable_rate_video_is_said_and_decoded_at_a_constant_rate(tmp_path):
     # a phone's 30 fps that slows to 15 after a second (every other frame left out): 45 frames in 1.9 s
-    _ffmpeg("-f", "lavfi", "-i", "testsrc2=size=32x32:rate=30", "-t", "2", "-vf", "select='lt(t\\,1)+not(mod(n\\,2))'", "-fps_mode", "vfr", "-pix_fmt", "yuv420p", str(tmp_path / "vfr.mp4"))
+    _ffmpeg("-f", "lavfi", "-i", "testsrc2=size=32x32:rate=30", "-t", "2", "-vf",
+            "select='lt(t\\,1)+not(mod(n\\,2))'", "-fps_mode", "vfr", "-pix_fmt", "yuv420p",
+            str(tmp_path / "vfr.mp4"))
     clip = load_clip(tmp_path / "vfr.mp4")
     info = clip.meta["video"]
     assert info["variable"] and info["tbr"] == 30 and info["fps"] < 25
@@ -131,14 +139,18 @@ def test_a_variable_rate_video_is_said_and_decoded_at_a_constant_rate(tmp_path):
 
 
 def test_the_clips_sound_is_planned_cut_with_max_frames_and_dropped_with_a_stride(tmp_path):
-    _ffmpeg("-f", "lavfi", "-i", "testsrc2=size=32x32:rate=8", "-f", "lavfi", "-i", "sine=frequency=440:sample_rate=48000", "-t", "2", "-pix_fmt", "yuv420p", "-c:a", "aac", "-shortest", str(tmp_path / "a.mp4"))
+    _ffmpeg("-f", "lavfi", "-i", "testsrc2=size=32x32:rate=8", "-f", "lavfi", "-i",
+            "sine=frequency=440:sample_rate=48000", "-t", "2", "-pix_fmt", "yuv420p", "-c:a", "aac",
+            "-shortest", str(tmp_path / "a.mp4"))
     whole = load_clip(tmp_path / "a.mp4")
-    assert whole.meta["audio"] == {"path": str((tmp_path / "a.mp4").resolve()), "codec": "aac", "duration": None} and not whole.meta["notes"]
+    assert whole.meta["audio"] == {"path": str((tmp_path / "a.mp4").resolve()), "codec": "aac",
+                                   "duration": None} and not whole.meta["notes"]
     assert load_clip(tmp_path / "a.mp4", max_frames=16).meta["audio"]["duration"] is None  # all 16 frames: nothing cut
     assert load_clip(tmp_path / "a.mp4", max_frames=6).meta["audio"]["duration"] == pytest.approx(6 / 8)
     strided = load_clip(tmp_path / "a.mp4", stride=2)
     assert strided.meta["audio"] is None and any("--stride 2" in n and "sound" in n for n in strided.meta["notes"])
-    assert load_clip(tmp_path / "a.mp4").meta["primaries"]["name"] == "bt709" and "assumed" in whole.meta["primaries"]["how"]
+    assert (load_clip(tmp_path / "a.mp4").meta["primaries"]["name"] == "bt709"
+            and "assumed" in whole.meta["primaries"]["how"])
     silent = tmp_path / "s.mp4"
     write_video(silent, whole.frames[:3], fps=8)
     assert load_clip(silent).meta["audio"] is None
@@ -149,7 +161,9 @@ def test_video_writer_carries_the_sound_over_unchanged_and_cut(tmp_path, codec):
     from layercam.io import VideoWriter
 
     src = tmp_path / ("in.mov" if codec.startswith("pcm") else "in.mp4")
-    _ffmpeg("-f", "lavfi", "-i", "testsrc2=size=32x32:rate=8", "-f", "lavfi", "-i", "sine=frequency=440:sample_rate=48000", "-t", "2", "-pix_fmt", "yuv420p", "-c:a", codec, "-shortest", str(src))
+    _ffmpeg("-f", "lavfi", "-i", "testsrc2=size=32x32:rate=8", "-f", "lavfi", "-i",
+            "sine=frequency=440:sample_rate=48000", "-t", "2", "-pix_fmt", "yuv420p", "-c:a", codec,
+            "-shortest", str(src))
     frames, fps = read_video(src)
     for cut in (None, 0.75):
         out = tmp_path / f"out_{cut}.mp4"
@@ -164,7 +178,9 @@ def test_video_writer_carries_the_sound_over_unchanged_and_cut(tmp_path, codec):
         assert np.fft.rfftfreq(len(sound), 1 / rate)[np.argmax(spectrum)] == pytest.approx(440, abs=3)
     assert not [p for p in tmp_path.iterdir() if ".tmp" in p.name]
     gone = tmp_path / "gone.mp4"
-    with VideoWriter(gone, fps=fps, audio={"path": str(tmp_path / "moved.mp4"), "codec": "aac", "duration": None}) as vw:
+    with VideoWriter(gone, fps=fps,
+                     audio={"path": str(tmp_path / "moved.mp4"), "codec": "aac",
+                            "duration": None}) as vw:
         vw.add(frames[0])
     assert not vw.audio_info["kept"] and "no longer there" in vw.audio_info["why"] and read_video(gone)[0].shape[0] == 1
 
@@ -174,7 +190,8 @@ def test_the_output_stream_line_is_read_whole():
     must not be taken (the clip's frame rate then fell back to 24 fps on a loaded machine)."""
     from layercam.io.video import _OUT_STREAM
 
-    head = "Input #0, mov,mp4\n  Duration: 00:00:01.00\nOutput #0, rawvideo, to 'pipe:':\n  Stream #0:0: Video: rawvideo (RGB[24] / 0x18424752), rgb24(pc), 160x96"
+    head = ("Input #0, mov,mp4\n  Duration: 00:00:01.00\nOutput #0, rawvideo, to 'pipe:':\n  "
+            "Stream #0:0: Video: rawvideo (RGB[24] / 0x18424752), rgb24(pc), 160x96")
     assert _OUT_STREAM.search(head) is None
     assert _OUT_STREAM.search(head + ", q=2-31") is None
     m = _OUT_STREAM.search(head + ", q=2-31, 368 kb/s, 8 fps, 8 tbn\n")

@@ -97,7 +97,8 @@ def test_a_frame_the_model_misses_is_written_from_the_input_and_its_mask_publish
     assert "trust" in json.loads((run / "outputs.json").read_text())["names"]
     out = [read_image(run / "frames" / f"frame_{t:05d}.png") for t in range(3)]
     moved = np.abs(np.roll(sc.sharp_ldr[1], 10, axis=1) - sc.clip.frames[1]).mean()
-    assert np.abs(out[1] - read_image(inp / "f001.png")).mean() < 0.1 * moved  # the input, not the frame in another view
+    # the input, not the frame in another view
+    assert np.abs(out[1] - read_image(inp / "f001.png")).mean() < 0.1 * moved
     assert np.abs(out[0] - sc.sharp_ldr[0]).max() < 2.5 / 255  # the render, where it held
 
 
@@ -116,12 +117,13 @@ def test_blur_generator_deblurs_shake_clip(tmp_path):
     from layercam import synth
     from layercam.core.presets import load_config
     from layercam.io import Exposures
-    from layercam.pipelines.evaluate import EvaluateStage
+    from layercam.bench.evaluate import EvaluateStage
     from layercam.pipelines.tasks import run_task
 
     sc = synth.shake_blur(frames=6, size=(48, 48), max_blur_px=6.0, seed=0)
     e = Exposures(np.zeros(6), "none", None, "none", "single")
-    cfg = load_config("fast", ["train.batch=2048", "model.layers=1"])  # with a blur generator, at most one grid cell per pixel
+    # with a blur generator, at most one grid cell per pixel
+    cfg = load_config("fast", ["train.batch=2048", "model.layers=1"])
     ctx = run_task("deblur-video", sc.clip, e, cfg, tmp_path / "run", progress=False, extra_stages=[EvaluateStage(sc)])
     from layercam.core.frame_metrics import score_frames
     from layercam.scene.render import render_frame

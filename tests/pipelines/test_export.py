@@ -21,7 +21,8 @@ def test_every_task_has_its_writers_and_the_common_ones():
         w = writers_for(task)
         assert {"crf", "psf", "atlases", "checkpoint"} <= set(w)
         assert len(w) == len(set(w))
-    assert "psf.json" in outputs_for("hdr-video") and "fused.exr" in outputs_for("fuse-stack") and "frames" in outputs_for("deblur-video")
+    assert ("psf.json" in outputs_for("hdr-video") and "fused.exr" in outputs_for("fuse-stack")
+            and "frames" in outputs_for("deblur-video"))
 
 
 def _clip(frames):
@@ -71,9 +72,11 @@ def test_atlases_fed_by_the_hdr_frames_match_the_atlases_rendered_alone(two_laye
     summary = export_atlases(model, tmp_path, frames, fps=float(ck.get("fps") or 24.0))
     assert summary["alpha_mattes"] == len(frames) == len(list((run / "alpha").glob("*.png")))
     for name in ("alpha/frame_00000.png", f"alpha/frame_{len(frames) - 1:05d}.png", "atlases/layer1.png"):
-        assert np.array_equal(cv2.imread(str(run / name), cv2.IMREAD_UNCHANGED), cv2.imread(str(tmp_path / name), cv2.IMREAD_UNCHANGED)), name
+        assert np.array_equal(cv2.imread(str(run / name), cv2.IMREAD_UNCHANGED),
+                              cv2.imread(str(tmp_path / name), cv2.IMREAD_UNCHANGED)), name
     for k in (0, 1):
-        assert np.array_equal(read_exr(run / "atlases" / f"layer{k}.exr"), read_exr(tmp_path / "atlases" / f"layer{k}.exr"))
+        assert np.array_equal(read_exr(run / "atlases" / f"layer{k}.exr"),
+                              read_exr(tmp_path / "atlases" / f"layer{k}.exr"))
     sink = AtlasSink(model, tmp_path / "again", frames)
     with pytest.raises(ValueError, match="frame 1 where frame 0 was due"):
         try:

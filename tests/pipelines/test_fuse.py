@@ -63,7 +63,7 @@ def test_mfme_with_times_file_learns_tone_and_scores(tmp_path):
     from layercam.core.presets import load_config
     from layercam.io import Exposures
     from layercam.io.clip import Clip
-    from layercam.pipelines.evaluate import EvaluateStage
+    from layercam.bench.evaluate import EvaluateStage
     from layercam.pipelines.tasks import run_task
 
     sc = synth.mfme_stack(size=(24, 24), focus_settings=3, exposures_ev=(0.0, 2.0, 4.0), planes=3, seed=1)
@@ -86,7 +86,8 @@ def test_mfme_with_times_file_learns_tone_and_scores(tmp_path):
     clip = Clip(sc.clip.frames[idx], "synthetic:mfme_stack", names)
     e = Exposures(ev - ev.min(), "none", None, "times", "test: known")
     ev_stage = EvaluateStage(sc, focus_index=sc.meta["focus_index"][idx], times=sc.exposure_times[idx])
-    ctx = run_task("fuse-stack", clip, e, load_config("fast", TINY + SMALL_BLUR), run, progress=False, extra_stages=[ev_stage])
+    ctx = run_task("fuse-stack", clip, e, load_config("fast", TINY + SMALL_BLUR), run,
+                   progress=False, extra_stages=[ev_stage])
     assert all(ctx.times[k]["cached"] for k in ("flow", "bootstrap", "train", "export"))
     res = ctx.results["evaluate"]
     assert 10 < res.metrics["psnr_mu"] < 100
@@ -95,7 +96,10 @@ def test_mfme_with_times_file_learns_tone_and_scores(tmp_path):
     assert json.loads((run / "report.json").read_text())["metrics"]["psnr_mu"] == res.metrics["psnr_mu"]
 
 
-@pytest.mark.parametrize("extra, needle", [(["--reference", "7"], "reference"), (["--reference", "side"], "reference"), (["--exposures", "nope.txt"], "nope.txt")])
+@pytest.mark.parametrize("extra, needle",
+                         [(["--reference", "7"], "reference"),
+                          (["--reference", "side"], "reference"),
+                          (["--exposures", "nope.txt"], "nope.txt")])
 def test_bad_arguments_fail_before_training(tmp_path, capsys, extra, needle):
     rng = np.random.default_rng(0)
     paths = _write_stack(tmp_path / "in", rng.random((2, 16, 16, 3)).astype(np.float32), ["a", "b"])

@@ -34,7 +34,8 @@ def _argv(frames, out, *extra):
 def _killed(frames, out, where: str, *extra) -> None:
     """The command, SIGKILLed when it reaches ``where`` ("export:2")."""
     env = dict(os.environ, LAYERCAM_SIGNAL_AT=f"{where}:KILL")
-    r = subprocess.run([sys.executable, "-m", "layercam", *_argv(frames, out, *extra)], env=env, capture_output=True, text=True, timeout=600)
+    r = subprocess.run([sys.executable, "-m", "layercam", *_argv(frames, out, *extra)], env=env,
+                       capture_output=True, text=True, timeout=600)
     assert r.returncode == -9, r.stderr[-3000:]
 
 
@@ -105,7 +106,8 @@ def test_sigkill_then_the_same_command_matches_an_uninterrupted_run(reference, t
 
 
 @pytest.mark.parametrize("where", ["decode:2", "flow:1", "train:30", "export:2"])
-def test_ctrl_c_then_the_same_command_matches_an_uninterrupted_run(reference, tiny_frames, tmp_path, monkeypatch, capsys, where):
+def test_ctrl_c_then_the_same_command_matches_an_uninterrupted_run(reference, tiny_frames, tmp_path,
+    monkeypatch, capsys, where):
     run = tmp_path / "run"
     _ctrl_c(tiny_frames, run, where, monkeypatch)
     assert "interrupted: run the same command again" in capsys.readouterr().err
@@ -139,9 +141,11 @@ def test_settings_a_b_a_over_a_finished_run(reference, tiny_frames, tmp_path, mo
     assert m["complete"] and m["key"] != a_key
     rep = json.loads((run / "report.json").read_text())
     assert rep["settings"]["export"]["half"] is False and rep["export"]["exr"] == "float32"  # B's
-    assert not np.array_equal(read_exr(run / "hdr" / "frame_00000.exr"), read_exr(reference / "hdr" / "frame_00000.exr"))
+    assert not np.array_equal(read_exr(run / "hdr" / "frame_00000.exr"),
+                              read_exr(reference / "hdr" / "frame_00000.exr"))
     _assert_same_outputs(run / "previous" / a_key, reference)  # A kept, as a whole set
-    assert not (run / "render").exists() and (run / "previous" / a_key / "render" / "exposure_+1.00" / "render.json").is_file()
+    assert not (run / "render").exists() and (run / "previous" / a_key / "render" / "exposure_+1.00"
+                / "render.json").is_file()
 
     assert main(_argv(tiny_frames, run)) == 0  # A again: restored from its cache
     rep = json.loads((run / "report.json").read_text())

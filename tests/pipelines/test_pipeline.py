@@ -38,17 +38,21 @@ def test_end_to_end_outputs_and_loss_falls(tiny_scene, tiny_exposures, tmp_path)
     tr = rep["train"]
     assert tr["final_loss"]["color"] < 0.5 * tr["first_loss"]["color"]
     assert rep["analysis"]["layers"] == 1 and rep["analysis"]["tone_mapper"] == "learned"
-    est = rep["memory"]["estimate"]  # after the analysis: the model the run built (its atlas sized by the pan); before: an upper bound
+    est = rep["memory"]["estimate"]  # after the analysis: the model the run built (its atlas sized
+                                     # by the pan); before: an upper bound
     assert est["after_analysis"]["params"] == sum(p.numel() for p in ctx.model.parameters()) < est["before"]["params"]
     if Path("/proc/self/clear_refs").exists():  # each stage's own peak resident memory, within the run's
         peaks = {k: v["peak_mb"] for k, v in rep["stages"].items() if not v.get("cached")}
-        assert set(peaks) >= {"flow", "train", "export"} and all(0 < v <= rep["memory"]["peak_rss_bytes"] / 2**20 + 4 for v in peaks.values()), (peaks, rep["memory"]["peak_rss_bytes"] / 2**20)  # the kernel counts lazily
+        assert set(peaks) >= {"flow", "train",
+                              "export"} and all(0 < v <= rep["memory"]["peak_rss_bytes"] / 2**20 + 4
+                                                for v in peaks.values()), (peaks,
+                              rep["memory"]["peak_rss_bytes"] / 2**20)  # the kernel counts lazily
     crf = json.loads((run / "crf.json").read_text())
     assert len(crf["r"]) == len(crf["z_stops"])
 
 
 def test_same_command_skips_changed_setting_redoes_dependents(tiny_scene, tiny_exposures, tmp_path):
-    from layercam.pipelines.export import faithful_hdr
+    from layercam.pipelines.hdr_frames import faithful_hdr
 
     run = tmp_path / "run"
     first = _run(tiny_scene, tiny_exposures, run)
@@ -60,7 +64,8 @@ def test_same_command_skips_changed_setting_redoes_dependents(tiny_scene, tiny_e
     # an export setting: the model is rebuilt once from the cached training, and renders what the trained one did
     ctx = _run(tiny_scene, tiny_exposures, run, ["export.half=off"])
     assert ctx.times["train"]["cached"] and not ctx.times["export"]["cached"] and ctx.model is not trained
-    for t, expect, _ in faithful_hdr(ctx, trained, range(tiny_scene.clip.T)):  # export.faithful: corrected towards the frames
+    for t, expect, _ in faithful_hdr(ctx, trained, range(tiny_scene.clip.T)):
+        # export.faithful: corrected towards the frames
         np.testing.assert_array_equal(read_exr(run / "hdr" / f"frame_{t:05d}.exr"), expect)
     ctx = _run(tiny_scene, tiny_exposures, run, ["train.steps=70"])
     assert ctx.times["flow"]["cached"] and ctx.times["bootstrap"]["cached"]
@@ -143,7 +148,8 @@ def _load_png16(frames: np.ndarray, d: Path, grey: bool):
     robust=st.sampled_from([0.0, 0.05]),
     autocast=st.sampled_from(["none", "bf16"]),
 )
-def test_end_to_end_tiny_clips_export_finite_hdr_and_monotone_curves(hw, t, content, value, ev, learn, robust, autocast):
+def test_end_to_end_tiny_clips_export_finite_hdr_and_monotone_curves(hw, t, content, value, ev,
+    learn, robust, autocast):
     from layercam.io import Clip, Exposures, read_exr
     from layercam.core.presets import load_config
     from layercam.pipelines.tasks import run_task
@@ -223,7 +229,8 @@ def test_settings_a_b_a_puts_a_back(tiny_scene, tiny_exposures, tmp_path):
     ctx = _run(tiny_scene, tiny_exposures, run)
     assert ctx.times["export"]["cached"]
     rep = json.loads((run / "report.json").read_text())
-    assert rep["settings"]["export"]["half"] is True and rep["export"]["exr"] == "half" and rep["cache_keys"] == ctx.keys
+    assert (rep["settings"]["export"]["half"] is True and rep["export"]["exr"] == "half"
+            and rep["cache_keys"] == ctx.keys)
     again = [read_exr(p) for p in sorted((run / "hdr").glob("*.exr"))]
     assert len(again) == len(a) and all(np.array_equal(x, y) for x, y in zip(again, a))
     assert len(list((run / "previous").glob("*/hdr/frame_00000.exr"))) == 2  # A's first copy and B's
@@ -291,7 +298,9 @@ def test_a_stage_that_fills_the_disk_is_one_error_and_the_run_goes_on_after(tiny
 
     run = tmp_path / "run"
     cfg = load_config("fast", TINY)
-    with pytest.raises(LayercamError, match=r"\[fulldisk\] cannot write in .*fulldisk-.*: No space left on device; free some space") as e:
+    with pytest.raises(LayercamError,
+                       match=r"\[fulldisk\] cannot write in .*fulldisk-.*: No space left on "
+                             r"device; free some space") as e:
         run_task("hdr-video", tiny_scene.clip, tiny_exposures, cfg, run, progress=False, extra_stages=[FullDisk()])
     assert "\n" not in str(e.value)
     assert len(list((run / "cache").glob("export-*/done.json"))) == 1

@@ -14,7 +14,8 @@ def _scene(blur: int = 5, size: int = 96, seed: int = 0):
 
     rng = np.random.default_rng(seed)
     sharp = 0.2 + 0.6 * cv2.GaussianBlur(rng.random((size, size, 3)).astype(np.float32), (0, 0), 1.0)
-    sharp = np.clip(0.5 + (sharp - sharp.mean()) * (0.2 / sharp.std()), 0, 1).astype(np.float32)  # a real texture's contrast
+    # a real texture's contrast
+    sharp = np.clip(0.5 + (sharp - sharp.mean()) * (0.2 / sharp.std()), 0, 1).astype(np.float32)
     camera = lambda im: cv2.blur(np.asarray(im, np.float32), (blur, blur))  # noqa: E731
     frame = np.clip(camera(sharp) + rng.normal(0, NOISE, sharp.shape), 0, 1).astype(np.float32)
     return sharp, frame, camera

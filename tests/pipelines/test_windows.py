@@ -1,4 +1,4 @@
-"""A long clip as overlapping windows (pipelines/windows.py): the plan, the shared camera, the join,
+"""A long clip as overlapping windows (layercam.pipelines.windows): the plan, the shared camera, the join,
 render and edit on a windowed run, and a windowed run interrupted anywhere (SIGKILL, Ctrl-C) that
 finishes as if never interrupted."""
 
@@ -16,7 +16,7 @@ from hypothesis import strategies as st
 
 from layercam.cli import main
 from layercam.io import read_exr
-from layercam.pipelines import window_plan, windows
+from layercam.pipelines.windows import index as windows, plan as window_plan
 
 from conftest import tiny_argv
 
@@ -122,15 +122,18 @@ def test_windowed_run_publishes_joined_outputs_and_each_window(windowed):
 def test_windows_share_window_0s_camera(windowed):
     import torch
 
-    states = [torch.load(windowed / "windows" / f"w{k:02d}" / "checkpoint.pt", weights_only=False)["state"] for k in range(3)]
+    states = [torch.load(windowed / "windows" / f"w{k:02d}" / "checkpoint.pt",
+                         weights_only=False)["state"] for k in range(3)]
     tone = [k for k in states[0] if k.startswith("tone.")]
     assert tone
     for s in states[1:]:
         assert all(torch.equal(s[k], states[0][k]) for k in tone)
-    assert not torch.equal(states[1]["scene.atlases.0.mlp.last.weight"], states[0]["scene.atlases.0.mlp.last.weight"])  # each its own scene
+    assert not torch.equal(states[1]["scene.atlases.0.mlp.last.weight"],
+                           states[0]["scene.atlases.0.mlp.last.weight"])  # each its own scene
     rep = json.loads((windowed / "report.json").read_text())
     keys = [r["keys"]["train"] for r in rep["windows"]["runs"]]
-    material = json.loads((windowed / "cache" / "windows" / "00004-00009" / "cache" / f"train-{keys[1]}" / "settings.json").read_text())
+    material = json.loads((windowed / "cache" / "windows" / "00004-00009" / "cache"
+                           / f"train-{keys[1]}" / "settings.json").read_text())
     assert material["options"]["camera"] == keys[0]  # the later windows' training names window 0's
 
 
@@ -138,19 +141,24 @@ def test_the_join_is_each_windows_hdr_cross_faded_over_the_overlap_by_their_fits
     import cv2
 
     from layercam.camera.faithful import WINDOW_SIGMA
-    from layercam.pipelines.window_plan import FIT_FILE
+    from layercam.pipelines.windows.plan import FIT_FILE
 
     rep = json.loads((windowed / "report.json").read_text())
-    exports = [windowed / "cache" / "windows" / f"{a:05d}-{b:05d}" / "cache" / f"export-{r['keys']['export']}" for r, (a, b) in
+    exports = [windowed / "cache" / "windows" / f"{a:05d}-{b:05d}" / "cache"
+               / f"export-{r['keys']['export']}" for r, (a, b) in
                zip(rep["windows"]["runs"], [(0, 6), (4, 9), (7, 12)])]
     own = lambda k, i: read_exr(exports[k] / "hdr" / f"frame_{i:05d}.exr")  # noqa: E731
     joined = lambda t: read_exr(windowed / "hdr" / f"frame_{t:05d}.exr")  # noqa: E731
-    assert np.array_equal(joined(2), own(0, 2)) and np.array_equal(joined(6), own(1, 2)) and np.array_equal(joined(11), own(2, 4))
-    # each window's error per pixel over the overlap's frames 4, 5 (its own frames 4, 5 and 0, 1), as its export measured it
-    fit = [cv2.GaussianBlur(np.load(exports[k] / FIT_FILE)[i:i + 2].mean(0), (0, 0), WINDOW_SIGMA) for k, i in ((0, 4), (1, 0))]
+    assert np.array_equal(joined(2), own(0, 2)) and np.array_equal(joined(6),
+                          own(1, 2)) and np.array_equal(joined(11), own(2, 4))
+    # each window's error per pixel over the overlap's frames 4, 5 (its own frames 4, 5 and 0, 1),
+    # as its export measured it
+    fit = [cv2.GaussianBlur(np.load(exports[k] / FIT_FILE)[i:i + 2].mean(0), (0, 0), WINDOW_SIGMA)
+           for k, i in ((0, 4), (1, 0))]
     kept = np.load(windowed / "windows" / "fits.npz")
     assert np.allclose(kept["w0_o0"], fit[0]) and np.allclose(kept["w1_o0"], fit[1])
-    assert not np.allclose(fit[0] / fit[1], (fit[0] / fit[1]).mean())  # the two windows' fits differ from pixel to pixel
+    # the two windows' fits differ from pixel to pixel
+    assert not np.allclose(fit[0] / fit[1], (fit[0] / fit[1]).mean())
     for t, (i, j) in {4: (4, 0), 5: (5, 1)}.items():
         f = (t - 4 + 1) / 3  # the linear fade, each side divided by its window's error at the pixel
         w = ((f / fit[1]) / ((1 - f) / fit[0] + f / fit[1]))[..., None]
@@ -161,7 +169,7 @@ def test_the_join_is_each_windows_hdr_cross_faded_over_the_overlap_by_their_fits
 
 def test_render_on_a_windowed_run(windowed):
     from layercam.engine.checkpoint import load_run_model
-    from layercam.commands.render import exposure_frames
+    from layercam.scene.render import exposure_frames
     from layercam.io import read_image
 
     assert main(["render", str(windowed), "--exposure", "1", "--quiet"]) == 0
@@ -183,11 +191,13 @@ def test_edit_on_a_windowed_run_is_carried_to_every_window(windowed, tmp_path, c
     cv2.imwrite(str(tmp_path / "edited.png"), png)
     assert main(["edit", str(windowed), "--layer", "0", "--atlas", str(tmp_path / "edited.png"), "--quiet"]) == 2
     assert "--window K" in capsys.readouterr().err
-    assert main(["edit", str(windowed), "--layer", "0", "--atlas", str(tmp_path / "edited.png"), "--window", "1", "--quiet", "--out", str(tmp_path / "edit")]) == 0
+    assert main(["edit", str(windowed), "--layer", "0", "--atlas", str(tmp_path / "edited.png"),
+                 "--window", "1", "--quiet", "--out", str(tmp_path / "edit")]) == 0
     info = json.loads((tmp_path / "edit" / "edit.json").read_text())
     painted = info["windows"][1]["edit_alpha_sum"]
     assert [w["edit"].split()[0] for w in info["windows"]] == ["carried", "painted", "carried"]
-    assert all(0.5 * painted < w["edit_alpha_sum"] < 1.5 * painted for w in info["windows"])  # the patch is seen in every overlap
+    # the patch is seen in every overlap
+    assert all(0.5 * painted < w["edit_alpha_sum"] < 1.5 * painted for w in info["windows"])
     assert all(c > 0 for c in info["edit_visible_fraction_per_frame"])
     assert len(list((tmp_path / "edit" / "hdr").glob("*.exr"))) == FRAMES
 
@@ -218,12 +228,15 @@ def assert_same_outputs(run, ref) -> None:
     m, mr = (json.loads((r / "outputs.json").read_text()) for r in (run, ref))
     assert m["complete"] and m["key"] == mr["key"]
     rep, rr = (json.loads((r / "report.json").read_text()) for r in (run, ref))
-    assert rep["cache_keys"] == rr["cache_keys"] and [r["keys"] for r in rep["windows"]["runs"]] == [r["keys"] for r in rr["windows"]["runs"]]
+    assert rep["cache_keys"] == rr["cache_keys"] and [r["keys"]
+                                                      for r in rep["windows"]["runs"]] == [r["keys"]
+                                                      for r in rr["windows"]["runs"]]
 
 
 def _killed(frames, out, where: str) -> None:
     env = dict(os.environ, LAYERCAM_SIGNAL_AT=f"{where}:KILL")
-    r = subprocess.run([sys.executable, "-m", "layercam", *_argv(frames, out)], env=env, capture_output=True, text=True, timeout=600)
+    r = subprocess.run([sys.executable, "-m", "layercam", *_argv(frames, out)], env=env,
+                       capture_output=True, text=True, timeout=600)
     assert r.returncode == -9, r.stderr[-3000:]
 
 
@@ -238,7 +251,8 @@ def test_sigkill_in_every_window_then_the_same_command_matches_an_uninterrupted_
     for k in range(3):
         _killed(long_frames, run, "train:30")  # in window k: windows 0..k-1 finished
         cks = sorted(run.glob("cache/windows/*/cache/train-*/ckpt.pt"))
-        assert len(cks) == k + 1 and torch.load(cks[k], weights_only=False)["step"] == 20  # its last periodic checkpoint
+        # its last periodic checkpoint
+        assert len(cks) == k + 1 and torch.load(cks[k], weights_only=False)["step"] == 20
         assert not list(run.glob("cache/windows/*/cache/export-*/done.json"))[k:]
         if k < 2:
             _killed(long_frames, run, "export:3")  # window k resumes, finishes training, killed exporting
@@ -270,7 +284,8 @@ def test_switching_windows_off_sets_the_windowed_set_aside(windowed, long_frames
     key = json.loads((run / "outputs.json").read_text())["key"]
     assert main(tiny_argv("hdr-video", long_frames, run, "--ev-step", "3", "--window", "off")) == 0
     assert (run / "checkpoint.pt").is_file() and not (run / "windows").exists() and not (run / "windows.json").exists()
-    assert (run / "previous" / key / "windows.json").is_file() and (run / "previous" / key / "windows" / "w02" / "checkpoint.pt").is_file()
+    assert (run / "previous" / key / "windows.json").is_file() and (run / "previous" / key
+            / "windows" / "w02" / "checkpoint.pt").is_file()
     rep = json.loads((run / "report.json").read_text())
     assert rep["analysis"]["reasons"]["window"] == "off (--window 0)" and "windows" not in rep
     assert main(_argv(long_frames, run)) == 0  # back to the windows: from the cache, the same set
@@ -304,10 +319,14 @@ def test_deblur_video_windows_join_the_sharp_frames_and_alpha(long_frames, tmp_p
     assert len(list((run / "frames").glob("*.png"))) == FRAMES and (run / "deblurred.mp4").is_file()
     assert len(list((run / "alpha").glob("*.png"))) == FRAMES
     rep = json.loads((run / "report.json").read_text())
-    export = run / rep["windows"]["runs"][1]["folder"] / "cache" / f"export-{rep['windows']['runs'][1]['keys']['export']}"
-    assert np.array_equal(read_image(run / "frames" / "frame_00006.png"), read_image(export / "frames" / "frame_00002.png"))  # window 1's alone
-    assert np.array_equal(read_image(run / "alpha" / "frame_00006.png"), read_image(export / "alpha" / "frame_00002.png"))
-    assert np.array_equal(read_image(run / "trust" / "frame_00006.png"), read_image(export / "trust" / "frame_00002.png"))  # the trust masks too
+    export = (run / rep["windows"]["runs"][1]["folder"] / "cache"
+              / f"export-{rep['windows']['runs'][1]['keys']['export']}")
+    assert np.array_equal(read_image(run / "frames" / "frame_00006.png"),
+                          read_image(export / "frames" / "frame_00002.png"))  # window 1's alone
+    assert np.array_equal(read_image(run / "alpha" / "frame_00006.png"),
+                          read_image(export / "alpha" / "frame_00002.png"))
+    assert np.array_equal(read_image(run / "trust" / "frame_00006.png"),
+                          read_image(export / "trust" / "frame_00002.png"))  # the trust masks too
     assert len(list((run / "trust").glob("*.png"))) == FRAMES
     assert (run / "windows" / "w02" / "atlases" / "layer1.png").is_file()
 

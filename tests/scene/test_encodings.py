@@ -17,7 +17,8 @@ def _reference(grid: DenseGrid2D):
 
     def encode(uv):
         g = uv.view(1, -1, 1, 2)
-        return torch.cat([F.grid_sample(i, g, mode="bilinear", padding_mode="border", align_corners=False)[0, :, :, 0] for i in imgs], 0).t()
+        return torch.cat([F.grid_sample(i, g, mode="bilinear", padding_mode="border",
+                                        align_corners=False)[0, :, :, 0] for i in imgs], 0).t()
 
     return imgs, encode
 

@@ -34,7 +34,10 @@ def test_two_layer_run_separates_the_moving_object(two_layer_run):
     assert np.mean(ious) > 0.5, ious
     # the report keeps the share of the frames alpha holds: the mattes' own, and the object's size
     share = rep["export"]["atlas"]["foreground_share"]
-    assert abs(share - np.mean([np.mean(read_image(p)[..., 0] > 0.5) for p in mattes])) <= 1.0 / scene.fg_mask[0].size  # a pixel at most (8-bit rounding)
+    # a pixel at most (8-bit rounding)
+    assert abs(share
+               - np.mean([np.mean(read_image(p)[..., 0] > 0.5)
+                          for p in mattes])) <= 1.0 / scene.fg_mask[0].size
     assert 0.5 < share / scene.fg_mask.mean() < 2.0
     assert not any("faded" in w for w in rep["warnings"])
 
@@ -46,12 +49,15 @@ def test_a_foreground_that_faded_in_training_is_said(two_layer_run):
     from types import SimpleNamespace
 
     from layercam.pipelines.results import BootstrapResult, ExportResult
-    from layercam.pipelines.tasks import FADED_SHARE, faded_foreground
+    from layercam.pipelines.stages import FADED_SHARE, faded_foreground
 
     masks = np.zeros((4, 10, 10), np.float32)
     masks[:, :2, :2] = 1  # 4% of the frames
     def ctx(share, given=False, boot=masks):
-        return SimpleNamespace(masks=masks if given else None, results={"bootstrap": BootstrapResult(masks=boot), "export": ExportResult({"atlas": {} if share is None else {"foreground_share": share}})})
+        return SimpleNamespace(masks=masks if given else None,
+                               results={"bootstrap": BootstrapResult(masks=boot),
+                                        "export": ExportResult({"atlas": {} if share is None
+            else {"foreground_share": share}})})
     faded = faded_foreground(ctx(0.001))
     assert "faded" in faded and "0.10%" in faded and "4.00%" in faded and "motion masks" in faded and "--masks" in faded
     given = faded_foreground(ctx(0.001, given=True))
@@ -121,7 +127,7 @@ def test_one_layer_atlas_export_has_no_alpha(tmp_path):
 
 
 def test_flow_loss_counts_each_layer_where_it_is_seen():
-    from layercam.scene.model import ImplicitCameraModel
+    from layercam.engine.model import ImplicitCameraModel
 
     ok = torch.tensor([True, True, False])
     alpha = torch.tensor([[0.0], [0.75], [1.0]])
@@ -162,11 +168,16 @@ def test_no_object_found_runs_one_layer_and_says_why(tmp_path, monkeypatch):
     scene = synth.moving_object(frames=6, size=(48, 48), seed=0, object_radius=0.25)
     exposures = Exposures(np.zeros(6), "none", np.zeros(6, int), "none", "test")
     said = "the candidate masks jump between frames (test)"
-    monkeypatch.setattr(verdict_module, "verdict", lambda *a, **k: {"found": False, "reason": said, "consistency": 0.1, "contrast": 1.0})
+    monkeypatch.setattr(verdict_module, "verdict", lambda *a,
+                        **k: {"found": False, "reason": said, "consistency": 0.1, "contrast": 1.0})
     cfg = load_config("fast", TINY + ["train.steps=30", "train.bootstrap_steps=10"])
     ctx = run_task("hdr-video", scene.clip, exposures, cfg, tmp_path / "auto", progress=False)
     rep = json.loads((tmp_path / "auto" / "report.json").read_text())
     assert rep["analysis"]["layers"] == 1 and said in rep["analysis"]["reasons"]["model.layers"]
     assert ctx.results["bootstrap"].h0.shape[0] == 1 and not (tmp_path / "auto" / "alpha").exists()
-    forced = run_task("hdr-video", scene.clip, exposures, load_config("fast", TINY + ["train.steps=30", "train.bootstrap_steps=10", "model.layers=2"]), tmp_path / "two", progress=False)
+    forced = run_task("hdr-video", scene.clip, exposures,
+                      load_config("fast",
+                                  TINY
+                                  + ["train.steps=30", "train.bootstrap_steps=10",
+                                     "model.layers=2"]), tmp_path / "two", progress=False)
     assert forced.resolved.settings.model.layers == 2 and forced.results["bootstrap"].verdict["found"] is False

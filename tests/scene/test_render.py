@@ -10,7 +10,9 @@ from props import props
 
 
 @props(30)
-@given(hdr=hnp.arrays(np.float32, (2, 3, 3, 3), elements=st.one_of(st.sampled_from([0.0, 1e-30, 2.0**-40, 2.0**40, 1e30]), st.floats(0, float(np.float32(1e30)), width=32))))
+@given(hdr=hnp.arrays(np.float32, (2, 3, 3, 3),
+                      elements=st.one_of(st.sampled_from([0.0, 1e-30, 2.0**-40, 2.0**40, 1e30]),
+                                         st.floats(0, float(np.float32(1e30)), width=32))))
 def test_display_tonemap_finite_in_unit_interval_brightest_not_darkest(hdr):
     from layercam.scene.render import tonemap_display
 
@@ -27,7 +29,7 @@ def _two_layer_blur_model():
     import torch
 
     from layercam.core.presets import load_config
-    from layercam.scene.model import ImplicitCameraModel
+    from layercam.engine.model import ImplicitCameraModel
 
     from conftest import TINY, decided
 
@@ -41,14 +43,15 @@ def test_render_frame_outputs_agree_with_each_other_and_the_model():
     import pytest
     import torch
 
-    from layercam.engine.sampler import pixel_grid
+    from layercam.scene.coords import pixel_grid
     from layercam.scene.render import composite_layers, render_frame
 
     model = _two_layer_blur_model()
     everything = ("hdr", "log2_r", "layers", "ldr", "uv", "alpha")
     full = render_frame(model, 1, (6, 5), everything)
     np.testing.assert_allclose(full["hdr"], np.exp2(full["log2_r"]), rtol=1e-6)
-    np.testing.assert_allclose(composite_layers([np.exp2(v) for v in full["layers"]], full["alpha"]), full["hdr"], rtol=1e-4)
+    np.testing.assert_allclose(composite_layers([np.exp2(v) for v in full["layers"]],
+                                                full["alpha"]), full["hdr"], rtol=1e-4)
     assert len(full["uv"]) == 2 and full["uv"][0].shape == (6, 5, 2) and full["alpha"].shape == (6, 5)
     small = render_frame(model, 1, (6, 5), everything, chunk=7)  # chunks (and chunks / K with the blur) of any size
     for k in ("hdr", "ldr", "alpha"):
@@ -61,7 +64,8 @@ def test_render_frame_outputs_agree_with_each_other_and_the_model():
         blurred = model(xy, t, blur=True)["rgb"].view(6, 5, 3).numpy()
     np.testing.assert_allclose(full["ldr"], sharp, rtol=1e-6)
     np.testing.assert_allclose(render_frame(model, 1, (6, 5), "ldr", blur=True)["ldr"], blurred, rtol=1e-5, atol=1e-7)
-    np.testing.assert_array_equal(render_frame(model, 1, (6, 5), "ldr", log2_dt=1.0)["ldr"], full["ldr"])  # frame 1's own exposure
+    np.testing.assert_array_equal(render_frame(model, 1, (6, 5), "ldr", log2_dt=1.0)["ldr"],
+                                  full["ldr"])  # frame 1's own exposure
     assert not np.allclose(render_frame(model, 1, (6, 5), "ldr", log2_dt=3.0)["ldr"], full["ldr"])
     with pytest.raises(ValueError, match="unknown render output"):
         render_frame(model, 0, (6, 5), "depth")
@@ -79,7 +83,8 @@ def test_tone_mapping_in_chunks_is_the_tone_mapping():
     whole = tone_map_log2(model, z, 1.0)
     with torch.no_grad():
         direct = model.tone_map(torch.as_tensor(z.reshape(-1, 3)), torch.ones(37 * 11, 1)).numpy().reshape(z.shape)
-    np.testing.assert_allclose(tone_map_log2(model, z, 1.0, chunk=50), whole, rtol=0, atol=1e-6)  # the products' blocking
+    # the products' blocking
+    np.testing.assert_allclose(tone_map_log2(model, z, 1.0, chunk=50), whole, rtol=0, atol=1e-6)
     np.testing.assert_allclose(whole, direct, rtol=1e-6, atol=1e-7)
 
 

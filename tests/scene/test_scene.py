@@ -31,7 +31,9 @@ def test_homography_runs_in_float32_under_autocast():
 
 
 @props(40)
-@given(h=hnp.arrays(np.float32, (5, 3, 3), elements=st.one_of(st.just(0.0), st.floats(-1e3, 1e3, width=32))), xy=hnp.arrays(np.float32, (5, 2), elements=st.floats(-1, 1, width=32)))
+@given(h=hnp.arrays(np.float32, (5, 3, 3),
+                    elements=st.one_of(st.just(0.0), st.floats(-1e3, 1e3, width=32))),
+       xy=hnp.arrays(np.float32, (5, 2), elements=st.floats(-1, 1, width=32)))
 def test_projective_divide_is_guarded(h, xy):
     h[0, 2] = 0.0  # a homography sending points to infinity
     uv = apply_homography(torch.from_numpy(h), torch.from_numpy(xy))
@@ -39,7 +41,8 @@ def test_projective_divide_is_guarded(h, xy):
 
 
 @props(25)
-@given(init_log2=st.sampled_from([-1e6, -60.0, -40.0, 0.0, 40.0, 60.0, 1e6]), encoding=st.sampled_from(["grid", "pe"]), dtype=DTYPES,
+@given(init_log2=st.sampled_from([-1e6, -60.0, -40.0, 0.0, 40.0, 60.0, 1e6]),
+       encoding=st.sampled_from(["grid", "pe"]), dtype=DTYPES,
        uv=hnp.arrays(np.float32, (8, 2), elements=st.floats(-1e4, 1e4, width=32)))
 def test_atlas_log_irradiance_within_guard(init_log2, encoding, dtype, uv):
     cfg = SceneConfig(**{**SCENE.__dict__, "encoding": encoding})
@@ -70,7 +73,8 @@ def test_encodings_finite_for_any_coordinates(uv, dtype):
     autocast=AUTOCAST,
     deformation=st.sampled_from(["homography", "mlp"]),
 )
-def test_layered_scene_finite_composite_between_layers(layers, frames, scale, init_log2, h_noise, dtype, autocast, deformation):
+def test_layered_scene_finite_composite_between_layers(layers, frames, scale, init_log2, h_noise,
+                                                       dtype, autocast, deformation):
     assume(autocast != torch.float16 or scale <= 10)  # fp16 overflows past 65504: train.autocast offers bf16 only
     torch.manual_seed(0)
     h0 = torch.eye(3).expand(layers, frames, 3, 3) + h_noise * torch.randn(layers, frames, 3, 3)
@@ -109,7 +113,7 @@ def test_dense_grid_3d_levels_and_frame_slices():
 
 def _fit_alpha(encoding: str, steps: int = 150) -> float:
     """IoU of an alpha field fitted (BCE, every pixel) to a thin moving cross (2 px wide) on 64x64 x 3 frames."""
-    from layercam.engine.sampler import pixel_grid
+    from layercam.scene.coords import pixel_grid
     from layercam.scene.fields import AlphaField
 
     torch.manual_seed(0)
@@ -122,7 +126,10 @@ def _fit_alpha(encoding: str, steps: int = 150) -> float:
         mask[t, 11 + 7 * t : 13 + 7 * t, 5:55] = 1.0
         mask[t, 5:55, 27 + 5 * t : 29 + 5 * t] = 1.0
     xs, ts = xy.repeat(3, 1), torch.arange(3).repeat_interleave(n * n)
-    opt = torch.optim.Adam([{"params": [p for n, p in field.named_parameters() if "grid" not in n], "lr": 5e-3}, {"params": [p for n, p in field.named_parameters() if "grid" in n], "lr": 2e-2}])
+    opt = torch.optim.Adam([{"params": [p for n, p in field.named_parameters() if "grid" not in n],
+                             "lr": 5e-3},
+                            {"params": [p for n, p in field.named_parameters() if "grid" in n],
+                             "lr": 2e-2}])
     for _ in range(steps):
         opt.zero_grad()
         loss = torch.nn.functional.binary_cross_entropy(field(xs, ts)[:, 0], mask.reshape(-1))

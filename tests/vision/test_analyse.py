@@ -7,13 +7,14 @@ from types import SimpleNamespace
 import numpy as np
 import torch
 
+from layercam.engine import decide
 from layercam.vision import analyse, flow
 from layercam.engine.checkpoint import load_run_model
 from layercam.core.config import AUTO
 from layercam.core.presets import load_config, model_overrides
 from layercam.core.geometry import atlas_pixels
 from layercam.io import Clip, Exposures
-from layercam.scene.model import ImplicitCameraModel
+from layercam.engine.model import ImplicitCameraModel
 
 from conftest import decided, scaled_h0
 
@@ -42,9 +43,9 @@ def _decide(frames, exposures=None, task="hdr-video", overrides=None, method="di
     clip = Clip(frames.astype(np.float32), "test", [f"{i:05d}" for i in range(len(frames))])
     ex = exposures or _single(len(frames))
     m = analyse.measure(clip, ex, _flow(clip.frames, method))
-    cfg, reasons = analyse.decide(load_config("fast", model_overrides(**(overrides or {}))), clip, ex, task, m)
+    cfg, reasons = decide.decide(load_config("fast", model_overrides(**(overrides or {}))), clip, ex, task, m)
     assert AUTO not in list(vars(cfg.model).values()) + [cfg.blur.n, cfg.blur.max_offset]
-    return SimpleNamespace(**analyse.model_summary(cfg), reasons=reasons), m
+    return SimpleNamespace(**decide.model_summary(cfg), reasons=reasons), m
 
 
 def test_static_sharp_single_exposure_gets_the_minimal_model():
@@ -61,7 +62,8 @@ def test_deblur_video_of_equally_sharp_frames_says_they_stay_as_sharp():
     and how to force one (the Adobe240 triplet, whose blur is the same motion blur in each frame)."""
     tex = _texture(48, 48)
     spec, _ = _decide(np.stack([tex] * 4), task="deblur-video")
-    assert spec.blur == "off" and "as sharp as they went in" in spec.reasons["blur"] and "--blur 3x3" in spec.reasons["blur"]
+    assert (spec.blur == "off" and "as sharp as they went in" in spec.reasons["blur"]
+            and "--blur 3x3" in spec.reasons["blur"])
 
 
 def _panning_square(T: int, where) -> np.ndarray:
@@ -84,9 +86,10 @@ def test_object_moving_on_its_own_gets_two_layers():
 
 
 def test_slow_object_gets_two_layers_from_pairs_eight_frames_apart():
-    spec, m = _decide(_panning_square(16, lambda t: (20, 24 + t - int(round(0.5 * t)))))  # drifts 0.5 px/frame against the pan
-    assert m["independent_pairs"] < analyse.IND_MOTION_PAIRS  # neighbours: too slow to tell
-    assert spec.layers == 2 and m["moving_pairs_long"] >= analyse.LONG_MIN_PAIRS, m
+    # drifts 0.5 px/frame against the pan
+    spec, m = _decide(_panning_square(16, lambda t: (20, 24 + t - int(round(0.5 * t)))))
+    assert m["independent_pairs"] < decide.IND_MOTION_PAIRS  # neighbours: too slow to tell
+    assert spec.layers == 2 and m["moving_pairs_long"] >= decide.LONG_MIN_PAIRS, m
     assert "8 frames apart" in spec.reasons["layers"]
     still, m = _decide(np.stack([np.roll(_texture(64, 64, 0), t, axis=1) for t in range(16)]))  # a pan alone
     assert still.layers == 1 and m["moving_pairs_long"] == 0, m
@@ -94,7 +97,7 @@ def test_slow_object_gets_two_layers_from_pairs_eight_frames_apart():
 
 def test_given_masks_mean_two_layers():
     clip = Clip(np.stack([_texture(16, 16)] * 3), "test", ["0", "1", "2"])
-    cfg, reasons = analyse.decide(load_config("fast"), clip, _single(3), "hdr-video", {"masks_given": True})
+    cfg, reasons = decide.decide(load_config("fast"), clip, _single(3), "hdr-video", {"masks_given": True})
     assert cfg.model.layers == 2 and "masks" in reasons["layers"]
 
 
@@ -134,7 +137,8 @@ def test_camera_shake_alone_keeps_one_layer():
 
 
 def _grid(r, h0, hw):
-    return ImplicitCameraModel(r, torch.as_tensor(h0, dtype=torch.float32), np.zeros(h0.shape[1]), frame_hw=hw).sizes["grid_max_res"]
+    return ImplicitCameraModel(r, torch.as_tensor(h0, dtype=torch.float32), np.zeros(h0.shape[1]),
+                               frame_hw=hw).sizes["grid_max_res"]
 
 
 def test_grid_no_finer_than_pixels_with_blur():
@@ -142,10 +146,14 @@ def test_grid_no_finer_than_pixels_with_blur():
     h0 = scaled_h0(0.9)
     px = atlas_pixels(h0, (64, 64))
     assert abs(px - 64 / 0.9) < 1e-6
-    assert _grid(decided(cfg, h0, (64, 64), blur="off"), h0, (64, 64)) == 128  # power of two at or above 71.1 px: at least one cell per pixel
-    assert _grid(decided(cfg, h0, (64, 64), blur="3x3"), h0, (64, 64)) == 71  # the extent itself: at most one cell per pixel
+    # power of two at or above 71.1 px: at least one cell per pixel
+    assert _grid(decided(cfg, h0, (64, 64), blur="off"), h0, (64, 64)) == 128
+    # the extent itself: at most one cell per pixel
+    assert _grid(decided(cfg, h0, (64, 64), blur="3x3"), h0, (64, 64)) == 71
     assert _grid(decided(cfg, h0, (64, 64), static=True), h0, (64, 64)) == 71  # a static one-layer scene too
-    m = ImplicitCameraModel(decided(cfg, h0, (64, 64), blur="3x3"), torch.as_tensor(h0, dtype=torch.float32), np.zeros(2), frame_hw=(64, 64))
+    m = ImplicitCameraModel(decided(cfg, h0, (64, 64), blur="3x3"),
+                            torch.as_tensor(h0, dtype=torch.float32), np.zeros(2),
+                            frame_hw=(64, 64))
     assert m.scene.atlases[0].enc.resolutions[-1] == 71
 
 
@@ -183,7 +191,8 @@ def test_moving_clip_keeps_psf_shift_free(tmp_path):
 
     sc = synth.pan_hdr(frames=3, size=(48, 48), ev_step=0.0, seed=0)  # pans 1.5 to 3 px a frame
     cfg = load_config("fast", TINY + ["train.steps=10", "model.layers=1", "model.blur=on", "blur.n=3"])
-    ctx = run_task("deblur-video", sc.clip, Exposures(np.zeros(3), "none", None, "none", "single"), cfg, tmp_path / "run", progress=False)
+    ctx = run_task("deblur-video", sc.clip, Exposures(np.zeros(3), "none", None, "none", "single"),
+                   cfg, tmp_path / "run", progress=False)
     assert ctx.resolved.static is False and ctx.results["bootstrap"].static is False
     model, ck = load_run_model(tmp_path / "run")
     assert ck["settings"]["static"] is False and not model.blur.centre_exact
@@ -224,9 +233,9 @@ def test_robust_colour_loss_only_for_an_exposure_bracket():
     m = analyse.measure(clip, ex, _flow(clip.frames, "dis_fast"))
 
     def robust(task, *sets):
-        return analyse.decide(load_config("fast", list(sets)), clip, ex, task, m)[0].loss.robust
+        return decide.decide(load_config("fast", list(sets)), clip, ex, task, m)[0].loss.robust
 
-    assert robust("fuse-stack") == analyse.ROBUST_STACK > 0
+    assert robust("fuse-stack") == decide.ROBUST_STACK > 0
     assert robust("fuse-stack", "model.blur=on") == 0.0
     assert robust("hdr-video") == 0.0 and robust("deblur-video") == 0.0
     assert robust("fuse-stack", "loss.robust=0") == 0.0 and robust("hdr-video", "loss.robust=0.1") == 0.1
@@ -241,7 +250,7 @@ def test_a_pair_with_few_comparable_tiles_says_nothing_about_blur(monkeypatch):
     monkeypatch.setattr(sharpness, "pair_relative_blur", lambda a, b, h, m: tiles[int(a[0, 0, 0])])
     frames = np.arange(4, dtype=np.float32)[:, None, None, None] * np.ones((4, 8, 8, 3), np.float32)
     b = analyse._blur(frames, None, None)
-    assert b["blur_tile_share"] == [0.0, None, 0.0] and b["max_blur_tile_share"] < analyse.BLUR_TILE_SHARE
+    assert b["blur_tile_share"] == [0.0, None, 0.0] and b["max_blur_tile_share"] < decide.BLUR_TILE_SHARE
     b = analyse._blur(frames[1:3], None, None)
     assert b["max_blur_tile_share"] > 0.8
 
@@ -261,8 +270,9 @@ def test_blur_in_few_pairs_of_many_is_not_a_blur_generator(monkeypatch):
     clip = Clip(frames, "test", [f"{i:05d}" for i in range(5)])
 
     def decided(fr):
-        m = {**analyse.measure(Clip(fr, "t", [str(i) for i in range(len(fr))]), _single(len(fr)), None), **analyse._blur(fr, None, None)}
-        return analyse.decide(load_config("fast"), clip, _single(len(fr)), "deblur-video", m)
+        m = {**analyse.measure(Clip(fr, "t", [str(i) for i in range(len(fr))]), _single(len(fr)),
+                               None), **analyse._blur(fr, None, None)}
+        return decide.decide(load_config("fast"), clip, _single(len(fr)), "deblur-video", m)
 
     cfg, reasons = decided(frames)
     assert cfg.model.blur == "off" and "only 1 of 4 pairs" in reasons["blur"], reasons["blur"]
@@ -289,69 +299,16 @@ def test_one_pair_of_motion_is_not_a_layer():
     assert m["moving_pairs"] <= 1 and spec.layers == 1, m
 
 
-def test_static_camera_holds_the_background_still():
-    """A static camera (``Resolved.static``) holds the background layer still when there are two
-    layers; a moving camera leaves it free; one layer keeps no residual warp instead."""
-    from layercam.engine.resolve import resolve
-
-    two = load_config("fast", ["model.layers=2"])
-    assert resolve(two, frames=24, hw=(64, 64), measures={"corner_shift_px": 0.2}).still_background
-    assert not resolve(two, frames=24, hw=(64, 64), measures={"corner_shift_px": 3.0}).still_background
-    one = resolve(load_config("fast", ["model.layers=1"]), frames=24, hw=(64, 64), measures={"corner_shift_px": 0.2})
-    assert not one.still_background and not one.residual and one.blur_centre
-    paper = resolve(load_config("paper", ["model.layers=1"]), frames=24, hw=(64, 64), measures={"corner_shift_px": 0.2})
-    assert not paper.static  # the paper's identity bootstrap: nothing registered by the flow
-
-
-def _cap(preset, sets, frames, hw):
-    from layercam.engine.resolve import resolve
-
-    return resolve(load_config(preset, ["model.layers=1", "model.blur=off"] + list(sets)), frames=frames, hw=hw).settings
-
-
-def test_short_stack_trains_fewer_steps():
-    """A 3-shot 256x256 stack: balanced's 2000 steps x 8192 capped to the floor (300 steps) and
-    the floor's model (analyse.FLOOR) whatever the preset; a 48-frame clip keeps its steps;
-    train.passes_per_frame=0 turns the cap off (paper's default); a larger stack is capped above
-    the floor and keeps the preset's batch."""
-    from layercam.engine.resolve import resolve
-
-    cfg = _cap("balanced", [], 3, (256, 256))
-    assert (cfg.train.steps, cfg.train.bootstrap_steps, cfg.train.batch) == (300, 150, 4096)
-    assert _cap("balanced", [], 48, (144, 256)).train.steps == 2000
-    assert _cap("balanced", ["train.passes_per_frame=0"], 3, (256, 256)).train.steps == 2000
-    # at the floor every preset trains the floor's model: quality's 8 levels and width 128, fast's 5 levels
-    for p in ("fast", "balanced", "quality"):
-        c = _cap(p, [], 3, (256, 256))
-        assert (c.train.steps, c.train.batch, c.scene.grid_levels, c.scene.atlas_width) == (300, 4096, 6, 64)
-    # above the floor the cap keeps the preset's batch and width, at most 6 grid levels
-    big = _cap("quality", [], 3, (510, 768))
-    assert (big.train.steps, big.train.batch, big.scene.grid_levels, big.scene.atlas_width) == (861, 8192, analyse.FLOOR_GRID_LEVELS, 128)
-    assert _cap("quality", [], 48, (144, 256)).scene.grid_levels == 8
-    assert _cap("fast", [], 3, (510, 768)).scene.grid_levels == 5
-    # with a blur generator the floor is MIN_SAMPLES in the preset's own model and batch
-    for p, want in (("fast", (600, 4096, 5)), ("balanced", (300, 8192, 6)), ("quality", (300, 8192, 6))):
-        c = resolve(load_config(p, ["model.layers=1", "model.blur=on"]), frames=3, hw=(256, 256)).settings
-        assert (c.train.steps, c.train.batch, c.scene.grid_levels) == want, p
-    # the paper trains the paper's steps (no cap) unless the user caps it; capped, its positional
-    # encoding keeps its own width and batch at the floor
-    r = resolve(load_config("paper", ["model.layers=1", "model.blur=off"]), frames=3, hw=(256, 256))
-    assert r.settings.train.steps == 150000 and "no cap" in r.reasons["train.steps"]
-    paper = _cap("paper", ["train.passes_per_frame=4"], 3, (256, 256))
-    assert (paper.train.steps, paper.train.batch, paper.scene.atlas_width) == (300, 30000, 512)
-    # a smaller batch asked for is kept at the floor
-    assert _cap("balanced", ["train.batch=1024"], 3, (64, 64)).train.batch == 1024
-
-
 def test_no_foreground_found_means_one_layer_and_says_why():
     """The analysis chose two layers from the flow; the foreground finder found no consistent
     object: deciding again with its verdict gives one layer, with the finder's reason. A layer
     count the user set, or masks the user gave, are kept."""
-    from layercam.vision.analyse import unfound_foreground
+    from layercam.engine.decide import unfound_foreground
     from layercam.core.presets import load_config
 
     cfg = load_config("fast")
-    fg = {"masks": "motion segmentation", "verdict": {"found": False, "reason": "the candidate masks jump between frames"}}
+    fg = {"masks": "motion segmentation",
+          "verdict": {"found": False, "reason": "the candidate masks jump between frames"}}
     why = unfound_foreground(cfg, fg)
     assert why == "the candidate masks jump between frames"
     assert unfound_foreground(load_config("fast", ["model.layers=2"]), fg) is None
@@ -360,7 +317,8 @@ def test_no_foreground_found_means_one_layer_and_says_why():
     clip = SimpleNamespace(T=8, H=32, W=32)
     measures = {"independent_pairs": 1.0, "moving_pairs": 7, "independent_motion_frac": 0.1}
     exposures = SimpleNamespace(count_distinct=1, learn="none", reason="given")
-    two, r2 = analyse.decide(cfg, clip, exposures, "hdr-video", measures)
+    two, r2 = decide.decide(cfg, clip, exposures, "hdr-video", measures)
     assert two.model.layers == 2
-    one, r1 = analyse.decide(cfg, clip, exposures, "hdr-video", {**measures, "foreground_found": False, "foreground_reason": why})
+    one, r1 = decide.decide(cfg, clip, exposures, "hdr-video",
+                            {**measures, "foreground_found": False, "foreground_reason": why})
     assert one.model.layers == 1 and why in r1["layers"] and "no consistent" in r1["layers"]

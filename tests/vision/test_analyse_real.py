@@ -6,6 +6,7 @@ from types import SimpleNamespace
 
 import pytest
 
+from layercam.engine import decide
 from layercam.vision import analyse
 from layercam.core.presets import load_config
 
@@ -19,8 +20,8 @@ def _real(paths, exposures, resize=None):
     ex = parse_exposures(exposures, clip)
     fl = _flow(clip.frames, "dis_medium")
     m = analyse.measure(clip, ex, fl)
-    cfg, reasons = analyse.decide(load_config("balanced"), clip, ex, "fuse-stack", m)
-    return SimpleNamespace(**analyse.model_summary(cfg), reasons=reasons, homs=fl["homs"], hw=clip.frames.shape[1:3]), m
+    cfg, reasons = decide.decide(load_config("balanced"), clip, ex, "fuse-stack", m)
+    return SimpleNamespace(**decide.model_summary(cfg), reasons=reasons, homs=fl["homs"], hw=clip.frames.shape[1:3]), m
 
 
 @pytest.mark.data
@@ -32,11 +33,13 @@ def test_real_static_brackets_are_one_sharp_layer(shared_data, tmp_path):
     from layercam.core.geometry import STATIC_CORNER_PX
 
     d = shared_data / "bracket_taipei"
-    times = dict(line.split()[:2] for line in (d / "image_list.txt").read_text().splitlines() if line.strip() and not line.startswith("#"))
+    times = dict(line.split()[:2] for line in (d / "image_list.txt").read_text().splitlines()
+                 if line.strip() and not line.startswith("#"))
     names = sorted(times)
     sub = [names[i] for i in (1, 4, 7)]
     (tmp_path / "t.txt").write_text("".join(f"{n} {times[n]}\n" for n in sub))
-    cases = [([d / n for n in sub], str(tmp_path / "t.txt")), (sorted((shared_data / "bracket_frobisher_exif").glob("*.jpg")), "exif")]
+    cases = [([d / n for n in sub], str(tmp_path / "t.txt")),
+             (sorted((shared_data / "bracket_frobisher_exif").glob("*.jpg")), "exif")]
     for paths, exposures in cases:
         spec, m = _real(paths, exposures)
         assert spec.layers == 1 and spec.blur == "off", (paths[0].parent.name, m, spec.reasons)
@@ -59,5 +62,5 @@ def test_real_moving_person_keeps_two_layers(shared_data):
     clip = load_clip(str(shared_data / "layers_davis_parkour" / "frames"), resize="0.33", max_frames=12)
     ex = _single(clip.T)
     m = analyse.measure(clip, ex, _flow(clip.frames, "dis_medium"))
-    cfg, reasons = analyse.decide(load_config("balanced"), clip, ex, "hdr-video", m)
+    cfg, reasons = decide.decide(load_config("balanced"), clip, ex, "hdr-video", m)
     assert cfg.model.layers == 2 and cfg.model.blur == "off", (m, reasons)

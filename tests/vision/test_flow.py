@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from layercam.vision import flow, raft
+from layercam.vision import flow, flow_input, raft
 
 from layercam import synth
 from layercam.core.errors import LayercamError
@@ -25,13 +25,13 @@ def test_normalise_for_flow_exposure_invariant():
     hdr = s.hdr[0]
     lo = synth.crf_apply(hdr * s.meta["gain"], "srgb")
     hi = synth.crf_apply(hdr * s.meta["gain"] * 8, "srgb")
-    a, b = flow.normalise_for_flow(lo), flow.normalise_for_flow(hi)
+    a, b = flow_input.normalise_for_flow(lo), flow_input.normalise_for_flow(hi)
     assert a.dtype == np.uint8 and a.shape == (48, 48)
     assert np.abs(a.astype(int) - b.astype(int)).mean() < 4
-    ga, gb = flow.normalise_for_flow(lo, "grey"), flow.normalise_for_flow(hi, "grey")
+    ga, gb = flow_input.normalise_for_flow(lo, "grey"), flow_input.normalise_for_flow(hi, "grey")
     assert np.abs(ga.astype(int) - gb.astype(int)).mean() > 30
     with pytest.raises(LayercamError):
-        flow.normalise_for_flow(lo, "nope")
+        flow_input.normalise_for_flow(lo, "nope")
 
 
 @pytest.mark.parametrize("seed", [0, 1])
@@ -137,7 +137,8 @@ def test_working_size_scales_the_short_side_only_when_longer():
 def test_flow_at_a_working_size_reads_back_at_the_frames_size():
     """A zoom-and-shift homography, measured on half-size frames, is the full-size one once rescaled;
     a half-size flow upsamples to the full-size flow of the same motion."""
-    from layercam.vision.scale import at_frame_size, pixel_scaling, rescale_homographies
+    from layercam.vision.flow_store import at_frame_size
+    from layercam.vision.scale import pixel_scaling, rescale_homographies
 
     full = np.array([[1.02, 0.0, 3.0], [0.0, 1.02, -2.0], [0.0, 0.0, 1.0]])
     a = pixel_scaling((20, 30), (40, 60))  # full-size pixels -> half-size pixels

@@ -40,7 +40,8 @@ def _clip(T=10, size=64, pan=(1.0, 0.0), band=None, obj_speed=(0.0, 2.0), side=1
             f[-band:] = cv2.warpAffine(near, mn, (size, band), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP)[:band]
         x0, y0 = 30 + (obj_speed[0] - pan[0]) * t, 8 + (obj_speed[1] - pan[1]) * t
         ms = np.float32([[1, 0, -x0], [0, 1, -y0]])
-        obj = cv2.warpAffine(sq, ms, (size, size), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP, borderValue=(-1, -1, -1))
+        obj = cv2.warpAffine(sq, ms, (size, size), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+                             borderValue=(-1, -1, -1))
         inside = obj[..., 0] >= 0
         f[inside] = obj[inside]
         frames.append(f)
@@ -59,7 +60,8 @@ def test_chained_displacements_follow_the_pan():
     ch = motion.chained_displacements(fw, bw, fo, bo, 2, 4)
     assert set(ch) == {1, 2, 3, -1, -2}  # inside the clip only
     d, v = ch[3]
-    assert v.mean() > 0.5 and np.allclose(np.median(d[v], axis=0), [-3.0, 0.0], atol=0.3)  # content moves left 1 px per frame
+    # content moves left 1 px per frame
+    assert v.mean() > 0.5 and np.allclose(np.median(d[v], axis=0), [-3.0, 0.0], atol=0.3)
     d, v = ch[-2]
     assert np.allclose(np.median(d[v], axis=0), [2.0, 0.0], atol=0.3)
     fwd = motion.chained_displacements(fw, None, fo, None, 2, 2)
@@ -71,7 +73,7 @@ def test_a_slow_object_adds_up_over_frames():
     fw, bw, fo, bo = _flows(frames)
     iou = {}
     for reach in (1, 8):
-        m, _ = segment.motion_masks(fw, bw, fo, bo, segment.SegmentConfig(reach=reach))
+        m, _ = segment.motion_masks(fw, bw, fo, bo, cfg=segment.SegmentConfig(reach=reach))
         iou[reach] = np.mean([metrics.iou(a > 0.5, b) for a, b in zip(m, masks)])
     assert iou[8] > 0.45 and iou[1] < 0.1, iou
     share = motion.long_range_moving_share(fw, fo, reach=8)
@@ -86,7 +88,7 @@ def test_the_floor_does_not_grow_with_the_pairs_length():
     flow's precision is a floor for every pair alike (a floor growing as sqrt(k) lost this object)."""
     frames, masks = _clip(T=16, obj_speed=(0.0, 0.3), side=16)
     fw, bw, fo, bo = _flows(frames)
-    m, _ = segment.motion_masks(fw, bw, fo, bo, segment.SegmentConfig(reach=8))
+    m, _ = segment.motion_masks(fw, bw, fo, bo, cfg=segment.SegmentConfig(reach=8))
     assert np.mean([metrics.iou(a > 0.5, b) for a, b in zip(m, masks)]) > 0.4
 
 
@@ -96,7 +98,7 @@ def test_parallax_reaching_the_edge_is_explained_the_object_is_not():
     moving across the epipolar lines stays."""
     frames, masks = _clip(T=10, pan=(1.5, 0.0), band=20, obj_speed=(0.0, 2.0))
     fw, bw, fo, bo = _flows(frames)
-    m, info = segment.motion_masks(fw, bw, fo, bo)
+    m, info = segment.motion_masks(fw, bw, fo, bo, cfg=segment.SegmentConfig())
     assert info["epipolar_pairs"] >= 0.5
     band = np.zeros(masks.shape[1:], bool)
     band[-20:] = True

@@ -11,6 +11,7 @@ from layercam.vision import flow
 from layercam.core import metrics, visibility
 
 from layercam.vision import segment
+from layercam.core.config import SegmentConfig
 from layercam.core.errors import LayercamError
 from layercam.vision.segment.clean import fill_still_frames
 
@@ -43,11 +44,12 @@ def _square_clip(T=6, size=64, side=16, seed=0):
 def square():
     frames, masks, centres = _square_clip()
     fw, bw = flow.compute_flow(frames, "dis_fast", progress=False)
-    return {"frames": frames, "masks": masks, "centres": centres, "fw": fw, "bw": bw, "fw_ok": flow.flow_consistency(fw, bw), "homs": flow.global_homographies(fw)}
+    return {"frames": frames, "masks": masks, "centres": centres, "fw": fw, "bw": bw,
+            "fw_ok": flow.flow_consistency(fw, bw), "homs": flow.global_homographies(fw)}
 
 
 def test_motion_masks_find_the_moving_square(square):
-    m, info = segment.motion_masks(square["fw"], square["bw"])
+    m, info = segment.motion_masks(square["fw"], square["bw"], cfg=SegmentConfig())
     assert m.shape == square["masks"].shape and m.dtype == np.float32
     assert set(np.unique(m)) <= {0.0, 1.0}
     ious = [metrics.iou(m[t] > 0.5, square["masks"][t]) for t in range(len(m))]
@@ -176,9 +178,9 @@ def test_still_frames_inherit_a_whole_object_not_the_partial_mask_beside_them(sq
 
 def test_bad_inputs_raise():
     with pytest.raises(LayercamError):
-        segment.motion_masks(np.zeros((2, 8, 8, 2)), np.zeros((3, 8, 8, 2)))
+        segment.motion_masks(np.zeros((2, 8, 8, 2)), np.zeros((3, 8, 8, 2)), cfg=SegmentConfig())
     with pytest.raises(LayercamError):
-        segment.motion_masks(np.zeros((0, 8, 8, 2)), np.zeros((0, 8, 8, 2)))
+        segment.motion_masks(np.zeros((0, 8, 8, 2)), np.zeros((0, 8, 8, 2)), cfg=SegmentConfig())
 
 
 def test_textured_tells_sky_from_texture_at_any_exposure():
@@ -207,14 +209,14 @@ def test_flow_in_a_smooth_sky_is_no_evidence(square):
     fw, bw = square["fw"].copy(), square["bw"].copy()
     fw[sky + (0,)] += 3.0
     bw[sky + (0,)] -= 3.0
-    blind, _ = segment.motion_masks(fw, bw)
-    seen, info = segment.motion_masks(fw, bw, frames=frames)
+    blind, _ = segment.motion_masks(fw, bw, cfg=SegmentConfig())
+    seen, info = segment.motion_masks(fw, bw, cfg=SegmentConfig(), frames=frames)
     assert blind[sky].mean() > 0.3  # the patch taken for an object
     assert seen[sky].mean() < 0.05 and info["untextured"] > 0.05
     ious = [metrics.iou(seen[t] > 0.5, square["masks"][t]) for t in range(len(seen))]
     assert np.mean(ious) > 0.5, ious
     with pytest.raises(LayercamError, match="do not match"):
-        segment.motion_masks(fw, bw, frames=frames[:, :32])
+        segment.motion_masks(fw, bw, cfg=SegmentConfig(), frames=frames[:, :32])
 
 
 def test_sure_pixels_leave_a_band_around_each_mask_edge():
@@ -222,7 +224,8 @@ def test_sure_pixels_leave_a_band_around_each_mask_edge():
     masks[0, 10:30, 10:30] = True  # frame 1: no object at all
     sure = segment.sure_pixels(masks, band=0.1)  # 4 px of 40
     assert sure[0, 20, 20] and sure[0, 2, 2] and sure[0, 20, 36]  # deep inside, far outside
-    assert not sure[0, 10, 20] and not sure[0, 29, 20] and not sure[0, 20, 8] and not sure[0, 20, 32]  # on and near the edge
+    assert not sure[0, 10, 20] and not sure[0, 29, 20] and not sure[0, 20, 8] and not sure[0, 20,
+                    32]  # on and near the edge
     assert sure[1].all()  # nothing to be unsure about
     assert segment.sure_pixels(masks, band=0.0).all()
 
@@ -255,7 +258,7 @@ def test_a_subject_the_camera_follows_is_the_object_not_the_world():
     motion is read from the frame's border, so the subject is what moves against it."""
     frames, truth = _pan_clip(follow=True)
     fw, bw = flow.compute_flow(frames, "dis_fast", progress=False)
-    masks, info = segment.find_foreground(frames, {"fw": fw, "bw": bw})
+    masks, info = segment.find_foreground(frames, {"fw": fw, "bw": bw}, SegmentConfig())
     assert masks.shape == truth.shape and masks.dtype == np.float32
     assert np.mean([metrics.iou(m > 0.5, g) for m, g in zip(masks, truth)]) > 0.8
     assert info["verdict"]["found"], info["verdict"]
@@ -333,7 +336,7 @@ def test_a_large_clip_is_segmented_at_the_working_size(monkeypatch):
     frames, truth = _pan_clip(follow=True)
     fw, bw = flow.compute_flow(frames, "dis_fast", progress=False)
     monkeypatch.setattr(seg, "WORK_SHORT", 32)
-    masks, info = seg.find_foreground(frames, {"fw": fw, "bw": bw})
+    masks, info = seg.find_foreground(frames, {"fw": fw, "bw": bw}, SegmentConfig())
     assert masks.shape == truth.shape and info["working_size"] == [32, 32]
     assert np.mean([metrics.iou(m > 0.5, g) for m, g in zip(masks, truth)]) > 0.7
 
@@ -368,7 +371,8 @@ def test_motion_evidence_is_a_share_high_on_the_moving_square(square):
     assert offsets(8) == (1, 2, 4, 8) and offsets(5) == (1, 2, 4) and offsets(0) == (1,)
     from layercam.vision.segment.moving import flow_checks
 
-    ev, info = motion_evidence(square["fw"], square["bw"], *flow_checks(square["fw"], square["bw"]), reach=4)
+    ev, info = motion_evidence(square["fw"], square["bw"], *flow_checks(square["fw"], square["bw"]),
+                               reach=4, k_sigma=SegmentConfig().k_sigma)
     assert ev.shape == square["masks"].shape and ev.dtype == np.float32 and 0 <= ev.min() and ev.max() <= 1
     inside, outside = ev[square["masks"]].mean(), ev[~square["masks"]].mean()
     assert inside > 0.5 and outside < 0.1, (inside, outside)

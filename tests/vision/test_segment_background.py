@@ -1,4 +1,5 @@
-"""The finder's clean plate: the background the neighbours show, its shortcuts, and a limb the flow missed found against it."""
+"""The finder's clean plate: the background the neighbours show, its shortcuts, and a limb the flow
+missed found against it."""
 
 from __future__ import annotations
 

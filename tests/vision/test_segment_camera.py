@@ -6,17 +6,18 @@ import numpy as np
 
 
 def _flow_of(hm: np.ndarray, h: int, w: int) -> np.ndarray:
-    from layercam.vision.segment.camera import _grid, _project
+    from layercam.vision.motion import grid_points, project
 
-    x = _grid(h, w)
-    return (_project(hm, x) - x).astype(np.float32)
+    x = grid_points(h, w)
+    return (project(hm, x) - x).astype(np.float32)
 
 
 def test_the_refit_fits_the_whole_frames_background_and_keeps_the_subject_out():
     """The ring sees a zoom only along the border, where a translation explains it within the
     RANSAC threshold; refitted to the whole frame's points the seed explains, the model is the zoom
     (the background inside the frame joins), and a large subject moving against it stays out."""
-    from layercam.vision.segment.camera import RANSAC_PX, _grid, _project, pair_residuals, refit
+    from layercam.vision.motion import RANSAC_PX, grid_points, project, refit
+    from layercam.vision.segment.camera import pair_residuals
 
     h, w = 90, 120
     zoom = np.array([[1.01, 0, -0.6], [0, 1.01, -0.45], [0, 0, 1]])  # 1% about the centre
@@ -24,9 +25,10 @@ def test_the_refit_fits_the_whole_frames_background_and_keeps_the_subject_out():
     subject = np.zeros((h, w), bool)
     subject[25:65, 35:85] = True
     d[subject] += (3.0, -2.0)
-    x = _grid(h, w)
+    x = grid_points(h, w)
     seed = np.array([[1.0, 0, 0], [0, 1.0, 0], [0, 0, 1]])  # what a ring could settle for: no motion at all
-    assert np.linalg.norm(_project(seed, x) - (x + d), axis=-1)[~subject].max() < RANSAC_PX  # the seed explains the background ...
+    # the seed explains the background ...
+    assert np.linalg.norm(project(seed, x) - (x + d), axis=-1)[~subject].max() < RANSAC_PX
     out = refit(seed, x.reshape(-1, 2), (x + d).reshape(-1, 2))
     assert np.allclose(out, zoom, atol=1e-4)  # ... and the refit recovers the zoom, not the subject's motion
     res, epipolar = pair_residuals(d, np.ones((h, w), bool))
@@ -34,7 +36,7 @@ def test_the_refit_fits_the_whole_frames_background_and_keeps_the_subject_out():
 
 
 def test_the_refit_keeps_the_seed_when_too_few_points_agree():
-    from layercam.vision.segment.camera import refit
+    from layercam.vision.motion import refit
 
     rng = np.random.default_rng(0)
     a = rng.uniform(0, 100, (50, 2))

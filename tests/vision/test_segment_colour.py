@@ -21,7 +21,8 @@ def test_graph_cut_finds_the_least_energy_labelling():
     for trial in range(5):
         unary = rng.normal(0, 1, (3, 4)).astype(np.float32)
         guide = rng.uniform(0, 1, (3, 4, 3)).astype(np.float32)
-        pairs = [((y, x), (y, x + 1)) for y in range(3) for x in range(3)] + [((y, x), (y + 1, x)) for y in range(2) for x in range(4)]
+        pairs = [((y, x), (y, x + 1)) for y in range(3) for x in range(3)] + [((y, x), (y + 1, x))
+                 for y in range(2) for x in range(4)]
         d = np.array([((guide[a] - guide[b]) ** 2).sum() for a, b in pairs])
         wgt = 0.7 * np.exp(-d / (2 * d.mean()))
 

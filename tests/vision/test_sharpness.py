@@ -12,7 +12,8 @@ def _scene(h=128, w=128, seed=0):
     import cv2
 
     rng = np.random.default_rng(seed)
-    t = sum(a * cv2.GaussianBlur(rng.standard_normal((h, w)).astype(np.float32), (0, 0), s) * s for a, s in ((1.0, 1.0), (0.6, 3.0), (0.5, 8.0)))
+    t = sum(a * cv2.GaussianBlur(rng.standard_normal((h, w)).astype(np.float32), (0, 0), s) * s
+            for a, s in ((1.0, 1.0), (0.6, 3.0), (0.5, 8.0)))
     t[::32, :] = t[:, ::32] = 0.0
     t[8:24, 8:24] = t[70:100, 40:80] = float(np.median(t))
     t = (t - t.min()) / (t.max() - t.min())

@@ -54,19 +54,36 @@ class Case:
 
 def _cases() -> list[Case]:
     out = [
-        Case(f"ntire-{i:06d}", "bracket-gt", "truth", "fuse-stack", f"hdr_ntire_crops/{i:06d}: 3 shots -3/-1/+1 EV, real motion, 256x256", {"folder": f"hdr_ntire_crops/{i:06d}"})
+        Case(f"ntire-{i:06d}", "bracket-gt", "truth", "fuse-stack",
+             f"hdr_ntire_crops/{i:06d}: 3 shots -3/-1/+1 EV, real motion, 256x256",
+             {"folder": f"hdr_ntire_crops/{i:06d}"})
         for i in range(4)
     ]
     out += [
-        Case("taipei-3", "bracket-ref", "reference, not truth", "fuse-stack", "bracket_taipei: shots 4 s, 1 s, 1/4 s of 10, 768x510; reference: Robertson merge of all 10", {"folder": "bracket_taipei", "shots": TAIPEI_SUBSET}),
-        Case("frobisher", "bracket-ref", "reference, not truth", "fuse-stack", "bracket_frobisher_exif: 3 JPEGs 1/8, 1, 8 s (EXIF), 640x426; reference: Robertson merge of the same 3 shots", {"folder": "bracket_frobisher_exif"}),
-        Case("composite-2ev", "composite", "truth", "hdr-video", "parkour person over a taipei radiance map, pan, filmic curve, noise, 8 bit; 24 frames 384x256 alternating 2 EV", {"ev_step": 2.0}),
-        Case("composite-3ev", "composite", "truth", "hdr-video", "as composite-2ev, alternating 3 EV", {"ev_step": 3.0}),
-        Case("composite-still", "composite", "truth", "hdr-video", "as composite-2ev, the camera held still: the export merges neighbours, as for the Basler clip", {"ev_step": 2.0, "still": True}),
-        Case("basler", "video", "none", "hdr-video", "altexp_video_basler/clip_2exp_3stop.mp4: real alternating 3 EV video, 256x136, person walking", {"video": "altexp_video_basler/clip_2exp_3stop.mp4"}),
-        Case("gopro-0477", "deblur", "truth", "deblur-video", "deblur_gopro0477_dev: 12 blurry frames (15 frames of real 240 fps GoPro footage averaged), hand-held, a dribbling player; --resize 0.5 (640x360)",
+        Case("taipei-3", "bracket-ref", "reference, not truth", "fuse-stack",
+             "bracket_taipei: shots 4 s, 1 s, 1/4 s of 10, 768x510; reference: Robertson merge of "
+             "all 10", {"folder": "bracket_taipei", "shots": TAIPEI_SUBSET}),
+        Case("frobisher", "bracket-ref", "reference, not truth", "fuse-stack",
+             "bracket_frobisher_exif: 3 JPEGs 1/8, 1, 8 s (EXIF), 640x426; reference: Robertson "
+             "merge of the same 3 shots", {"folder": "bracket_frobisher_exif"}),
+        Case("composite-2ev", "composite", "truth", "hdr-video",
+             "parkour person over a taipei radiance map, pan, filmic curve, noise, 8 bit; 24 "
+             "frames 384x256 alternating 2 EV", {"ev_step": 2.0}),
+        Case("composite-3ev", "composite", "truth", "hdr-video",
+             "as composite-2ev, alternating 3 EV", {"ev_step": 3.0}),
+        Case("composite-still", "composite", "truth", "hdr-video",
+             "as composite-2ev, the camera held still: the export merges neighbours, as for the "
+             "Basler clip", {"ev_step": 2.0, "still": True}),
+        Case("basler", "video", "none", "hdr-video",
+             "altexp_video_basler/clip_2exp_3stop.mp4: real alternating 3 EV video, 256x136, "
+             "person walking", {"video": "altexp_video_basler/clip_2exp_3stop.mp4"}),
+        Case("gopro-0477", "deblur", "truth", "deblur-video",
+             "deblur_gopro0477_dev: 12 blurry frames (15 frames of real 240 fps GoPro footage "
+             "averaged), hand-held, a dribbling player; --resize 0.5 (640x360)",
              {"folder": "deblur_gopro0477_dev", "resize": "0.5"}),
-        Case("gopro-shake", "deblur", "truth", "deblur-video", "a still: deblur_gopro0477_dev's sharp frame 6 at 640x360, shaken along known hand-held paths (blur 0.2-8 px, linear light, 8 bit); 12 frames 448x256",
+        Case("gopro-shake", "deblur", "truth", "deblur-video",
+             "a still: deblur_gopro0477_dev's sharp frame 6 at 640x360, shaken along known "
+             "hand-held paths (blur 0.2-8 px, linear light, 8 bit); 12 frames 448x256",
              {"shake": True}),
     ]
     return out
@@ -106,18 +123,24 @@ def case_inputs(case: Case, case_dir: Path, data: Path, quick: bool = False, max
     if case.name == "taipei-3":
         folder = _need(data / case.params["folder"])
         paths = [folder / n for n in case.params["shots"]]
-        return {"paths": paths, "argv": [*map(str, paths), "--exposures", str(folder / "image_list.txt"), "--reference", "1"], "load": {}}
+        return {"paths": paths,
+                "argv": [*map(str, paths), "--exposures", str(folder / "image_list.txt"),
+                         "--reference", "1"], "load": {}}
     if case.name == "frobisher":
         paths = sorted(_need(data / case.params["folder"]).glob("IMG_*.jpg"))
         return {"paths": paths, "argv": [*map(str, paths), "--exposures", "exif", "--reference", "1"], "load": {}}
     if case.group == "composite":
         frames_dir = inp / "frames"
-        return {"paths": frames_dir, "argv": [str(frames_dir), "--exposures", "alt", "--ev-step", f"{case.params['ev_step']:g}"], "load": {}}
+        return {"paths": frames_dir,
+                "argv": [str(frames_dir), "--exposures", "alt", "--ev-step",
+                         f"{case.params['ev_step']:g}"], "load": {}}
     if case.group == "video":
         video = _need(data / case.params["video"])
         n = 6 if quick else max_frames
         extra = ["--max-frames", str(n)] if n else []
-        return {"paths": video, "argv": [str(video), "--exposures", "alt", "--ev-step", "3", *extra], "load": {"max_frames": n}}
+        return {"paths": video,
+                "argv": [str(video), "--exposures", "alt", "--ev-step", "3", *extra],
+                "load": {"max_frames": n}}
     if case.group == "deblur" and case.params.get("shake"):
         frames_dir = inp / "frames"
         return {"paths": frames_dir, "argv": [str(frames_dir)], "load": {}}
@@ -126,7 +149,8 @@ def case_inputs(case: Case, case_dir: Path, data: Path, quick: bool = False, max
         n = 3 if quick else max_frames
         resize = "0.125" if quick else case.params["resize"]
         extra = ["--max-frames", str(n)] if n else []
-        return {"paths": blur, "argv": [str(blur), "--resize", resize, *extra], "load": {"max_frames": n, "resize": resize}}
+        return {"paths": blur, "argv": [str(blur), "--resize", resize, *extra],
+                "load": {"max_frames": n, "resize": resize}}
     raise LayercamError(f"unknown case group {case.group!r}")
 
 
@@ -167,7 +191,8 @@ def load_truth(case: Case, case_dir: Path, data: Path, frames: np.ndarray, times
     if case.group == "deblur" and case.params.get("shake"):
         out = {"sharp": np.load(Path(case_dir) / "inputs" / "shake.npz")["sharp"]}
         if out["sharp"].shape != frames.shape:
-            raise LayercamError(f"{case.name}: the sharp frames {out['sharp'].shape} do not match the shaken ones {frames.shape}")
+            raise LayercamError(f"{case.name}: the sharp frames {out['sharp'].shape} do not match "
+                                f"the shaken ones {frames.shape}")
         np.savez(cache, **out)
         return out
     if case.group == "deblur":
@@ -176,7 +201,8 @@ def load_truth(case: Case, case_dir: Path, data: Path, frames: np.ndarray, times
         t, h, w = frames.shape[:3]  # the sharp frames at the size and count the blurry ones were loaded
         sharp = load_clip(_need(data / case.params["folder"] / "sharp"), max_frames=t, resize=f"{w}x{h}").frames
         if sharp.shape != frames.shape:
-            raise LayercamError(f"{case.name}: the sharp frames {sharp.shape} do not match the blurry ones {frames.shape}")
+            raise LayercamError(f"{case.name}: the sharp frames {sharp.shape} do not match the "
+                                f"blurry ones {frames.shape}")
         out = {"sharp": sharp}
         np.savez(cache, **out)
         return out
@@ -194,7 +220,8 @@ def load_truth(case: Case, case_dir: Path, data: Path, frames: np.ndarray, times
             folder = data / case.params["folder"]
             table = read_image_list(folder / "image_list.txt")
             names = sorted(table)
-            ref = robertson_reference(load_clip([folder / n for n in names]).frames, np.array([table[n] for n in names]))
+            ref = robertson_reference(load_clip([folder / n for n in names]).frames,
+                                      np.array([table[n] for n in names]))
         else:
             ref = robertson_reference(frames, times)
         out = {"hdr": ref, "unseen": unseen_mask(frames)}
@@ -204,7 +231,8 @@ def load_truth(case: Case, case_dir: Path, data: Path, frames: np.ndarray, times
 
         spec = CompositeSpec(**{k: (tuple(v) if k == "size" else v) for k, v in _spec_dict(z).items()})
         ts = np.unique(z["times"])
-        renders = np.stack([expose(z["hdr"], np.full(len(z["hdr"]), t), None, spec) for t in ts]).astype(np.float32) / 255.0
+        renders = np.stack([expose(z["hdr"], np.full(len(z["hdr"]), t), None, spec)
+                            for t in ts]).astype(np.float32) / 255.0
         out = {"hdr": z["hdr"], "unseen": unseen_mask(renders), "fg": z["alpha"] > 0.5}
     else:
         raise LayercamError(f"unknown case group {case.group!r}")

@@ -54,7 +54,8 @@ def bracket_merges(frames: np.ndarray, times: np.ndarray) -> dict:
     u8 = _u8(frames)
     t = np.asarray(times, np.float32)
     out = {}
-    for name, cal, merge in (("debevec", cv2.createCalibrateDebevec, cv2.createMergeDebevec), ("robertson", cv2.createCalibrateRobertson, cv2.createMergeRobertson)):
+    for name, cal, merge in (("debevec", cv2.createCalibrateDebevec, cv2.createMergeDebevec),
+                             ("robertson", cv2.createCalibrateRobertson, cv2.createMergeRobertson)):
         t0 = time.perf_counter()
         hdr = merge().process(u8, t, cal().process(u8, t))
         out[name] = {"hdr": _finite(hdr), "seconds": time.perf_counter() - t0}

@@ -5,7 +5,8 @@ foreground a real non-rigid subject cut out of a DAVIS clip with its ground-trut
 of ``layers_davis_parkour`` by default). A camera pans over the background (a window moving from its
 left edge to its right edge over the clip, rising by a tenth of the room it has; held at its middle
 with ``still``) while the subject moves as it did in its own clip. The composite is formed in linear
-radiance (the ground truth per frame), then exposed with times alternating by ``ev_step`` (frame 0 the short one), given shot and
+radiance (the ground truth per frame), then exposed with times alternating by ``ev_step`` (frame 0
+the short one), given shot and
 read noise, clipped at full well, put through a camera curve that is none of ``layercam.synth``'s
 (:func:`filmic`: Hable's filmic toe and shoulder, then gamma 1/2.2, with a different shoulder
 per channel) and quantised to 8 bits.
@@ -28,7 +29,8 @@ import numpy as np
 
 from layercam.core.errors import LayercamError
 
-__all__ = ["CompositeSpec", "filmic", "compose", "expose", "load_background", "load_foreground", "ShakeSpec", "shake_still", "load_still"]
+__all__ = ["CompositeSpec", "filmic", "compose", "expose", "load_background", "load_foreground",
+           "ShakeSpec", "shake_still", "load_still"]
 
 # Hable's filmic curve constants (shoulder, linear, toe strengths and angles)
 _A, _B, _C, _D, _E, _F = 0.15, 0.50, 0.10, 0.20, 0.02, 0.30
@@ -114,7 +116,8 @@ def _place(img: np.ndarray, spec: CompositeSpec) -> np.ndarray:
     h, w = spec.size
     s = h / img.shape[0]
     m = np.array([[s, 0.0, (w - img.shape[1] * s) / 2.0], [0.0, s, 0.0]], np.float64)
-    return cv2.warpAffine(img, m, (w, h), flags=cv2.INTER_AREA if s < 1 else cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    return cv2.warpAffine(img, m, (w, h), flags=cv2.INTER_AREA if s < 1 else cv2.INTER_LINEAR,
+                          borderMode=cv2.BORDER_CONSTANT, borderValue=0)
 
 
 def compose(background: np.ndarray, fg_rgb: np.ndarray, fg_alpha: np.ndarray, spec: CompositeSpec) -> dict:
@@ -131,7 +134,8 @@ def compose(background: np.ndarray, fg_rgb: np.ndarray, fg_alpha: np.ndarray, sp
     if background.ndim != 3 or background.shape[2] != 3 or not np.all(np.isfinite(background)) or background.max() <= 0:
         raise LayercamError("the background must be a finite, positive (H, W, 3) radiance map")
     bg = np.stack([_window(background.astype(np.float32), t, spec) for t in range(n)])
-    fg_lin = np.where(fg_rgb <= 0.04045, fg_rgb / 12.92, ((np.clip(fg_rgb, 0, 1) + 0.055) / 1.055) ** 2.4).astype(np.float32)
+    fg_lin = np.where(fg_rgb <= 0.04045, fg_rgb / 12.92,
+                      ((np.clip(fg_rgb, 0, 1) + 0.055) / 1.055) ** 2.4).astype(np.float32)
     fg = np.stack([_place(fg_lin[t], spec) for t in range(n)])
     alpha = np.clip(np.stack([_place(fg_alpha[t].astype(np.float32), spec) for t in range(n)]), 0.0, 1.0)
     if not (alpha > 0.5).any():
@@ -173,7 +177,9 @@ def load_still(data: Path, spec: ShakeSpec) -> np.ndarray:
     from layercam.io import load_clip
 
     folder = Path(data) / spec.source / "sharp"
-    names = sorted(p for p in folder.iterdir() if p.suffix.lower() in (".png", ".jpg", ".jpeg", ".tif", ".tiff")) if folder.is_dir() else []
+    names = sorted(p for p in folder.iterdir()
+                   if p.suffix.lower() in (".png", ".jpg", ".jpeg", ".tif",
+                                           ".tiff")) if folder.is_dir() else []
     if len(names) <= spec.still:
         raise LayercamError(f"{folder} has {len(names)} frames, frame {spec.still} needed")
     img = load_clip([names[spec.still]], resize=f"{spec.scale:g}").frames[0]
@@ -186,9 +192,11 @@ def shake_still(still: np.ndarray, spec: ShakeSpec) -> dict:
     at its path's mid point, noise-free), "blur_length": (T,) px}``."""
     from layercam.synth import shake_blur
 
-    sc = shake_blur(frames=spec.frames, size=spec.size, max_blur_px=spec.max_blur_px, noise=spec.noise, seed=spec.seed, canvas=still)
+    sc = shake_blur(frames=spec.frames, size=spec.size, max_blur_px=spec.max_blur_px,
+                    noise=spec.noise, seed=spec.seed, canvas=still)
     frames = np.round(np.asarray(sc.clip.frames, np.float64) * 255.0).astype(np.uint8)
-    return {"frames": frames, "sharp": np.asarray(sc.sharp_ldr, np.float32), "blur_length": np.asarray(sc.meta["blur_length"], np.float32)}
+    return {"frames": frames, "sharp": np.asarray(sc.sharp_ldr, np.float32),
+            "blur_length": np.asarray(sc.meta["blur_length"], np.float32)}
 
 
 # -- the real material --------------------------------------------------------------------------

@@ -73,7 +73,8 @@ def _label(r: dict) -> str:
     return name
 
 
-def case_figure(case, case_dir: Path, rows: list[dict], frames: np.ndarray, truth: dict | None, preds: dict[str, np.ndarray], path: Path,
+def case_figure(case, case_dir: Path, rows: list[dict], frames: np.ndarray, truth: dict | None,
+                preds: dict[str, np.ndarray], path: Path,
                 masks: dict[str, np.ndarray] | None = None) -> None:
     """Draw ``case``'s figure into ``path``. ``rows``: the case's table rows; ``preds``: method
     label ("layercam fast", "debevec", ...) -> linear HDR; ``frames``: the inputs as loaded;
@@ -101,7 +102,8 @@ def _bracket(case, case_dir: Path, frames, truth, labelled):
     kind = "ground truth" if case.truth == "truth" else "reference (not truth)"
     mid = [(kind, display_hdr(gt, gt))] + [(lab, display_hdr(p, gt)) for lab, p in labelled]
     unseen = truth["unseen"].astype(np.float32) * ERR_MAX
-    bot = [(f"clipped everywhere\n{100 * truth['unseen'].mean():.1f}% (white)", unseen)] + [(f"|error| (0..{ERR_MAX})", error_map(p, gt)) for _, p in labelled]
+    bot = [(f"clipped everywhere\n{100 * truth['unseen'].mean():.1f}% (white)", unseen)] + [
+        (f"|error| (0..{ERR_MAX})", error_map(p, gt)) for _, p in labelled]
     return _grid([top, mid, bot], f"{case.name}: {case.about}", cell=2.6)
 
 
@@ -115,8 +117,13 @@ def _composite(case, frames, truth, labelled):
         outline = display_hdr(gt[t], gt[t]).copy()
         edge = cv2.morphologyEx(fg[t].astype(np.uint8), cv2.MORPH_GRADIENT, np.ones((3, 3), np.uint8)) > 0
         outline[edge] = (0.0, 1.0, 0.3)
-        rows.append([(f"input frame {t}", frames[t]), ("ground truth\n(foreground outlined)", outline)] + [(lab, display_hdr(p[t], gt[t])) for lab, p in labelled])
-        rows.append([("", None), (f"clipped everywhere (white)\nframe {t}", truth["unseen"][t].astype(np.float32) * ERR_MAX)] + [(f"|error| frame {t}", error_map(p[t], gt[t])) for _, p in labelled])
+        rows.append([(f"input frame {t}", frames[t]),
+                     ("ground truth\n(foreground outlined)", outline)]
+                    + [(lab, display_hdr(p[t], gt[t])) for lab, p in labelled])
+        rows.append([("", None),
+                     (f"clipped everywhere (white)\nframe {t}",
+                      truth["unseen"][t].astype(np.float32) * ERR_MAX)]
+                    + [(f"|error| frame {t}", error_map(p[t], gt[t])) for _, p in labelled])
     return _grid(rows, f"{case.name}: {case.about}")
 
 
@@ -133,7 +140,8 @@ def _video(case, case_dir: Path, frames, labelled):
     rows = [[(f"input frame {t}", frames[t])] + [(lab, d[i]) for lab, d in disp] for i, t in enumerate(shown)]
     _, static = static_pixels(frames, case_dir)
     t = min(shown[0], len(static) - 1)
-    rows.append([(f"static pixels of pair {t}-{t + 1} (white)\n{100 * static.mean():.0f}% over all pairs", np.repeat(static[t][..., None], 3, -1).astype(np.float32))])
+    rows.append([(f"static pixels of pair {t}-{t + 1} (white)\n{100 * static.mean():.0f}% over all "
+                  "pairs", np.repeat(static[t][..., None], 3, -1).astype(np.float32))])
     return _grid(rows, f"{case.name}: {case.about}", cell=2.6)
 
 
@@ -151,8 +159,12 @@ def _deblur(case, frames, truth, labelled, masks: dict):
     rows = []
     for t in shown:
         panels = [("input", frames[t])] + [(lab, p[t]) for lab, p in labelled]
-        rows.append([(f"{lab.splitlines()[0]} frame {t}", np.clip(im, 0, 1)) for lab, im in panels] + [(f"sharp (truth) frame {t}", sharp[t])])
+        rows.append([(f"{lab.splitlines()[0]} frame {t}", np.clip(im, 0, 1)) for lab, im in panels]
+                    + [(f"sharp (truth) frame {t}", sharp[t])])
         rows.append([(f"|{lab.splitlines()[0]} - truth| x{DIFF_GAIN:g}", diff(im, t)) for lab, im in panels]
-                    + [(f"trust mask {k} frame {t}\n(white: sharp, black: input)", np.repeat(m[t][..., None], 3, -1)) for k, m in masks.items()])
+                    + [(f"trust mask {k} frame {t}\n(white: sharp, black: input)",
+                        np.repeat(m[t][..., None], 3, -1)) for k, m in masks.items()])
     rows.insert(0, [(lab, None) for lab, _ in labelled])  # the scores, once, as titles of an empty row
-    return _grid([r for r in rows if any(im is not None for _, im in r)], f"{case.name}: {case.about}\n" + "; ".join(lab.replace(chr(10), ": ") for lab, _ in labelled), cell=3.2)
+    return _grid([r for r in rows if any(im is not None for _, im in r)],
+                 f"{case.name}: {case.about}\n"
+                 + "; ".join(lab.replace(chr(10), ": ") for lab, _ in labelled), cell=3.2)

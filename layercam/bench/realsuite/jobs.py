@@ -3,7 +3,8 @@ that its peak memory (``ru_maxrss``) and wall time are its own.
 
 Kinds: ``prepare`` (render a composite's frames, compute the ground truth or the reference),
 ``classical`` (OpenCV's merges, scored) and ``layercam`` (the command line a user would type, run
-in this process through ``layercam.cli.main``, then scored). Each writes ``result.json`` into its
+as ``python -m layercam`` by :func:`layercam.bench.command.run_layercam`, then scored). Each writes
+``result.json`` into its
 folder: ``{"rows": [table rows], ...}``; a row that failed carries ``"failed"``.
 """
 
@@ -18,7 +19,8 @@ from pathlib import Path
 
 import numpy as np
 
-from layercam.bench.realsuite.cases import CASES, case_inputs, load_inputs, load_truth, prepare_composite, prepare_shake, read_prediction
+from layercam.bench.realsuite.cases import (CASES, case_inputs, load_inputs, load_truth,
+                                            prepare_composite, prepare_shake, read_prediction)
 
 __all__ = ["run_job", "analysis_summary", "code_version"]
 
@@ -29,8 +31,11 @@ def code_version() -> str:
 
     here = Path(__file__).resolve().parents[3]
     try:
-        head = subprocess.run(["git", "-C", str(here), "rev-parse", "--short", "HEAD"], capture_output=True, text=True, timeout=10).stdout.strip()
-        dirty = subprocess.run(["git", "-C", str(here), "status", "--porcelain", "--", "layercam", "pipelines", "configs"], capture_output=True, text=True, timeout=10).stdout.strip()
+        head = subprocess.run(["git", "-C", str(here), "rev-parse", "--short", "HEAD"],
+                              capture_output=True, text=True, timeout=10).stdout.strip()
+        dirty = subprocess.run(["git", "-C", str(here), "status", "--porcelain", "--", "layercam",
+                                "pipelines", "configs"], capture_output=True, text=True,
+                               timeout=10).stdout.strip()
     except (OSError, subprocess.SubprocessError):
         return "?"
     return (head or "?") + ("+dirty" if dirty else "")
@@ -52,10 +57,13 @@ def analysis_summary(analysis: dict) -> dict:
     """What the analysis chose (``report.json["analysis"]``) in a line, and its reasons."""
     a = analysis or {}
     blur = a.get("blur", "?")
-    choice = f"{a.get('layers', '?')} layer(s), blur {blur}" + (f" (s {a.get('max_offset'):g})" if blur not in ("off", "?") and a.get("max_offset") is not None else "")
+    choice = f"{a.get('layers', '?')} layer(s), blur {blur}" + (f" (s {a.get('max_offset'):g})"
+        if blur not in ("off", "?") and a.get("max_offset") is not None else "")
     choice += f", tone {a.get('tone_mapper', '?')}, flow loss {'on' if a.get('flow_loss') else 'off'}"
     reasons = a.get("reasons") or {}
-    return {"choice": choice, "reasons": {k: reasons[k] for k in ("layers", "blur", "flow_loss", "tone_mapper") if k in reasons}}
+    return {"choice": choice,
+            "reasons": {k: reasons[k] for k in ("layers", "blur", "flow_loss", "tone_mapper")
+                        if k in reasons}}
 
 
 def _scores(case, pred: np.ndarray, truth: dict | None, frames: np.ndarray) -> dict:
@@ -109,8 +117,10 @@ def job_prepare(job: dict) -> dict:
         prepare_shake(case, case_dir, Path(job["data"]), job.get("quick", False))
     frames, times, _ = load_inputs(case, ci)
     truth = load_truth(case, case_dir, Path(job["data"]), frames, times)
-    unseen = float(truth["unseen"].mean()) if truth is not None and "unseen" in truth else float(np.mean([_unseen_pair(frames, t) for t in range(len(frames) - 1)]))
-    return {"rows": [], "clipped_share": unseen, "frames": int(len(frames)), "size": [int(frames.shape[2]), int(frames.shape[1])]}
+    unseen = (float(truth["unseen"].mean()) if truth is not None and "unseen" in truth
+              else float(np.mean([_unseen_pair(frames, t) for t in range(len(frames) - 1)])))
+    return {"rows": [], "clipped_share": unseen, "frames": int(len(frames)),
+            "size": [int(frames.shape[2]), int(frames.shape[1])]}
 
 
 def _unseen_pair(frames: np.ndarray, t: int) -> float:
@@ -136,7 +146,9 @@ def _classical_deblur(case, case_dir: Path, frames: np.ndarray, truth: dict, out
     for name, r in res.items():
         if name != "input":
             np.save(out_dir / f"{name}.npy", r["ldr"].astype(np.float32))
-        rows.append(_round({"method": name, "preset": "", "wall_s": round(r["seconds"], 2), "note": DEBLUR_METHODS[name], **score_deblur(r["ldr"], truth["sharp"], floor)}))
+        rows.append(_round({"method": name, "preset": "", "wall_s": round(r["seconds"], 2),
+                            "note": DEBLUR_METHODS[name],
+                            **score_deblur(r["ldr"], truth["sharp"], floor)}))
     return {"rows": rows}
 
 
@@ -153,10 +165,14 @@ def job_classical(job: dict) -> dict:
     if case.task == "fuse-stack":
         res = bracket_merges(frames, times)
         np.save(out_dir / "mertens.npy", res.pop("mertens")["ldr"])
-        methods = {"debevec": "OpenCV CalibrateDebevec + MergeDebevec, same shots and times, unaligned", "robertson": "OpenCV CalibrateRobertson + MergeRobertson, same shots and times, unaligned"}
+        methods = {"debevec": "OpenCV CalibrateDebevec + MergeDebevec, same shots and times, "
+                              "unaligned",
+                   "robertson": "OpenCV CalibrateRobertson + MergeRobertson, same shots and times, "
+                                "unaligned"}
     else:
         res = {"flow+debevec": video_merge(frames, times)}
-        methods = {"flow+debevec": "OpenCV Debevec of each frame with its DIS-aligned neighbour (layercam.bench.baselines.debevec_video)"}
+        methods = {"flow+debevec": "OpenCV Debevec of each frame with its DIS-aligned neighbour "
+                                   "(layercam.bench.baselines.debevec_video)"}
     for name, r in res.items():
         np.save(out_dir / f"{name}.npy", r["hdr"].astype(np.float32))
         row = {"method": name, "preset": "", "wall_s": round(r["seconds"], 2), "note": methods[name]}
@@ -171,22 +187,21 @@ def job_classical(job: dict) -> dict:
 
 
 def job_layercam(job: dict) -> dict:
-    """Run ``layercam <task> <inputs> --preset P --out DIR`` in this process, then score it."""
-    import torch
-
-    from layercam.cli import main
+    """Run ``layercam <task> <inputs> --preset P --out DIR`` (in a process of its own, whose wall
+    time and peak memory the row keeps), then score it."""
+    from layercam.bench.command import run_layercam
 
     case, case_dir, ci = _context(job)
-    torch.set_num_threads(int(job.get("threads", 1)))
     run_dir = Path(job["dir"]) / "run"
     argv = [case.task, *ci["argv"], "--preset", job["preset"], "--out", str(run_dir), "--quiet"]
     for s in job.get("overrides", []):
         argv += ["--set", s]
     load0 = _load()
-    t0 = time.perf_counter()
-    rc = main(argv)
-    wall = time.perf_counter() - t0
-    row = {"method": "layercam", "preset": job["preset"], "wall_s": round(wall, 2), "peak_mem_mb": _peak_mb(), "load": f"{load0:.1f}-{_load():.1f}", "command": "layercam " + " ".join(argv)}
+    ran = run_layercam(argv, int(job.get("threads", 1)), run_dir / "report.json")
+    rc = ran["returncode"]
+    row = {"method": "layercam", "preset": job["preset"], "wall_s": round(ran["wall_s"], 2),
+           "peak_mem_mb": ran["peak_mem_mb"], "load": f"{load0:.1f}-{_load():.1f}",
+           "command": "layercam " + " ".join(argv)}
     if rc != 0:
         return {"rows": [{**row, "failed": f"exit {rc}"}]}
     report = json.loads((run_dir / "report.json").read_text())
@@ -199,13 +214,16 @@ def job_layercam(job: dict) -> dict:
         row.update(score_deblur(pred, truth["sharp"], score_deblur(frames, truth["sharp"])["psnr_frames"]))
         share = ((report.get("export") or {}).get("trust") or {}).get("kept_share")
         if share:  # pipelines/view.py: where the sharp render is kept, the input elsewhere
-            row.update(kept_share=float(np.mean(share)), note=f"sharp render kept on {np.mean(share):.0%} of the pixels (frames {min(share):.0%}-{max(share):.0%})")
+            row.update(kept_share=float(np.mean(share)),
+                       note=f"sharp render kept on {np.mean(share):.0%} of the pixels (frames "
+                            f"{min(share):.0%}-{max(share):.0%})")
     else:
         row.update(_scores(case, pred, truth, frames))
     if case.group == "video":
         row.update(_video_flicker(pred, frames, case_dir))
     tr = report.get("train", {})
-    row.update(steps=tr.get("steps"), train_s=tr.get("seconds_this_session"), analysis=analysis_summary(report.get("analysis")))
+    row.update(steps=tr.get("steps"), train_s=tr.get("seconds_this_session"),
+               analysis=analysis_summary(report.get("analysis")))
     return {"rows": [_round(row)]}
 
 
@@ -221,7 +239,9 @@ def run_job(job: dict) -> dict:
     load0 = _load()
     t0 = time.perf_counter()
     res = JOBS[job["kind"]](job)
-    res.update(job={k: v for k, v in job.items() if k not in ("data",)}, seconds=round(time.perf_counter() - t0, 2), peak_mem_mb=_peak_mb(), load_start=load0, load_end=_load(), code=code_version())
+    res.update(job={k: v for k, v in job.items() if k not in ("data",)},
+               seconds=round(time.perf_counter() - t0, 2), peak_mem_mb=_peak_mb(), load_start=load0,
+               load_end=_load(), code=code_version())
     for r in res["rows"]:
         r.setdefault("peak_mem_mb", res["peak_mem_mb"])
         r.setdefault("load", f"{load0:.1f}-{res['load_end']:.1f}")

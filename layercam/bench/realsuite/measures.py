@@ -11,7 +11,8 @@ import numpy as np
 
 from layercam.core import frame_metrics, metrics
 
-__all__ = ["UNDER", "OVER", "unseen_mask", "registration", "warp_into", "static_masks", "flicker", "scored_channels", "score_hdr", "score_deblur", "display_hdr", "error_map"]
+__all__ = ["UNDER", "OVER", "unseen_mask", "registration", "warp_into", "static_masks", "flicker",
+           "scored_channels", "score_hdr", "score_deblur", "display_hdr", "error_map"]
 
 OVER = 245.0 / 255.0  # at or above: clipped (NTIRE's LDRs saturate at code 248, not 255)
 UNDER = 2.0 / 255.0  # at or below in every channel: lost in the noise floor
@@ -47,12 +48,15 @@ def warp_into(img: np.ndarray, hom: np.ndarray, a: int, b: int) -> tuple[np.ndar
         m = hom[t] @ m
     h, w = img.shape[:2]
     flags = cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP
-    out = cv2.warpPerspective(np.ascontiguousarray(img, np.float32), m, (w, h), flags=flags, borderMode=cv2.BORDER_REPLICATE)
-    inside = cv2.warpPerspective(np.ones((h, w), np.float32), m, (w, h), flags=flags, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    out = cv2.warpPerspective(np.ascontiguousarray(img, np.float32), m, (w, h), flags=flags,
+                              borderMode=cv2.BORDER_REPLICATE)
+    inside = cv2.warpPerspective(np.ones((h, w), np.float32), m, (w, h), flags=flags,
+                                 borderMode=cv2.BORDER_CONSTANT, borderValue=0)
     return out.reshape(img.shape), inside > 0.999
 
 
-def static_masks(frames: np.ndarray, hom: np.ndarray, period: int = 2, thr: float = 8.0 / 255.0, margin: int = 4) -> np.ndarray:
+def static_masks(frames: np.ndarray, hom: np.ndarray, period: int = 2, thr: float = 8.0 / 255.0,
+                 margin: int = 4) -> np.ndarray:
     """For each pair (t, t+1), t < T - period, the pixels of frame t's view that hold still:
     ``(T-period,H,W)`` bool.
 
@@ -167,9 +171,11 @@ def score_deblur(pred: np.ndarray, sharp: np.ndarray, floor: np.ndarray | None =
     rows = [metrics.ldr_metrics(p, g) for p, g in zip(pred, sharp)]
     ps = np.round([r["psnr"] for r in rows], 3)  # as listed (the floor: another method's psnr_frames)
     aligned = frame_metrics.score_frames(pred, sharp, ALIGN_CROP, align=True)
-    out = {"psnr": float(ps.mean()), "ssim": float(np.mean([r["ssim"] for r in rows])), "psnr_frames": [float(v) for v in ps],
+    out = {"psnr": float(ps.mean()), "ssim": float(np.mean([r["ssim"] for r in rows])),
+           "psnr_frames": [float(v) for v in ps],
            "psnr_aligned": float(np.mean([r["psnr"] for r in aligned]))}
     if floor is not None:
         gain = ps - np.asarray(floor, np.float64)
-        out.update(gain_db=float(ps.mean() - np.mean(floor)), worst_gain_db=float(gain.min()), frames_below=int((gain < 0).sum()))
+        out.update(gain_db=float(ps.mean() - np.mean(floor)), worst_gain_db=float(gain.min()),
+                   frames_below=int((gain < 0).sum()))
     return out

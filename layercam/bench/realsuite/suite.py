@@ -54,10 +54,12 @@ def _spawn(job: dict, threads: int) -> None:
     d.mkdir(parents=True, exist_ok=True)
     env = {**os.environ, "OMP_NUM_THREADS": str(threads)}
     with open(d / "log.txt", "w") as log:
-        p = subprocess.run([sys.executable, "-m", "layercam.bench.realsuite.jobs", json.dumps(job)], stdout=log, stderr=subprocess.STDOUT, env=env)
+        p = subprocess.run([sys.executable, "-m", "layercam.bench.realsuite.jobs", json.dumps(job)],
+                           stdout=log, stderr=subprocess.STDOUT, env=env)
     if p.returncode != 0:
         lines = (d / "log.txt").read_text(errors="replace").strip().splitlines() or ["?"]
-        row = {"method": job["kind"] if job["kind"] != "layercam" else "layercam", "preset": job.get("preset", ""), "failed": lines[-1][:200]}
+        row = {"method": job["kind"] if job["kind"] != "layercam" else "layercam",
+               "preset": job.get("preset", ""), "failed": lines[-1][:200]}
         atomic_write(d / "result.json", lambda q: q.write_text(json.dumps({"rows": [row], "job": job})))
 
 
@@ -75,7 +77,8 @@ class _Lock:
             except FileExistsError:
                 pid = int(self.path.read_text().strip() or 0)
                 if pid_alive(pid):
-                    raise LayercamError(f"another real-suite run (pid {pid}) is writing into {self.path.parent}") from None
+                    raise LayercamError(f"another real-suite run (pid {pid}) is writing into "
+                                        f"{self.path.parent}") from None
                 self.path.unlink(missing_ok=True)
                 continue
             os.write(fd, str(os.getpid()).encode())
@@ -87,8 +90,10 @@ class _Lock:
         self.path.unlink(missing_ok=True)
 
 
-def run_real_suite(out, cases: list[str] | None = None, presets: list[str] | None = None, data=None, force: bool = False, quick: bool = False,
-                   threads: int = 1, overrides: list[str] | None = None, max_frames: int | None = None, progress: bool = True, command: str = "",
+def run_real_suite(out, cases: list[str] | None = None, presets: list[str] | None = None, data=None,
+                   force: bool = False, quick: bool = False,
+                   threads: int = 1, overrides: list[str] | None = None,
+                   max_frames: int | None = None, progress: bool = True, command: str = "",
                    redraw: bool = False) -> list[dict]:
     """Run the suite into ``out``; returns the table rows. ``cases``/``presets`` pick subsets
     (default: every case; fast and balanced); ``overrides`` are ``--set`` settings for every
@@ -105,7 +110,8 @@ def run_real_suite(out, cases: list[str] | None = None, presets: list[str] | Non
     ov = list(overrides or []) + (QUICK_OVERRIDES if quick else [])
     for p in presets:
         load_config(p, ov)  # a bad preset or setting fails now, not after an hour
-    s = _Suite(ensure_writable_dir(Path(out)), resolve_data(data), quick, max_frames, threads, command, print if progress else (lambda *a, **k: None))
+    s = _Suite(ensure_writable_dir(Path(out)), resolve_data(data), quick, max_frames, threads,
+               command, print if progress else (lambda *a, **k: None))
     if redraw:
         return s.outputs(names)
     with _Lock(s.out):
@@ -117,7 +123,8 @@ def run_real_suite(out, cases: list[str] | None = None, presets: list[str] | Non
             s.run(s.job(name, "classical", "classical"), f"{name} classical", force)
         for p in presets:
             for name in names:
-                s.run(s.job(name, "layercam", f"layercam-{preset_tag(p)}", preset=p, overrides=ov, threads=threads), f"{name} layercam {p}", force)
+                s.run(s.job(name, "layercam", f"layercam-{preset_tag(p)}", preset=p, overrides=ov,
+                            threads=threads), f"{name} layercam {p}", force)
     return s.outputs(names)  # tables and figures drawn again from everything on disk
 
 
@@ -125,11 +132,13 @@ class _Suite:
     """Where a suite run writes, what it reads, and how it says what it does."""
 
     def __init__(self, out: Path, data: Path, quick: bool, max_frames: int | None, threads: int, command: str, say):
-        self.out, self.data, self.quick, self.max_frames, self.threads, self.command, self.say = out, data, quick, max_frames, threads, command, say
+        self.out, self.data, self.quick, self.max_frames, self.threads, self.command, self.say = (
+            out, data, quick, max_frames, threads, command, say)
 
     def job(self, name: str, kind: str, tag: str, **kw) -> dict:
         d = self.out / "cases" / name / tag
-        return {"kind": kind, "case": name, "case_dir": str(self.out / "cases" / name), "dir": str(d), "data": str(self.data),
+        return {"kind": kind, "case": name, "case_dir": str(self.out / "cases" / name),
+                "dir": str(d), "data": str(self.data),
                 "shared_dir": str(self.out / "shared"), "quick": self.quick, "max_frames": self.max_frames, **kw}
 
     def run(self, j: dict, what: str, force: bool) -> None:
@@ -143,7 +152,9 @@ class _Suite:
         self.say(f"{what}: running ...", flush=True)
         _spawn(j, self.threads)
         for r in json.loads((d / "result.json").read_text())["rows"]:
-            msg = f"failed: {r['failed']}" if r.get("failed") else ", ".join(f"{k} {r[k]}" for k in ("psnr_mu", "psnr_mu_fg", "flicker", "psnr", "gain_db", "wall_s") if r.get(k) is not None)
+            msg = f"failed: {r['failed']}" if r.get("failed") else ", ".join(f"{k} {r[k]}"
+                for k in ("psnr_mu", "psnr_mu_fg", "flicker", "psnr", "gain_db", "wall_s")
+                if r.get(k) is not None)
             self.say(f"  {r['method']} {r.get('preset', '')}: {msg}", flush=True)
         self.outputs([j["case"]])
 
@@ -183,7 +194,8 @@ def _figure(out: Path, name: str, rows: list[dict], data: Path, quick: bool, max
             run_dir = case_dir / f"layercam-{preset_tag(r['preset'])}" / "run"
             preds[f"layercam {r['preset']}"] = read_prediction(case, run_dir, len(frames))
             if (run_dir / "trust").is_dir():  # a deblurring run's trust masks
-                masks[r["preset"]] = np.stack([read_image(run_dir / "trust" / f"frame_{t:05d}.png")[..., 0] for t in range(len(frames))])
+                masks[r["preset"]] = np.stack([read_image(run_dir / "trust" / f"frame_{t:05d}.png")[
+                    ..., 0] for t in range(len(frames))])
         else:
             preds[r["method"]] = np.load(case_dir / "classical" / f"{r['method']}.npy")
     if preds:

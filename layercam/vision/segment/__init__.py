@@ -39,10 +39,11 @@ from layercam.vision.segment.clean import clean_mask
 from layercam.vision.segment.mapping import foreground_mappings, object_motion
 from layercam.vision.segment.evidence import offsets as motion_offsets
 from layercam.vision.segment.moving import motion_masks
-from layercam.vision.segment.long import foreground_bootstrap_long, segment_windows, windowed
 from layercam.vision.segment.store import load_masks, mask_coverage, save_masks, sure_pixels
 
-__all__ = ["SegmentConfig", "STEPS", "foreground_bootstrap", "motion_masks", "motion_offsets", "clean_mask", "object_motion", "foreground_mappings", "sure_pixels", "load_masks", "save_masks"]
+__all__ = ["SegmentConfig", "STEPS", "foreground_bootstrap", "motion_masks", "motion_offsets",
+           "clean_mask", "object_motion", "foreground_mappings", "sure_pixels", "load_masks",
+           "save_masks"]
 
 STEPS = ("grabcut", "background", "colour")  # the optional steps after the motion masks (each measured: the ablation)
 WORK_SHORT = 240  # the finder sees frames at most this many pixels on the short side (masks are upsampled to the
@@ -85,7 +86,8 @@ def _working(frames: np.ndarray, flows: dict) -> tuple[np.ndarray, dict]:
     return resize_frames(frames, work), out
 
 
-def find_foreground(frames: np.ndarray, flows: dict, cfg: SegmentConfig | None = None, steps: tuple = STEPS) -> tuple[np.ndarray, dict]:
+def find_foreground(frames: np.ndarray, flows: dict, cfg: SegmentConfig,
+                    steps: tuple = STEPS) -> tuple[np.ndarray, dict]:
     """The finder itself (module docstring): masks ``(T, H, W)`` float32 in {0, 1} and an info
     dict whose ``"verdict"`` says whether one consistent moving object was found. ``flows`` holds
     ``fw``, ``bw`` (and optionally ``fw_ok``, ``bw_ok``) at the frames' size; ``steps``: the
@@ -98,13 +100,12 @@ def find_foreground(frames: np.ndarray, flows: dict, cfg: SegmentConfig | None =
 
     import cv2
 
-    cfg = cfg or SegmentConfig()
     T, h, w = frames.shape[:3]
     check_flows(flows["fw"], flows["bw"])
     frames, flows = _working(frames, flows)
     fw, bw = check_flows(flows["fw"], flows["bw"])
     fo, bo = flow_checks(fw, bw, flows.get("fw_ok"), flows.get("bw_ok"))
-    masks, info = motion_masks(fw, bw, fo, bo, cfg, frames=frames)
+    masks, info = motion_masks(fw, bw, fo, bo, cfg=cfg, frames=frames)
     evidence = info.pop("evidence")
     if "grabcut" in steps:
         from layercam.vision.segment.edges import grabcut_refine
@@ -118,17 +119,20 @@ def find_foreground(frames: np.ndarray, flows: dict, cfg: SegmentConfig | None =
         if "colour" in steps:
             from layercam.vision.segment.colour import colour_cut
 
-            masks = colour_cut(frames, fill_still_frames(masks, fw, bw)[0], rel, fw, bw)  # frames the check emptied start again from their neighbours'
+            # frames the check emptied start again from their neighbours'
+            masks = colour_cut(frames, fill_still_frames(masks, fw, bw)[0], rel, fw, bw)
     masks = np.asarray(masks, np.float32)
     info["verdict"] = verdict(masks, evidence, fw)
     if masks.shape[1:] != (h, w):
         info["working_size"] = list(masks.shape[1:])
-        masks = np.stack([cv2.resize(m, (w, h), interpolation=cv2.INTER_LINEAR) > 0.5 for m in masks]).astype(np.float32)
+        masks = np.stack([cv2.resize(m, (w, h), interpolation=cv2.INTER_LINEAR) > 0.5
+                          for m in masks]).astype(np.float32)
     info["coverage_final"] = float(masks.mean())
     return masks, info
 
 
-def detector_masks(frames: np.ndarray, masks: np.ndarray, cfg: SegmentConfig, progress: bool = False) -> tuple[np.ndarray, dict]:
+def detector_masks(frames: np.ndarray, masks: np.ndarray, cfg: SegmentConfig,
+                   progress: bool = False) -> tuple[np.ndarray, dict]:
     """The motion ``masks`` ``(T, H, W)`` replaced by the instances of the local detector file
     ``cfg.detector`` (:mod:`layercam.vision.segment.detect`) that lie in them, on ``frames``
     ``(T, H, W, 3)`` of the masks' size; returns the masks and what was picked."""
@@ -138,15 +142,18 @@ def detector_masks(frames: np.ndarray, masks: np.ndarray, cfg: SegmentConfig, pr
     return pick_instances(found, masks, cfg.detector_overlap)
 
 
-def foreground_bootstrap(frames: np.ndarray, flows: dict | None, masks: np.ndarray | None = None, cfg: SegmentConfig | None = None, progress: bool = False) -> dict:
+def foreground_bootstrap(frames: np.ndarray, flows: dict | None, masks: np.ndarray | None = None,
+                         cfg: SegmentConfig | None = None, progress: bool = False) -> dict:
     """What a two-layer scene starts from: ``{"h0": (T, 3, 3), "masks": (T, H, W) | None,
     "computed": bool, "how": str, "info": dict}``.
 
     ``masks`` given by the user win; otherwise, with flow (``flows`` holds ``fw``, ``bw``,
-    ``fw_ok``, ``bw_ok`` at the frames' size, as :func:`layercam.vision.scale.at_frame_size` gives them),
+    ``fw_ok``, ``bw_ok`` at the frames' size, as :func:`layercam.vision.flow_store.at_frame_size` gives them),
     :func:`find_foreground`'s masks (``info["verdict"]`` says whether they hold one object), then,
     with ``cfg.detector``, a local Mask R-CNN's instances that lie in them (:mod:`layercam.vision.segment.detect`);
-    with neither (one frame), no masks and the identity mapping.
+    with neither (one frame), no masks and the identity mapping. ``cfg``: the finder's settings
+    (``segment``); None: their defaults (the one place the finder builds them; every function below
+    takes the settings it is given).
     """
     cfg = cfg or SegmentConfig()
     T, h, w = frames.shape[:3]
@@ -161,7 +168,7 @@ def foreground_bootstrap(frames: np.ndarray, flows: dict | None, masks: np.ndarr
     fw = flows["fw"].astype(np.float32) if flows is not None and T > 1 else None
     fw_ok = flows.get("fw_ok") if flows is not None else None
     if masks is None:
-        h0, desc = foreground_mappings(h, w, np.zeros((T, h, w), np.float32), how="identity")
+        h0, desc = foreground_mappings(h, w, np.zeros((T, h, w), np.float32), margin=cfg.margin, how="identity")
     else:
-        h0, desc = foreground_mappings(h, w, masks, fw, fw_ok, cfg.margin, how=cfg.foreground)
+        h0, desc = foreground_mappings(h, w, masks, fw, fw_ok, margin=cfg.margin, how=cfg.foreground)
     return {"h0": h0, "masks": masks, "computed": computed, "how": desc, "info": info}

@@ -89,7 +89,8 @@ def background_refine(frames: np.ndarray, masks: np.ndarray, homs: np.ndarray) -
                 if not 0 <= s < T:
                     continue
                 hm = np.linalg.inv(M[t]) @ M[s]
-                ws = cv2.warpPerspective(fr[s], hm, (w, h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=(np.nan,) * 3)
+                ws = cv2.warpPerspective(fr[s], hm, (w, h), flags=cv2.INTER_LINEAR,
+                                         borderMode=cv2.BORDER_CONSTANT, borderValue=(np.nan,) * 3)
                 obj = cv2.warpPerspective(objects[s], hm, (w, h), flags=cv2.INTER_NEAREST, borderValue=1) > 0
                 ms = cv2.warpPerspective(m[s].astype(np.uint8), hm, (w, h), flags=cv2.INTER_NEAREST) > 0
                 union = np.count_nonzero(ms | m[t])

@@ -19,10 +19,12 @@ THIN_LLR = 3.0       # a thin part the opening took comes back where its ratio i
 
 def part_means(lab: np.ndarray, n: int, values: np.ndarray) -> np.ndarray:
     """Mean of ``values (H, W)`` over each of the ``n`` labels of ``lab`` (0 included) ``(n,)``."""
-    return np.bincount(lab.ravel(), weights=np.asarray(values, np.float64).ravel(), minlength=n) / np.maximum(np.bincount(lab.ravel(), minlength=n), 1)
+    return np.bincount(lab.ravel(), weights=np.asarray(values, np.float64).ravel(),
+                       minlength=n) / np.maximum(np.bincount(lab.ravel(), minlength=n), 1)
 
 
-def clean_mask(mask: np.ndarray, colour: np.ndarray | None = None, reach: float = 0.0, scale: float = 1.0) -> np.ndarray:
+def clean_mask(mask: np.ndarray, colour: np.ndarray | None = None, reach: float = 0.0,
+               scale: float = 1.0) -> np.ndarray:
     """Morphology on one ``(H, W)`` bool mask: open, close, fill holes, drop small components, and
     keep one object: the largest component and those within ``GAP`` times its size of it (parts an
     occluder splits off). With ``colour`` (``(H, W)``, the object : background colour
@@ -75,7 +77,8 @@ def warp_mask(mask: np.ndarray, flow_t: np.ndarray) -> np.ndarray:
 STILL = 0.3  # a frame whose mask is under this share of the clip's median area has lost the object
 
 
-def fill_still_frames(masks: np.ndarray, fw: np.ndarray, bw: np.ndarray, frac: float | None = None) -> tuple[np.ndarray, list[int]]:
+def fill_still_frames(masks: np.ndarray, fw: np.ndarray, bw: np.ndarray,
+                      frac: float | None = None) -> tuple[np.ndarray, list[int]]:
     """Frames whose mask is under ``frac`` (default ``STILL``) of the clip's median area inherit the
     mask of the nearest frame that holds the object at its typical size (at least the median area),
     carried along the flow. (Not the nearest frame over ``frac``: where an object starts or stops

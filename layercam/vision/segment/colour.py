@@ -14,7 +14,8 @@ does not join. Each pixel pays ``DISTANCE`` per object size it lies away from th
 whose mask lost part of the object (under ``clean.LOST`` of its neighbour's carried along the flow,
 as when the object moves the way the camera does and no motion test can see it) may take the
 carried pixels by their colours alone, wherever the residual is (the clean plate behind it may
-hold the object too). Then :func:`layercam.vision.segment.clean.clean_mask` at half its radii (legs and tails 1-3 px wide),
+hold the object too). Then :func:`layercam.vision.segment.clean.clean_mask` at half its radii (legs
+and tails 1-3 px wide),
 keeping parts of the object's colours within its size of the largest; a cut that leaves nothing
 keeps the mask.
 """
@@ -46,8 +47,11 @@ def graph_cut(unary: np.ndarray, guide: np.ndarray, smooth: float, scale: float 
     src, snk = n, n + 1
     idx = np.arange(n).reshape(h, w)
     g = np.asarray(guide, np.float32).reshape(h, w, -1)
-    rows, cols, caps = [np.full(n, src), idx.ravel()], [idx.ravel(), np.full(n, snk)], [np.maximum(unary, 0).ravel(), np.maximum(-unary, 0).ravel()]
-    pairs = [(idx[:, :-1], idx[:, 1:], ((g[:, :-1] - g[:, 1:]) ** 2).sum(-1)), (idx[:-1], idx[1:], ((g[:-1] - g[1:]) ** 2).sum(-1))]
+    rows, cols, caps = [np.full(n, src), idx.ravel()], [idx.ravel(),
+                        np.full(n, snk)], [np.maximum(unary, 0).ravel(),
+                        np.maximum(-unary, 0).ravel()]
+    pairs = [(idx[:, :-1], idx[:, 1:], ((g[:, :-1] - g[:, 1:]) ** 2).sum(-1)),
+             (idx[:-1], idx[1:], ((g[:-1] - g[1:]) ** 2).sum(-1))]
     beta = 1.0 / (2.0 * max(float(np.mean(np.concatenate([d.ravel() for _, _, d in pairs]))), 1e-6))
     for a, b, d in pairs:
         wgt = (smooth * np.exp(-beta * d)).ravel()
@@ -70,10 +74,10 @@ def equalised_lab(frame: np.ndarray, samples: int = 1 << 17) -> np.ndarray:
     another exposure through any camera curve gives the same colours up to clipping), in CIELAB."""
     import cv2
 
-    from layercam.vision.flow import _midrank
+    from layercam.vision.flow_input import midrank
 
     f = np.asarray(frame, np.float32)
-    out = np.stack([np.clip(_midrank(f[..., c], samples), 0, 1) for c in range(3)], -1).astype(np.float32)
+    out = np.stack([np.clip(midrank(f[..., c], samples), 0, 1) for c in range(3)], -1).astype(np.float32)
     return cv2.cvtColor(out, cv2.COLOR_RGB2Lab)
 
 
@@ -100,7 +104,8 @@ def colour_ratio(bins: np.ndarray, masks: np.ndarray, away: np.ndarray) -> np.nd
     return np.clip(np.log(fg_hist / fg_hist.sum()) - np.log(bg_hist / bg_hist.sum()), -4.0, 4.0).astype(np.float32)
 
 
-def colour_cut(frames: np.ndarray, masks: np.ndarray, residual: np.ndarray, fw: np.ndarray | None = None, bw: np.ndarray | None = None) -> np.ndarray:
+def colour_cut(frames: np.ndarray, masks: np.ndarray, residual: np.ndarray,
+               fw: np.ndarray | None = None, bw: np.ndarray | None = None) -> np.ndarray:
     """Masks ``(T, H, W)`` bool grown to the whole object by its colours (module docstring).
     ``residual (T, H, W)``: the relative residual against the clean plate; ``fw``, ``bw``
     ``(T-1, H, W, 2)``: the flow that carries a mask into a frame that lost part of the object
@@ -116,7 +121,8 @@ def colour_cut(frames: np.ndarray, masks: np.ndarray, residual: np.ndarray, fw: 
     if not (area > 0).any():
         return m
     ref = float(np.median(area[area > 0]))
-    bins = np.stack([colour_bins(equalised_lab(f)).astype(np.uint16) for f in frames])  # 2 bytes a pixel: long 1080p clips fit
+    # 2 bytes a pixel: long 1080p clips fit
+    bins = np.stack([colour_bins(equalised_lab(f)).astype(np.uint16) for f in frames])
     llr = colour_ratio(bins, m, m)
     carried = np.zeros_like(m) if fw is None else carry_lost(m, fw, bw, (llr > 0)[bins])
     if carried.any():  # the carried pixels are not counted as background
@@ -137,7 +143,8 @@ def colour_cut(frames: np.ndarray, masks: np.ndarray, residual: np.ndarray, fw: 
         unary = llr[bins[t][box]] + prior[box] - DISTANCE * away[box] / size
         unary = np.where(region[box], unary, -50.0).astype(np.float32)
         cut = np.zeros((h, w), bool)
-        guide = equalised_lab(frames[t])[box] / 100.0  # again, not kept from the histogram pass: 12 bytes a pixel of the clip
+        guide = equalised_lab(frames[t])[box] / 100.0  # again, not kept from the histogram pass: 12
+                                                       # bytes a pixel of the clip
         cut[box] = graph_cut(unary, guide, SMOOTH)
         cut = clean_mask(cut, colour=llr[bins[t]], reach=size, scale=CLEAN)
         out[t] = cut if cut.any() else m[t]  # a cut that leaves nothing keeps the mask it had

@@ -45,10 +45,11 @@ def load_detector(path: str, device=None):
         except RuntimeError:
             continue
         return model.eval().to(device or "cpu")
-    raise LayercamError(f"segment.detector: {path!r} is a Mask R-CNN of neither torchvision architecture (maskrcnn_resnet50_fpn, _v2)")
+    raise LayercamError(f"segment.detector: {path!r} is a Mask R-CNN of neither torchvision "
+                        "architecture (maskrcnn_resnet50_fpn, _v2)")
 
 
-def detect_instances(frames: np.ndarray, path: str, score: float = 0.5, size: int = 800, progress: bool = False) -> list[dict]:
+def detect_instances(frames: np.ndarray, path: str, score: float, size: int, progress: bool = False) -> list[dict]:
     """Per frame of ``frames`` ``(T, H, W, 3)`` in [0, 1], the instances scoring at least ``score``:
     ``{"masks": (N, H, W) bool, "scores": (N,), "labels": (N,)}``. Each frame is scaled to the
     clip's mean brightness first (alternating exposures), and the detector sees it with its short
@@ -74,11 +75,12 @@ def detect_instances(frames: np.ndarray, path: str, score: float = 0.5, size: in
             x = torch.from_numpy(np.clip(f[t] * gains[t], 0.0, 1.0)).permute(2, 0, 1).contiguous().to(dev)
             d = {k: v.cpu() for k, v in model([x])[0].items()}
             keep = (d["scores"] >= score).numpy()
-            out.append({"masks": (d["masks"][:, 0].numpy() > 0.5)[keep], "scores": d["scores"].numpy()[keep], "labels": d["labels"].numpy()[keep]})
+            out.append({"masks": (d["masks"][:, 0].numpy() > 0.5)[keep],
+                        "scores": d["scores"].numpy()[keep], "labels": d["labels"].numpy()[keep]})
     return out
 
 
-def pick_instances(instances: list[dict], motion: np.ndarray, overlap: float = 0.3) -> tuple[np.ndarray, dict]:
+def pick_instances(instances: list[dict], motion: np.ndarray, overlap: float) -> tuple[np.ndarray, dict]:
     """Each frame's mask: the union of its instances of which at least ``overlap`` of the area lies
     in that frame's motion mask; a frame without such an instance keeps its motion mask. Returns
     the masks ``(T, H, W)`` float32 and ``{"detector_frames": frames taken from the detector,

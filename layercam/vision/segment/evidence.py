@@ -52,7 +52,7 @@ def _ends(ev: np.ndarray, fw: np.ndarray, bw: np.ndarray, has: np.ndarray) -> np
     return ev
 
 
-def motion_evidence(fw, bw, fw_ok, bw_ok, reach: int = 8, k_sigma: float = 4.0) -> tuple[np.ndarray, dict]:
+def motion_evidence(fw, bw, fw_ok, bw_ok, reach: int, k_sigma: float) -> tuple[np.ndarray, dict]:
     """``(evidence (T, H, W) float32 in [0, 1], info)``: the share of pairs (module docstring) in
     which each pixel moves against the camera; ``info``: the share of pairs whose border needed the
     epipolar model (parallax)."""

@@ -59,7 +59,7 @@ def window_at_work(frames, flows: dict, a0: int, b0: int, grid: tuple[int, int])
     return fr, fl
 
 
-def foreground_bootstrap_long(frames, flows: dict, out, masks=None, cfg: SegmentConfig | None = None, progress: bool = False) -> dict:
+def foreground_bootstrap_long(frames, flows: dict, out, masks, cfg: SegmentConfig, progress: bool = False) -> dict:
     """:func:`foreground_bootstrap` for a long clip or one larger than the flow's working grid
     (:func:`windowed`), with the memory of a ``SEG_FRAMES``-frame clip at the finder's working size:
     each window of :func:`segment_windows` is read at that size (:func:`window_at_work`) and
@@ -81,7 +81,6 @@ def foreground_bootstrap_long(frames, flows: dict, out, masks=None, cfg: Segment
     from layercam.vision.segment import find_foreground
     from layercam.core.progress import bar
 
-    cfg = cfg or SegmentConfig()
     T, H, W = frames.shape[:3]
     h, w = flows["fw"].shape[1:3]
     info: dict = {}
@@ -92,8 +91,11 @@ def foreground_bootstrap_long(frames, flows: dict, out, masks=None, cfg: Segment
         (out / "masks.json").write_text(json.dumps({"shape": [T, H, W]}))
         wins = segment_windows(T)
         models = []
-        up = lambda m, size: m if m.shape[:2] == size else (cv2.resize(m, (size[1], size[0]), interpolation=cv2.INTER_LINEAR) > 0.5).astype(np.float32)  # noqa: E731
-        for i, (a0, b0, a, b) in enumerate(bar(wins, desc="bootstrap (windows)", unit="window", enabled=progress and len(wins) > 1)):
+        up = lambda m, size: m if m.shape[:2] == size else (cv2.resize(m, (size[1], size[0]),
+            interpolation=cv2.INTER_LINEAR) > 0.5).astype(np.float32)  # noqa: E731
+        for i, (a0, b0, a,
+                b) in enumerate(bar(wins, desc="bootstrap (windows)", unit="window",
+                                    enabled=progress and len(wins) > 1)):
             reached("segment", i)
             fr, fl = window_at_work(frames, flows, a0, b0, (h, w))
             part, inf = find_foreground(fr, fl, cfg)
@@ -112,8 +114,10 @@ def foreground_bootstrap_long(frames, flows: dict, out, masks=None, cfg: Segment
             give_back_freed_memory()
         masks.flush()
         cover = mask_coverage(masks)
-        info = {"windows": len(wins), "window_frames": SEG_FRAMES, "window_margin": SEG_MARGIN, "grid": [h, w], "models": models,
-                "coverage_mean": float(cover.mean()), "coverage_min": float(cover.min()), "coverage_max": float(cover.max()), "empty_frames": int((cover == 0).sum())}
+        info = {"windows": len(wins), "window_frames": SEG_FRAMES, "window_margin": SEG_MARGIN,
+                "grid": [h, w], "models": models,
+                "coverage_mean": float(cover.mean()), "coverage_min": float(cover.min()),
+                "coverage_max": float(cover.max()), "empty_frames": int((cover == 0).sum())}
     fw, fw_ok = AtFrameSize(flows["fw"], (H, W)), AtFrameSize(flows["fw_ok"], (H, W))
-    h0, desc = foreground_mappings(H, W, masks, fw, fw_ok, cfg.margin, how=cfg.foreground)
+    h0, desc = foreground_mappings(H, W, masks, fw, fw_ok, margin=cfg.margin, how=cfg.foreground)
     return {"h0": h0, "masks": masks, "computed": computed, "how": desc, "info": info}

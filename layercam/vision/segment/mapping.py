@@ -39,7 +39,9 @@ def object_motion(fw, masks, fw_ok=None, min_points: int = 12, seed: int = 0) ->
         a = None
         if len(xs) >= min_points:
             src = np.stack([xs, ys], -1).astype(np.float32)
-            a, _ = cv2.estimateAffinePartial2D(src, src + d, method=cv2.RANSAC, ransacReprojThreshold=1.0, maxIters=2000, confidence=0.995)
+            a, _ = cv2.estimateAffinePartial2D(src, src + d, method=cv2.RANSAC,
+                                               ransacReprojThreshold=1.0, maxIters=2000,
+                                               confidence=0.995)
         if a is None or not np.all(np.isfinite(a)):
             out[i][:2, 2] = np.median(d, axis=0)
         else:
@@ -58,7 +60,8 @@ def object_motion(fw, masks, fw_ok=None, min_points: int = 12, seed: int = 0) ->
 MAX_MAPPED_POINTS = 1 << 23  # foreground_mappings: mask pixels mapped into the atlas for its extent (every k-th beyond)
 
 
-def foreground_mappings(h: int, w: int, masks: np.ndarray, fw=None, fw_ok=None, margin: float = 0.6, how: str = "object") -> tuple[np.ndarray, str]:
+def foreground_mappings(h: int, w: int, masks: np.ndarray, fw=None, fw_ok=None, *, margin: float,
+                        how: str) -> tuple[np.ndarray, str]:
     """The foreground layer's ``h0`` ``(T, 3, 3)``: normalised frame coordinates -> atlas uv.
 
     how "object": the object's own chained motion (:func:`object_motion`) to the frame where the
@@ -71,7 +74,8 @@ def foreground_mappings(h: int, w: int, masks: np.ndarray, fw=None, fw_ok=None, 
     T = masks.shape[0]
     if how == "identity" or fw is None or T < 2:
         return atlas_mappings(h, w, np.stack([np.eye(3)] * T)), "identity"
-    area = np.array([np.count_nonzero(np.asarray(masks[t]) > 0.5) for t in range(T)])  # a frame at a time (masks may be on disk)
+    # a frame at a time (masks may be on disk)
+    area = np.array([np.count_nonzero(np.asarray(masks[t]) > 0.5) for t in range(T)])
     if area.sum() == 0:
         return atlas_mappings(h, w, np.stack([np.eye(3)] * T)), "identity"
     if how != "object":
@@ -85,8 +89,10 @@ def foreground_mappings(h: int, w: int, masks: np.ndarray, fw=None, fw_ok=None, 
         ys, xs = ys[::every], xs[::every]
         if len(xs) == 0:
             continue
-        p = pix[t] @ np.stack([xs + 0.5, ys + 0.5, np.ones_like(xs, dtype=np.float64)])  # the pixel's square's centre (geometry.atlas_box)
+        # the pixel's square's centre (geometry.atlas_box)
+        p = pix[t] @ np.stack([xs + 0.5, ys + 0.5, np.ones_like(xs, dtype=np.float64)])
         pts.append((p[:2] / p[2:]).T)
     pts = np.concatenate(pts)
     lo, hi = np.percentile(pts, 1, axis=0), np.percentile(pts, 99, axis=0)
-    return fit_into_atlas(pix, (lo + hi) / 2, max((hi - lo).max() / 2, 2.0), margin, h, w), f"object motion chained to frame {ref}"
+    return fit_into_atlas(pix, (lo + hi) / 2, max((hi - lo).max() / 2, 2.0), margin, h,
+                          w), f"object motion chained to frame {ref}"

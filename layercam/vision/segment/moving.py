@@ -29,7 +29,8 @@ def check_flows(fw, bw) -> tuple[np.ndarray, np.ndarray]:
     f = np.asarray(fw, dtype=np.float32)
     b = np.asarray(bw, dtype=np.float32)
     if f.ndim != 4 or f.shape[-1] != 2 or b.shape != f.shape:
-        raise LayercamError(f"motion segmentation needs forward and backward flows (T-1,H,W,2), got {f.shape} and {b.shape}")
+        raise LayercamError("motion segmentation needs forward and backward flows (T-1,H,W,2), "
+                            f"got {f.shape} and {b.shape}")
     if f.shape[0] < 1:
         raise LayercamError("motion segmentation needs at least two frames")
     return f, b
@@ -70,20 +71,18 @@ def temporal_vote(ev: np.ndarray, fw: np.ndarray, bw: np.ndarray, window: int) -
     return acc / cnt[:, None, None]
 
 
-def motion_masks(fw, bw, fw_ok=None, bw_ok=None, cfg=None, frames=None) -> tuple[np.ndarray, dict]:
+def motion_masks(fw, bw, fw_ok=None, bw_ok=None, *, cfg, frames=None) -> tuple[np.ndarray, dict]:
     """Foreground masks of whatever moves on its own: ``(T, H, W)`` float32 in {0, 1}, and an info
     dict (coverage per frame, frames filled from neighbours, and ``evidence``: the motion evidence
     ``(T, H, W)`` the masks came from). ``fw_ok``, ``bw_ok`` ``(T-1, H, W)``: the flows'
     forward-backward checks (computed when None); ``cfg``: a :class:`layercam.core.config.SegmentConfig`
     (``reach``, ``k_sigma``). With the ``frames`` ``(T, H, W[, C])``, evidence counts only where
     the frame has texture."""
-    from layercam.core.config import SegmentConfig
     from layercam.vision.segment.evidence import motion_evidence
     from layercam.core.visibility import textured
 
     f, b = check_flows(fw, bw)
     fo, bo = flow_checks(f, b, fw_ok, bw_ok)
-    cfg = cfg or SegmentConfig()
     soft, info = motion_evidence(f, b, fo, bo, cfg.reach, cfg.k_sigma)
     tex = None
     if frames is not None:
@@ -101,5 +100,7 @@ def motion_masks(fw, bw, fw_ok=None, bw_ok=None, cfg=None, frames=None) -> tuple
     masks, filled = fill_still_frames(np.stack(masks), f, b)
     masks = np.stack([clean_mask(m) for m in masks]) if filled else masks
     cover = masks.reshape(len(masks), -1).mean(1)
-    info.update(evidence=soft, coverage_mean=float(cover.mean()), coverage_min=float(cover.min()), coverage_max=float(cover.max()), filled_from_neighbours=filled, empty_frames=int((cover == 0).sum()))
+    info.update(evidence=soft, coverage_mean=float(cover.mean()), coverage_min=float(cover.min()),
+                coverage_max=float(cover.max()), filled_from_neighbours=filled,
+                empty_frames=int((cover == 0).sum()))
     return masks.astype(np.float32), info

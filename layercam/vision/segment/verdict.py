@@ -10,7 +10,7 @@ frame without mask counts as a jump)? Do they cover what moves against the camer
 inside the masks over that outside, each a mean over frames (:func:`evidence_contrast`)? Masks
 that jump about, or that sit where nothing moves more than the background, are not an object: the
 run says so and, without ``--layers``, the analysis chooses one layer
-(:func:`layercam.vision.analyse.decide`).
+(:func:`layercam.engine.decide.decide`).
 """
 
 from __future__ import annotations
@@ -60,13 +60,20 @@ def verdict(masks: np.ndarray, evidence: np.ndarray, fw: np.ndarray) -> dict:
     ``(T, H, W)`` with the motion evidence ``(T, H, W)`` they came from and the forward flows."""
     m = np.asarray(masks) > 0.5
     if len(m) < 2 or not m.any():
-        return {"found": False, "reason": "no part of any frame moves against the camera", "consistency": 0.0, "contrast": 0.0}
+        return {"found": False, "reason": "no part of any frame moves against the camera",
+                "consistency": 0.0, "contrast": 0.0}
     ious = temporal_iou(m, fw)
     cons = float(np.median(np.nan_to_num(ious[~np.isnan(ious)], nan=0.0))) if (~np.isnan(ious)).any() else 0.0
     contrast = evidence_contrast(m, evidence)
     info = {"consistency": round(cons, 3), "contrast": round(contrast, 2)}
     if cons < CONSISTENT:
-        return {"found": False, "reason": f"the candidate masks jump between frames (median overlap {cons:.2f} with their neighbours along the flow, < {CONSISTENT})", **info}
+        return {"found": False,
+                "reason": f"the candidate masks jump between frames (median overlap {cons:.2f} "
+                          f"with their neighbours along the flow, < {CONSISTENT})", **info}
     if contrast < CONTRAST:
-        return {"found": False, "reason": f"the candidate masks move like what surrounds them (motion evidence {contrast:.1f}x the rest's, < {CONTRAST:g}x)", **info}
-    return {"found": True, "reason": f"one object, consistent over time (median overlap {cons:.2f} along the flow), moving {contrast:.1f}x more than the rest", **info}
+        return {"found": False,
+                "reason": "the candidate masks move like what surrounds them (motion evidence "
+                          f"{contrast:.1f}x the rest's, < {CONTRAST:g}x)", **info}
+    return {"found": True,
+            "reason": f"one object, consistent over time (median overlap {cons:.2f} along the "
+                      f"flow), moving {contrast:.1f}x more than the rest", **info}

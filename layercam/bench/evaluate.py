@@ -31,7 +31,8 @@ def read_hdr_frames(run_dir, n: int) -> np.ndarray:
 
 def model_wall_s(ctx: Context) -> float:
     """Seconds the run's stages took (their first run, for cached ones), evaluation left out."""
-    return round(sum(v.get("seconds", 0) or v.get("original_seconds", 0) or 0 for k, v in ctx.times.items() if k != "evaluate"), 2)
+    return round(sum(v.get("seconds", 0) or v.get("original_seconds", 0) or 0 for k,
+                     v in ctx.times.items() if k != "evaluate"), 2)
 
 
 def hdr_key(ctx: Context, ev: "EvaluateStage") -> dict:
@@ -42,14 +43,16 @@ def score_hdr(ctx: Context, ev: "EvaluateStage") -> dict:
     from layercam.core import metrics
 
     gt = ev.scene.hdr
-    res = {"metrics": {**metrics.hdr_metrics(read_hdr_frames(ctx.dirs["export"], ctx.clip.T), gt), "wall_s": model_wall_s(ctx)}, "baselines": {}}
+    res = {"metrics": {**metrics.hdr_metrics(read_hdr_frames(ctx.dirs["export"], ctx.clip.T), gt),
+                       "wall_s": model_wall_s(ctx)}, "baselines": {}}
     if "debevec" in ev.baselines and ctx.clip.T > 1 and ctx.exposures.count_distinct > 1:
         from layercam.bench.baselines import debevec_video
-        from layercam.vision.scale import at_frame_size
+        from layercam.vision.flow_store import at_frame_size
 
         fl = at_frame_size(ctx.flow, (ctx.clip.H, ctx.clip.W), ("fw", "bw"))
         t0 = time.perf_counter()
-        base = debevec_video(ctx.clip.frames, np.exp2(ctx.exposures.log2_dt), np.asarray(fl.fw, np.float32), np.asarray(fl.bw, np.float32))
+        base = debevec_video(ctx.clip.frames, np.exp2(ctx.exposures.log2_dt),
+                             np.asarray(fl.fw, np.float32), np.asarray(fl.bw, np.float32))
         secs = time.perf_counter() - t0 + ctx.times.get("flow", {}).get("seconds", 0.0)
         res["baselines"]["debevec"] = {**metrics.hdr_metrics(base, gt), "wall_s": round(secs, 2)}
     return res
@@ -68,8 +71,10 @@ def score_deblur(ctx: Context, ev: "EvaluateStage") -> dict:
     res = {"crop": crop}
     for align in (False, True):
         d, b = score_frames(pred, gt, crop, align), score_frames(blurry, gt, crop, align)
-        mean = lambda rows: {"psnr": float(np.mean([r["psnr"] for r in rows])), "ssim": float(np.mean([r["ssim"] for r in rows]))}  # noqa: E731
-        res["aligned" if align else "raw"] = {"deblurred": mean(d), "input": mean(b), "per_frame": {"deblurred": d, "input": b}}
+        mean = lambda rows: {"psnr": float(np.mean([r["psnr"] for r in rows])),
+                             "ssim": float(np.mean([r["ssim"] for r in rows]))}  # noqa: E731
+        res["aligned" if align else "raw"] = {"deblurred": mean(d), "input": mean(b),
+                                              "per_frame": {"deblurred": d, "input": b}}
     lengths = scene.meta.get("blur_length")
     res["blur_length"] = None if lengths is None else [round(float(v), 3) for v in lengths]
     res["metrics"] = res["raw"]["deblurred"]
@@ -78,7 +83,8 @@ def score_deblur(ctx: Context, ev: "EvaluateStage") -> dict:
 
 def fused_key(ctx: Context, ev: "EvaluateStage") -> dict:
     fs = ev.full_stack
-    return {"focus_index": [int(v) for v in (ev.focus_index if ev.focus_index is not None else [])], "full": None if fs is None else int(len(fs[0]))}
+    return {"focus_index": [int(v) for v in (ev.focus_index if ev.focus_index is not None else [])],
+            "full": None if fs is None else int(len(fs[0]))}
 
 
 def score_fused(ctx: Context, ev: "EvaluateStage") -> dict:

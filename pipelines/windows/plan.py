@@ -19,7 +19,8 @@ from layercam.core.errors import LayercamError
 # one window's estimate to the other's.
 MIN_WINDOW = 24
 FIT_FILE = "fit_map.npy"  # (T, h, w) in a window's export: its squared error per pixel of its model through its camera
-                          # against each frame (the HDR writer's faithful step), area-averaged (:func:`fit_maps`): the join's weights
+                          # against each frame (the HDR writer's faithful step), area-averaged
+                          # (:func:`fit_maps`): the join's weights
 
 
 @dataclass
@@ -30,8 +31,10 @@ class Plan:
     reason: str
     forced: bool = False
     atlas_px: list[float] = field(default_factory=list)  # each window's atlas extent (px), when measured
-    fits: dict = field(default_factory=dict)  # (window, overlap j) -> (h, w): the window's error per pixel over overlap j's frames, when measured
-    _sized: dict = field(default_factory=dict, repr=False, compare=False)  # a fit at a frame's size, made once (:meth:`_fit_at`)
+    fits: dict = field(default_factory=dict)  # (window, overlap j) -> (h, w): the window's error
+                                              # per pixel over overlap j's frames, when measured
+    # a fit at a frame's size, made once (:meth:`_fit_at`)
+    _sized: dict = field(default_factory=dict, repr=False, compare=False)
 
     @property
     def count(self) -> int:
@@ -89,7 +92,8 @@ class Plan:
         return max(self.weights(t), key=lambda kw: (kw[1], kw[0]))[0]
 
     def to_dict(self) -> dict:
-        return {"windows": [list(w) for w in self.windows], "overlaps": self.overlaps(), "reason": self.reason, "forced": self.forced}
+        return {"windows": [list(w) for w in self.windows], "overlaps": self.overlaps(),
+                "reason": self.reason, "forced": self.forced}
 
 
 def overlap_for(length: int, cycle: int) -> int:
@@ -140,7 +144,9 @@ def atlas_px(homs: np.ndarray, a: int, b: int, hw: tuple[int, int]) -> float:
     the middle frame; the identity where they move no corner by ``STATIC_CORNER_PX``), fitted into
     the atlas (:func:`layercam.core.geometry.atlas_mappings`), measured by
     :func:`layercam.core.geometry.atlas_pixels`; inf where the chain degenerates."""
-    from layercam.core.geometry import STATIC_CORNER_PX, atlas_mappings, atlas_pixels, chain_homographies, atlas_box, max_corner_shift, middle_frame
+    from layercam.core.geometry import (STATIC_CORNER_PX, atlas_mappings, atlas_pixels,
+                                        chain_homographies, atlas_box, max_corner_shift,
+                                        middle_frame)
 
     h, w = hw
     with np.errstate(all="ignore"):
@@ -201,7 +207,9 @@ def plan(clip, exposures, flow, task: str, window=None) -> Plan:
     if window is not None and int(window) == 0:
         return Plan([(0, T)], "off (--window 0)", forced=True)
     if task == "fuse-stack" or T < 2:
-        return Plan([(0, T)], "one model (a photo stack is one view)" if task == "fuse-stack" else "one model (one frame)")
+        return Plan([(0, T)],
+                    "one model (a photo stack is one view)" if task == "fuse-stack"
+                    else "one model (one frame)")
     if window is not None:
         n = int(window)
         if n < 3:
@@ -209,7 +217,9 @@ def plan(clip, exposures, flow, task: str, window=None) -> Plan:
         if n >= T:
             return Plan([(0, T)], f"one model (--window {n} covers the clip's {T} frames)", forced=True)
         w = split(T, n, cycle)
-        return Plan(w, f"forced (--window {n}): {len(w)} windows of {w[0][1] - w[0][0]} frames or fewer, overlapping by {overlap_for(n, cycle)}", forced=True)
+        return Plan(w,
+                    f"forced (--window {n}): {len(w)} windows of {w[0][1] - w[0][0]} frames or "
+                    f"fewer, overlapping by {overlap_for(n, cycle)}", forced=True)
     homs = frame_homographies(clip, flow)
     if homs is None:
         return Plan([(0, T)], "one model (no flow measured)")
@@ -217,9 +227,14 @@ def plan(clip, exposures, flow, task: str, window=None) -> Plan:
     cap = max(float(GRID_MAX_RES), max(hw) / 0.9)  # geometry.atlas_mappings: a frame fills 0.9 of the atlas
     whole = atlas_px(homs, 0, T, hw)
     if whole <= cap or T < 2 * MIN_WINDOW:
-        why = f"needs {whole:.0f} px across the atlas at one cell per pixel, within the {cap:.0f} it holds" if whole <= cap else \
-              f"needs {whole:.0f} px across the atlas, more than the {cap:.0f} it holds, but is shorter than two windows of {MIN_WINDOW} frames"
-        return Plan([(0, T)], f"one model: the camera's motion over the {T} frames {why} (--window N cuts it)", atlas_px=[whole])
+        if whole <= cap:
+            why = f"needs {whole:.0f} px across the atlas at one cell per pixel, within the {cap:.0f} it holds"
+        else:
+            why = (f"needs {whole:.0f} px across the atlas, more than the {cap:.0f} it holds, but is shorter than two "
+                   f"windows of {MIN_WINDOW} frames")
+        return (Plan([(0, T)],
+                     f"one model: the camera's motion over the {T} frames {why} (--window N cuts "
+                     "it)", atlas_px=[whole]))
     out, sizes, a = [], [], 0
     while True:
         b = a + 2
@@ -234,28 +249,37 @@ def plan(clip, exposures, flow, task: str, window=None) -> Plan:
             break
         a = b - overlap_for(b - a, cycle)
     if len(out) == 1:
-        return Plan(out, f"one model: the camera's motion over the {T} frames needs {whole:.0f} px across the atlas, more than the {cap:.0f} it holds, but less than two windows' worth (--window N cuts it)", atlas_px=sizes)
+        return Plan(out,
+                    f"one model: the camera's motion over the {T} frames needs {whole:.0f} px "
+                    f"across the atlas, more than the {cap:.0f} it holds, but less than two "
+                    "windows' worth (--window N cuts it)", atlas_px=sizes)
     longest = max(b - a for a, b in out)
-    return Plan(out, f"{len(out)} windows of up to {longest} frames: the camera's motion over the {T} frames needs {whole:.0f} px across the atlas at one cell per pixel, "
-                f"more than the {cap:.0f} it holds ({GRID_MAX_RES} cells); each window's frames fit it (--window N or off overrides)", atlas_px=sizes)
+    return Plan(out,
+                f"{len(out)} windows of up to {longest} frames: the camera's motion over the {T} "
+                f"frames needs {whole:.0f} px across the atlas at one cell per pixel, "
+                f"more than the {cap:.0f} it holds ({GRID_MAX_RES} cells); each window's frames "
+                "fit it (--window N or off overrides)", atlas_px=sizes)
 
 
 # -- one window --------------------------------------------------------------------------------------
 def sub_clip(clip, a: int, b: int):
     from layercam.io.clip import Clip
 
-    meta = {k: (list(v)[a:b] if isinstance(v, (list, tuple)) and len(v) == clip.T else v) for k, v in clip.meta.items()}  # per frame: its slice
+    meta = {k: (list(v)[a:b] if isinstance(v, (list, tuple)) and len(v) == clip.T else v) for k,
+            v in clip.meta.items()}  # per frame: its slice
     meta["notes"] = []  # said once, by the whole clip's run
     meta["window"] = [a, b]
     exif = None if clip.exif_exposures is None else list(clip.exif_exposures)[a:b]
-    frames = clip.frames.rows(a, b) if hasattr(clip.frames, "rows") else clip.frames[a:b]  # frames on disk: a view, nothing read
+    # frames on disk: a view, nothing read
+    frames = clip.frames.rows(a, b) if hasattr(clip.frames, "rows") else clip.frames[a:b]
     return Clip(frames, clip.source, list(clip.names)[a:b], clip.fps, clip.bit_depth, exif, meta)
 
 
 def sub_exposures(e, a: int, b: int):
     from layercam.io import Exposures
 
-    return Exposures(e.log2_dt[a:b], e.learn, None if e.phase is None else e.phase[a:b], e.spec, e.reason, None if e.dt_seconds is None else e.dt_seconds[a:b])
+    return Exposures(e.log2_dt[a:b], e.learn, None if e.phase is None else e.phase[a:b], e.spec,
+                     e.reason, None if e.dt_seconds is None else e.dt_seconds[a:b])
 
 
 def sub_flow(flow, a: int, b: int):
@@ -302,9 +326,11 @@ def area(x: np.ndarray, hw: tuple[int, int]) -> np.ndarray:
     """``x (H, W)`` area-averaged to ``hw``."""
     import cv2
 
-    return x if x.shape == tuple(hw) else cv2.resize(np.asarray(x, np.float32), (hw[1], hw[0]), interpolation=cv2.INTER_AREA)
+    return x if x.shape == tuple(hw) else cv2.resize(np.asarray(x, np.float32), (hw[1], hw[0]),
+                                                     interpolation=cv2.INTER_AREA)
 
 
 def per_pixel(w, x: np.ndarray):
-    """A join's weight ``w`` (a number, or ``(H, W)`` per pixel) shaped to multiply ``x`` (``(H, W)`` or ``(H, W, C)``)."""
+    """A join's weight ``w`` (a number, or ``(H, W)`` per pixel) shaped to multiply ``x`` (``(H,
+    W)`` or ``(H, W, C)``)."""
     return w[..., None] if np.ndim(w) == 2 and x.ndim == 3 else w

@@ -26,8 +26,10 @@ from layercam.scene.layered import LayeredScene, derived_sizes
 COLOR, FLOW, WHITE_BALANCE, GRADIENT = 1.0, 100.0, 1.0, 100.0
 FLOW_DECAY_END = 0.5         # the flow term decays linearly to 0 by this share of training
 RIGIDITY, SPARSITY, ALPHA_FLOW = 0.01, 0.001, 1.0
-MASK_GIVEN, MASK_MOTION = 1.0, 0.0  # share of the alpha-mask weight kept all through training: given masks | motion masks
-FG_FOLLOW = 1e-3             # two layers: the foreground's log2 irradiance pulled to the background's where alpha is low
+MASK_GIVEN, MASK_MOTION = 1.0, 0.0  # share of the alpha-mask weight kept all through training:
+                                    # given masks | motion masks
+FG_FOLLOW = 1e-3             # two layers: the foreground's log2 irradiance pulled to the
+                             # background's where alpha is low
 WHITE_POINT = 0.5            # the white-balance target T(0) (paper)
 
 
@@ -62,7 +64,9 @@ class ImplicitCameraModel(nn.Module):
     here when not given, given when a saved model is rebuilt).
     """
 
-    def __init__(self, resolved: Resolved, h0: torch.Tensor, log2_dt: np.ndarray, exposure_learn: str = "none", phase=None, init_log2: float = 0.0, frame_hw: tuple[int, int] = (1, 1), sizes: dict | None = None):
+    def __init__(self, resolved: Resolved, h0: torch.Tensor, log2_dt: np.ndarray,
+                 exposure_learn: str = "none", phase=None, init_log2: float = 0.0,
+                 frame_hw: tuple[int, int] = (1, 1), sizes: dict | None = None):
         super().__init__()
         r = as_resolved(resolved, h0.shape[1], frame_hw)
         cfg = r.settings
@@ -71,9 +75,11 @@ class ImplicitCameraModel(nn.Module):
             raise ValueError(f"model.layers = {m.layers} but h0 holds {h0.shape[0]} layer mappings")
         self.resolved, self.cfg = r, cfg
         self.frame_hw = frame_hw
-        self.sizes = dict(sizes) if sizes else derived_sizes(h0.numpy(), frame_hw, fine=m.blur == "on" or (r.static and m.layers == 1))
+        self.sizes = dict(sizes) if sizes else derived_sizes(h0.numpy(), frame_hw,
+            fine=m.blur == "on" or (r.static and m.layers == 1))
         self._robust = float(cfg.loss.robust)  # the colour error's Cauchy scale (0: the paper's MSE)
-        self.scene = LayeredScene(cfg.scene, h0, self.sizes, init_log2, residual=r.residual, still_background=r.still_background, batch=cfg.train.batch)
+        self.scene = LayeredScene(cfg.scene, h0, self.sizes, init_log2, residual=r.residual,
+                                  still_background=r.still_background, batch=cfg.train.batch)
         self.exposure = ExposureField(log2_dt, exposure_learn if m.exposures == "learned" else "none", phase)
         learned = m.tone_mapper == "learned"
         self.tone = ToneMapper(cfg.tone.width, cfg.tone.depth, lut=cfg.tone.lut) if learned else FixedTone()
@@ -81,7 +87,9 @@ class ImplicitCameraModel(nn.Module):
         if m.blur == "on":
             from layercam.camera.blur import INIT_CENTRE_WEIGHT, BlurGenerator
 
-            self.blur = BlurGenerator(cfg.blur.n, cfg.blur.max_offset, h0.shape[1], frame_hw, init_centre_weight=INIT_CENTRE_WEIGHT, zero_mean_offsets=True, centre_exact=r.blur_centre)
+            self.blur = BlurGenerator(cfg.blur.n, cfg.blur.max_offset, h0.shape[1], frame_hw,
+                                      init_centre_weight=INIT_CENTRE_WEIGHT, zero_mean_offsets=True,
+                                      centre_exact=r.blur_centre)
         self.loss_weights = LossWeights(
             color=COLOR,
             flow=FLOW if m.flow_loss else 0.0,
@@ -97,19 +105,25 @@ class ImplicitCameraModel(nn.Module):
     def training_callbacks(self, masks: bool = False, given: bool = False) -> list:
         """The schedules of this model's loss weights over ``cfg.train.steps``: the flow term decays
         to 0 by ``FLOW_DECAY_END``, the alpha flow term to the share ``loss.alpha_flow_keep`` of
-        its weight (1: it keeps it all through training, as in Kasten et al.); the deformation is fitted to its bootstrap mapping for the
+        its weight (1: it keeps it all through training, as in Kasten et al.); the deformation is
+        fitted to its bootstrap mapping for the
         first ``train.bootstrap_steps``; with ``masks`` (``given`` by the user, or from motion
         segmentation) and an alpha field, alpha is fitted to them at first, the weight tapering off
         with the flow's to the share ``MASK_GIVEN`` or ``MASK_MOTION`` of it. The term is
         class-balanced (a small object takes its shape fast); given masks only during the bootstrap
         steps, since balanced all through it keeps a halo around a thin object. Motion masks stay
         balanced: they miss parts of the object, which the halo partly covers."""
-        from layercam.engine.train import BootstrapPhase, FlowDecay, MaskTaper
-
         c = self.cfg
         if masks and self.scene.alpha is not None:
             self.loss_weights.alpha_mask = 1.0
-        return [FlowDecay(FLOW_DECAY_END), FlowDecay(FLOW_DECAY_END, keys=("alpha_flow",), floor=c.loss.alpha_flow_keep), BootstrapPhase(c.train.bootstrap_steps, keys=("bootstrap", "mask_balance") if given else ("bootstrap",)), MaskTaper(c.train.bootstrap_steps, FLOW_DECAY_END, MASK_GIVEN if given else MASK_MOTION)]
+        return [losses.FlowDecay(FLOW_DECAY_END),
+                losses.FlowDecay(FLOW_DECAY_END, keys=("alpha_flow",),
+                                 floor=c.loss.alpha_flow_keep),
+                losses.BootstrapPhase(c.train.bootstrap_steps,
+                                      keys=("bootstrap", "mask_balance") if given
+                                      else ("bootstrap",)),
+                losses.MaskTaper(c.train.bootstrap_steps, FLOW_DECAY_END,
+                                 MASK_GIVEN if given else MASK_MOTION)]
 
     # -- rendering ---------------------------------------------------------------------------
     def irradiance(self, xy: torch.Tensor, t: torch.Tensor) -> dict:
@@ -137,9 +151,11 @@ class ImplicitCameraModel(nn.Module):
         if w.flow > 0 and "xy_match" in batch:
             m = self.scene.mappings(batch["xy_match"], batch["t_match"])
             terms["flow"] = w.flow * sum(
-                losses.flow_loss(uv, uvm, ok) for uv, uvm, ok in zip(out["uv"], m["uv"], self._layer_flow_weights(out, batch["match_ok"]))
+                losses.flow_loss(uv, uvm, ok) for uv, uvm,
+                ok in zip(out["uv"], m["uv"], self._layer_flow_weights(out, batch["match_ok"]))
             )
-        if w.alpha_flow > 0 and out["alpha"] is not None and "xy_match" in batch:  # held after the flow's decay: alpha at the matches only
+        if w.alpha_flow > 0 and out["alpha"] is not None and "xy_match" in batch:
+            # held after the flow's decay: alpha at the matches only
             match_alpha = m["alpha"] if w.flow > 0 else self.scene.alpha(batch["xy_match"], batch["t_match"])
             terms["alpha_flow"] = w.alpha_flow * losses.alpha_flow_loss(out["alpha"], match_alpha, batch["match_ok"])
         if w.white_balance > 0:
@@ -157,7 +173,8 @@ class ImplicitCameraModel(nn.Module):
             if w.fg_follow > 0:  # on the first 1024 samples, the atlas alone (at its coordinates, held fixed)
                 n = 1024
                 fg = self.scene.atlases[1](out["uv"][1][:n].detach())
-                terms["fg_follow"] = w.fg_follow * losses.fg_follow_loss(fg, out["layer_log2_r"][0][:n], out["alpha"][:n])
+                terms["fg_follow"] = w.fg_follow * losses.fg_follow_loss(fg,
+                    out["layer_log2_r"][0][:n], out["alpha"][:n])
             if w.sparsity > 0:
                 terms["sparsity"] = w.sparsity * losses.sparsity_loss(out["alpha"])
             if w.alpha_mask > 0 and "mask" in batch:
@@ -176,7 +193,8 @@ class ImplicitCameraModel(nn.Module):
         uninterrupted one does; the global RNG would not), or evenly spaced midpoints without them."""
         u = batch.get("probe")
         if u is None:
-            u = ((torch.arange(256, device=batch["xy"].device, dtype=torch.float32) + 0.5) / 256)[:, None].expand(256, 3)
+            u = ((torch.arange(256, device=batch["xy"].device, dtype=torch.float32) + 0.5) / 256)[:,
+                None].expand(256, 3)
         return u * 40 - 20
 
     @staticmethod

@@ -11,7 +11,7 @@ from hypothesis import given, strategies as st
 
 from layercam.core.presets import load_config
 from layercam.core.errors import LayercamError
-from layercam.scene.model import ALPHA_FLOW, ImplicitCameraModel, LossWeights
+from layercam.engine.model import ALPHA_FLOW, ImplicitCameraModel, LossWeights
 
 from conftest import TINY, decided, scaled_h0
 from props import EV, _autocast, _finite, _grads_finite, props
@@ -19,13 +19,17 @@ from props import EV, _autocast, _finite, _grads_finite, props
 
 def _model(layers=2, sets=(), **kw):
     h0 = torch.eye(3).expand(layers, 3, 3, 3).clone()
-    cfg = decided(load_config("fast", TINY + ["train.steps=100", "train.bootstrap_steps=10", "train.passes_per_frame=0", *sets]), h0, layers=layers, **kw)
+    cfg = decided(load_config("fast",
+                              TINY
+                              + ["train.steps=100", "train.bootstrap_steps=10",
+                                 "train.passes_per_frame=0", *sets]), h0, layers=layers, **kw)
     return ImplicitCameraModel(cfg, h0, np.zeros(3), frame_hw=(16, 16))
 
 
 def test_loss_weights_follow_the_model_components():
     w = _model(layers=1, tone_mapper="fixed", flow_loss=False).loss_weights
-    assert isinstance(w, LossWeights) and (w.flow, w.white_balance, w.gradient, w.sparsity, w.alpha_flow) == (0, 0, 0, 0, 0)
+    assert isinstance(w, LossWeights) and (w.flow, w.white_balance, w.gradient, w.sparsity,
+                      w.alpha_flow) == (0, 0, 0, 0, 0)
     w = _model(layers=2).loss_weights
     assert w.flow == 100.0 and w.sparsity > 0 and w.alpha_flow > 0 and w.alpha_mask == 0.0
     assert not hasattr(_model(layers=1).tone, "loss_weights")  # the tone mapper's own .weights are its parameters
@@ -47,7 +51,8 @@ def test_fg_follow_moves_only_the_foreground_atlas_towards_the_background():
     term = model.loss_dict(batch)["fg_follow"]
     assert term.item() > 0
     term.backward()
-    moved = {".".join(n.split(".")[1:3]) for n, p in model.named_parameters() if p.grad is not None and p.grad.abs().sum() > 0}
+    moved = {".".join(n.split(".")[1:3]) for n,
+             p in model.named_parameters() if p.grad is not None and p.grad.abs().sum() > 0}
     assert moved == {"atlases.1"}, moved
     with torch.no_grad():
         for p in model.scene.atlases[1].parameters():
@@ -67,7 +72,8 @@ def test_schedules_change_the_weights_over_training():
         seen[step] = (model.loss_weights.flow, model.loss_weights.alpha_mask, model.loss_weights.mask_balance)
         if step >= 50:  # the alpha flow term outlives the flow, at its kept share (loss.alpha_flow_keep)
             assert model.loss_weights.alpha_flow == pytest.approx(ALPHA_FLOW * model.cfg.loss.alpha_flow_keep)
-    assert seen[0] == (100.0, 1.0, 1.0) and seen[9][1:] == (1.0, 1.0)  # masks at full weight, class-balanced, during the bootstrap steps
+    # masks at full weight, class-balanced, during the bootstrap steps
+    assert seen[0] == (100.0, 1.0, 1.0) and seen[9][1:] == (1.0, 1.0)
     assert seen[99][2] == 1.0  # motion masks: class-balanced all through
     assert 0 < seen[25][0] < 100 and 0 < seen[25][1] < 1  # both tapering
     assert seen[50][:2] == (0.0, 0.0) and seen[99][:2] == (0.0, 0.0)  # gone at flow_decay_end
@@ -78,7 +84,8 @@ def test_schedules_change_the_weights_over_training():
         for cb in cbs:
             cb.on_step(trainer, step)
         balance[step] = (given.loss_weights.mask_balance, given.loss_weights.alpha_mask)
-    assert balance == {0: (1.0, 1.0), 9: (1.0, 1.0), 10: (0.0, 1.0), 99: (0.0, 1.0)}  # given masks: plain BCE after the bootstrap steps, kept at full weight
+    # given masks: plain BCE after the bootstrap steps, kept at full weight
+    assert balance == {0: (1.0, 1.0), 9: (1.0, 1.0), 10: (0.0, 1.0), 99: (0.0, 1.0)}
     one = _model(layers=1)
     one.training_callbacks(masks=True)
     assert one.loss_weights.alpha_mask == 0.0  # no alpha field to fit the masks to
@@ -95,7 +102,8 @@ def test_the_alpha_flow_term_outlives_the_flow_at_its_kept_share():
     n = 512
     xy = torch.rand(n, 2, generator=g) * 2 - 1
     batch = {"xy": xy, "t": torch.zeros(n, dtype=torch.long), "rgb": torch.rand(n, 3, generator=g),
-             "xy_match": (xy + 0.05).clamp(-1, 1), "t_match": torch.ones(n, dtype=torch.long), "match_ok": torch.ones(n, dtype=torch.bool)}
+             "xy_match": (xy + 0.05).clamp(-1, 1), "t_match": torch.ones(n, dtype=torch.long),
+             "match_ok": torch.ones(n, dtype=torch.bool)}
     for keep in (1.0, 0.25, 0.0):
         model = _model(layers=2, sets=[f"loss.alpha_flow_keep={keep}"])
         cbs = model.training_callbacks()
@@ -131,17 +139,21 @@ def test_blur_group_carries_the_warmup():
     n_blur = sum(p.numel() for p in blur[0]["params"])
     model = ImplicitCameraModel(blur_cfg, h0, np.zeros(2), frame_hw=(16, 16))
     assert n_blur == sum(p.numel() for p in model.blur.parameters())
-    assert not [g for g in ImplicitCameraModel(decided(cfg, h0), h0, np.zeros(2), frame_hw=(16, 16)).param_groups(1e-3, 1e-2) if g["name"] == "blur"]
+    assert not [g
+                for g in ImplicitCameraModel(decided(cfg, h0), h0, np.zeros(2),
+                                             frame_hw=(16, 16)).param_groups(1e-3, 1e-2)
+                if g["name"] == "blur"]
 
 
 @props(8)
 @given(
     ev=EV, layers=st.sampled_from([1, 2]), robust=st.sampled_from([0.0, 0.05]),
-    blur=st.sampled_from(["off", "3x3"]), target=st.sampled_from(["black", "white", "random"]), autocast=st.sampled_from(["none", "bf16"]),
+    blur=st.sampled_from(["off", "3x3"]), target=st.sampled_from(["black", "white", "random"]),
+    autocast=st.sampled_from(["none", "bf16"]),
 )
 def test_model_loss_terms_and_gradients_finite(ev, layers, robust, blur, target, autocast):
     from layercam.core.presets import load_config
-    from layercam.scene.model import ImplicitCameraModel
+    from layercam.engine.model import ImplicitCameraModel
 
     from conftest import decided
 
@@ -152,7 +164,8 @@ def test_model_loss_terms_and_gradients_finite(ev, layers, robust, blur, target,
     n = 32
     rgb = {"black": torch.zeros(n, 3), "white": torch.ones(n, 3), "random": torch.rand(n, 3)}[target]
     batch = {"xy": torch.rand(n, 2) * 2 - 1, "t": torch.arange(n) % 2, "rgb": rgb,
-             "xy_match": torch.rand(n, 2) * 2 - 1, "t_match": (torch.arange(n) + 1) % 2, "match_ok": torch.ones(n, dtype=torch.bool)}
+             "xy_match": torch.rand(n, 2) * 2 - 1, "t_match": (torch.arange(n) + 1) % 2,
+             "match_ok": torch.ones(n, dtype=torch.bool)}
     with _autocast(torch.bfloat16 if autocast == "bf16" else None):
         terms = model.loss_dict(batch)
     loss = sum(terms.values())
@@ -170,8 +183,11 @@ def test_gradients_are_bit_identical_on_a_multithreaded_cpu():
     h0 = torch.eye(3).expand(2, T, 3, 3).clone()
     cfg = decided(load_config("fast", TINY), h0, (16, 16), layers=2, blur="3x3", exposures="learned")
     g = torch.Generator().manual_seed(0)
-    batch = {"xy": torch.rand(n, 2, generator=g) * 2 - 1, "t": torch.randint(0, T, (n,), generator=g), "rgb": torch.rand(n, 3, generator=g),
-             "xy_match": torch.rand(n, 2, generator=g) * 2 - 1, "t_match": torch.randint(0, T, (n,), generator=g), "match_ok": torch.ones(n, dtype=torch.bool)}
+    batch = {"xy": torch.rand(n, 2, generator=g) * 2 - 1,
+             "t": torch.randint(0, T, (n,), generator=g), "rgb": torch.rand(n, 3, generator=g),
+             "xy_match": torch.rand(n, 2, generator=g) * 2 - 1,
+             "t_match": torch.randint(0, T, (n,), generator=g),
+             "match_ok": torch.ones(n, dtype=torch.bool)}
     threads = torch.get_num_threads()
     torch.set_num_threads(4)
     try:
@@ -180,7 +196,8 @@ def test_gradients_are_bit_identical_on_a_multithreaded_cpu():
             torch.manual_seed(0)
             model = ImplicitCameraModel(cfg, h0, np.linspace(0, 3, T).astype(np.float32), frame_hw=(16, 16))
             sum(model.loss_dict(batch).values()).backward()
-            grads.append({k: p.grad.coalesce().to_dense() if p.grad.is_sparse else p.grad.clone() for k, p in model.named_parameters() if p.grad is not None})
+            grads.append({k: p.grad.coalesce().to_dense() if p.grad.is_sparse else p.grad.clone()
+                          for k, p in model.named_parameters() if p.grad is not None})
     finally:
         torch.set_num_threads(threads)
     per_frame = [k for k in grads[0] if k.endswith(("dh", "delta", "embedding", "inc"))]

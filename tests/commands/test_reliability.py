@@ -55,18 +55,11 @@ CORPUS = [
     ("set-unknown-section", ["hdr-video", "{video}", "--set", "trian.steps=3", "--out", "{fresh}"], "trian"),
     ("set-no-equals", ["hdr-video", "{video}", "--set", "train.steps", "--out", "{fresh}"], "key=value"),
     ("set-not-a-number", ["hdr-video", "{video}", "--set", "train.steps=many", "--out", "{fresh}"], "many"),
-    ("steps-negative",
-     ["hdr-video", "{frames}", "--ev-step", "3", "--set", "train.steps=-5", "--out", "{run}"],
-     "train.steps"),  # item 5
-    ("lr-negative",
-     ["hdr-video", "{frames}", "--ev-step", "3", "--set", "train.lr=-1", "--out", "{run}"],
-     "train.lr"),  # item 6
-    ("lr-huge",
-     ["hdr-video", "{frames}", "--ev-step", "3", "--set", "train.lr=1e6", "--out", "{run}"],
-     "train.lr"),  # item 6
-    ("batch-0",
-     ["hdr-video", "{frames}", "--ev-step", "3", "--set", "train.batch=0", "--out", "{run}"],
-     "train.batch"),  # item 6
+    # a bad training setting on a clip that would otherwise run: items 5 and 6
+    *((name, ["hdr-video", "{frames}", "--ev-step", "3", "--set", setting, "--out", "{run}"],
+       setting.split("=")[0])
+      for name, setting in (("steps-negative", "train.steps=-5"), ("lr-negative", "train.lr=-1"),
+                            ("lr-huge", "train.lr=1e6"), ("batch-0", "train.batch=0"))),
     ("lr-nan", ["hdr-video", "{video}", "--set", "train.lr=nan", "--out", "{fresh}"], "train.lr"),  # item 7
     ("lr-inf", ["hdr-video", "{video}", "--set", "train.lr=inf", "--out", "{fresh}"], "train.lr"),  # item 7
     ("grid-lr-negative", ["hdr-video", "{video}", "--set", "train.grid_lr=-0.1", "--out", "{fresh}"], "train.grid_lr"),

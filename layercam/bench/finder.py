@@ -90,13 +90,13 @@ def summarise(rows: list[dict]) -> list[dict]:
 def finder_markdown(rows: list[dict], summary: list[dict], command: str) -> str:
     """``finder.md``: per split (validation first, never mixed) the split's mean and worst clip per
     step set, then every clip."""
-    from layercam.bench.layers import split_of
+    from layercam.bench.layers import split_of, split_title
 
     labels = list(step_sets())
     lines = ["# The foreground finder's steps, each left out (masks against the true masks, no "
              "training)", "", f"Regenerate: `{command}`"]
     for split in dict.fromkeys(s["split"] for s in summary):
-        lines += ["", f"## The {split} split", "",
+        lines += ["", split_title(split), "",
                   "| preset | steps | clips | mean IoU | worst clip | object inside (mean) |",
                   "|---|---|---|---|---|---|"]
         lines += [f"| `{s['preset']}` | {s['steps']} | {s['clips']} | {s['mean']:.3f} | "

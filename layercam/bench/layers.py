@@ -51,6 +51,12 @@ def split_of(clip: str) -> str:
     return "validation" if clip in VALIDATION else "training"
 
 
+def split_title(split: str) -> str:
+    """A split's heading in the benches' tables: its name and what it is for."""
+    return f"## The {split} split" + (" (judged on, never fitted on)" if split == "validation"
+                                     else " (where anything learned or tuned is fitted)")
+
+
 def find_clips(data: Path, names: list[str] | None = None, split: str = "all") -> dict[str, Path]:
     """``{clip name: folder}`` for the ``layers_davis_*`` folders of ``data``: ``names``, else
     every clip of ``split`` (:data:`SPLITS`)."""
@@ -288,8 +294,7 @@ def write_layers_table(out: Path, rows: list[dict]) -> None:
                  lambda p: p.write_text(json.dumps({"rows": rows, "summary": sums}, indent=1)))
     md = []
     for split in [s for s in SPLITS if any(split_of(r["clip"]) == s for r in rows)]:
-        md += [f"## The {split} split" + (" (judged on, never fitted on)" if split == "validation"
-                                         else " (where anything learned or tuned is fitted)"), "",
+        md += [split_title(split), "",
                "| clip | preset | frames | size | masks | layers | alpha IoU (mean) | alpha IoU "
                "(worst frame) | object inside alpha | at the masks' own size: IoU / inside | "
                "bootstrap IoU | found | PSNR dB | wall s |",

@@ -376,23 +376,3 @@ def test_motion_evidence_is_a_share_high_on_the_moving_square(square):
     assert ev.shape == square["masks"].shape and ev.dtype == np.float32 and 0 <= ev.min() and ev.max() <= 1
     inside, outside = ev[square["masks"]].mean(), ev[~square["masks"]].mean()
     assert inside > 0.5 and outside < 0.1, (inside, outside)
-
-
-def test_grabcut_pulls_an_overshooting_mask_to_the_objects_edge():
-    """Step 4's contract: a mask 4 px too large on every side of a square of its own colour is
-    pulled back to the square; a mask too small to seed GrabCut comes back as it was."""
-    from layercam.vision.segment.edges import grabcut_refine
-
-    rng = np.random.default_rng(0)
-    frame = (0.2 + 0.1 * rng.uniform(0, 1, (80, 80, 3))).astype(np.float32)
-    truth = np.zeros((80, 80), bool)
-    truth[25:55, 20:50] = True
-    frame[truth] = (0.9, 0.5, 0.1)
-    over = np.zeros_like(truth)
-    over[21:59, 16:54] = True
-    out = grabcut_refine(frame, over)
-    assert out.shape == truth.shape and out.dtype == bool
-    assert metrics.iou(out, truth) > 0.9 > metrics.iou(over, truth)
-    tiny = np.zeros_like(truth)
-    tiny[5:7, 5:7] = True
-    assert (grabcut_refine(frame, tiny) == tiny).all()

@@ -19,7 +19,9 @@ learned over the whole clip. One step per module:
    motion, their object left out) adds limbs the flow missed and drops background the flow smeared.
 6. :mod:`~layercam.vision.segment.colour`: a graph cut on the object's colours learned over the clip grows
    the masks to the whole object where the frame differs from the clean plate, and where a frame's
-   mask lost part of the object its neighbour's, carried along the flow, offers it back.
+   mask lost part of the object its neighbour's, carried along the flow, offers it back; a guided
+   filter (:func:`~layercam.vision.segment.edges.guided_refine`) then moves each mask's edge to the
+   colour edge within a few pixels.
 7. :mod:`~layercam.vision.segment.verdict`: masks that jump about or move like their surroundings are no
    object: the run says so.
 
@@ -45,7 +47,8 @@ __all__ = ["SegmentConfig", "STEPS", "foreground_bootstrap", "motion_masks", "mo
            "clean_mask", "object_motion", "foreground_mappings", "sure_pixels", "load_masks",
            "save_masks"]
 
-STEPS = ("grabcut", "background", "colour")  # the optional steps after the motion masks (each measured: the ablation)
+STEPS = ("grabcut", "background", "colour", "guided")  # the optional steps after the motion masks
+                                                       # (each measured: the ablation)
 WORK_SHORT = 240  # the finder sees frames at most this many pixels on the short side (masks are upsampled to the
                   # frame; training refines alpha's edges at the frame's size): its cost stays under a second a frame
 
@@ -121,6 +124,11 @@ def find_foreground(frames: np.ndarray, flows: dict, cfg: SegmentConfig,
 
             # frames the check emptied start again from their neighbours'
             masks = colour_cut(frames, fill_still_frames(masks, fw, bw)[0], rel, fw, bw)
+    if "guided" in steps:
+        from layercam.vision.segment.edges import guided_refine
+
+        masks = np.stack([guided_refine(frames[t], masks[t]) if masks[t].any() else masks[t] > 0.5
+                          for t in range(T)])
     masks = np.asarray(masks, np.float32)
     info["verdict"] = verdict(masks, evidence, fw)
     if masks.shape[1:] != (h, w):

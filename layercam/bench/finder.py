@@ -27,9 +27,10 @@ def step_sets() -> dict[str, tuple]:
     from layercam.vision.segment import STEPS
 
     sets = {"all": STEPS}
-    for s in STEPS:  # the colour cut gates on the clean plate's residual: without the plate, no cut either
-        sets[f"without {s}" + (" (and colour)" if s == "background" else "")] = tuple(x
-            for x in STEPS if x != s and not (s == "background" and x == "colour"))
+    plated = ("colour", "texture")  # the steps that read the clean plate: without it, neither
+    for s in STEPS:
+        sets[f"without {s}" + (" (and colour, texture)" if s == "background" else "")] = tuple(x
+            for x in STEPS if x != s and not (s == "background" and x in plated))
     sets["motion masks alone"] = ()
     return sets
 

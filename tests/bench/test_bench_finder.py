@@ -14,8 +14,8 @@ from layercam.vision.segment import STEPS
 def test_step_sets_leave_each_step_out():
     sets = finder.step_sets()
     assert sets["all"] == STEPS and sets["motion masks alone"] == ()
-    assert sets["without grabcut"] == ("background", "colour", "guided")
-    assert sets["without background (and colour)"] == ("grabcut", "guided")  # the colour cut needs the clean plate
+    assert sets["without grabcut"] == ("background", "colour", "texture", "guided")
+    assert sets["without background (and colour, texture)"] == ("grabcut", "guided")  # both read the clean plate
     assert len(sets) == len(STEPS) + 2
 
 

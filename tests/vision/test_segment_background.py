@@ -8,7 +8,7 @@ import pytest
 
 from layercam.core import metrics
 from layercam.vision import segment
-from layercam.vision.segment.background import _matched, _nan_median, background_refine
+from layercam.vision.segment.background import _matched, _nan_median, background_refine, texture_refine
 
 from test_segment import _square_clip
 
@@ -29,7 +29,7 @@ def test_background_refine_finds_a_missed_limb_at_alternating_exposures():
         limb[t, y0 : y0 + side, x1 - 4 : x1] = True   # the object's right edge, missed
         bleed[t, y0 - 4 : y0, x1 - side : x1 - 4] = True  # background above it, taken in
     given = (truth & ~limb) | bleed
-    out, _ = background_refine(frames, given.astype(np.float32), homs)
+    out, _, _ = background_refine(frames, given.astype(np.float32), homs)
     assert out.shape == truth.shape and out.dtype == bool
     before = np.mean([metrics.iou(given[t], truth[t]) for t in range(T)])
     after = np.mean([metrics.iou(out[t], truth[t]) for t in range(T)])
@@ -60,3 +60,32 @@ def test_background_median_and_level_map_shortcuts():
     exact = _matched(src, dst, ok, samples=10**7)
     assert np.abs(fast - exact).max() < 1 / 255
     assert np.abs(fast - dst).max() < np.abs(exact - dst).max() + 1 / 255 < 0.03  # 65 levels of a curve
+
+
+def test_texture_refine_drops_the_objects_shadow_and_keeps_the_object():
+    """A mask that holds the object and its shadow (the plate's texture darkened to half, with a soft
+    edge) loses the shadow and keeps the object, whose texture is its own; where the plate is unknown
+    (NaN) the shadow stays, and a mask that is all plate keeps itself rather than vanish."""
+    import cv2
+
+    rng = np.random.default_rng(0)
+    h, w = 64, 96
+    plate = rng.uniform(0.2, 0.9, (h, w, 3)).astype(np.float32)
+    obj = np.zeros((h, w), bool)
+    obj[16:40, 20:44] = True
+    core = np.zeros((h, w), np.float32)
+    core[40:52, 20:60] = 1
+    shade = cv2.GaussianBlur(core, (0, 0), 2.0)  # the penumbra
+    frame = plate * (1 - 0.5 * shade)[..., None]
+    frame[obj] = rng.uniform(0.2, 0.9, (obj.sum(), 3))
+    shadow = (shade > 0.5) & ~obj
+    mask = obj | shadow
+    out = texture_refine(frame[None], mask[None], plate[None])[0]
+    away = shadow.copy()
+    away[:43] = False  # the shadow 3 px or more from the object (a window beside it holds the object too)
+    assert out[obj].mean() > 0.95 and out[away].mean() < 0.05 and out[shadow].mean() < 0.3, (
+        out[obj].mean(), out[away].mean(), out[shadow].mean())
+    unknown = plate.copy()
+    unknown[shadow] = np.nan
+    assert texture_refine(frame[None], mask[None], unknown[None])[0][shadow].mean() > 0.95
+    assert np.array_equal(texture_refine(plate[None], shadow[None], plate[None])[0], shadow)

@@ -72,7 +72,7 @@ def test_colour_cut_grows_a_half_mask_to_the_object_not_to_its_colours_elsewhere
         y, x = 100 - 60 - int(np.ceil(0.5 * t)), 45 - 10 - t
         patch[t, y + 1 : y + 19, max(x + 1, 0) : x + 19] = True  # its inside (sub-pixel pan)
     patch &= ~truth
-    kept, rel = background_refine(frames, half.astype(np.float32), homs)
+    kept, rel, _ = background_refine(frames, half.astype(np.float32), homs)
     assert rel.shape == truth.shape and rel.dtype == np.float16
     out = colour.colour_cut(frames, kept, rel)
     assert out.shape == truth.shape and out.dtype == bool

@@ -19,9 +19,11 @@ learned over the whole clip. One step per module:
    motion, their object left out) adds limbs the flow missed and drops background the flow smeared.
 6. :mod:`~layercam.vision.segment.colour`: a graph cut on the object's colours learned over the clip grows
    the masks to the whole object where the frame differs from the clean plate, and where a frame's
-   mask lost part of the object its neighbour's, carried along the flow, offers it back; a guided
-   filter (:func:`~layercam.vision.segment.edges.guided_refine`) then moves each mask's edge to the
-   colour edge within a few pixels.
+   mask lost part of the object its neighbour's, carried along the flow, offers it back; pixels that
+   show the clean plate's texture (in the object's shadow too) leave
+   (:func:`~layercam.vision.segment.background.texture_refine`); a guided filter
+   (:func:`~layercam.vision.segment.edges.guided_refine`) then moves each mask's edge to the colour
+   edge within a few pixels.
 7. :mod:`~layercam.vision.segment.verdict`: masks that jump about or move like their surroundings are no
    object: the run says so.
 
@@ -47,7 +49,7 @@ __all__ = ["SegmentConfig", "STEPS", "foreground_bootstrap", "motion_masks", "mo
            "clean_mask", "object_motion", "foreground_mappings", "sure_pixels", "load_masks",
            "save_masks"]
 
-STEPS = ("grabcut", "background", "colour", "guided")  # the optional steps after the motion masks
+STEPS = ("grabcut", "background", "colour", "texture", "guided")  # the optional steps after the motion masks
                                                        # (each measured: the ablation)
 WORK_SHORT = 240  # the finder sees frames at most this many pixels on the short side (masks are upsampled to the
                   # frame; training refines alpha's edges at the frame's size): its cost stays under a second a frame
@@ -118,12 +120,16 @@ def find_foreground(frames: np.ndarray, flows: dict, cfg: SegmentConfig,
         from layercam.vision.segment.background import background_refine
         from layercam.vision.segment.clean import fill_still_frames
 
-        masks, rel = background_refine(frames, masks, border_homographies(fw))
+        masks, rel, plate = background_refine(frames, masks, border_homographies(fw))
         if "colour" in steps:
             from layercam.vision.segment.colour import colour_cut
 
             # frames the check emptied start again from their neighbours'
             masks = colour_cut(frames, fill_still_frames(masks, fw, bw)[0], rel, fw, bw)
+        if "texture" in steps:
+            from layercam.vision.segment.background import texture_refine
+
+            masks = texture_refine(frames, masks, plate)
     if "guided" in steps:
         from layercam.vision.segment.edges import guided_refine
 

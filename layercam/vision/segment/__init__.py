@@ -21,7 +21,8 @@ learned over the whole clip. One step per module:
    the masks to the whole object where the frame differs from the clean plate, and where a frame's
    mask lost part of the object its neighbour's, carried along the flow, offers it back; pixels that
    show the clean plate's texture (in the object's shadow too) leave
-   (:func:`~layercam.vision.segment.background.texture_refine`); a guided filter
+   (:func:`~layercam.vision.segment.background.texture_refine`); pixels that move against the camera
+   far less than the rest of their mask leave (:mod:`~layercam.vision.segment.contrast`); a guided filter
    (:func:`~layercam.vision.segment.edges.guided_refine`) then moves each mask's edge to the colour
    edge within a few pixels.
 7. :mod:`~layercam.vision.segment.verdict`: masks that jump about or move like their surroundings are no
@@ -49,8 +50,8 @@ __all__ = ["SegmentConfig", "STEPS", "foreground_bootstrap", "motion_masks", "mo
            "clean_mask", "object_motion", "foreground_mappings", "sure_pixels", "load_masks",
            "save_masks"]
 
-STEPS = ("grabcut", "background", "colour", "texture", "guided")  # the optional steps after the motion masks
-                                                       # (each measured: the ablation)
+# the optional steps after the motion masks (each measured: the ablation)
+STEPS = ("grabcut", "background", "colour", "texture", "contrast", "guided")
 WORK_SHORT = 240  # the finder sees frames at most this many pixels on the short side (masks are upsampled to the
                   # frame; training refines alpha's edges at the frame's size): its cost stays under a second a frame
 
@@ -112,6 +113,7 @@ def find_foreground(frames: np.ndarray, flows: dict, cfg: SegmentConfig,
     fo, bo = flow_checks(fw, bw, flows.get("fw_ok"), flows.get("bw_ok"))
     masks, info = motion_masks(fw, bw, fo, bo, cfg=cfg, frames=frames)
     evidence = info.pop("evidence")
+    homs = border_homographies(fw) if {"background", "contrast"} & set(steps) else None
     if "grabcut" in steps:
         from layercam.vision.segment.edges import grabcut_refine
 
@@ -120,7 +122,7 @@ def find_foreground(frames: np.ndarray, flows: dict, cfg: SegmentConfig,
         from layercam.vision.segment.background import background_refine
         from layercam.vision.segment.clean import fill_still_frames
 
-        masks, rel, plate = background_refine(frames, masks, border_homographies(fw))
+        masks, rel, plate = background_refine(frames, masks, homs)
         if "colour" in steps:
             from layercam.vision.segment.colour import colour_cut
 
@@ -130,6 +132,10 @@ def find_foreground(frames: np.ndarray, flows: dict, cfg: SegmentConfig,
             from layercam.vision.segment.background import texture_refine
 
             masks = texture_refine(frames, masks, plate)
+    if "contrast" in steps:
+        from layercam.vision.segment.contrast import contrast_refine
+
+        masks = contrast_refine(masks, fw, bw, homs)
     if "guided" in steps:
         from layercam.vision.segment.edges import guided_refine
 

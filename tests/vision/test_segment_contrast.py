@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from layercam.vision.segment.contrast import camera_residuals, contrast_refine
+from layercam.vision.segment.contrast import camera_departure, contrast_refine
 
 
 def _clip(T=6, h=64, w=96):
@@ -25,9 +25,9 @@ def _clip(T=6, h=64, w=96):
     return fw, bw, homs, obj, crowd
 
 
-def test_camera_residuals_are_the_departure_from_the_pan():
+def test_camera_departure_are_the_departure_from_the_pan():
     fw, bw, homs, obj, crowd = _clip()
-    res = camera_residuals(fw, bw, homs)
+    res = camera_departure(fw, bw, homs)
     assert res.shape == (6, 64, 96)
     bg = ~obj & ~crowd
     assert np.abs(res[:, bg]).max() < 1e-4

@@ -21,26 +21,17 @@ CONTRAST = 0.2  # a mask pixel moving less than this share of its mask's median 
                 # (fitted on DAVIS's training split: 0.1-0.3 alike)
 
 
-def camera_residuals(fw: np.ndarray, bw: np.ndarray, homs: np.ndarray) -> np.ndarray:
+def camera_departure(fw: np.ndarray, bw: np.ndarray, homs: np.ndarray) -> np.ndarray:
     """Each pixel's departure from the camera's motion, ``(T, H, W)`` float32 px: the larger of its
     forward flow's distance to the homography ``homs[t]`` (frame t -> t+1) and its backward flow's
-    to ``homs[t-1]``'s inverse; flows ``(T-1, H, W, 2)``."""
-    from layercam.core.geometry import pixel_grid
+    to ``homs[t-1]``'s inverse (:func:`layercam.vision.flow.residual_motion`); flows ``(T-1, H, W, 2)``."""
+    from layercam.vision.flow import residual_motion
 
-    f, b = np.asarray(fw, np.float32), np.asarray(bw, np.float32)
-    n, h, w = f.shape[:3]
-    xx, yy = pixel_grid(h, w)
-    pts = np.stack([xx, yy, np.ones_like(xx)], -1)
-
-    def departure(d, hom):
-        q = pts @ np.asarray(hom, np.float64).T.astype(np.float32)
-        cam = q[..., :2] / q[..., 2:] - pts[..., :2]
-        return np.linalg.norm(d - cam, axis=-1)
-
-    out = np.zeros((n + 1, h, w), np.float32)
-    for t in range(n):
-        out[t] = np.maximum(out[t], departure(f[t], homs[t]))
-        out[t + 1] = np.maximum(out[t + 1], departure(b[t], np.linalg.inv(homs[t])))
+    fwd = residual_motion(fw, homs)
+    bwd = residual_motion(bw, np.linalg.inv(np.asarray(homs, np.float64)))
+    out = np.zeros((len(fwd) + 1,) + fwd.shape[1:], np.float32)
+    out[:-1] = fwd
+    out[1:] = np.maximum(out[1:], bwd)
     return out
 
 
@@ -49,7 +40,7 @@ def contrast_refine(masks: np.ndarray, fw: np.ndarray, bw: np.ndarray, homs: np.
     ``CONTRAST`` times their mask's median residual (module docstring); flows ``(T-1, H, W, 2)``,
     ``homs (T-1, 3, 3)`` frame t -> t+1."""
     m = np.asarray(masks) > 0.5
-    res = camera_residuals(fw, bw, homs)
+    res = camera_departure(fw, bw, homs)
     out = m.copy()
     for t in range(len(m)):
         if not m[t].any():

@@ -2,7 +2,9 @@
 not with the parameter: the atlas grids' fine levels (``scene/encodings.py``), of which a step
 touches a few thousand cells.
 
-:class:`Adam` is ``torch.optim.Adam`` for every parameter with a dense gradient. For a sparse one
+:class:`Adam` is ``torch.optim.Adam`` for every parameter with a dense gradient (its fused kernel,
+``fused=True``, unless ``foreach`` is given: on the CPU the per-tensor loop was most of a step's
+optimiser cost, chiefly alpha's dense ``(x, y, t)`` grid). For a sparse one
 it reads and writes only the rows named, and keeps per row the step it was last brought up to
 date (``state["last"]``). Dense Adam keeps moving a row after its last gradient: with zero
 gradients its moments decay (``m b1^j``, ``v b2^j``) and it coasts ``lr m / sqrt(v) * q^j``,
@@ -55,6 +57,8 @@ class Adam(torch.optim.Adam):
     module's docstring); ``coast=False`` is plain lazy Adam."""
 
     def __init__(self, params, coast: bool = True, **kw):
+        if "foreach" not in kw:  # the dense parameters in one fused kernel (CPU and CUDA alike)
+            kw.setdefault("fused", True)
         super().__init__(params, **kw)
         self.coast = coast
         self._scratch: dict = {}

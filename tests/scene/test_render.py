@@ -113,4 +113,5 @@ def test_render_frame_centred_blur_and_stride():
         part = render_frame(model, 2, (6, 5), ("ldr", "hdr"), blur=True, centred=True, stride=k)
         assert part["ldr"].shape == (-(-6 // k), -(-5 // k), 3)
         for name in ("ldr", "hdr"):
-            np.testing.assert_allclose(part[name], full[name][::k, ::k], rtol=1e-6, atol=1e-7)
+            # the same pixels in other batches: float32 matmuls may block them differently (2.7e-6 seen)
+            np.testing.assert_allclose(part[name], full[name][::k, ::k], rtol=1e-5, atol=1e-7)

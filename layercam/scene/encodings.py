@@ -54,6 +54,10 @@ class PositionalEncoding(nn.Module):
 # cells its batch touches (optimiser: layercam.engine.optim.Adam). Coarser levels are touched almost
 # everywhere by every batch and keep a dense gradient, which is cheaper there.
 SPARSE_CELLS = 128 * 128
+# Given the lookups a training step makes, a level stays dense up to this many cells per lookup: a
+# dense step costs about the same per cell, a sparse one about this many times more per lookup
+# (one level, 2 CPU threads: the crossover between 30 and 60, docs/measurements.md 2026-12-06)
+DENSE_CELLS_PER_LOOKUP = 32
 
 
 def level_image(table: torch.Tensor, res: int) -> torch.Tensor:
@@ -213,3 +217,34 @@ class DenseGrid3D(nn.Module):
         feats = [F.grid_sample(grid, g, mode="bilinear", padding_mode="border",
                                align_corners=False)[0, :, :, 0, 0] for grid in self.grids]
         return torch.cat(feats, dim=0).t()
+
+    def at_frames(self, xy: torch.Tensor, t: torch.Tensor, frames: int) -> torch.Tensor:
+        """:meth:`forward` at ``(x, y, (2 t + 1) / frames - 1)`` for integer frame indices ``t (N,)``
+        and ``xy (N, 2)``: ``(N, levels * features)``, the same values and gradients to float
+        rounding. Each level's slices are read as one tall 2D image (``d * r`` rows of ``r``): a
+        bilinear lookup in the slice a frame falls on, blended with the next slice's where the frame
+        falls between two (a coarse level). On the CPU two-dimensional lookups are several times
+        faster than ``grid_sample``'s trilinear one, forward and backward."""
+        if xy.ndim != 2 or xy.shape[1] != 2 or t.shape != xy.shape[:1]:
+            raise ValueError(f"DenseGrid3D.at_frames expects xy (N, 2) and t (N,), got "
+                             f"{tuple(xy.shape)}, {tuple(t.shape)}")
+        xy = xy.to(self.grids[0].dtype)
+        tl = t.long()
+        feats = []
+        for grid, (d, r) in zip(self.grids, self.shapes):
+            # the slice coordinate grid_sample computes, ((2t + 1) d / frames - 1) / 2, clamped ("border")
+            z = (((2 * tl + 1) * d - frames).double() / (2 * frames)).clamp(0, d - 1)
+            z0 = z.floor()
+            w = (z - z0).to(xy.dtype)[:, None]
+            row = (((xy[:, 1:] + 1) * r - 1) / 2).clamp(0, r - 1)  # the pixel row within a slice
+            img = grid.view(1, grid.shape[1], d * r, r)
+            x = xy[:, :1]
+            if bool((w > 0).any()):  # between two slices: both, blended
+                rows = torch.cat([row + z0.to(xy.dtype)[:, None] * r,
+                                  row + (z0 + 1).clamp(max=d - 1).to(xy.dtype)[:, None] * r])
+                lo, hi = _sample(img, torch.cat([x.repeat(2, 1), (2 * rows + 1) / (d * r) - 1], 1)).chunk(2)
+                feats.append(lo * (1 - w) + hi * w)
+            else:
+                rows = row + z0.to(xy.dtype)[:, None] * r
+                feats.append(_sample(img, torch.cat([x, (2 * rows + 1) / (d * r) - 1], 1)))
+        return torch.cat(feats, dim=1)

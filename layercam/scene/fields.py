@@ -10,7 +10,8 @@ import torch
 from torch import nn
 
 from layercam.core.config import SceneConfig
-from layercam.scene.encodings import SPARSE_CELLS, DenseGrid2D, DenseGrid3D, PositionalEncoding, gather_rows
+from layercam.scene.encodings import (DENSE_CELLS_PER_LOOKUP, SPARSE_CELLS, DenseGrid2D,
+                                      DenseGrid3D, PositionalEncoding, gather_rows)
 from layercam.scene.mlp import MLP
 
 LOG2_R_BOUND = 40.0  # guard: |log2 irradiance| never exceeds this (2^40 covers any sensor)
@@ -32,13 +33,13 @@ class AtlasField(nn.Module):
     """``uv (N, 2) -> log2 r (N, 3)``. Encoding "grid" (fast: ``cfg.grid_levels`` dense levels from
     ``GRID_MIN_RES`` to ``max_res`` cells across) or "pe" (paper: PE(7) -> 4x512)."""
 
-    def __init__(self, cfg: SceneConfig, max_res: int = 256, init_log2: float = 0.0, batch: int | None = None):
+    def __init__(self, cfg: SceneConfig, max_res: int = 256, init_log2: float = 0.0, lookups: int | None = None):
         super().__init__()
         if cfg.encoding == "grid":
-            # a level is trained sparsely once it has more cells than a step of ``batch`` samples can
-            # touch (4 corners each), and always from SPARSE_CELLS on: a step's cost then grows with the
-            # batch, not the grid
-            sparse = SPARSE_CELLS if batch is None else min(SPARSE_CELLS, 4 * batch)
+            # a level is trained sparsely once it has more than DENSE_CELLS_PER_LOOKUP cells per lookup
+            # a training step makes (``lookups``; SPARSE_CELLS when not given): a step's cost then grows
+            # with the batch, not the grid, and is the lesser of the two
+            sparse = SPARSE_CELLS if lookups is None else DENSE_CELLS_PER_LOOKUP * lookups
             self.enc = DenseGrid2D(cfg.grid_levels, min(GRID_MIN_RES, max_res), max_res,
                                    GRID_FEATURES, sparse_cells=sparse)
         elif cfg.encoding == "pe":
@@ -153,8 +154,12 @@ class AlphaField(nn.Module):
         xy = xy.float()
         feats = self.pe(torch.cat([xy, _t_norm(t, self.n_frames)], dim=1))
         if self.grid is not None:
-            tc = (2.0 * t.float() + 1.0) / self.n_frames - 1.0  # frame t's slice of the finest level
-            feats = torch.cat([feats, self.grid(torch.cat([xy, tc[:, None]], dim=1)).float()], dim=1)
+            if t.is_floating_point():  # between frames: the trilinear lookup
+                tc = (2.0 * t.float() + 1.0) / self.n_frames - 1.0
+                g = self.grid(torch.cat([xy, tc[:, None]], dim=1))
+            else:  # frame t's slice of the finest level, at (2t + 1) / n_frames - 1 along the grid's t
+                g = self.grid.at_frames(xy, t, self.n_frames)
+            feats = torch.cat([feats, g.float()], dim=1)
         return self.net(feats).float().clamp(-30, 30)
 
     def forward(self, xy: torch.Tensor, t: torch.Tensor) -> torch.Tensor:

@@ -231,3 +231,35 @@ def test_loss_terms_do_not_read_the_global_rng():
     a = model.loss_dict(batch)["gradient"].item()
     torch.manual_seed(3)
     assert model.loss_dict(batch)["gradient"].item() == a > 0
+
+
+def test_blurred_forward_in_one_scene_call_is_the_blur_generators_own():
+    """With learned offsets the model reads the pixels and their PSFs' samples in one call of the
+    scene; what it renders, and the gradients, are those of the scene at the pixels followed by the
+    blur generator's own pass over the samples."""
+    T, n = 3, 500
+    h0 = torch.eye(3).expand(2, T, 3, 3).clone()
+    cfg = decided(load_config("fast", TINY), h0, (16, 16), layers=2, blur="3x3")
+    torch.manual_seed(0)
+    model = ImplicitCameraModel(cfg, h0, np.zeros(T, np.float32), frame_hw=(16, 16))
+    assert model.blur is not None and not model.blur.centre_fixed()
+    with torch.no_grad():
+        for p in model.blur.parameters():  # PSFs away from their start
+            p.add_(torch.randn_like(p) * 0.3)
+    g = torch.Generator().manual_seed(1)
+    xy, t = torch.rand(n, 2, generator=g) * 2 - 1, torch.randint(0, T, (n,), generator=g)
+    out = model(xy, t)
+    sep = model.scene(xy, t)
+    want = model.blur(model.scene, xy, t, sep)
+    assert torch.allclose(out["log2_r_camera"], want, atol=1e-5)
+    assert torch.allclose(out["alpha"], sep["alpha"]) and torch.allclose(out["uv"][1], sep["uv"][1])
+    grads = []
+    for r in (out["log2_r_camera"], want):
+        model.zero_grad()
+        (r.square().sum() + (out["alpha"] if r is out["log2_r_camera"] else sep["alpha"]).sum()).backward(
+            retain_graph=True)
+        grads.append({k: p.grad.coalesce().to_dense() if p.grad.is_sparse else p.grad.clone()
+                      for k, p in model.named_parameters() if p.grad is not None})
+    assert grads[0].keys() == grads[1].keys()
+    for k in grads[0]:
+        assert torch.allclose(grads[0][k], grads[1][k], atol=1e-4, rtol=1e-3), k

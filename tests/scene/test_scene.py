@@ -163,3 +163,38 @@ def test_still_background_has_no_per_frame_motion_and_the_foreground_keeps_its_o
     assert torch.allclose(out["uv"][0], xy, atol=1e-6) and bg.dh.grad is None and fg.dh.grad is not None
     moving = LayeredScene(SceneConfig(), h0, sizes)  # a moving camera: free
     assert moving.deformations[0].dh.requires_grad and moving.deformations[0].residual is not None
+
+
+@pytest.mark.parametrize("frames,cap", [(12, 0), (5, 0), (40, 32 * 32 * 10)])
+def test_dense_grid_3d_at_frames_is_its_trilinear_lookup(frames, cap):
+    """The alpha field's lookup at integer frames (each level's slices as one tall 2D image, two
+    slices blended where a frame falls between them) gives the trilinear lookup's values and
+    gradients, borders included."""
+    torch.manual_seed(0)
+    g = DenseGrid3D(levels=3, max_res=32, frames=frames, features=2, init_std=1.0, max_cells=cap)
+    xy = (torch.rand(4000, 2) * 2.4 - 1.2).requires_grad_()
+    t = torch.randint(0, frames, (4000,))
+    tc = (2.0 * t.float() + 1.0) / frames - 1.0
+    want = g(torch.cat([xy, tc[:, None]], 1))
+    got = g.at_frames(xy, t, frames)
+    assert torch.allclose(got, want, atol=1e-4)
+    gw = torch.autograd.grad((want * torch.arange(6.0)).sum(), [xy, *g.grids])
+    gg = torch.autograd.grad((got * torch.arange(6.0)).sum(), [xy, *g.grids])
+    for a, b in zip(gw[1:], gg[1:]):
+        assert torch.allclose(a, b, atol=1e-3, rtol=1e-3)
+    # the coordinates' gradient: the same except where a lookup sits on a cell edge (either side's slope)
+    close = torch.isclose(gw[0], gg[0], atol=1e-2, rtol=1e-3).all(1)
+    assert close.float().mean() > 0.995
+
+
+def test_atlas_levels_are_sparse_only_where_a_step_touches_few_of_their_cells():
+    from layercam.scene.encodings import DENSE_CELLS_PER_LOOKUP
+    from layercam.scene.fields import AtlasField
+
+    cfg = SceneConfig()
+    for lookups in (64, 4096, 40960):
+        enc = AtlasField(cfg, 512, lookups=lookups).enc
+        for table, r in zip(enc.levels, enc.resolutions):
+            assert table.sparse == (r * r >= DENSE_CELLS_PER_LOOKUP * lookups), (lookups, r)
+    fine = [t.sparse for t in AtlasField(cfg, 512, lookups=64).enc.levels]
+    assert any(fine) and not all(fine)

@@ -86,11 +86,8 @@ class ImplicitCameraModel(nn.Module):
         self.sizes = dict(sizes) if sizes else derived_sizes(h0.numpy(), frame_hw,
             fine=m.blur == "on" or (r.static and m.layers == 1))
         self._robust = float(cfg.loss.robust)  # the colour error's Cauchy scale (0: the paper's MSE)
-        # each atlas's lookups in a training step: the batch's pixels, and with a blur generator its
-        # n x n samples of each
-        lookups = cfg.train.batch * (1 + (cfg.blur.n ** 2 if m.blur == "on" else 0))
         self.scene = LayeredScene(cfg.scene, h0, self.sizes, init_log2, residual=r.residual,
-                                  still_background=r.still_background, lookups=lookups)
+                                  still_background=r.still_background, batch=cfg.train.batch)
         self.exposure = ExposureField(log2_dt, exposure_learn if m.exposures == "learned" else "none", phase)
         learned = m.tone_mapper == "learned"
         self.tone = ToneMapper(cfg.tone.width, cfg.tone.depth, lut=cfg.tone.lut) if learned else FixedTone()

@@ -54,10 +54,6 @@ class PositionalEncoding(nn.Module):
 # cells its batch touches (optimiser: layercam.engine.optim.Adam). Coarser levels are touched almost
 # everywhere by every batch and keep a dense gradient, which is cheaper there.
 SPARSE_CELLS = 128 * 128
-# Given the lookups a training step makes, a level stays dense up to this many cells per lookup: a
-# dense step costs about the same per cell, a sparse one about this many times more per lookup
-# (one level, 2 CPU threads: the crossover between 30 and 60, docs/measurements.md 2026-12-06)
-DENSE_CELLS_PER_LOOKUP = 32
 
 
 def level_image(table: torch.Tensor, res: int) -> torch.Tensor:

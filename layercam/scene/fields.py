@@ -10,8 +10,7 @@ import torch
 from torch import nn
 
 from layercam.core.config import SceneConfig
-from layercam.scene.encodings import (DENSE_CELLS_PER_LOOKUP, SPARSE_CELLS, DenseGrid2D,
-                                      DenseGrid3D, PositionalEncoding, gather_rows)
+from layercam.scene.encodings import SPARSE_CELLS, DenseGrid2D, DenseGrid3D, PositionalEncoding, gather_rows
 from layercam.scene.mlp import MLP
 
 LOG2_R_BOUND = 40.0  # guard: |log2 irradiance| never exceeds this (2^40 covers any sensor)
@@ -33,13 +32,13 @@ class AtlasField(nn.Module):
     """``uv (N, 2) -> log2 r (N, 3)``. Encoding "grid" (fast: ``cfg.grid_levels`` dense levels from
     ``GRID_MIN_RES`` to ``max_res`` cells across) or "pe" (paper: PE(7) -> 4x512)."""
 
-    def __init__(self, cfg: SceneConfig, max_res: int = 256, init_log2: float = 0.0, lookups: int | None = None):
+    def __init__(self, cfg: SceneConfig, max_res: int = 256, init_log2: float = 0.0, batch: int | None = None):
         super().__init__()
         if cfg.encoding == "grid":
-            # a level is trained sparsely once it has more than DENSE_CELLS_PER_LOOKUP cells per lookup
-            # a training step makes (``lookups``; SPARSE_CELLS when not given): a step's cost then grows
-            # with the batch, not the grid, and is the lesser of the two
-            sparse = SPARSE_CELLS if lookups is None else DENSE_CELLS_PER_LOOKUP * lookups
+            # a level is trained sparsely once it has more cells than a step of ``batch`` samples can
+            # touch (4 corners each), and always from SPARSE_CELLS on: a step's cost then grows with the
+            # batch, not the grid
+            sparse = SPARSE_CELLS if batch is None else min(SPARSE_CELLS, 4 * batch)
             self.enc = DenseGrid2D(cfg.grid_levels, min(GRID_MIN_RES, max_res), max_res,
                                    GRID_FEATURES, sparse_cells=sparse)
         elif cfg.encoding == "pe":

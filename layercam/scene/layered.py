@@ -46,12 +46,12 @@ class LayeredScene(nn.Module):
     normalised frame coordinates to its atlas; ``sizes``: :func:`derived_sizes`. ``residual``: the
     deformations' residual warp; ``still_background``: two layers from a static camera, the
     background mapped by its bootstrap homography alone (:class:`layercam.engine.resolve.Resolved`).
-    ``init_log2`` sets the atlases' initial log2 irradiance; ``lookups``: each atlas's lookups in a
-    training step (which grid levels train sparsely, :class:`layercam.scene.fields.AtlasField`).
+    ``init_log2`` sets the atlases' initial log2 irradiance; ``batch``: the samples of a training
+    step (which grid levels train sparsely, :class:`layercam.scene.fields.AtlasField`).
     """
 
     def __init__(self, cfg, h0: torch.Tensor, sizes: dict, init_log2: float = 0.0,
-                 residual: bool = True, still_background: bool = False, lookups: int | None = None):
+                 residual: bool = True, still_background: bool = False, batch: int | None = None):
         super().__init__()
         if h0.ndim != 4:
             raise ValueError(f"h0 must be (L, T, 3, 3), got {tuple(h0.shape)}")
@@ -60,7 +60,7 @@ class LayeredScene(nn.Module):
         self.deformations = nn.ModuleList([Deformation(cfg, h0[i], residual=residual,
                                                        still=i == 0 and still_bg)
                                            for i in range(self.n_layers)])
-        self.atlases = nn.ModuleList([AtlasField(cfg, sizes["grid_max_res"], init_log2, lookups)
+        self.atlases = nn.ModuleList([AtlasField(cfg, sizes["grid_max_res"], init_log2, batch)
                                       for _ in range(self.n_layers)])
         self.alpha = AlphaField(cfg, self.n_frames, sizes["alpha_grid_res"]) if self.n_layers > 1 else None
 

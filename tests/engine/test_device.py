@@ -54,9 +54,9 @@ def _tiny_trainer(device: str, autocast: str = "none", steps: int = 30):
     scene = pan_hdr(frames=3, size=(24, 24), seed=2)
     h0 = np.tile(np.diag([0.4, 0.4, 1.0])[None, None], (1, 3, 1, 1))  # the frames span 60 px of the
                                                                       # atlas: a 64^2 level, trained
-                                                                      # sparsely at a batch of 128
-    cfg = decided(load_config("fast", TINY + [f"train.steps={steps}", f"train.autocast={autocast}",
-                                              "train.batch=128"]), h0,
+                                                                      # sparsely
+    cfg = decided(load_config("fast",
+                              TINY + [f"train.steps={steps}", f"train.autocast={autocast}"]), h0,
                   (24, 24), flow_loss=False)
     log2_dt = np.log2(scene.exposure_times / scene.exposure_times.min())
     torch.manual_seed(0)

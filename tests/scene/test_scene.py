@@ -186,15 +186,3 @@ def test_dense_grid_3d_at_frames_is_its_trilinear_lookup(frames, cap):
     close = torch.isclose(gw[0], gg[0], atol=1e-2, rtol=1e-3).all(1)
     assert close.float().mean() > 0.995
 
-
-def test_atlas_levels_are_sparse_only_where_a_step_touches_few_of_their_cells():
-    from layercam.scene.encodings import DENSE_CELLS_PER_LOOKUP
-    from layercam.scene.fields import AtlasField
-
-    cfg = SceneConfig()
-    for lookups in (64, 4096, 40960):
-        enc = AtlasField(cfg, 512, lookups=lookups).enc
-        for table, r in zip(enc.levels, enc.resolutions):
-            assert table.sparse == (r * r >= DENSE_CELLS_PER_LOOKUP * lookups), (lookups, r)
-    fine = [t.sparse for t in AtlasField(cfg, 512, lookups=64).enc.levels]
-    assert any(fine) and not all(fine)

@@ -36,8 +36,7 @@ from torch import nn
 from layercam.scene.encodings import PositionalEncoding, gather_rows
 from layercam.scene.mlp import MLP
 
-__all__ = ["patch_offsets_base", "sample_positions", "apply_patch_blur", "blend_samples", "BlurGenerator",
-           "psf_summary"]
+__all__ = ["patch_offsets_base", "sample_positions", "apply_patch_blur", "BlurGenerator", "psf_summary"]
 
 _LN2 = math.log(2.0)
 LOGIT_BOUND = 1e4  # weight logits are clamped to +-this before the softmax
@@ -78,9 +77,8 @@ def sample_positions(xy: torch.Tensor, offsets_px: torch.Tensor, frame_hw: tuple
     return xy[:, None, :].to(offsets_px.dtype) + offsets_px * scale
 
 
-def blend_samples(log2_r_patch: torch.Tensor, log_w: torch.Tensor) -> torch.Tensor:
-    """``log2 sum_k exp(log_w_k) 2^{log2_r_k}`` over ``K``: ``(N, K, C), (N, K) -> (N, C)`` in float32
-    (the log weights of :meth:`BlurGenerator.samples`)."""
+def _apply_log_weights(log2_r_patch: torch.Tensor, log_w: torch.Tensor) -> torch.Tensor:
+    """``log2 sum_k exp(log_w_k) 2^{log2_r_k}`` over ``K``: ``(N, K, C), (N, K) -> (N, C)`` in float32."""
     z = log2_r_patch.float() * _LN2 + log_w.float()[:, :, None]
     return torch.logsumexp(z, dim=1) / _LN2
 
@@ -109,7 +107,14 @@ def apply_patch_blur(log2_r_patch: torch.Tensor, weights: torch.Tensor) -> torch
         raise ValueError("apply_patch_blur expects weights (N, K) = "
                          f"{tuple(log2_r_patch.shape[:2])}, got {tuple(weights.shape)}")
     log_w = torch.log(weights.float().clamp_min(_TINY))
-    return blend_samples(log2_r_patch, log_w).to(log2_r_patch.dtype)
+    return _apply_log_weights(log2_r_patch, log_w).to(log2_r_patch.dtype)
+
+
+def _first_rows(v, n: int):
+    """The first ``n`` rows of a scene output's entry (a tensor, a list of them, or None)."""
+    if v is None:
+        return None
+    return [x[:n] for x in v] if isinstance(v, list) else v[:n]
 
 
 class BlurGenerator(nn.Module):
@@ -256,13 +261,20 @@ class BlurGenerator(nn.Module):
         weighted centre): the scene's value there is the sharp one, which :meth:`forward` reuses."""
         return self.offset_net is None and not (self.centre_exact or centre)
 
-    def samples(self, xy: torch.Tensor, t: torch.Tensor | None = None, *, depth: torch.Tensor | None = None,
-                t_blur: torch.Tensor | None = None, centre: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
-        """Where the PSFs of pixels ``xy (N, 2)`` read the scene and how they weigh it: ``(positions
-        (N, K, 2)`` normalised, ``log weights (N, K))``; :func:`blend_samples` applies them to the
-        scene's ``log2 r`` there. The arguments are :meth:`forward`'s."""
-        disp, log_w = self._kernel(xy, t, depth, t_blur, centre)
-        return sample_positions(xy.float(), disp, self.frame_hw), log_w
+    def through(self, scene: nn.Module, xy: torch.Tensor, t: torch.Tensor) -> tuple[dict, torch.Tensor]:
+        """The scene's output at pixels ``xy (N, 2)`` of frames ``t (N,)`` and their blurry ``log2 r'
+        (N, 3)`` (:meth:`forward`'s). With learned offsets the pixels and their PSFs' samples go
+        through the scene in one call: one pass through each field and one gradient per grid a
+        training step, not two to add."""
+        if self.centre_fixed():
+            out = scene(xy, t)
+            return out, self(scene, xy, t, out)
+        disp, log_w = self._kernel(xy, t)
+        pos = sample_positions(xy.float(), disp, self.frame_hw)
+        n = xy.shape[0]
+        both = scene(torch.cat([xy.to(pos.dtype), pos.reshape(-1, 2)]), torch.cat([t, t.repeat_interleave(self.K)]))
+        out = {key: _first_rows(v, n) for key, v in both.items()}
+        return out, _apply_log_weights(both["log2_r"][n:].float().view(n, self.K, -1), log_w)
 
     def forward(
         self,
@@ -285,7 +297,8 @@ class BlurGenerator(nn.Module):
         sharp export's check, :mod:`layercam.pipelines.view`).
         """
         n = xy.shape[0]
-        pos, log_w = self.samples(xy, t, depth=depth, t_blur=t_blur, centre=centre)
+        disp, log_w = self._kernel(xy, t, depth, t_blur, centre)
+        pos = sample_positions(xy.float(), disp, self.frame_hw)  # (N, K, 2)
         c = self.K // 2
         if self.centre_fixed(centre) and out is not None and self.K > 1:
             keep = torch.arange(self.K, device=xy.device) != c  # centre already rendered in `out`
@@ -295,7 +308,7 @@ class BlurGenerator(nn.Module):
             patch = torch.cat([lr[:, :c], centre, lr[:, c:]], dim=1)
         else:
             patch = scene(pos.reshape(-1, 2), t.repeat_interleave(self.K))["log2_r"].float().view(n, self.K, -1)
-        return blend_samples(patch, log_w)
+        return _apply_log_weights(patch, log_w)
 
     def extra_repr(self) -> str:
         return (f"n={self.n}, max_offset={self.max_offset:g}, n_frames={self.n_frames}, "

@@ -17,7 +17,6 @@ from torch import nn
 
 from layercam.engine import losses
 from layercam.camera.exposure import ExposureField
-from layercam.camera.blur import blend_samples
 from layercam.camera.tone import FixedTone, ToneMapper
 from layercam.engine.resolve import Resolved, as_resolved
 from layercam.scene.layered import LayeredScene, derived_sizes
@@ -32,13 +31,6 @@ MASK_GIVEN, MASK_MOTION = 1.0, 0.0  # share of the alpha-mask weight kept all th
 FG_FOLLOW = 1e-3             # two layers: the foreground's log2 irradiance pulled to the
                              # background's where alpha is low
 WHITE_POINT = 0.5            # the white-balance target T(0) (paper)
-
-
-def _first(v, n: int):
-    """The first ``n`` rows of a scene output's entry (a tensor, a list of them, or None)."""
-    if v is None:
-        return None
-    return [x[:n] for x in v] if isinstance(v, list) else v[:n]
 
 
 @dataclass
@@ -143,19 +135,11 @@ class ImplicitCameraModel(nn.Module):
 
     def forward(self, xy: torch.Tensor, t: torch.Tensor, blur: bool = True) -> dict:
         """Through the whole camera: ``rgb (N, 3)`` as the camera would record it."""
-        if self.blur is not None and blur and not self.blur.centre_fixed():
-            # the pixels and their PSFs' samples in one call of the scene (one pass through each
-            # field and one gradient per grid, not two to add)
-            pos, log_w = self.blur.samples(xy, t)
-            n, k = pos.shape[:2]
-            both = self.scene(torch.cat([xy.to(pos.dtype), pos.reshape(-1, 2)]), torch.cat([t, t.repeat_interleave(k)]))
-            out = {key: _first(v, n) for key, v in both.items()}
-            log2_r = blend_samples(both["log2_r"][n:].float().view(n, k, -1), log_w)
+        if self.blur is not None and blur:
+            out, log2_r = self.blur.through(self.scene, xy, t)
         else:
             out = self.scene(xy, t)
             log2_r = out["log2_r"]
-            if self.blur is not None and blur:
-                log2_r = self.blur(self.scene, xy, t, out)
         out["log2_r_camera"] = log2_r
         out["rgb"] = self.tone_map(log2_r, self.exposure(t))
         return out

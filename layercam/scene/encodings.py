@@ -234,13 +234,8 @@ class DenseGrid3D(nn.Module):
             w = (z - z0).to(xy.dtype)[:, None]
             row = (((xy[:, 1:] + 1) * r - 1) / 2).clamp(0, r - 1)  # the pixel row within a slice
             img = grid.view(1, grid.shape[1], d * r, r)
-            x = xy[:, :1]
-            if bool((w > 0).any()):  # between two slices: both, blended
-                rows = torch.cat([row + z0.to(xy.dtype)[:, None] * r,
-                                  row + (z0 + 1).clamp(max=d - 1).to(xy.dtype)[:, None] * r])
-                lo, hi = _sample(img, torch.cat([x.repeat(2, 1), (2 * rows + 1) / (d * r) - 1], 1)).chunk(2)
-                feats.append(lo * (1 - w) + hi * w)
-            else:
-                rows = row + z0.to(xy.dtype)[:, None] * r
-                feats.append(_sample(img, torch.cat([x, (2 * rows + 1) / (d * r) - 1], 1)))
+            slices = [z0] + ([(z0 + 1).clamp(max=d - 1)] if bool((w > 0).any()) else [])  # a second where between two
+            rows = torch.cat([row + z.to(xy.dtype)[:, None] * r for z in slices])  # rows of the tall image
+            got = _sample(img, torch.cat([xy[:, :1].repeat(len(slices), 1), (2 * rows + 1) / (d * r) - 1], 1))
+            feats.append(torch.lerp(*got.chunk(2), w) if len(slices) == 2 else got)
         return torch.cat(feats, dim=1)

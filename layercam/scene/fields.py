@@ -153,12 +153,8 @@ class AlphaField(nn.Module):
         xy = xy.float()
         feats = self.pe(torch.cat([xy, _t_norm(t, self.n_frames)], dim=1))
         if self.grid is not None:
-            if t.is_floating_point():  # between frames: the trilinear lookup
-                tc = (2.0 * t.float() + 1.0) / self.n_frames - 1.0
-                g = self.grid(torch.cat([xy, tc[:, None]], dim=1))
-            else:  # frame t's slice of the finest level, at (2t + 1) / n_frames - 1 along the grid's t
-                g = self.grid.at_frames(xy, t, self.n_frames)
-            feats = torch.cat([feats, g.float()], dim=1)
+            # frame t's slice of the finest level, at (2t + 1) / n_frames - 1 along the grid's t
+            feats = torch.cat([feats, self.grid.at_frames(xy, t, self.n_frames).float()], dim=1)
         return self.net(feats).float().clamp(-30, 30)
 
     def forward(self, xy: torch.Tensor, t: torch.Tensor) -> torch.Tensor:

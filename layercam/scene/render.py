@@ -44,8 +44,6 @@ def render_frame(model, t: int, hw: tuple[int, int], what=("hdr",), *, log2_dt: 
     geometry_only = set(what) <= {"uv", "alpha"}
     use_blur = "ldr" in what and blur and model.blur is not None
     step = max(1, chunk // model.blur.K) if use_blur else chunk
-    # the re-blurred render alone, with learned offsets: the PSFs' samples hold no pixel centre
-    samples_only = use_blur and set(what) == {"ldr"} and not model.blur.centre_fixed(centred)
     xy_all = pixel_grid(h, w, dev)
     if stride > 1:
         xy_all = xy_all.view(h, w, 2)[::stride, ::stride].reshape(-1, 2)
@@ -54,8 +52,7 @@ def render_frame(model, t: int, hw: tuple[int, int], what=("hdr",), *, log2_dt: 
     for s in range(0, xy_all.shape[0], step):
         xy = xy_all[s : s + step]
         tt = torch.full((xy.shape[0],), int(t), dtype=torch.long, device=dev)
-        out = (None if samples_only else model.scene.mappings(xy, tt) if geometry_only
-               else model.scene(xy, tt))
+        out = model.scene.mappings(xy, tt) if geometry_only else model.scene(xy, tt)
         got = {"uv": lambda: torch.stack(out["uv"], 0), "alpha": lambda: out["alpha"], "log2_r": lambda: out["log2_r"],
                "hdr": lambda: torch.exp2(out["log2_r"]), "layers": lambda: torch.stack(out["layer_log2_r"], 0),
                "ldr": lambda: _through_camera(model, xy, tt, out, log2_dt, use_blur, t_blur, centred)}
@@ -77,13 +74,11 @@ def render_frame(model, t: int, hw: tuple[int, int], what=("hdr",), *, log2_dt: 
 
 def _through_camera(model, xy, t, out: dict, log2_dt: float | None, blur: bool,
                     t_blur: float | None, centred: bool = False) -> torch.Tensor:
-    """The scene output ``out`` at ``xy, t`` (None: the blur's samples do not need it) as the
-    camera records it: ``(N, 3)``."""
+    """The scene output ``out`` at ``xy, t`` as the camera records it: ``(N, 3)``."""
+    log2_r = out["log2_r"]
     if blur:
         tb = None if t_blur is None else torch.full((xy.shape[0],), float(t_blur), device=xy.device)
         log2_r = model.blur(model.scene, xy, t, out, t_blur=tb, centre=centred)
-    else:
-        log2_r = out["log2_r"]
     dt = model.exposure(t) if log2_dt is None else torch.full_like(log2_r[:, :1], float(log2_dt))
     return model.tone_map(log2_r, dt)
 

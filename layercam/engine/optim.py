@@ -17,12 +17,11 @@ correction) and its moments decayed by them; :meth:`Adam.flush` brings every row
 trainer calls it when training ends). With every row touched every step this is dense Adam
 exactly; otherwise it differs from it only by the learning rate and bias correction changing
 during the missed steps. The state keeps Adam's keys (``step``, ``exp_avg``, ``exp_avg_sq``)
-plus ``last``. ``torch.optim.SparseAdam`` (lazy) took 55 ms a step on a 1024^2 grid (batch 4096,
-one CPU core), most of it adding sparse updates into the dense moments; this takes about 1 ms.
-At balanced's batch (8192 lookups, 32k corner rows, on an 853^2 level, 2 threads) a step of this
-optimiser took 14.1 ms with the catch-up's powers raised per row and two writes into the
-parameter; gathered from a table (:meth:`Adam._powers`) and written once, 7.4 ms (the rest is
-the gathers and scatters themselves).
+plus ``last``. Unlike ``torch.optim.SparseAdam`` (lazy), which adds its sparse updates into the
+dense moments, a step here reads and writes only the rows named: the gradient's repeated rows are
+summed without sorting (:func:`coalesce_rows`), the catch-up's factors gathered from a table
+(:meth:`Adam._powers`), and each row of the parameter written once (docs/measurements.md has the
+timings).
 """
 
 from __future__ import annotations
@@ -44,11 +43,13 @@ def coalesce_rows(grad: torch.Tensor, stamp: torch.Tensor | None = None) -> tupl
         rows, inv = torch.unique(idx, return_inverse=True)
     else:
         pos = torch.arange(idx.shape[0], device=idx.device)
-        stamp.index_put_((idx,), pos)
+        stamp.scatter_(0, idx, pos)
         rep = stamp.index_select(0, idx)  # the representative entry of each entry's row
         first = rep == pos
         slot = torch.cumsum(first, 0) - 1
         rows, inv = idx[first], slot.index_select(0, rep)
+    if vals.dim() == 2:  # summed along dim 1 of the transposed values: along dim 0 the CPU adds row by row (3x slower)
+        return rows, vals.new_zeros((vals.shape[1], rows.shape[0])).index_add_(1, inv, vals.t()).t()
     return rows, vals.new_zeros((rows.shape[0],) + vals.shape[1:]).index_add_(0, inv, vals)
 
 
@@ -175,4 +176,6 @@ class Adam(torch.optim.Adam):
         bc1, bc2 = 1 - b1**step, 1 - b2**step
         denom = (v / bc2).sqrt_().add_(group["eps"])
         upd = m.div_(denom).mul_(-float(group["lr"]) / bc1)  # (index_add_'s alpha is 20x slower on the CPU)
-        p.index_add_(0, rows, upd if change is None else upd.add_(change))  # the coasting and the step in one pass
+        if change is not None:  # the coasting and the step in one write
+            upd.add_(change)
+        p.index_put_((rows,), p.index_select(0, rows).add_(upd))  # rows are distinct: no accumulating scatter

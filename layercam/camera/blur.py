@@ -261,19 +261,21 @@ class BlurGenerator(nn.Module):
         weighted centre): the scene's value there is the sharp one, which :meth:`forward` reuses."""
         return self.offset_net is None and not (self.centre_exact or centre)
 
-    def through(self, scene: nn.Module, xy: torch.Tensor, t: torch.Tensor) -> tuple[dict, torch.Tensor]:
+    def through(self, scene: nn.Module, xy: torch.Tensor, t: torch.Tensor, **kw) -> tuple[dict, torch.Tensor]:
         """The scene's output at pixels ``xy (N, 2)`` of frames ``t (N,)`` and their blurry ``log2 r'
         (N, 3)`` (:meth:`forward`'s). With learned offsets the pixels and their PSFs' samples go
         through the scene in one call: one pass through each field and one gradient per grid a
-        training step, not two to add."""
+        training step, not two to add. ``kw`` goes to the scene, the pixels its first rows
+        (:class:`layercam.scene.layered.LayeredScene`'s ``held``)."""
         if self.centre_fixed():
-            out = scene(xy, t)
+            out = scene(xy, t, **kw)
             return out, self(scene, xy, t, out)
         disp, log_w = self._kernel(xy, t)
         pos = sample_positions(xy.float(), disp, self.frame_hw)
         n = xy.shape[0]
-        both = scene(torch.cat([xy.to(pos.dtype), pos.reshape(-1, 2)]), torch.cat([t, t.repeat_interleave(self.K)]))
-        out = {key: _first_rows(v, n) for key, v in both.items()}
+        both = scene(torch.cat([xy.to(pos.dtype), pos.reshape(-1, 2)]), torch.cat([t, t.repeat_interleave(self.K)]),
+                     **kw)
+        out = {key: v if key == "fg_held" else _first_rows(v, n) for key, v in both.items()}
         return out, _apply_log_weights(both["log2_r"][n:].float().view(n, self.K, -1), log_w)
 
     def forward(

@@ -30,6 +30,7 @@ MASK_GIVEN, MASK_MOTION = 1.0, 0.0  # share of the alpha-mask weight kept all th
                                     # given masks | motion masks
 FG_FOLLOW = 1e-3             # two layers: the foreground's log2 irradiance pulled to the
                              # background's where alpha is low
+FG_FOLLOW_ROWS = 1024        # ... on a batch's first this many samples
 WHITE_POINT = 0.5            # the white-balance target T(0) (paper)
 
 
@@ -133,12 +134,14 @@ class ImplicitCameraModel(nn.Module):
     def tone_map(self, log2_r: torch.Tensor, log2_dt: torch.Tensor) -> torch.Tensor:
         return self.tone(log2_r + log2_dt)
 
-    def forward(self, xy: torch.Tensor, t: torch.Tensor, blur: bool = True) -> dict:
-        """Through the whole camera: ``rgb (N, 3)`` as the camera would record it."""
+    def forward(self, xy: torch.Tensor, t: torch.Tensor, blur: bool = True, held: int = 0) -> dict:
+        """Through the whole camera: ``rgb (N, 3)`` as the camera would record it. ``held``: the
+        scene's (:class:`layercam.scene.layered.LayeredScene`), ``fg_held`` in the output."""
+        kw = {"held": held} if held else {}
         if self.blur is not None and blur:
-            out, log2_r = self.blur.through(self.scene, xy, t)
+            out, log2_r = self.blur.through(self.scene, xy, t, **kw)
         else:
-            out = self.scene(xy, t)
+            out = self.scene(xy, t, **kw)
             log2_r = out["log2_r"]
         out["log2_r_camera"] = log2_r
         out["rgb"] = self.tone_map(log2_r, self.exposure(t))
@@ -147,7 +150,8 @@ class ImplicitCameraModel(nn.Module):
     # -- training ----------------------------------------------------------------------------
     def loss_dict(self, batch: dict) -> dict:
         w = self.loss_weights
-        out = self(batch["xy"], batch["t"])
+        follow = min(FG_FOLLOW_ROWS, batch["xy"].shape[0]) if w.fg_follow > 0 and self.scene.alpha is not None else 0
+        out = self(batch["xy"], batch["t"], held=follow)
         terms = {"color": w.color * losses.color_loss(out["rgb"], batch["rgb"], robust=self._robust)}
         if w.flow > 0 and "xy_match" in batch:
             m = self.scene.mappings(batch["xy_match"], batch["t_match"])
@@ -171,10 +175,9 @@ class ImplicitCameraModel(nn.Module):
                 for uv, d in zip(out["uv"], self.scene.deformations)
             )
         if out["alpha"] is not None:
-            if w.fg_follow > 0:  # on the first 1024 samples, the atlas alone (at its coordinates, held fixed)
-                n = 1024
-                fg = self.scene.atlases[1](out["uv"][1][:n].detach())
-                terms["fg_follow"] = w.fg_follow * losses.fg_follow_loss(fg,
+            if follow:  # on the first samples, the atlas alone (at its coordinates, held fixed)
+                n = out["fg_held"].shape[0]
+                terms["fg_follow"] = w.fg_follow * losses.fg_follow_loss(out["fg_held"],
                     out["layer_log2_r"][0][:n], out["alpha"][:n])
             if w.sparsity > 0:
                 terms["sparsity"] = w.sparsity * losses.sparsity_loss(out["alpha"])

@@ -48,6 +48,11 @@ class LayeredScene(nn.Module):
     background mapped by its bootstrap homography alone (:class:`layercam.engine.resolve.Resolved`).
     ``init_log2`` sets the atlases' initial log2 irradiance; ``batch``: the samples of a training
     step (which grid levels train sparsely, :class:`layercam.scene.fields.AtlasField`).
+
+    ``held`` (forward): with two layers, the foreground atlas is also read at the first ``held``
+    rows' coordinates held fixed (detached), in the same call as the rest, as ``fg_held (held, 3)``:
+    what the model's ``fg_follow`` term trains the atlas alone on. One call gives each sparse grid
+    level one gradient a step; a second call's would be added to it (a sparse sum, slow on the CPU).
     """
 
     def __init__(self, cfg, h0: torch.Tensor, sizes: dict, init_log2: float = 0.0,
@@ -69,16 +74,22 @@ class LayeredScene(nn.Module):
         return {"uv": [d(xy, t) for d in self.deformations],
                 "alpha": self.alpha(xy, t) if self.alpha is not None else None}
 
-    def forward(self, xy: torch.Tensor, t: torch.Tensor) -> dict:
+    def forward(self, xy: torch.Tensor, t: torch.Tensor, held: int = 0) -> dict:
         if xy.ndim != 2 or xy.shape[1] != 2 or t.shape != xy.shape[:1]:
             raise ValueError(f"LayeredScene expects xy (N,2) and t (N,), got {tuple(xy.shape)}, {tuple(t.shape)}")
         uvs = [d(xy, t) for d in self.deformations]
-        logs = [a(uv) for a, uv in zip(self.atlases, uvs)]
         if self.alpha is None:
+            logs = [a(uv) for a, uv in zip(self.atlases, uvs)]
             return {"log2_r": logs[0], "uv": uvs, "alpha": None, "layer_log2_r": logs}
+        n, held = xy.shape[0], min(held, xy.shape[0])
+        fg = self.atlases[1](torch.cat([uvs[1], uvs[1][:held].detach()]) if held else uvs[1])
+        logs = [self.atlases[0](uvs[0]), fg[:n]]
         alpha = self.alpha(xy, t)
         # log-sum-exp in base 2 keeps the composite finite for any pair of log irradiances
         stacked = torch.stack([logs[0], logs[1]], 0)  # (2, N, 3)
         w = torch.stack([(1 - alpha).clamp_min(1e-12), alpha.clamp_min(1e-12)], 0)
         log2_r = torch.logsumexp(stacked * 0.6931471805599453 + torch.log(w), dim=0) / 0.6931471805599453
-        return {"log2_r": log2_r.clamp(-LOG2_R_BOUND, LOG2_R_BOUND), "uv": uvs, "alpha": alpha, "layer_log2_r": logs}
+        out = {"log2_r": log2_r.clamp(-LOG2_R_BOUND, LOG2_R_BOUND), "uv": uvs, "alpha": alpha, "layer_log2_r": logs}
+        if held:
+            out["fg_held"] = fg[n:]
+        return out

@@ -165,6 +165,29 @@ def test_still_background_has_no_per_frame_motion_and_the_foreground_keeps_its_o
     assert moving.deformations[0].dh.requires_grad and moving.deformations[0].residual is not None
 
 
+def test_foreground_atlas_held_rows_are_a_second_lookup_in_the_same_call():
+    """``held``: the foreground atlas read again at the first rows' coordinates, detached, in the
+    same call; values and every gradient (the sparse grid levels' included) as a second call's."""
+    torch.manual_seed(0)
+    h0 = torch.eye(3).expand(2, 3, 3, 3).clone()
+    scene = LayeredScene(SceneConfig(), h0, {"grid_max_res": 128, "alpha_grid_res": 16}, batch=64)
+    assert any(lv.sparse for lv in scene.atlases[1].enc.levels)
+    xy, t = torch.rand(64, 2) * 2 - 1, torch.randint(0, 3, (64,))
+
+    def grads(held: bool):
+        scene.zero_grad(set_to_none=True)
+        out = scene(xy, t, held=16) if held else scene(xy, t)
+        fg = out["fg_held"] if held else scene.atlases[1](out["uv"][1][:16].detach())
+        (out["log2_r"].sum() + (fg**2).sum()).backward()
+        return fg.detach(), {k: (p.grad.to_dense() if p.grad.is_sparse else p.grad).clone()
+                             for k, p in scene.named_parameters() if p.grad is not None}
+
+    (fg_a, g_a), (fg_b, g_b) = grads(True), grads(False)
+    assert torch.allclose(fg_a, fg_b, atol=1e-6) and g_b.keys() <= g_a.keys()
+    for k in g_a:
+        assert torch.allclose(g_a[k], g_b.get(k, torch.zeros_like(g_a[k])), rtol=1e-4, atol=1e-7), k
+
+
 @pytest.mark.parametrize("frames,cap", [(12, 0), (5, 0), (40, 32 * 32 * 10)])
 def test_dense_grid_3d_at_frames_is_its_trilinear_lookup(frames, cap):
     """The alpha field's lookup at integer frames (each level's slices as one tall 2D image, two

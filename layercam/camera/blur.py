@@ -265,8 +265,9 @@ class BlurGenerator(nn.Module):
         """The scene's output at pixels ``xy (N, 2)`` of frames ``t (N,)`` and their blurry ``log2 r'
         (N, 3)`` (:meth:`forward`'s). With learned offsets the pixels and their PSFs' samples go
         through the scene in one call: one pass through each field and one gradient per grid a
-        training step, not two to add. ``kw`` goes to the scene, the pixels its first rows
-        (:class:`layercam.scene.layered.LayeredScene`'s ``held``)."""
+        training step, not two to add. ``kw`` goes to the scene, the pixels its first rows: an
+        entry of at most ``N`` rows (:class:`layercam.scene.layered.LayeredScene`'s ``fg_held``)
+        comes back whole."""
         if self.centre_fixed():
             out = scene(xy, t, **kw)
             return out, self(scene, xy, t, out)
@@ -275,7 +276,7 @@ class BlurGenerator(nn.Module):
         n = xy.shape[0]
         both = scene(torch.cat([xy.to(pos.dtype), pos.reshape(-1, 2)]), torch.cat([t, t.repeat_interleave(self.K)]),
                      **kw)
-        out = {key: v if key == "fg_held" else _first_rows(v, n) for key, v in both.items()}
+        out = {key: _first_rows(v, n) for key, v in both.items()}
         return out, _apply_log_weights(both["log2_r"][n:].float().view(n, self.K, -1), log_w)
 
     def forward(

@@ -137,11 +137,10 @@ class ImplicitCameraModel(nn.Module):
     def forward(self, xy: torch.Tensor, t: torch.Tensor, blur: bool = True, held: int = 0) -> dict:
         """Through the whole camera: ``rgb (N, 3)`` as the camera would record it. ``held``: the
         scene's (:class:`layercam.scene.layered.LayeredScene`), ``fg_held`` in the output."""
-        kw = {"held": held} if held else {}
         if self.blur is not None and blur:
-            out, log2_r = self.blur.through(self.scene, xy, t, **kw)
+            out, log2_r = self.blur.through(self.scene, xy, t, held=held)
         else:
-            out = self.scene(xy, t, **kw)
+            out = self.scene(xy, t, held=held)
             log2_r = out["log2_r"]
         out["log2_r_camera"] = log2_r
         out["rgb"] = self.tone_map(log2_r, self.exposure(t))
@@ -150,8 +149,8 @@ class ImplicitCameraModel(nn.Module):
     # -- training ----------------------------------------------------------------------------
     def loss_dict(self, batch: dict) -> dict:
         w = self.loss_weights
-        follow = min(FG_FOLLOW_ROWS, batch["xy"].shape[0]) if w.fg_follow > 0 and self.scene.alpha is not None else 0
-        out = self(batch["xy"], batch["t"], held=follow)
+        # the pixels' rows only: with a blur generator the scene also reads their PSFs' samples after them
+        out = self(batch["xy"], batch["t"], held=min(FG_FOLLOW_ROWS, batch["xy"].shape[0]) if w.fg_follow > 0 else 0)
         terms = {"color": w.color * losses.color_loss(out["rgb"], batch["rgb"], robust=self._robust)}
         if w.flow > 0 and "xy_match" in batch:
             m = self.scene.mappings(batch["xy_match"], batch["t_match"])
@@ -175,7 +174,7 @@ class ImplicitCameraModel(nn.Module):
                 for uv, d in zip(out["uv"], self.scene.deformations)
             )
         if out["alpha"] is not None:
-            if follow:  # on the first samples, the atlas alone (at its coordinates, held fixed)
+            if "fg_held" in out:  # on the first samples, the atlas alone (at its coordinates, held fixed)
                 n = out["fg_held"].shape[0]
                 terms["fg_follow"] = w.fg_follow * losses.fg_follow_loss(out["fg_held"],
                     out["layer_log2_r"][0][:n], out["alpha"][:n])

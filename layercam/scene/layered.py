@@ -81,7 +81,7 @@ class LayeredScene(nn.Module):
         if self.alpha is None:
             logs = [a(uv) for a, uv in zip(self.atlases, uvs)]
             return {"log2_r": logs[0], "uv": uvs, "alpha": None, "layer_log2_r": logs}
-        n, held = xy.shape[0], min(held, xy.shape[0])
+        n = xy.shape[0]
         fg = self.atlases[1](torch.cat([uvs[1], uvs[1][:held].detach()]) if held else uvs[1])
         logs = [self.atlases[0](uvs[0]), fg[:n]]
         alpha = self.alpha(xy, t)

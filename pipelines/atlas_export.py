@@ -12,7 +12,10 @@ Written into the run folder by the export stage's ``atlases`` writer (:mod:`laye
 * ``atlases/layer{k}_uv.mp4`` — each input frame with a checkerboard of the atlas coordinates over
   the pixels where the layer is seen.
 * ``atlases/layer{k}_alpha.mp4`` (two layers) — the layer's opacity per frame.
-* ``alpha/frame_00000.png`` (two layers) — the foreground's (layer 1) alpha as 8-bit mattes.
+* ``alpha/frame_00000.png`` (two layers) — the foreground's (layer 1) matte per frame, 8-bit: the
+  model's alpha (> 0.5) feathered to the frame's colour edges by the guided filter the finder's masks
+  end with (:func:`layercam.vision.segment.edges.guided_matte`; the model's own alpha, which the
+  renders composite with, is in ``layer{k}_alpha.mp4``).
 * ``atlases/atlas.json`` — grid sizes, the exposure of the PNGs, file names.
 """
 
@@ -104,6 +107,7 @@ class AtlasSink:
     def add(self, t: int, uv: list[np.ndarray], alpha: np.ndarray | None) -> None:
         from layercam.io import write_png
         from layercam.scene.render import checker_overlay, layer_weights, splat_add
+        from layercam.vision.segment.edges import guided_matte
 
         if t != self.next_t:
             raise ValueError(f"AtlasSink.add: frame {t} where frame {self.next_t} was due")
@@ -118,8 +122,9 @@ class AtlasSink:
             if self.two:
                 self.alpha_videos[k].add(to8(ws[k]))
         if self.two:
-            write_png(self.run_dir / "alpha" / f"frame_{t:05d}.png", alpha)
-            self.fg.append(float(np.mean(np.asarray(alpha) > 0.5)))
+            matte = guided_matte(np.asarray(self.frames[t], np.float32), alpha) if (alpha > 0.5).any() else alpha
+            write_png(self.run_dir / "alpha" / f"frame_{t:05d}.png", matte)
+            self.fg.append(float(np.mean(np.asarray(matte) > 0.5)))
 
     def abort(self) -> None:
         """Drops the videos begun (called while an exception ends the export: no partial file is kept)."""

@@ -58,6 +58,24 @@ def test_export_refuses_non_finite_render(tiny_scene, tiny_exposures, tmp_path, 
     assert not list((tmp_path / "run").glob("hdr/*.exr"))
 
 
+def test_the_alpha_mattes_are_the_models_alpha_feathered_to_the_frames_colour_edges(two_layer_run):
+    """``alpha/frame_*.png`` hold the model's alpha (> 0.5) through the guided filter with the input
+    frame as the guide (``guided_matte``), to the PNG's precision; the model's own alpha is not it."""
+    from layercam.engine.checkpoint import load_run_model
+    from layercam.io import read_image
+    from layercam.scene.render import render_frame
+    from layercam.vision.segment.edges import guided_matte
+
+    run, frames = two_layer_run["run"], two_layer_run["scene"].clip.frames
+    model, _ = load_run_model(run)
+    for t in (0, len(frames) - 1):
+        a = render_frame(model, t, frames.shape[1:3], ("alpha",))["alpha"]
+        assert (a > 0.5).any()
+        got = read_image(run / "alpha" / f"frame_{t:05d}.png")[..., 0]
+        assert np.abs(got - guided_matte(np.asarray(frames[t], np.float32), a)).max() < 1.5 / 255, t
+        assert np.abs(got - a).max() > 4 / 255, t
+
+
 def test_atlases_fed_by_the_hdr_frames_match_the_atlases_rendered_alone(two_layer_run, tmp_path):
     """hdr-video's export hands each frame's geometry from its HDR render to the atlases
     (``AtlasSink``): the same files as rendering the geometry for the atlases alone; a frame out of

@@ -3,7 +3,7 @@
 import numpy as np
 
 from layercam.core import metrics
-from layercam.vision.segment.edges import grabcut_refine, guided_refine
+from layercam.vision.segment.edges import grabcut_refine, guided_matte, guided_refine
 
 
 def _square(size: int = 80):
@@ -41,3 +41,15 @@ def test_the_guided_filter_moves_a_masks_edge_to_the_colour_edge_within_its_wind
         assert metrics.iou(out, truth) > 0.97 > metrics.iou(m, truth) + 0.05, off
     flat = np.full_like(frame, 0.4)
     assert metrics.iou(guided_refine(flat, truth), truth) > 0.97
+
+
+def test_the_guided_matte_is_in_zero_one_and_its_half_level_is_the_refined_mask():
+    """What the exports write as the foreground's matte: the guided filter's output, clipped to [0, 1],
+    whose level one half is :func:`guided_refine`'s mask."""
+    frame, truth = _square()
+    m = np.zeros_like(truth)
+    m[24:56, 19:51] = True
+    q = guided_matte(frame, m)
+    assert q.dtype == np.float32 and q.shape == truth.shape and 0.0 <= q.min() and q.max() <= 1.0
+    assert np.array_equal(q > 0.5, guided_refine(frame, m))
+    assert metrics.iou(q > 0.5, truth) > 0.97

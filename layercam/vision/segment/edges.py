@@ -42,13 +42,14 @@ GUIDE_RADIUS = 0.04  # the guided filter's window radius, a share of the short s
 GUIDE_EPS = 1e-4     # its regulariser, in squared intensity (0-1): below a colour variance of about this, it smooths
 
 
-def guided_refine(frame: np.ndarray, mask: np.ndarray, radius: float = GUIDE_RADIUS,
-                  eps: float = GUIDE_EPS) -> np.ndarray:
-    """The mask ``(H, W)`` filtered with the frame ``(H, W, 3)`` in [0, 1] as the guide (He, Sun and
-    Tang 2013, the colour guided filter) and thresholded at one half: within each window the result
-    is an affine function of the frame's colours, so the mask's edge moves to the colour edge the
-    window holds (GrabCut's colour models are the clip-wide object's; this is each window's own).
-    Returns ``(H, W)`` bool."""
+def guided_matte(frame: np.ndarray, mask: np.ndarray, radius: float = GUIDE_RADIUS,
+                 eps: float = GUIDE_EPS) -> np.ndarray:
+    """The mask ``(H, W)`` (> 0.5) filtered with the frame ``(H, W, 3)`` in [0, 1] as the guide (He,
+    Sun and Tang 2013, the colour guided filter; their "feathering" of a coarse matte): within each
+    window the result is an affine function of the frame's colours, so the matte's edge follows the
+    colour edge the window holds (GrabCut's colour models are the clip-wide object's; this is each
+    window's own). ``radius``: the window's, a share of the short side. Returns ``(H, W)`` float32 in
+    [0, 1]."""
     import cv2
 
     f = np.asarray(frame, np.float32)
@@ -65,4 +66,12 @@ def guided_refine(frame: np.ndarray, mask: np.ndarray, radius: float = GUIDE_RAD
                     for i in range(3)], -2)
     a = np.linalg.solve(var, cov[..., None])[..., 0]
     b = mp - sum(a[..., c] * mi[c] for c in range(3))
-    return sum(box(np.ascontiguousarray(a[..., c])) * f[..., c] for c in range(3)) + box(b) > 0.5
+    q = sum(box(np.ascontiguousarray(a[..., c])) * f[..., c] for c in range(3)) + box(b)
+    return np.clip(q, 0.0, 1.0).astype(np.float32)
+
+
+def guided_refine(frame: np.ndarray, mask: np.ndarray, radius: float = GUIDE_RADIUS,
+                  eps: float = GUIDE_EPS) -> np.ndarray:
+    """:func:`guided_matte` thresholded at one half: the mask's edge moved to the colour edge within
+    a window. Returns ``(H, W)`` bool."""
+    return guided_matte(frame, mask, radius, eps) > 0.5

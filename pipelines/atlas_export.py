@@ -113,18 +113,18 @@ class AtlasSink:
             raise ValueError(f"AtlasSink.add: frame {t} where frame {self.next_t} was due")
         self.next_t += 1
         reached("atlas", t)
-        H, W = self.frames.shape[1:3]
-        ws = layer_weights(alpha, self.L, (H, W))
+        frame = self.frames[t]  # (H, W, 3) float32, read once for the overlays and the matte
+        ws = layer_weights(alpha, self.L, frame.shape[:2])
         to8 = lambda x: np.round(np.clip(x, 0, 1) * 255).astype(np.uint8)  # noqa: E731 - videos kept as 8-bit
         for k in range(self.L):
             splat_add(self.acc[k], uv[k], ws[k], self.res[k])
-            self.uv_videos[k].add(to8(checker_overlay(self.frames[t], uv[k], ws[k])))
+            self.uv_videos[k].add(to8(checker_overlay(frame, uv[k], ws[k])))
             if self.two:
                 self.alpha_videos[k].add(to8(ws[k]))
         if self.two:
-            matte = guided_matte(np.asarray(self.frames[t], np.float32), alpha) if (alpha > 0.5).any() else alpha
+            matte = guided_matte(frame, alpha)  # zeros where alpha holds nothing
             write_png(self.run_dir / "alpha" / f"frame_{t:05d}.png", matte)
-            self.fg.append(float(np.mean(np.asarray(matte) > 0.5)))
+            self.fg.append(float(np.mean(matte > 0.5)))
 
     def abort(self) -> None:
         """Drops the videos begun (called while an exception ends the export: no partial file is kept)."""

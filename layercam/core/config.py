@@ -176,7 +176,10 @@ class TrainConfig(Section):
     lr_decay: float = setting(0.1, 0.0, 1.0)  # final learning rate factor (cosine): 1 keeps it constant (paper)
     seed: int = setting(0, 0, 2**63 - 1)    # every random draw of training: the same seed, the same result
     autocast: Literal["auto", "none", "bf16"] = AUTO  # bf16 mixed precision: about 2x on a GPU, bf16's rounding in the
-                                            # fields; auto: bf16 on a GPU that has it, fp32 elsewhere
+                                            # fields; on a CPU that computes bf16 natively (AVX512-BF16,
+                                            # AMX) faster with a blur generator (its patches' large
+                                            # products), slower on one that emulates it;
+                                            # auto: bf16 on a GPU that has it, fp32 elsewhere
     checkpoint_every: int = setting(500, 0, keyed=False)  # steps between checkpoints: work lost to
                                                           # a crash vs time spent saving
                                             # (0: only at the end and on Ctrl-C)

@@ -86,6 +86,20 @@ def test_bf16_autocast_trains_on_the_cpu():
     assert losses[-1] < 0.5 * losses[0] and losses[-1] < 1.2 * fp32[-1]  # learns, and as well as fp32
 
 
+@pytest.mark.parametrize("native", [True, False])
+@pytest.mark.parametrize("blur", ["on", "off"])
+def test_auto_stays_fp32_on_the_cpu_and_names_bf16_where_it_pays(monkeypatch, native, blur):
+    """bf16 is named where this CPU computes it natively and the model has a blur generator (its
+    patches' products are where it is faster); auto itself stays fp32 on the CPU."""
+    from layercam.engine import resolve as r
+
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
+    monkeypatch.setattr(r, "cpu_bf16", lambda: native)
+    res = r.resolve(load_config("fast", [f"model.blur={blur}"]), frames=2, hw=(16, 16))
+    assert res.settings.train.autocast == "none"
+    assert ("train.autocast=bf16" in res.reasons["train.autocast"]) == (native and blur == "on")
+
+
 def test_interrupted_and_resumed_training_ends_where_one_run_ends(tmp_path, monkeypatch):
     """Ctrl-C and the same command again give the model one uninterrupted run gives: the sparse grid
     levels' row-wise Adam state (moments, each row's last step) is saved and restored with the checkpoint."""

@@ -157,12 +157,10 @@ def resolve(cfg: Config, clip=None, exposures=None, task: str = "hdr-video",
                                    else "torch sees no CUDA device")
     if t.autocast == AUTO:
         t.autocast = "bf16" if t.device.startswith("cuda") and _bf16() else "none"
+        hint = ("; this CPU computes bf16 natively: train.autocast=bf16 trains a blur generator faster"
+                if t.device == "cpu" and cfg.model.blur == "on" and cpu_bf16() else "")
         reasons["train.autocast"] = ("bf16 mixed precision on a GPU that has it" if t.autocast == "bf16"
-                                     else "fp32 (no GPU with bf16; this CPU computes bf16 natively: "
-                                          "train.autocast=bf16 trains a blur generator faster, at "
-                                          "bf16's rounding)"
-                                     if cfg.model.blur == "on" and not t.device.startswith("cuda") and cpu_bf16()
-                                     else "fp32 (no GPU with bf16)")
+                                     else f"fp32 (no GPU with bf16{hint})")
     return Resolved(freeze(cfg), bool(static), reasons)
 
 

@@ -14,9 +14,9 @@ from layercam.vision.segment import STEPS
 def test_step_sets_leave_each_step_out():
     sets = finder.step_sets()
     assert sets["all"] == STEPS and sets["motion masks alone"] == ()
-    assert sets["without grabcut"] == ("background", "colour", "texture", "contrast", "guided")
+    assert sets["without grabcut"] == ("travel", "background", "colour", "texture", "contrast", "guided")
     # the colour cut and the texture test read the clean plate: without it, neither
-    assert sets["without background (and colour, texture)"] == ("grabcut", "contrast", "guided")
+    assert sets["without background (and colour, texture)"] == ("travel", "grabcut", "contrast", "guided")
     assert len(sets) == len(STEPS) + 2
 
 

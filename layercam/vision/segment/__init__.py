@@ -13,7 +13,10 @@ learned over the whole clip. One step per module:
    measured noise (its robust spread) and the flow's precision.
 3. :mod:`~layercam.vision.segment.moving`: the evidence voted with its neighbours along the flow, counted
    where the frame has texture the flow can follow, one object per frame, still frames filled from
-   the nearest frame that holds the object at its typical size.
+   the nearest frame that holds the object at its typical size; where the clip's largest moving
+   parts are a dynamic texture (:mod:`~layercam.vision.segment.dynamic`: a stream, a screen, their
+   outline keeping its place while the flow inside moves), the part whose outline travels with its
+   flow (the ``travel`` step).
 4. :mod:`~layercam.vision.segment.edges`: GrabCut pulls each mask to the object's colour edges.
 5. :mod:`~layercam.vision.segment.background`: the clean plate (neighbours registered by the camera's
    motion, their object left out) adds limbs the flow missed and drops background the flow smeared.
@@ -51,7 +54,7 @@ __all__ = ["SegmentConfig", "STEPS", "foreground_bootstrap", "motion_masks", "mo
            "save_masks"]
 
 # the optional steps after the motion masks (each measured: the ablation)
-STEPS = ("grabcut", "background", "colour", "texture", "contrast", "guided")
+STEPS = ("travel", "grabcut", "background", "colour", "texture", "contrast", "guided")
 WORK_SHORT = 240  # the finder sees frames at most this many pixels on the short side (masks are upsampled to the
                   # frame; training refines alpha's edges at the frame's size): its cost stays under a second a frame
 
@@ -111,9 +114,9 @@ def find_foreground(frames: np.ndarray, flows: dict, cfg: SegmentConfig,
     frames, flows = _working(frames, flows)
     fw, bw = check_flows(flows["fw"], flows["bw"])
     fo, bo = flow_checks(fw, bw, flows.get("fw_ok"), flows.get("bw_ok"))
-    masks, info = motion_masks(fw, bw, fo, bo, cfg=cfg, frames=frames)
+    homs = border_homographies(fw)
+    masks, info = motion_masks(fw, bw, fo, bo, cfg=cfg, frames=frames, homs=homs if "travel" in steps else None)
     evidence = info.pop("evidence")
-    homs = border_homographies(fw) if {"background", "contrast"} & set(steps) else None
     if "grabcut" in steps:
         from layercam.vision.segment.edges import grabcut_refine
 

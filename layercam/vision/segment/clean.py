@@ -24,7 +24,7 @@ def part_means(lab: np.ndarray, n: int, values: np.ndarray) -> np.ndarray:
 
 
 def clean_mask(mask: np.ndarray, colour: np.ndarray | None = None, reach: float = 0.0,
-               scale: float = 1.0) -> np.ndarray:
+               scale: float = 1.0, weight: np.ndarray | None = None) -> np.ndarray:
     """Morphology on one ``(H, W)`` bool mask: open, close, fill holes, drop small components, and
     keep one object: the largest component and those within ``GAP`` times its size of it (parts an
     occluder splits off). With ``colour`` (``(H, W)``, the object : background colour
@@ -32,7 +32,10 @@ def clean_mask(mask: np.ndarray, colour: np.ndarray | None = None, reach: float 
     that is kept too when its mean ratio is at least ``PART_LLR`` and it lies within ``reach``
     pixels of the largest, and what the opening took comes back where its ratio is at least
     ``THIN_LLR`` and it touches what the opening left (legs, a tail). ``scale``: the radii of the
-    opening and the closing times this (0: neither)."""
+    opening and the closing times this (0: neither). With ``weight`` (``(H, W)``, how much each
+    pixel's support travels with its flow: :func:`layercam.vision.segment.dynamic.travel`), the part
+    kept is, of those over ``KEEP_FRACTION`` of the largest, the one of the largest summed weight,
+    and nothing where no part's sum is above 0."""
     import cv2
     from scipy import ndimage
 
@@ -56,8 +59,13 @@ def clean_mask(mask: np.ndarray, colour: np.ndarray | None = None, reach: float 
         return np.zeros((h, w), bool)
     areas = stats[1:, cv2.CC_STAT_AREA]
     keep = (areas >= MIN_AREA * h * w) & (areas >= KEEP_FRACTION * areas.max())
+    main = 1 + int(np.argmax(areas))
+    if weight is not None:  # of the parts large enough to be the object, the one whose support travels most
+        score = np.where(keep, ndimage.sum(np.asarray(weight, np.float64), lab, np.arange(1, n)), 0.0)
+        if score.max() <= 0:
+            return np.zeros((h, w), bool)
+        main = 1 + int(np.argmax(score))
     if keep.sum() > 1:
-        main = 1 + int(np.argmax(areas))
         dist = cv2.distanceTransform((lab != main).astype(np.uint8), cv2.DIST_L2, 3)
         gaps = ndimage.minimum(dist, lab, np.arange(1, n))
         near = gaps <= GAP * np.sqrt(areas.max())

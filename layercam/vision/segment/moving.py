@@ -8,7 +8,10 @@ with that of ``WINDOW`` neighbours on each side brought into its view along the 
 foreground where the average reaches ``VOTE``, and only where the frame has texture the flow can
 follow (:func:`layercam.core.visibility.textured`): flow over a smooth sky or road is interpolated from
 its edges (the object's motion spills onto the road beside it), not measured. The object's own
-smooth parts come back by their colours (:mod:`layercam.vision.segment.colour`).
+smooth parts come back by their colours (:mod:`layercam.vision.segment.colour`). Where the largest
+moving part is a dynamic texture (a stream, a screen: its outline keeps its place in the scene
+though the flow inside it moves), each frame keeps the part whose outline travels with its flow
+(:mod:`layercam.vision.segment.dynamic`).
 """
 
 from __future__ import annotations
@@ -71,10 +74,14 @@ def temporal_vote(ev: np.ndarray, fw: np.ndarray, bw: np.ndarray, window: int) -
     return acc / cnt[:, None, None]
 
 
-def motion_masks(fw, bw, fw_ok=None, bw_ok=None, *, cfg, frames=None) -> tuple[np.ndarray, dict]:
+def motion_masks(fw, bw, fw_ok=None, bw_ok=None, *, cfg, frames=None, homs=None) -> tuple[np.ndarray, dict]:
     """Foreground masks of whatever moves on its own: ``(T, H, W)`` float32 in {0, 1}, and an info
     dict (coverage per frame, frames filled from neighbours, and ``evidence``: the motion evidence
-    ``(T, H, W)`` the masks came from). ``fw_ok``, ``bw_ok`` ``(T-1, H, W)``: the flows'
+    ``(T, H, W)`` the masks came from). With the camera's ``homs`` ``(T-1, 3, 3)`` (frame t -> t+1),
+    a clip whose largest moving parts do not travel with their own flow
+    (:func:`layercam.vision.segment.dynamic.keeps_place`;
+    ``info["travel_p"]``) takes in each frame the part that travels most
+    instead. ``fw_ok``, ``bw_ok`` ``(T-1, H, W)``: the flows'
     forward-backward checks (computed when None); ``cfg``: a :class:`layercam.core.config.SegmentConfig`
     (``reach``, ``k_sigma``). With the ``frames`` ``(T, H, W[, C])``, evidence counts only where
     the frame has texture."""
@@ -90,13 +97,17 @@ def motion_masks(fw, bw, fw_ok=None, bw_ok=None, *, cfg, frames=None) -> tuple[n
         if tex.shape != soft.shape:
             raise LayercamError(f"motion segmentation: frames {tex.shape} do not match the flows {soft.shape}")
         info["untextured"] = round(float(1 - tex.mean()), 4)
-    vote = temporal_vote(soft >= EVIDENCE, f, b, WINDOW)
-    masks = []
-    for t, v in enumerate(vote):
-        m = v >= VOTE
-        if tex is not None:
-            m = m & tex[t]
-        masks.append(clean_mask(m))
+    raw = temporal_vote(soft >= EVIDENCE, f, b, WINDOW) >= VOTE
+    if tex is not None:
+        raw &= tex
+    masks = [clean_mask(m) for m in raw]
+    if homs is not None:
+        from layercam.vision.segment.dynamic import keeps_place, travel
+
+        moves = travel(raw, f, b, fo, bo, homs, cfg.reach)
+        keeps, info["travel_p"] = keeps_place(masks, moves)
+        if keeps:  # the largest parts are a dynamic texture
+            masks = [clean_mask(m, weight=w) for m, w in zip(raw, moves)]
     masks, filled = fill_still_frames(np.stack(masks), f, b)
     masks = np.stack([clean_mask(m) for m in masks]) if filled else masks
     cover = masks.reshape(len(masks), -1).mean(1)

@@ -14,7 +14,7 @@ learned over the whole clip. One step per module:
 3. :mod:`~layercam.vision.segment.moving`: the evidence voted with its neighbours along the flow, counted
    where the frame has texture the flow can follow, one object per frame, still frames filled from
    the nearest frame that holds the object at its typical size; where the clip's largest moving
-   parts are a dynamic texture (:mod:`~layercam.vision.segment.dynamic`: a stream, a screen, their
+   parts are a dynamic texture (:mod:`~layercam.vision.segment.dynamic`: a stream, ripples, their
    outline keeping its place while the flow inside moves), the part whose outline travels with its
    flow (the ``travel`` step).
 4. :mod:`~layercam.vision.segment.edges`: GrabCut pulls each mask to the object's colour edges.

@@ -1,8 +1,9 @@
 """Dynamic textures: moving parts whose outline keeps its place in the scene.
 
-The flow inside a stream, a screen showing video, smoke or leaves in the wind departs from the
-camera's motion as an object's does, so the motion evidence takes them in; what sets an object
-apart is that its outline goes where its flow goes. Each pixel of a frame's motion mask is carried
+The flow inside a stream, ripples, smoke or leaves in the wind departs from the camera's motion as
+an object's does, so the motion evidence takes them in; what sets an object apart is that its
+outline goes where its flow goes. (A screen whose video shows moving things is not such a texture
+here: what moves on it travels with its flow as an object does.) Each pixel of a frame's motion mask is carried
 to the frames 1, 2, 4, ... ``reach`` away twice, along its chained flow and by the camera's
 homography, and :func:`travel` counts whether the flow's end lies in that frame's mask and the
 camera's does not (+1) or the reverse (-1). An object scores above 0 at its edges in almost every

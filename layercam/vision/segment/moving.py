@@ -9,7 +9,7 @@ foreground where the average reaches ``VOTE``, and only where the frame has text
 follow (:func:`layercam.core.visibility.textured`): flow over a smooth sky or road is interpolated from
 its edges (the object's motion spills onto the road beside it), not measured. The object's own
 smooth parts come back by their colours (:mod:`layercam.vision.segment.colour`). Where the largest
-moving part is a dynamic texture (a stream, a screen: its outline keeps its place in the scene
+moving part is a dynamic texture (a stream, ripples: its outline keeps its place in the scene
 though the flow inside it moves), each frame keeps the part whose outline travels with its flow
 (:mod:`layercam.vision.segment.dynamic`).
 """

@@ -2,10 +2,11 @@
 
 The flow inside a stream, ripples, smoke or leaves in the wind departs from the camera's motion as
 an object's does, so the motion evidence takes them in; what sets an object apart is that its
-outline goes where its flow goes. (A screen whose video shows moving things is not such a texture
-here: what moves on it travels with its flow as an object does.) Each pixel of a frame's motion mask is carried
-to the frames 1, 2, 4, ... ``reach`` away twice, along its chained flow and by the camera's
-homography, and :func:`travel` counts whether the flow's end lies in that frame's mask and the
+outline goes where its flow goes. (A screen showing moving pictures is one only where its pictures
+move out of its outline as often as into it; where they travel, it passes for an object.) Each pixel
+of a frame's motion mask is carried to the frames 1, 2, 4, ... ``reach`` away twice, along its
+chained flow and by the camera's homography, and :func:`travel` counts whether the flow's end lies
+in that frame's mask and the
 camera's does not (+1) or the reverse (-1). An object scores above 0 at its edges in almost every
 frame; a dynamic texture scores about 0 (its flow's ends and the camera's both land in it, or leave
 it as often one way as the other). :func:`keeps_place` reads the clip's largest parts by a sign

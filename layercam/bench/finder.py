@@ -35,6 +35,19 @@ def step_sets() -> dict[str, tuple]:
     return sets
 
 
+def clip_flows(clip, flow_cfg) -> dict:
+    """The flow a run computes for ``clip`` (``flow_cfg``: its ``flow`` section), in a temporary
+    folder, at the frames' size: ``{fw, bw, fw_ok, bw_ok}`` arrays."""
+    from layercam.vision import flow_store
+    from layercam.vision.flow_store import at_frame_size
+
+    keys = ("fw", "bw", "fw_ok", "bw_ok")
+    with tempfile.TemporaryDirectory(prefix="layercam-finder-") as work:
+        flow_store.compute(clip.frames, Path(work), flow_cfg)
+        fl = at_frame_size(flow_store.load(Path(work)), (clip.H, clip.W), keys)
+        return {k: np.array(fl[k][:]) for k in keys}  # read before the folder goes
+
+
 def run_finder_clip(name: str, folder: Path, preset: str, resize: str, max_frames: int,
                     overrides: list[str] | None = None) -> dict:
     """One clip at one preset's flow, in this process: ``{clip, preset, frames, size, flow_s,
@@ -43,18 +56,13 @@ def run_finder_clip(name: str, folder: Path, preset: str, resize: str, max_frame
     from layercam.core.presets import load_config
     from layercam.io import load_clip
     from layercam.io.masks import load_masks
-    from layercam.vision import flow_store
-    from layercam.vision.flow_store import at_frame_size
     from layercam.vision.segment import find_foreground
 
     clip = load_clip(folder / "frames", max_frames=max_frames, resize=resize)
     truth = load_masks(folder / "masks_gt", clip)
     cfg = load_config(preset, list(overrides or []))
     t0 = time.perf_counter()
-    with tempfile.TemporaryDirectory(prefix="layercam-finder-") as work:
-        flow_store.compute(clip.frames, Path(work), cfg.flow)
-        fl = at_frame_size(flow_store.load(Path(work)), (clip.H, clip.W), ("fw", "bw", "fw_ok", "bw_ok"))
-        flows = {k: np.array(fl[k][:]) for k in ("fw", "bw", "fw_ok", "bw_ok")}  # read before the folder goes
+    flows = clip_flows(clip, cfg.flow)
     flow_s = time.perf_counter() - t0
     sets = {}
     for label, steps in step_sets().items():

@@ -3,9 +3,6 @@ follows with a rushing stream behind it (DAVIS 2016's training split)."""
 
 from __future__ import annotations
 
-import tempfile
-from pathlib import Path
-
 import numpy as np
 import pytest
 
@@ -16,12 +13,11 @@ def test_real_stream_gives_way_to_the_duck(shared_data):
     masks take the stream (the largest moving part); with it, the clip's sign test finds that the
     stream keeps its place and the masks hold the duck. (At other sizes the step does not hold this
     clip yet: docs/measurements.md.)"""
+    from layercam.bench.finder import clip_flows
     from layercam.bench.layers import mask_ious
     from layercam.core.presets import load_config
     from layercam.io import load_clip
     from layercam.io.masks import load_masks
-    from layercam.vision import flow_store
-    from layercam.vision.flow_store import at_frame_size
     from layercam.vision.segment import STEPS, find_foreground
 
     d = shared_data / "layers_davis_mallard-fly"
@@ -30,10 +26,7 @@ def test_real_stream_gives_way_to_the_duck(shared_data):
     clip = load_clip(d / "frames", max_frames=24, resize="0.33")
     truth = load_masks(d / "masks_gt", clip)
     cfg = load_config("fast")
-    with tempfile.TemporaryDirectory() as work:
-        flow_store.compute(clip.frames, Path(work), cfg.flow)
-        fl = at_frame_size(flow_store.load(Path(work)), (clip.H, clip.W), ("fw", "bw", "fw_ok", "bw_ok"))
-        flows = {k: np.array(fl[k][:]) for k in ("fw", "bw", "fw_ok", "bw_ok")}
+    flows = clip_flows(clip, cfg.flow)
     plain, _ = find_foreground(clip.frames, flows, cfg.segment, steps=tuple(s for s in STEPS if s != "travel"))
     masks, _ = find_foreground(clip.frames, flows, cfg.segment)
     assert np.mean(mask_ious(plain, truth)) < 0.2

@@ -114,7 +114,7 @@ def find_foreground(frames: np.ndarray, flows: dict, cfg: SegmentConfig,
     frames, flows = _working(frames, flows)
     fw, bw = check_flows(flows["fw"], flows["bw"])
     fo, bo = flow_checks(fw, bw, flows.get("fw_ok"), flows.get("bw_ok"))
-    homs = border_homographies(fw)
+    homs = border_homographies(fw) if {"travel", "background", "contrast"} & set(steps) else None
     masks, info = motion_masks(fw, bw, fo, bo, cfg=cfg, frames=frames, homs=homs if "travel" in steps else None)
     evidence = info.pop("evidence")
     if "grabcut" in steps:

@@ -6,8 +6,8 @@ outline goes where its flow goes. (A screen showing moving pictures is one only 
 move out of its outline as often as into it; where they travel, it passes for an object.) Each pixel
 of a frame's motion mask is carried to the frames 1, 2, 4, ... ``reach`` away twice, along its
 chained flow and by the camera's homography, and :func:`travel` counts whether the flow's end lies
-in that frame's mask and the
-camera's does not (+1) or the reverse (-1). An object scores above 0 at its edges in almost every
+in that frame's mask and the camera's does not (+1) or the reverse (-1). An object scores above 0 at
+its edges in almost every
 frame; a dynamic texture scores about 0 (its flow's ends and the camera's both land in it, or leave
 it as often one way as the other). :func:`keeps_place` reads the clip's largest parts by a sign
 test over the frames: where they travel in no more frames than chance, the finder keeps in each frame
@@ -31,13 +31,12 @@ def travel(raw: np.ndarray, fw, bw, fw_ok, bw_ok, homs: np.ndarray, reach: int) 
     camera's homography takes it (0 where the chained flow is not valid; the flows' checks ``fw_ok``,
     ``bw_ok`` ``(T-1, H, W)``)."""
     from layercam.core.geometry import chain_homographies
-    from layercam.vision.motion import chained_displacements, grid_points
+    from layercam.vision.motion import chained_displacements, grid_points, project
     from layercam.vision.segment.evidence import offsets
 
     T, h, w = raw.shape
     to0 = chain_homographies(np.asarray(homs, np.float64), 0)
     base = grid_points(h, w)
-    basek = np.concatenate([base.reshape(-1, 2), np.ones((h * w, 1))], 1)
     out = np.zeros((T, h, w), np.float32)
 
     def at(t: int, p: np.ndarray) -> np.ndarray:
@@ -55,8 +54,7 @@ def travel(raw: np.ndarray, fw, bw, fw_ok, bw_ok, homs: np.ndarray, reach: int) 
                 if s not in ch:
                     continue
                 d, v = ch[s]
-                q = basek @ (np.linalg.inv(to0[t + s]) @ to0[t]).T
-                cam = (q[:, :2] / q[:, 2:3]).reshape(h, w, 2)
+                cam = project(np.linalg.inv(to0[t + s]) @ to0[t], base)
                 out[t] += v * (at(t + s, base + d).astype(np.float32) - at(t + s, cam))
                 n += 1
         out[t] /= max(n, 1)

@@ -116,6 +116,21 @@ def test_clean_mask_keeps_a_split_off_part_of_the_objects_colours_within_reach()
     assert not segment.clean_mask(m, colour=colour, reach=20.0)[30, 68]
 
 
+def test_clean_mask_with_a_seed_keeps_the_part_that_holds_it():
+    """A cut grown from a small mask that also took a larger part apart from it (a flower pot by
+    the lens) keeps the part that holds the mask it grew from, not the largest; with no part
+    holding it, the largest as before."""
+    m = np.zeros((60, 80), bool)
+    m[5:55, 40:78] = True  # the larger part
+    m[20:34, 5:19] = True  # the part the cut grew from, 21 px away
+    seed = np.zeros_like(m)
+    seed[24:30, 8:14] = True
+    assert segment.clean_mask(m)[45, 60] and not segment.clean_mask(m)[27, 12]
+    c = segment.clean_mask(m, seed=seed)
+    assert c[22:32, 7:17].all() and not c[5:55, 40:78].any()
+    assert np.array_equal(segment.clean_mask(m, seed=np.zeros_like(m)), segment.clean_mask(m))
+
+
 def test_clean_mask_gives_back_thin_parts_of_the_objects_colours():
     """A 2 px leg under a body: the opening takes it; with the colour ratio it comes back where the
     leg has the object's colours and touches the body, not where its colours are weak, and a thin

@@ -24,7 +24,8 @@ def part_means(lab: np.ndarray, n: int, values: np.ndarray) -> np.ndarray:
 
 
 def clean_mask(mask: np.ndarray, colour: np.ndarray | None = None, reach: float = 0.0,
-               scale: float = 1.0, weight: np.ndarray | None = None) -> np.ndarray:
+               scale: float = 1.0, weight: np.ndarray | None = None,
+               seed: np.ndarray | None = None) -> np.ndarray:
     """Morphology on one ``(H, W)`` bool mask: open, close, fill holes, drop small components, and
     keep one object: the largest component and those within ``GAP`` times its size of it (parts an
     occluder splits off). With ``colour`` (``(H, W)``, the object : background colour
@@ -35,7 +36,9 @@ def clean_mask(mask: np.ndarray, colour: np.ndarray | None = None, reach: float 
     opening and the closing times this (0: neither). With ``weight`` (``(H, W)``, how much each
     pixel's support travels with its flow: :func:`layercam.vision.segment.dynamic.travel`), the part
     kept is, of those over ``KEEP_FRACTION`` of the largest, the one of the largest summed weight,
-    and nothing where no part's sum is above 0."""
+    and nothing where no part's sum is above 0. With ``seed`` (``(H, W)`` bool, the mask a cut grew
+    from), the part kept is the one that holds most of it, whatever its size (a cut grows the object;
+    a larger part it found apart from it is not the object), or the largest where none does."""
     import cv2
     from scipy import ndimage
 
@@ -65,6 +68,11 @@ def clean_mask(mask: np.ndarray, colour: np.ndarray | None = None, reach: float 
         if score.max() <= 0:
             return np.zeros((h, w), bool)
         main = 1 + int(np.argmax(score))
+    if seed is not None:
+        held = ndimage.sum(np.asarray(seed, np.float64), lab, np.arange(1, n))
+        if held.max() > 0:
+            main = 1 + int(np.argmax(held))
+            keep[main - 1] = True
     if keep.sum() > 1:
         dist = cv2.distanceTransform((lab != main).astype(np.uint8), cv2.DIST_L2, 3)
         gaps = ndimage.minimum(dist, lab, np.arange(1, n))

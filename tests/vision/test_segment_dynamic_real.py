@@ -11,8 +11,8 @@ import pytest
 def test_real_stream_gives_way_to_the_duck(shared_data):
     """At the layers bench's setting (24 frames at 282x158): without the travel step the finder's
     masks take the stream (the largest moving part); with it, the clip's sign test finds that the
-    stream keeps its place and the masks hold the duck. (At other sizes the step does not hold this
-    clip yet: docs/measurements.md.)"""
+    stream keeps its place and the masks hold the duck. (At other sizes it holds this clip less
+    well, and at the full 854x480 not at all: docs/measurements.md.)"""
     from layercam.bench.finder import clip_flows
     from layercam.bench.layers import mask_ious
     from layercam.core.presets import load_config

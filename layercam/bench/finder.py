@@ -48,22 +48,31 @@ def clip_flows(clip, flow_cfg) -> dict:
         return {k: np.array(fl[k][:]) for k in keys}  # read before the folder goes
 
 
+def finder_inputs(folder: Path, preset: str = "fast", resize: str = "0.33", max_frames: int | None = None,
+                  overrides: list[str] | None = None) -> tuple:
+    """What the finder reads for one ``layers_davis_*`` clip ``folder`` at the bench's setting
+    (defaults: ``--table layers``'s): ``(clip, truth masks (T, H, W), config, flows, flow seconds)``."""
+    from layercam.bench.layers import MAX_FRAMES
+    from layercam.core.presets import load_config
+    from layercam.io import load_clip
+    from layercam.io.masks import load_masks
+
+    clip = load_clip(Path(folder) / "frames", max_frames=max_frames or MAX_FRAMES, resize=resize)
+    truth = load_masks(Path(folder) / "masks_gt", clip)
+    cfg = load_config(preset, list(overrides or []))
+    t0 = time.perf_counter()
+    flows = clip_flows(clip, cfg.flow)
+    return clip, truth, cfg, flows, time.perf_counter() - t0
+
+
 def run_finder_clip(name: str, folder: Path, preset: str, resize: str, max_frames: int,
                     overrides: list[str] | None = None) -> dict:
     """One clip at one preset's flow, in this process: ``{clip, preset, frames, size, flow_s,
     sets: {name: {iou, iou_min, inside, seconds}}}``."""
     from layercam.bench.layers import inside_share, mask_ious
-    from layercam.core.presets import load_config
-    from layercam.io import load_clip
-    from layercam.io.masks import load_masks
     from layercam.vision.segment import find_foreground
 
-    clip = load_clip(folder / "frames", max_frames=max_frames, resize=resize)
-    truth = load_masks(folder / "masks_gt", clip)
-    cfg = load_config(preset, list(overrides or []))
-    t0 = time.perf_counter()
-    flows = clip_flows(clip, cfg.flow)
-    flow_s = time.perf_counter() - t0
+    clip, truth, cfg, flows, flow_s = finder_inputs(folder, preset, resize, max_frames, overrides)
     sets = {}
     for label, steps in step_sets().items():
         t0 = time.perf_counter()

@@ -13,9 +13,11 @@ Written into the run folder by the export stage's ``atlases`` writer (:mod:`laye
   the pixels where the layer is seen.
 * ``atlases/layer{k}_alpha.mp4`` (two layers) — the layer's opacity per frame.
 * ``alpha/frame_00000.png`` (two layers) — the foreground's (layer 1) matte per frame, 8-bit: the
-  model's alpha (> 0.5) feathered to the frame's colour edges by the guided filter the finder's masks
-  end with (:func:`layercam.vision.segment.edges.guided_matte`; the model's own alpha, which the
-  renders composite with, is in ``layer{k}_alpha.mp4``).
+  model's alpha averaged with that of the frames up to ``VOTE_REACH`` away, carried along the
+  clip's flow where it is consistent (:func:`layercam.vision.motion.flow_vote`), then (> 0.5)
+  feathered to the frame's colour edges by the guided filter the finder's masks end with
+  (:func:`layercam.vision.segment.edges.guided_matte`; the model's own alpha, which the renders
+  composite with, is in ``layer{k}_alpha.mp4``).
 * ``atlases/atlas.json`` — grid sizes, the exposure of the PNGs, file names.
 """
 
@@ -30,6 +32,7 @@ import numpy as np
 from layercam.core.errors import LayercamError
 from layercam.core.interrupts import reached
 from layercam.pipelines.runner import write_json
+from layercam.vision.segment.edges import VOTE_REACH
 
 ATLAS_RES = (32, 2048)  # an exported atlas's side, texels, at least / at most
 
@@ -76,12 +79,16 @@ class AtlasSink:
     ``t = 0, 1, ..., T - 1`` in turn (``uv``: each layer's ``(H, W, 2)``, ``alpha (H, W)`` or None,
     as :func:`~layercam.scene.render.render_frame` returns them), then ``close()`` -> the summary.
     A writer that renders each frame anyway (the HDR frames) feeds it, so the frames' geometry is
-    computed once; :func:`export_atlases` renders it for the atlases alone. Holds one frame."""
+    computed once; :func:`export_atlases` renders it for the atlases alone. ``flow``: the clip's
+    (the flow stage's arrays, at any size), which the mattes are voted along; without it each matte
+    is its own frame's. Holds one frame, and the alpha of ``2 VOTE_REACH + 1``."""
 
-    def __init__(self, model, run_dir: Path, frames: np.ndarray, fps: float = 24.0, chunk: int = 65536):
+    def __init__(self, model, run_dir: Path, frames: np.ndarray, fps: float = 24.0, chunk: int = 65536,
+                 flow=None):
         from layercam.core.geometry import middle_frame
         from layercam.io import VideoWriter
         from layercam.scene.render import layer_weights, render_frame
+        from layercam.vision.scale import AtFrameSize
 
         self.model, self.frames, self.chunk = model, frames, chunk
         self.run_dir = Path(run_dir)
@@ -95,6 +102,9 @@ class AtlasSink:
         self.acc = [np.zeros(r * r, np.float64) for r in self.res]
         self.two = m["alpha"] is not None
         self.fg: list[float] = []  # per frame, the share of pixels the foreground's alpha holds (> 0.5)
+        self.alphas: dict[int, np.ndarray] = {}  # alpha of the frames a matte still to write reads
+        self.flow = None if not self.two or flow is None or T < 2 else [
+            AtFrameSize(flow[k], (H, W)) for k in ("fw", "bw", "fw_ok", "bw_ok")]
         self.next_t, self.open = 0, True
         if self.two:
             (self.run_dir / "alpha").mkdir(exist_ok=True)
@@ -105,9 +115,7 @@ class AtlasSink:
             self.adir / f"layer{k}_alpha.mp4", fps=fps)) for k in range(L)] if self.two else []
 
     def add(self, t: int, uv: list[np.ndarray], alpha: np.ndarray | None) -> None:
-        from layercam.io import write_png
         from layercam.scene.render import checker_overlay, layer_weights, splat_add
-        from layercam.vision.segment.edges import guided_matte
 
         if t != self.next_t:
             raise ValueError(f"AtlasSink.add: frame {t} where frame {self.next_t} was due")
@@ -122,9 +130,23 @@ class AtlasSink:
             if self.two:
                 self.alpha_videos[k].add(to8(ws[k]))
         if self.two:
-            matte = guided_matte(frame, alpha)  # zeros where alpha holds nothing
-            write_png(self.run_dir / "alpha" / f"frame_{t:05d}.png", matte)
+            self.alphas[t] = np.asarray(alpha, np.float32)
+            self._mattes(t - (VOTE_REACH if self.flow else 0))
+
+    def _mattes(self, last: int) -> None:
+        """Writes the mattes of the frames up to ``last`` not yet written; forgets the alpha no later
+        matte reads."""
+        from layercam.io import write_png
+        from layercam.vision.motion import flow_vote
+        from layercam.vision.segment.edges import guided_matte
+
+        for s in range(len(self.fg), last + 1):
+            a = flow_vote(self.alphas, s, *self.flow, reach=VOTE_REACH) if self.flow else self.alphas[s]
+            matte = guided_matte(self.frames[s], a)  # zeros where alpha holds nothing
+            write_png(self.run_dir / "alpha" / f"frame_{s:05d}.png", matte)
             self.fg.append(float(np.mean(matte > 0.5)))
+            for k in [k for k in self.alphas if k <= s - (VOTE_REACH if self.flow else 0)]:
+                del self.alphas[k]
 
     def abort(self) -> None:
         """Drops the videos begun (called while an exception ends the export: no partial file is kept)."""
@@ -138,6 +160,8 @@ class AtlasSink:
         T, H, W = self.frames.shape[:3]
         if self.next_t != T:
             raise ValueError(f"AtlasSink.close: {self.next_t} of {T} frames added")
+        if self.two:
+            self._mattes(T - 1)
         self.open = False
         self._videos.close()
         model, adir, two = self.model, self.adir, self.two
@@ -170,14 +194,15 @@ class AtlasSink:
 
 
 def export_atlases(model, run_dir: Path, frames: np.ndarray, fps: float = 24.0, chunk: int = 65536,
-                   progress: bool = False) -> dict:
+                   progress: bool = False, flow=None) -> dict:
     """Writes the files listed in this module's docstring into ``run_dir``, each atlas at
-    :func:`atlas_resolution`, rendering each frame's geometry for them; returns a summary."""
+    :func:`atlas_resolution`, rendering each frame's geometry for them (``flow``: as
+    :class:`AtlasSink` takes it); returns a summary."""
     from layercam.core.progress import bar as progress_bar
     from layercam.scene.render import render_frame
 
     T, H, W = frames.shape[:3]
-    sink = AtlasSink(model, run_dir, frames, fps, chunk)
+    sink = AtlasSink(model, run_dir, frames, fps, chunk, flow=flow)
     try:
         for t in progress_bar(range(T), desc="atlases", unit="frame", enabled=progress):
             m = render_frame(model, t, (H, W), ("uv", "alpha"), chunk=chunk)

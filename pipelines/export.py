@@ -140,7 +140,8 @@ def atlas_writer(ctx: Context, model, dest: Path, cache: Path, atlas=None) -> di
 
     if atlas is not None:
         return {"atlas": atlas.close()}
-    return {"atlas": export_atlases(model, dest, ctx.clip.frames, fps=media.fps(ctx), progress=ctx.progress)}
+    return {"atlas": export_atlases(model, dest, ctx.clip.frames, fps=media.fps(ctx), progress=ctx.progress,
+                                    flow=ctx.flow)}
 
 
 def crf_writer(ctx: Context, model, dest: Path, cache: Path) -> dict:
@@ -228,8 +229,10 @@ class ExportStage(Stage):
     def options(self, ctx):
         # a window's export keeps windows.plan.FIT_FILE (older ones: none); deblur-video's frames
         # are trusted per pixel (older ones: a check per frame)
+        # two layers' mattes are voted along the flow (older ones: each its own frame's)
         fits = {"fits": "per pixel"} if ctx.window is not None else {}
-        return fits | ({"sharp": "trusted per pixel"} if "sharp" in writers_for(ctx.task) else {})
+        votes = {"mattes": "voted along the flow"} if ctx.resolved.settings.model.layers > 1 else {}
+        return fits | votes | ({"sharp": "trusted per pixel"} if "sharp" in writers_for(ctx.task) else {})
 
     def run(self, ctx, out):
         dest = out  # published to the top of the run folder when the run ends
@@ -241,7 +244,7 @@ class ExportStage(Stage):
         if SHARING[0] in names and SHARING[1] in names:  # the HDR frames' renders give the atlases their geometry
             from layercam.pipelines.atlas_export import AtlasSink
 
-            atlas = AtlasSink(model, dest, ctx.clip.frames, fps=media.fps(ctx))
+            atlas = AtlasSink(model, dest, ctx.clip.frames, fps=media.fps(ctx), flow=ctx.flow)
         try:
             for name in names:
                 if name == "crf":

@@ -1,4 +1,5 @@
-"""Motion over many frames: pixels followed along the chained flow (:func:`chained_displacements`),
+"""Motion over many frames: pixels followed along the chained flow (:func:`chained_displacements`;
+a value voted with its neighbours' along it, :func:`flow_vote`),
 a pair's residual against the static scene (:func:`pair_residuals`: a homography, or an epipolar
 model when the clip has parallax) and the
 share of pixels that leave the static scene over ``reach`` frames (:func:`long_range_moving_share`,
@@ -19,7 +20,7 @@ import numpy as np
 
 from layercam.core.geometry import sampson_distance
 
-__all__ = ["chained_displacements", "camera_residuals", "pair_residuals", "long_range_moving_share"]
+__all__ = ["chained_displacements", "flow_vote", "camera_residuals", "pair_residuals", "long_range_moving_share"]
 
 RANSAC_PX = 1.0    # a flow vector within this many pixels of the camera's model is explained by it
 H_INLIERS = 0.8    # a homography explaining this share of the points fitted is the camera's whole motion ...
@@ -65,6 +66,25 @@ def chained_displacements(fw: np.ndarray, bw: np.ndarray | None, fw_ok: np.ndarr
             j += sgn
             out[sgn * k] = (d.copy(), v.copy())
     return out
+
+
+def flow_vote(values, t: int, fw, bw, fw_ok, bw_ok, reach: int) -> np.ndarray:
+    """Frame ``t``'s ``values[t] (H, W)`` averaged with its neighbours' ``values[t + k]``, ``0 < |k| <=
+    reach``, each carried into frame ``t`` along the chained flows and counted only where
+    :func:`chained_displacements` finds the chain consistent (flows as it takes them, at ``(H, W)``;
+    ``values``: anything indexed by frame that holds those frames). Returns ``(H, W)`` float32."""
+    import cv2
+
+    own = np.asarray(values[t], np.float32)
+    base = grid_points(*own.shape)
+    acc, n = own.copy(), np.ones(own.shape, np.float32)
+    for k, (d, v) in chained_displacements(fw, bw, fw_ok, bw_ok, t, reach).items():
+        p = base + d
+        s = cv2.remap(np.asarray(values[t + k], np.float32), p[..., 0], p[..., 1], cv2.INTER_LINEAR,
+                      borderMode=cv2.BORDER_REPLICATE)
+        acc += np.where(v, s, 0.0)
+        n += v
+    return acc / n
 
 
 def _edge_fraction(sel: np.ndarray, x2: np.ndarray) -> float:

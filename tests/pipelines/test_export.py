@@ -58,22 +58,33 @@ def test_export_refuses_non_finite_render(tiny_scene, tiny_exposures, tmp_path, 
     assert not list((tmp_path / "run").glob("hdr/*.exr"))
 
 
-def test_the_alpha_mattes_are_the_models_alpha_feathered_to_the_frames_colour_edges(two_layer_run):
-    """``alpha/frame_*.png`` hold the model's alpha (> 0.5) through the guided filter with the input
+def _run_flow(run):
+    from layercam.vision import flow_store
+
+    return flow_store.load(next((run / "cache").glob("flow-*")))
+
+
+def test_the_alpha_mattes_are_the_models_alpha_voted_along_the_flow_and_feathered(two_layer_run):
+    """``alpha/frame_*.png`` hold the model's alpha voted with its neighbours' along the run's flow
+    (``flow_vote``, ``VOTE_REACH`` either side), then (> 0.5) through the guided filter with the input
     frame as the guide (``guided_matte``), to the PNG's precision; the model's own alpha is not it."""
     from layercam.engine.checkpoint import load_run_model
     from layercam.io import read_image
     from layercam.scene.render import render_frame
-    from layercam.vision.segment.edges import guided_matte
+    from layercam.vision.motion import flow_vote
+    from layercam.vision.segment.edges import VOTE_REACH, guided_matte
 
     run, frames = two_layer_run["run"], two_layer_run["scene"].clip.frames
     model, _ = load_run_model(run)
-    for t in (0, len(frames) - 1):
-        a = render_frame(model, t, frames.shape[1:3], ("alpha",))["alpha"]
+    fl = _run_flow(run)
+    alphas = [render_frame(model, t, frames.shape[1:3], ("alpha",))["alpha"] for t in range(len(frames))]
+    for t in (0, len(frames) // 2, len(frames) - 1):
+        a = flow_vote(alphas, t, *(np.asarray(fl[k][:], np.float32 if k in ("fw", "bw") else bool)
+                                   for k in ("fw", "bw", "fw_ok", "bw_ok")), reach=VOTE_REACH)
         assert (a > 0.5).any()
         got = read_image(run / "alpha" / f"frame_{t:05d}.png")[..., 0]
         assert np.abs(got - guided_matte(np.asarray(frames[t], np.float32), a)).max() < 1.5 / 255, t
-        assert np.abs(got - a).max() > 4 / 255, t
+        assert np.abs(got - alphas[t]).max() > 4 / 255, t
 
 
 def test_atlases_fed_by_the_hdr_frames_match_the_atlases_rendered_alone(two_layer_run, tmp_path):
@@ -87,7 +98,7 @@ def test_atlases_fed_by_the_hdr_frames_match_the_atlases_rendered_alone(two_laye
 
     run, frames = two_layer_run["run"], two_layer_run["scene"].clip.frames
     model, ck = load_run_model(run)
-    summary = export_atlases(model, tmp_path, frames, fps=float(ck.get("fps") or 24.0))
+    summary = export_atlases(model, tmp_path, frames, fps=float(ck.get("fps") or 24.0), flow=_run_flow(run))
     assert summary["alpha_mattes"] == len(frames) == len(list((run / "alpha").glob("*.png")))
     for name in ("alpha/frame_00000.png", f"alpha/frame_{len(frames) - 1:05d}.png", "atlases/layer1.png"):
         assert np.array_equal(cv2.imread(str(run / name), cv2.IMREAD_UNCHANGED),

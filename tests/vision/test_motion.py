@@ -68,6 +68,25 @@ def test_chained_displacements_follow_the_pan():
     assert set(fwd) == {1, 2}
 
 
+def test_flow_vote_outvotes_a_frame_that_lost_the_object_and_reads_only_consistent_chains():
+    """A moving square's masks, one frame's emptied: the vote along the flow brings it back where
+    the neighbours, carried along the chained flow, agree; a neighbour counts only where the chain
+    is consistent, so with every chain inconsistent a frame keeps its own value."""
+    frames, masks = _clip(T=7, obj_speed=(0.0, 3.0), side=14)
+    fw, bw, fo, bo = _flows(frames)
+    vals = masks.astype(np.float32)
+    vals[3] = 0.0
+    voted = motion.flow_vote(vals, 3, fw, bw, fo, bo, reach=2)
+    assert voted.shape == masks.shape[1:] and voted.dtype == np.float32
+    assert metrics.iou(voted > 0.5, masks[3]) > 0.8
+    assert metrics.iou(vals[3] > 0.5, masks[3]) == 0.0
+    own = motion.flow_vote(vals, 3, fw, bw, np.zeros_like(fo), np.zeros_like(bo), reach=2)
+    assert np.array_equal(own, vals[3])
+    near = {2: vals[3], 3: vals[3], 4: masks[4].astype(np.float32)}  # any mapping of the frames read
+    assert not (motion.flow_vote(near, 3, fw, bw, fo, bo, reach=1) > 0.5).any()  # one of three is no majority
+    assert np.abs(motion.flow_vote(near, 3, fw, bw, fo, bo, reach=1)).max() > 0.3
+
+
 def test_a_slow_object_adds_up_over_frames():
     frames, masks = _clip(T=16, obj_speed=(0.0, 0.5), side=16)  # 0.5 px per frame: DIS reads ~0.3 between neighbours
     fw, bw, fo, bo = _flows(frames)

@@ -40,6 +40,9 @@ def grabcut_refine(frame: np.ndarray, mask: np.ndarray, iters: int = ITERATIONS)
 
 GUIDE_RADIUS = 0.04  # the guided filter's window radius, a share of the short side (fitted on DAVIS's training split)
 GUIDE_EPS = 1e-4     # its regulariser, in squared intensity (0-1): below a colour variance of about this, it smooths
+VOTE_REACH = 4       # an exported matte: the model's alpha voted with its neighbours' this many frames either side
+                     # along the consistent flow (layercam.vision.motion.flow_vote) before the guided filter
+                     # (fitted on DAVIS's training split: 1, 2, 3, 4, 6, 8 tried)
 
 
 def guided_matte(frame: np.ndarray, mask: np.ndarray, radius: float = GUIDE_RADIUS,

@@ -105,6 +105,7 @@ class AtlasSink:
         self.alphas: dict[int, np.ndarray] = {}  # alpha of the frames a matte still to write reads
         self.flow = None if not self.two or flow is None or T < 2 else [
             AtFrameSize(flow[k], (H, W)) for k in ("fw", "bw", "fw_ok", "bw_ok")]
+        self.reach = VOTE_REACH if self.flow else 0  # a matte is written once the frames it reads are in
         self.next_t, self.open = 0, True
         if self.two:
             (self.run_dir / "alpha").mkdir(exist_ok=True)
@@ -131,7 +132,7 @@ class AtlasSink:
                 self.alpha_videos[k].add(to8(ws[k]))
         if self.two:
             self.alphas[t] = np.asarray(alpha, np.float32)
-            self._mattes(t - (VOTE_REACH if self.flow else 0))
+            self._mattes(t - self.reach)
 
     def _mattes(self, last: int) -> None:
         """Writes the mattes of the frames up to ``last`` not yet written; forgets the alpha no later
@@ -141,11 +142,11 @@ class AtlasSink:
         from layercam.vision.segment.edges import guided_matte
 
         for s in range(len(self.fg), last + 1):
-            a = flow_vote(self.alphas, s, *self.flow, reach=VOTE_REACH) if self.flow else self.alphas[s]
+            a = flow_vote(self.alphas, s, *self.flow, reach=self.reach) if self.flow else self.alphas[s]
             matte = guided_matte(self.frames[s], a)  # zeros where alpha holds nothing
             write_png(self.run_dir / "alpha" / f"frame_{s:05d}.png", matte)
             self.fg.append(float(np.mean(matte > 0.5)))
-            for k in [k for k in self.alphas if k <= s - (VOTE_REACH if self.flow else 0)]:
+            for k in [k for k in self.alphas if k <= s - self.reach]:
                 del self.alphas[k]
 
     def abort(self) -> None:

@@ -87,6 +87,36 @@ def test_the_alpha_mattes_are_the_models_alpha_voted_along_the_flow_and_feathere
         assert np.abs(got - alphas[t]).max() > 4 / 255, t
 
 
+def test_the_atlas_sink_votes_each_matte_holding_only_the_alpha_its_reach_needs(two_layer_run, tmp_path):
+    """The sink writes a matte once the frames its vote reads have arrived, and forgets alpha no later
+    matte reads: at reach 1 it keeps two frames' alpha between frames, and each matte is ``flow_vote`` at
+    that reach through the guided filter."""
+    from layercam.engine.checkpoint import load_run_model
+    from layercam.io import read_image
+    from layercam.pipelines.atlas_export import AtlasSink
+    from layercam.scene.render import render_frame
+    from layercam.vision.motion import flow_vote
+    from layercam.vision.segment.edges import guided_matte
+
+    run, frames = two_layer_run["run"], two_layer_run["scene"].clip.frames
+    model, _ = load_run_model(run)
+    fl = _run_flow(run)
+    sink = AtlasSink(model, tmp_path, frames, flow=fl)
+    sink.reach = 1
+    alphas, held = [], []
+    for t in range(len(frames)):
+        m = render_frame(model, t, frames.shape[1:3], ("uv", "alpha"))
+        alphas.append(m["alpha"])
+        sink.add(t, m["uv"], m["alpha"])
+        held.append(len(sink.alphas))
+    sink.close()
+    assert max(held) == 2 and len(list((tmp_path / "alpha").glob("*.png"))) == len(frames)
+    flows = [np.asarray(fl[k][:], np.float32 if k in ("fw", "bw") else bool) for k in ("fw", "bw", "fw_ok", "bw_ok")]
+    for t in range(len(frames)):
+        want = guided_matte(np.asarray(frames[t], np.float32), flow_vote(alphas, t, *flows, reach=1))
+        assert np.abs(read_image(tmp_path / "alpha" / f"frame_{t:05d}.png")[..., 0] - want).max() < 1.5 / 255, t
+
+
 def test_atlases_fed_by_the_hdr_frames_match_the_atlases_rendered_alone(two_layer_run, tmp_path):
     """hdr-video's export hands each frame's geometry from its HDR render to the atlases
     (``AtlasSink``): the same files as rendering the geometry for the atlases alone; a frame out of

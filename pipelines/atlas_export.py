@@ -81,7 +81,7 @@ class AtlasSink:
     A writer that renders each frame anyway (the HDR frames) feeds it, so the frames' geometry is
     computed once; :func:`export_atlases` renders it for the atlases alone. ``flow``: the clip's
     (the flow stage's arrays, at any size), which the mattes are voted along; without it each matte
-    is its own frame's. Holds one frame, and the alpha of ``2 VOTE_REACH + 1``."""
+    is its own frame's. Holds ``VOTE_REACH + 1`` frames, and the alpha of ``2 VOTE_REACH + 1``."""
 
     def __init__(self, model, run_dir: Path, frames: np.ndarray, fps: float = 24.0, chunk: int = 65536,
                  flow=None):
@@ -103,6 +103,7 @@ class AtlasSink:
         self.two = m["alpha"] is not None
         self.fg: list[float] = []  # per frame, the share of pixels the foreground's alpha holds (> 0.5)
         self.alphas: dict[int, np.ndarray] = {}  # alpha of the frames a matte still to write reads
+        self.waiting: dict[int, np.ndarray] = {}  # the frames whose matte is not yet written (read once)
         self.flow = None if not self.two or flow is None or T < 2 else [
             AtFrameSize(flow[k], (H, W)) for k in ("fw", "bw", "fw_ok", "bw_ok")]
         self.reach = VOTE_REACH if self.flow else 0  # a matte is written once the frames it reads are in
@@ -131,7 +132,7 @@ class AtlasSink:
             if self.two:
                 self.alpha_videos[k].add(to8(ws[k]))
         if self.two:
-            self.alphas[t] = np.asarray(alpha, np.float32)
+            self.alphas[t], self.waiting[t] = np.asarray(alpha, np.float32), frame
             self._mattes(t - self.reach)
 
     def _mattes(self, last: int) -> None:
@@ -143,11 +144,10 @@ class AtlasSink:
 
         for s in range(len(self.fg), last + 1):
             a = flow_vote(self.alphas, s, *self.flow, reach=self.reach) if self.flow else self.alphas[s]
-            matte = guided_matte(self.frames[s], a)  # zeros where alpha holds nothing
+            matte = guided_matte(self.waiting.pop(s), a)  # zeros where alpha holds nothing
             write_png(self.run_dir / "alpha" / f"frame_{s:05d}.png", matte)
             self.fg.append(float(np.mean(matte > 0.5)))
-            for k in [k for k in self.alphas if k <= s - self.reach]:
-                del self.alphas[k]
+            self.alphas.pop(s - self.reach, None)  # the frames voted on from here on do not reach it
 
     def abort(self) -> None:
         """Drops the videos begun (called while an exception ends the export: no partial file is kept)."""

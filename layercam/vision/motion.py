@@ -73,16 +73,12 @@ def flow_vote(values, t: int, fw, bw, fw_ok, bw_ok, reach: int) -> np.ndarray:
     reach``, each carried into frame ``t`` along the chained flows and counted only where
     :func:`chained_displacements` finds the chain consistent (flows as it takes them, at ``(H, W)``;
     ``values``: anything indexed by frame that holds those frames). Returns ``(H, W)`` float32."""
-    import cv2
+    from layercam.core.geometry import warp
 
     own = np.asarray(values[t], np.float32)
-    base = grid_points(*own.shape)
     acc, n = own.copy(), np.ones(own.shape, np.float32)
     for k, (d, v) in chained_displacements(fw, bw, fw_ok, bw_ok, t, reach).items():
-        p = base + d
-        s = cv2.remap(np.asarray(values[t + k], np.float32), p[..., 0], p[..., 1], cv2.INTER_LINEAR,
-                      borderMode=cv2.BORDER_REPLICATE)
-        acc += np.where(v, s, 0.0)
+        acc += np.where(v, warp(np.asarray(values[t + k], np.float32), d), 0.0)
         n += v
     return acc / n
 

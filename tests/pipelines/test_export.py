@@ -64,6 +64,11 @@ def _run_flow(run):
     return flow_store.load(next((run / "cache").glob("flow-*")))
 
 
+def _flow_arrays(fl) -> list[np.ndarray]:
+    """The run's flow as ``flow_vote`` takes it: ``fw, bw`` float32, ``fw_ok, bw_ok`` bool, in memory."""
+    return [np.asarray(fl[k][:], np.float32 if k in ("fw", "bw") else bool) for k in ("fw", "bw", "fw_ok", "bw_ok")]
+
+
 def test_the_alpha_mattes_are_the_models_alpha_voted_along_the_flow_and_feathered(two_layer_run):
     """``alpha/frame_*.png`` hold the model's alpha voted with its neighbours' along the run's flow
     (``flow_vote``, ``VOTE_REACH`` either side), then (> 0.5) through the guided filter with the input
@@ -76,11 +81,10 @@ def test_the_alpha_mattes_are_the_models_alpha_voted_along_the_flow_and_feathere
 
     run, frames = two_layer_run["run"], two_layer_run["scene"].clip.frames
     model, _ = load_run_model(run)
-    fl = _run_flow(run)
+    flows = _flow_arrays(_run_flow(run))
     alphas = [render_frame(model, t, frames.shape[1:3], ("alpha",))["alpha"] for t in range(len(frames))]
     for t in (0, len(frames) // 2, len(frames) - 1):
-        a = flow_vote(alphas, t, *(np.asarray(fl[k][:], np.float32 if k in ("fw", "bw") else bool)
-                                   for k in ("fw", "bw", "fw_ok", "bw_ok")), reach=VOTE_REACH)
+        a = flow_vote(alphas, t, *flows, reach=VOTE_REACH)
         assert (a > 0.5).any()
         got = read_image(run / "alpha" / f"frame_{t:05d}.png")[..., 0]
         assert np.abs(got - guided_matte(np.asarray(frames[t], np.float32), a)).max() < 1.5 / 255, t
@@ -111,7 +115,7 @@ def test_the_atlas_sink_votes_each_matte_holding_only_the_alpha_its_reach_needs(
         held.append(len(sink.alphas))
     sink.close()
     assert max(held) == 2 and len(list((tmp_path / "alpha").glob("*.png"))) == len(frames)
-    flows = [np.asarray(fl[k][:], np.float32 if k in ("fw", "bw") else bool) for k in ("fw", "bw", "fw_ok", "bw_ok")]
+    flows = _flow_arrays(fl)
     for t in range(len(frames)):
         want = guided_matte(np.asarray(frames[t], np.float32), flow_vote(alphas, t, *flows, reach=1))
         assert np.abs(read_image(tmp_path / "alpha" / f"frame_{t:05d}.png")[..., 0] - want).max() < 1.5 / 255, t

@@ -15,8 +15,8 @@ learned over the whole clip. One step per module:
    where the frame has texture the flow can follow, one object per frame, still frames filled from
    the nearest frame that holds the object at its typical size; where the clip's largest moving
    parts are a dynamic texture (:mod:`~layercam.vision.segment.dynamic`: a stream, ripples, their
-   outline keeping its place while the flow inside moves), the part whose outline travels with its
-   flow (the ``travel`` step).
+   outline keeping its place while the flow inside moves), the one track of parts, followed along
+   the flow over the clip, whose outline travels with its flow (the ``travel`` step).
 4. :mod:`~layercam.vision.segment.edges`: GrabCut pulls each mask to the object's colour edges.
 5. :mod:`~layercam.vision.segment.background`: the clean plate (neighbours registered by the camera's
    motion, their object left out) adds limbs the flow missed and drops background the flow smeared.

@@ -23,24 +23,12 @@ def part_means(lab: np.ndarray, n: int, values: np.ndarray) -> np.ndarray:
                        minlength=n) / np.maximum(np.bincount(lab.ravel(), minlength=n), 1)
 
 
-def clean_mask(mask: np.ndarray, colour: np.ndarray | None = None, reach: float = 0.0,
-               scale: float = 1.0, weight: np.ndarray | None = None,
-               seed: np.ndarray | None = None) -> np.ndarray:
-    """Morphology on one ``(H, W)`` bool mask: open, close, fill holes, drop small components, and
-    keep one object: the largest component and those within ``GAP`` times its size of it (parts an
-    occluder splits off). With ``colour`` (``(H, W)``, the object : background colour
-    log-likelihood ratio of :func:`layercam.vision.segment.colour.colour_cut`), a component farther than
-    that is kept too when its mean ratio is at least ``PART_LLR`` and it lies within ``reach``
-    pixels of the largest, and what the opening took comes back where its ratio is at least
-    ``THIN_LLR`` and it touches what the opening left (legs, a tail). ``scale``: the radii of the
-    opening and the closing times this (0: neither). With ``weight`` (``(H, W)``, how much each
-    pixel's support travels with its flow: :func:`layercam.vision.segment.dynamic.travel`), the part
-    kept is, of those over ``KEEP_FRACTION`` of the largest, the one of the largest summed weight,
-    and nothing where no part's sum is above 0. With ``seed`` (``(H, W)`` bool, the mask a cut grew
-    from), the part kept is the one that holds most of it, whatever its size (a cut grows the object;
-    a larger part it found apart from it is not the object), or the largest where none does."""
+def mask_parts(mask: np.ndarray, colour: np.ndarray | None = None,
+               scale: float = 1.0) -> tuple[int, np.ndarray, np.ndarray]:
+    """The parts :func:`clean_mask` chooses among: ``mask`` ``(H, W)`` opened, closed and its holes
+    filled (``colour`` and ``scale`` as there), then its connected components: ``(n, labels (H, W),
+    areas (n - 1,))``, label 0 the background."""
     import cv2
-    from scipy import ndimage
 
     h, w = mask.shape
     m = mask.astype(np.uint8)
@@ -58,16 +46,31 @@ def clean_mask(mask: np.ndarray, colour: np.ndarray | None = None, reach: float 
     cv2.floodFill(flood, np.zeros((h + 4, w + 4), np.uint8), (0, 0), 1)
     m = (m.astype(bool) | (flood[1:-1, 1:-1] == 0)).astype(np.uint8)
     n, lab, stats, _ = cv2.connectedComponentsWithStats(m, connectivity=8)
+    return n, lab, stats[1:, cv2.CC_STAT_AREA]
+
+
+def clean_mask(mask: np.ndarray, colour: np.ndarray | None = None, reach: float = 0.0,
+               scale: float = 1.0, seed: np.ndarray | None = None) -> np.ndarray:
+    """Morphology on one ``(H, W)`` bool mask: open, close, fill holes, drop small components, and
+    keep one object: the largest component and those within ``GAP`` times its size of it (parts an
+    occluder splits off). With ``colour`` (``(H, W)``, the object : background colour
+    log-likelihood ratio of :func:`layercam.vision.segment.colour.colour_cut`), a component farther than
+    that is kept too when its mean ratio is at least ``PART_LLR`` and it lies within ``reach``
+    pixels of the largest, and what the opening took comes back where its ratio is at least
+    ``THIN_LLR`` and it touches what the opening left (legs, a tail). ``scale``: the radii of the
+    opening and the closing times this (0: neither). With ``seed`` (``(H, W)`` bool: the mask a cut
+    grew from, or the part a followed track holds), the part kept is the one that holds most of it,
+    whatever its size (a cut grows the object; a larger part it found apart from it is not the
+    object), or the largest where none does."""
+    import cv2
+    from scipy import ndimage
+
+    h, w = mask.shape
+    n, lab, areas = mask_parts(mask, colour, scale)
     if n <= 1:
         return np.zeros((h, w), bool)
-    areas = stats[1:, cv2.CC_STAT_AREA]
     keep = (areas >= MIN_AREA * h * w) & (areas >= KEEP_FRACTION * areas.max())
     main = 1 + int(np.argmax(areas))
-    if weight is not None:  # of the parts large enough to be the object, the one whose support travels most
-        score = np.where(keep, ndimage.sum(np.asarray(weight, np.float64), lab, np.arange(1, n)), 0.0)
-        if score.max() <= 0:
-            return np.zeros((h, w), bool)
-        main = 1 + int(np.argmax(score))
     if seed is not None:
         held = ndimage.sum(np.asarray(seed, np.float64), lab, np.arange(1, n))
         if held.max() > 0:

@@ -10,9 +10,13 @@ in that frame's mask and the camera's does not (+1) or the reverse (-1). An obje
 its edges in almost every
 frame; a dynamic texture scores about 0 (its flow's ends and the camera's both land in it, or leave
 it as often one way as the other). :func:`keeps_place` reads the clip's largest parts by a sign
-test over the frames: where they travel in no more frames than chance, the finder keeps in each frame
-the part whose outline travels most (``clean.clean_mask``'s ``weight``), and a frame where none does
-is left to its neighbours (``clean.fill_still_frames``).
+test over the frames: where they travel in no more frames than chance, :func:`follow` takes the one
+object whose outline does travel: each frame's parts are linked to the next frame's along the flow
+into tracks, the track of the largest summed travel is the object where it travels in more frames
+than chance by the same test, and each frame keeps its part where that part is large enough to be
+the object; a frame without one is left to its neighbours (``clean.fill_still_frames``). One track
+for the clip, not one part a frame: a part chosen frame by frame goes to the texture wherever the
+object is small or its outline hardly moves for a few frames.
 
 Shapes: masks ``(T, H, W)`` bool, flows ``(T-1, H, W, 2)``, homographies ``(T-1, 3, 3)`` frame t -> t+1.
 """
@@ -22,6 +26,7 @@ from __future__ import annotations
 import numpy as np
 
 SIGNIFICANCE = 0.05  # the sign test's level: masks that travel in no more frames than chance keep their place
+LINK = 0.5  # parts of neighbouring frames are one track where one, carried along the flow, holds most of the smaller
 
 
 def travel(raw: np.ndarray, fw, bw, fw_ok, bw_ok, homs: np.ndarray, reach: int) -> np.ndarray:
@@ -67,10 +72,73 @@ def keeps_place(masks, moves: np.ndarray) -> tuple[bool, float]:
     ``moves`` is above 0. Returns ``(keeps, p)``: the test's p-value, and True where it is at least
     ``SIGNIFICANCE`` though the frames are enough to reach it (``0.5 ** n < SIGNIFICANCE``; with
     fewer the masks are taken to travel)."""
-    from scipy.stats import binomtest
-
     s = [float(w[m].sum()) for m, w in zip(masks, moves) if m.any()]
     if not s:
         return False, 1.0
-    p = float(binomtest(sum(x > 0 for x in s), len(s), 0.5, alternative="greater").pvalue)
+    p = _sign_p(s)
     return p >= SIGNIFICANCE and 0.5 ** len(s) < SIGNIFICANCE, p
+
+
+def _sign_p(sums) -> float:
+    """The one-sided sign test's p-value: how often ``sums`` are above 0, against chance."""
+    from scipy.stats import binomtest
+
+    return float(binomtest(sum(x > 0 for x in sums), len(sums), 0.5, alternative="greater").pvalue)
+
+
+def follow(raw: np.ndarray, moves: np.ndarray, bw: np.ndarray) -> np.ndarray | None:
+    """The one object of a clip whose largest moving parts keep their place: ``(T, H, W)`` bool, or
+    None where no track travels. ``raw``: the motion masks before cleaning, ``moves`` their
+    :func:`travel`, ``bw`` ``(T-1, H, W, 2)`` the backward flows (frame t+1's pixels -> t).
+
+    Each frame's parts (:func:`~layercam.vision.segment.clean.mask_parts`, over ``MIN_AREA``) are
+    linked to the next frame's where one, carried along the flow, holds ``LINK`` of the smaller;
+    linked parts form tracks. A track's part in a frame is its part of the largest travel there (a
+    texture beside the object can join its track where the two touch); the track of the largest
+    travel summed over its parts is the object where they travel in more frames of the clip than
+    chance (the sign test of :func:`keeps_place`, every frame counted, those without the track as
+    not travelling). Each frame keeps the track's part, with the parts an occluder split off it
+    (:func:`~layercam.vision.segment.clean.clean_mask`'s ``seed``), where that part is at least
+    ``KEEP_FRACTION`` of the frame's largest (a smaller one is part of the object at most), and is
+    empty elsewhere."""
+    from layercam.vision.segment.clean import KEEP_FRACTION, MIN_AREA, clean_mask, mask_parts, warp_mask
+
+    T, h, w = raw.shape
+    labels, nodes = [], []  # nodes: (frame, label, travel sum)
+    for t in range(T):
+        n, lab, areas = mask_parts(raw[t])
+        labels.append((lab, areas))
+        nodes += [(t, i, float(moves[t][lab == i].sum())) for i in range(1, n) if areas[i - 1] >= MIN_AREA * h * w]
+    index = {(t, i): k for k, (t, i, _) in enumerate(nodes)}
+    root = list(range(len(nodes)))
+
+    def find(k: int) -> int:
+        while root[k] != k:
+            root[k] = root[root[k]]
+            k = root[k]
+        return k
+
+    for t in range(T - 1):
+        (lab0, a0), (lab1, a1) = labels[t], labels[t + 1]
+        for i in (i for (s, i, _) in nodes if s == t):
+            carried = warp_mask(lab0 == i, bw[t]) > 0.5
+            held = np.bincount(lab1[carried], minlength=len(a1) + 1)
+            for j in (j for (s, j, _) in nodes if s == t + 1):
+                if held[j] >= LINK * min(a0[i - 1], a1[j - 1]):
+                    root[find(index[(t, i)])] = find(index[(t + 1, j)])
+    tracks: dict[int, dict] = {}  # per track, its part of the largest travel in each frame it holds
+    for k, (t, i, x) in enumerate(nodes):
+        frames = tracks.setdefault(find(k), {})
+        if t not in frames or x > frames[t][1]:
+            frames[t] = (i, x)
+    if not tracks:
+        return None
+    best = max(tracks.values(), key=lambda fr: sum(x for _, x in fr.values()))
+    if _sign_p([best[t][1] if t in best else 0.0 for t in range(T)]) >= SIGNIFICANCE:
+        return None
+    out = np.zeros((T, h, w), bool)
+    for t, (i, _) in best.items():
+        lab, areas = labels[t]
+        if areas[i - 1] >= KEEP_FRACTION * areas.max():
+            out[t] = clean_mask(raw[t], seed=lab == i)
+    return out

@@ -10,8 +10,8 @@ follow (:func:`layercam.core.visibility.textured`): flow over a smooth sky or ro
 its edges (the object's motion spills onto the road beside it), not measured. The object's own
 smooth parts come back by their colours (:mod:`layercam.vision.segment.colour`). Where the largest
 moving part is a dynamic texture (a stream, ripples: its outline keeps its place in the scene
-though the flow inside it moves), each frame keeps the part whose outline travels with its flow
-(:mod:`layercam.vision.segment.dynamic`).
+though the flow inside it moves), the masks follow the one track of parts whose outline travels
+with its flow (:mod:`layercam.vision.segment.dynamic`).
 """
 
 from __future__ import annotations
@@ -80,8 +80,8 @@ def motion_masks(fw, bw, fw_ok=None, bw_ok=None, *, cfg, frames=None, homs=None)
     ``(T, H, W)`` the masks came from). With the camera's ``homs`` ``(T-1, 3, 3)`` (frame t -> t+1),
     a clip whose largest moving parts do not travel with their own flow
     (:func:`layercam.vision.segment.dynamic.keeps_place`;
-    ``info["travel_p"]``) takes in each frame the part that travels most
-    instead. ``fw_ok``, ``bw_ok`` ``(T-1, H, W)``: the flows'
+    ``info["travel_p"]``) takes the track of parts that travels instead, where one does
+    (:func:`layercam.vision.segment.dynamic.follow`). ``fw_ok``, ``bw_ok`` ``(T-1, H, W)``: the flows'
     forward-backward checks (computed when None); ``cfg``: a :class:`layercam.core.config.SegmentConfig`
     (``reach``, ``k_sigma``). With the ``frames`` ``(T, H, W[, C])``, evidence counts only where
     the frame has texture."""
@@ -102,12 +102,13 @@ def motion_masks(fw, bw, fw_ok=None, bw_ok=None, *, cfg, frames=None, homs=None)
         raw &= tex
     masks = [clean_mask(m) for m in raw]
     if homs is not None:
-        from layercam.vision.segment.dynamic import keeps_place, travel
+        from layercam.vision.segment.dynamic import follow, keeps_place, travel
 
         moves = travel(raw, f, b, fo, bo, homs, cfg.reach)
         keeps, info["travel_p"] = keeps_place(masks, moves)
-        if keeps:  # the largest parts are a dynamic texture
-            masks = [clean_mask(m, weight=w) for m, w in zip(raw, moves)]
+        followed = follow(raw, moves, b) if keeps else None  # the largest parts are a dynamic texture
+        if followed is not None:
+            masks = list(followed)
     masks, filled = fill_still_frames(np.stack(masks), f, b)
     masks = np.stack([clean_mask(m) for m in masks]) if filled else masks
     cover = masks.reshape(len(masks), -1).mean(1)

@@ -83,3 +83,19 @@ def test_motion_masks_take_the_object_not_the_stream_beside_it():
     assert info["travel_p"] > 0.05
     iou = [(m.astype(bool) & s).sum() / (m.astype(bool) | s).sum() for m, s in zip(masks, squares)]
     assert min(iou) > 0.6 and masks[:, stream].mean() < 0.02
+
+
+def test_a_small_object_beside_a_large_stream_still_counts():
+    fw, bw, homs, stream, _ = _clip()
+    T = len(fw) + 1
+    small = np.zeros((T,) + stream.shape, bool)
+    for t in range(T):  # 6 x 8 px: a twentieth of the stream, under KEEP_FRACTION of it
+        small[t, 36:42, 10 + 2 * t:18 + 2 * t] = True
+    fw[:], bw[:] = 0, 0
+    fw[:, stream, 0], bw[:, stream, 0] = 2.0, -2.0
+    for t in range(T - 1):
+        fw[t, small[t], 0] = 2.0
+        bw[t, small[t + 1], 0] = -2.0
+    masks, info = motion_masks(fw, bw, cfg=SegmentConfig(), homs=homs)
+    assert info["travel_p"] > 0.05 and not masks[:, stream].any()
+    assert min(masks[t][small[t]].mean() for t in range(T)) > 0.9

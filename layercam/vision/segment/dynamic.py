@@ -14,7 +14,8 @@ test over the frames: where they travel in no more frames than chance, :func:`fo
 object whose outline does travel: each frame's parts are linked to the next frame's along the flow
 into tracks, the track of the largest summed travel is the object where it travels in more frames
 than chance by the same test, and each frame keeps its part where that part is large enough to be
-the object; a frame without one is left to its neighbours (``clean.fill_still_frames``). One track
+the object, however small beside the texture; a frame without one is left to its neighbours
+(``clean.fill_still_frames``). One track
 for the clip, not one part a frame: a part chosen frame by frame goes to the texture wherever the
 object is small or its outline hardly moves for a few frames.
 
@@ -99,8 +100,9 @@ def follow(raw: np.ndarray, moves: np.ndarray, bw: np.ndarray) -> np.ndarray | N
     chance (the sign test of :func:`keeps_place`, every frame counted, those without the track as
     not travelling). Each frame keeps the track's part, with the parts an occluder split off it
     (:func:`~layercam.vision.segment.clean.clean_mask`'s ``seed``), where that part is at least
-    ``KEEP_FRACTION`` of the frame's largest (a smaller one is part of the object at most), and is
-    empty elsewhere."""
+    ``KEEP_FRACTION`` of the frame's largest or the track's median size (a small object beside a
+    large texture still counts; a part under both is a fragment of the object), and is empty
+    elsewhere (left to the frames that hold it at its typical size)."""
     from layercam.vision.segment.clean import KEEP_FRACTION, MIN_AREA, clean_mask, mask_parts, warp_mask
 
     T, h, w = raw.shape
@@ -136,9 +138,11 @@ def follow(raw: np.ndarray, moves: np.ndarray, bw: np.ndarray) -> np.ndarray | N
     best = max(tracks.values(), key=lambda fr: sum(x for _, x in fr.values()))
     if _sign_p([best[t][1] if t in best else 0.0 for t in range(T)]) >= SIGNIFICANCE:
         return None
+    size = {t: labels[t][1][i - 1] for t, (i, _) in best.items()}
+    typical = np.median(list(size.values()))
     out = np.zeros((T, h, w), bool)
     for t, (i, _) in best.items():
         lab, areas = labels[t]
-        if areas[i - 1] >= KEEP_FRACTION * areas.max():
+        if size[t] >= min(KEEP_FRACTION * areas.max(), typical):
             out[t] = clean_mask(raw[t], seed=lab == i)
     return out

@@ -99,3 +99,23 @@ def test_a_small_object_beside_a_large_stream_still_counts():
     masks, info = motion_masks(fw, bw, cfg=SegmentConfig(), homs=homs)
     assert info["travel_p"] > 0.05 and not masks[:, stream].any()
     assert min(masks[t][small[t]].mean() for t in range(T)) > 0.9
+
+
+def test_the_masks_follow_one_object_not_the_largest_part_of_each_frame():
+    fw, bw, homs, _, squares = _clip(T=16)
+    T, h, w = squares.shape
+    fw[:], bw[:] = 0, 0
+    blob = np.zeros_like(squares)
+    for t in range(2, 6):  # a larger thing passes through four frames, far from the object
+        blob[t, 4 + 2 * t:22 + 2 * t, 52:70] = True
+    for t in range(T - 1):
+        fw[t, squares[t], 0] = 2.0
+        bw[t, squares[t + 1], 0] = -2.0
+        fw[t, blob[t], 1] = 2.0
+        bw[t, blob[t + 1], 1] = -2.0
+    cfg = SegmentConfig()
+    plain, _ = motion_masks(fw, bw, cfg=cfg)
+    assert plain[3][blob[3]].mean() > 0.9  # each frame's largest part: the thing passing
+    masks, info = motion_masks(fw, bw, cfg=cfg, homs=homs)
+    assert info["travel_p"] < 0.05 and not masks[blob].any()
+    assert min((m.astype(bool) & s).sum() / (m.astype(bool) | s).sum() for m, s in zip(masks, squares)) > 0.7

@@ -16,7 +16,8 @@ learned over the whole clip. One step per module:
    the nearest frame that holds the object at its typical size; where the clip's largest moving
    parts are a dynamic texture (:mod:`~layercam.vision.segment.dynamic`: a stream, ripples, their
    outline keeping its place while the flow inside moves), the one track of parts, followed along
-   the flow over the clip, whose outline travels with its flow (the ``travel`` step).
+   the flow over the clip, whose outline travels with its flow, and otherwise the track of the
+   largest area (the ``travel`` step: one object for the clip, not the largest part of each frame).
 4. :mod:`~layercam.vision.segment.edges`: GrabCut pulls each mask to the object's colour edges.
 5. :mod:`~layercam.vision.segment.background`: the clean plate (neighbours registered by the camera's
    motion, their object left out) adds limbs the flow missed and drops background the flow smeared.

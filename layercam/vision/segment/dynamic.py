@@ -10,14 +10,13 @@ in that frame's mask and the camera's does not (+1) or the reverse (-1). An obje
 its edges in almost every
 frame; a dynamic texture scores about 0 (its flow's ends and the camera's both land in it, or leave
 it as often one way as the other). :func:`keeps_place` reads the clip's largest parts by a sign
-test over the frames: where they travel in no more frames than chance, :func:`follow` takes the one
-object whose outline does travel: each frame's parts are linked to the next frame's along the flow
-into tracks, the track of the largest summed travel is the object where it travels in more frames
-than chance by the same test, and each frame keeps its part where that part is large enough to be
-the object, however small beside the texture; a frame without one is left to its neighbours
-(``clean.fill_still_frames``). One track
-for the clip, not one part a frame: a part chosen frame by frame goes to the texture wherever the
-object is small or its outline hardly moves for a few frames.
+test over the frames. The masks then follow one object over the clip (:func:`follow`): each frame's
+parts are linked to the next frame's along the flow into tracks, and the object is the track of the
+largest travel where the largest parts keep their place, else the track of the largest area; each
+frame keeps its part where that part is large enough to be the object, however small beside the
+texture, and a frame without one is left to its neighbours (``clean.fill_still_frames``). One track
+for the clip, not one part a frame: a part chosen frame by frame goes to the texture or a screen
+wherever the object is small or its outline hardly moves for a few frames.
 
 Shapes: masks ``(T, H, W)`` bool, flows ``(T-1, H, W, 2)``, homographies ``(T-1, 3, 3)`` frame t -> t+1.
 """
@@ -87,18 +86,20 @@ def _sign_p(sums) -> float:
     return float(binomtest(sum(x > 0 for x in sums), len(sums), 0.5, alternative="greater").pvalue)
 
 
-def follow(raw: np.ndarray, moves: np.ndarray, bw: np.ndarray) -> np.ndarray | None:
-    """The one object of a clip whose largest moving parts keep their place: ``(T, H, W)`` bool, or
-    None where no track travels. ``raw``: the motion masks before cleaning, ``moves`` their
-    :func:`travel`, ``bw`` ``(T-1, H, W, 2)`` the backward flows (frame t+1's pixels -> t).
+def follow(raw: np.ndarray, score: np.ndarray, bw: np.ndarray) -> np.ndarray | None:
+    """The clip's one object, followed along the flow: ``(T, H, W)`` bool, or None where no track of
+    parts scores above 0 in more frames than chance. ``raw``: the motion masks before cleaning;
+    ``score`` ``(T, H, W)``, what a part scores, summed over its pixels: its :func:`travel` (where
+    the largest parts keep their place) or ``raw`` itself (its area); ``bw`` ``(T-1, H, W, 2)`` the
+    backward flows (frame t+1's pixels -> t).
 
     Each frame's parts (:func:`~layercam.vision.segment.clean.mask_parts`, over ``MIN_AREA``) are
     linked to the next frame's where one, carried along the flow, holds ``LINK`` of the smaller;
-    linked parts form tracks. A track's part in a frame is its part of the largest travel there (a
+    linked parts form tracks. A track's part in a frame is its part of the largest score there (a
     texture beside the object can join its track where the two touch); the track of the largest
-    travel summed over its parts is the object where they travel in more frames of the clip than
-    chance (the sign test of :func:`keeps_place`, every frame counted, those without the track as
-    not travelling). Each frame keeps the track's part, with the parts an occluder split off it
+    score summed over its parts is the object where they score above 0 in more frames of the clip
+    than chance (the sign test of :func:`keeps_place`, every frame counted, those without the track
+    as 0). Each frame keeps the track's part, with the parts an occluder split off it
     (:func:`~layercam.vision.segment.clean.clean_mask`'s ``seed``), where that part is at least
     ``KEEP_FRACTION`` of the frame's largest or the track's median size (a small object beside a
     large texture still counts; a part under both is a fragment of the object), and is empty
@@ -106,11 +107,11 @@ def follow(raw: np.ndarray, moves: np.ndarray, bw: np.ndarray) -> np.ndarray | N
     from layercam.vision.segment.clean import KEEP_FRACTION, MIN_AREA, clean_mask, mask_parts, warp_mask
 
     T, h, w = raw.shape
-    labels, nodes = [], []  # nodes: (frame, label, travel sum)
+    labels, nodes = [], []  # nodes: (frame, label, score)
     for t in range(T):
         n, lab, areas = mask_parts(raw[t])
         labels.append((lab, areas))
-        nodes += [(t, i, float(moves[t][lab == i].sum())) for i in range(1, n) if areas[i - 1] >= MIN_AREA * h * w]
+        nodes += [(t, i, float(score[t][lab == i].sum())) for i in range(1, n) if areas[i - 1] >= MIN_AREA * h * w]
     index = {(t, i): k for k, (t, i, _) in enumerate(nodes)}
     root = list(range(len(nodes)))
 
@@ -128,7 +129,7 @@ def follow(raw: np.ndarray, moves: np.ndarray, bw: np.ndarray) -> np.ndarray | N
             for j in (j for (s, j, _) in nodes if s == t + 1):
                 if held[j] >= LINK * min(a0[i - 1], a1[j - 1]):
                     root[find(index[(t, i)])] = find(index[(t + 1, j)])
-    tracks: dict[int, dict] = {}  # per track, its part of the largest travel in each frame it holds
+    tracks: dict[int, dict] = {}  # per track, its part of the largest score in each frame it holds
     for k, (t, i, x) in enumerate(nodes):
         frames = tracks.setdefault(find(k), {})
         if t not in frames or x > frames[t][1]:

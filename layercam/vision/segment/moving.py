@@ -11,7 +11,8 @@ its edges (the object's motion spills onto the road beside it), not measured. Th
 smooth parts come back by their colours (:mod:`layercam.vision.segment.colour`). Where the largest
 moving part is a dynamic texture (a stream, ripples: its outline keeps its place in the scene
 though the flow inside it moves), the masks follow the one track of parts whose outline travels
-with its flow (:mod:`layercam.vision.segment.dynamic`).
+with its flow, and otherwise the track of the largest area, not the largest part of each frame
+(:mod:`layercam.vision.segment.dynamic`).
 """
 
 from __future__ import annotations
@@ -80,8 +81,9 @@ def motion_masks(fw, bw, fw_ok=None, bw_ok=None, *, cfg, frames=None, homs=None)
     ``(T, H, W)`` the masks came from). With the camera's ``homs`` ``(T-1, 3, 3)`` (frame t -> t+1),
     a clip whose largest moving parts do not travel with their own flow
     (:func:`layercam.vision.segment.dynamic.keeps_place`;
-    ``info["travel_p"]``) takes the track of parts that travels instead, where one does
-    (:func:`layercam.vision.segment.dynamic.follow`). ``fw_ok``, ``bw_ok`` ``(T-1, H, W)``: the flows'
+    ``info["travel_p"]``) takes the track of parts that travels instead, where one does, and any
+    other the track of the largest area (:func:`layercam.vision.segment.dynamic.follow`). ``fw_ok``,
+    ``bw_ok`` ``(T-1, H, W)``: the flows'
     forward-backward checks (computed when None); ``cfg``: a :class:`layercam.core.config.SegmentConfig`
     (``reach``, ``k_sigma``). With the ``frames`` ``(T, H, W[, C])``, evidence counts only where
     the frame has texture."""
@@ -106,7 +108,8 @@ def motion_masks(fw, bw, fw_ok=None, bw_ok=None, *, cfg, frames=None, homs=None)
 
         moves = travel(raw, f, b, fo, bo, homs, cfg.reach)
         keeps, info["travel_p"] = keeps_place(masks, moves)
-        followed = follow(raw, moves, b) if keeps else None  # the largest parts are a dynamic texture
+        # one object over the clip: where the largest parts are a dynamic texture, the track that travels
+        followed = follow(raw, moves if keeps else raw, b)
         if followed is not None:
             masks = list(followed)
     masks, filled = fill_still_frames(np.stack(masks), f, b)

@@ -107,11 +107,13 @@ def follow(raw: np.ndarray, score: np.ndarray, bw: np.ndarray) -> np.ndarray | N
     from layercam.vision.segment.clean import KEEP_FRACTION, MIN_AREA, clean_mask, mask_parts, warp_mask
 
     T, h, w = raw.shape
-    labels, nodes = [], []  # nodes: (frame, label, score)
+    labels, parts, nodes = [], [], []  # per frame: (labels, areas), its parts' labels; nodes: (frame, label, score)
     for t in range(T):
         n, lab, areas = mask_parts(raw[t])
+        sums = np.bincount(lab.ravel(), weights=np.asarray(score[t], np.float64).ravel(), minlength=n)
         labels.append((lab, areas))
-        nodes += [(t, i, float(score[t][lab == i].sum())) for i in range(1, n) if areas[i - 1] >= MIN_AREA * h * w]
+        parts.append([i for i in range(1, n) if areas[i - 1] >= MIN_AREA * h * w])
+        nodes += [(t, i, float(sums[i])) for i in parts[t]]
     index = {(t, i): k for k, (t, i, _) in enumerate(nodes)}
     root = list(range(len(nodes)))
 
@@ -123,10 +125,9 @@ def follow(raw: np.ndarray, score: np.ndarray, bw: np.ndarray) -> np.ndarray | N
 
     for t in range(T - 1):
         (lab0, a0), (lab1, a1) = labels[t], labels[t + 1]
-        for i in (i for (s, i, _) in nodes if s == t):
-            carried = warp_mask(lab0 == i, bw[t]) > 0.5
-            held = np.bincount(lab1[carried], minlength=len(a1) + 1)
-            for j in (j for (s, j, _) in nodes if s == t + 1):
+        for i in parts[t]:
+            held = np.bincount(lab1[warp_mask(lab0 == i, bw[t]) > 0.5], minlength=len(a1) + 1)
+            for j in parts[t + 1]:
                 if held[j] >= LINK * min(a0[i - 1], a1[j - 1]):
                     root[find(index[(t, i)])] = find(index[(t + 1, j)])
     tracks: dict[int, dict] = {}  # per track, its part of the largest score in each frame it holds

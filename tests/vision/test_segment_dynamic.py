@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from layercam.core.config import SegmentConfig
+from layercam.vision.segment.clean import mask_parts
 from layercam.vision.segment.dynamic import follow, keeps_place, travel
 from layercam.vision.segment.moving import motion_masks
 
@@ -66,12 +67,12 @@ def test_follow_keeps_one_track_where_a_choice_frame_by_frame_would_take_the_str
     moves[:3][:, stream] = 0.1  # there the stream's outline travels a little (parallax, noise)
     for t in range(3):  # so a frame's part of the largest travel is the stream there
         assert moves[t][stream].sum() > moves[t][small[t]].sum() > 0
-    followed = follow(raw, moves, bw)
+    followed = follow([mask_parts(m) for m in raw], moves, bw)
     assert followed.shape == raw.shape and not followed[:, stream].any()
     assert not followed[:3].any()  # a corner is not the object: those frames are left to their neighbours
     for t in range(3, len(raw)):
         assert (followed[t] == squares[t]).mean() > 0.99
-    assert follow(np.broadcast_to(stream, raw.shape), moves, bw) is None  # no track travels
+    assert follow([mask_parts(stream)] * len(raw), moves, bw) is None  # no track travels
 
 
 def test_motion_masks_take_the_object_not_the_stream_beside_it():

@@ -62,11 +62,18 @@ def clean_mask(mask: np.ndarray, colour: np.ndarray | None = None, reach: float 
     grew from, or the part a followed track holds), the part kept is the one that holds most of it,
     whatever its size (a cut grows the object; a larger part it found apart from it is not the
     object), or the largest where none does."""
+    return keep_object(mask_parts(mask, colour, scale), colour, reach, seed)
+
+
+def keep_object(parts: tuple[int, np.ndarray, np.ndarray], colour: np.ndarray | None = None,
+                reach: float = 0.0, seed: np.ndarray | None = None) -> np.ndarray:
+    """:func:`clean_mask`'s choice of parts, ``(H, W)`` bool, on parts already cut by
+    :func:`mask_parts` (``(n, labels, areas)``); ``colour``, ``reach`` and ``seed`` as there."""
     import cv2
     from scipy import ndimage
 
-    h, w = mask.shape
-    n, lab, areas = mask_parts(mask, colour, scale)
+    n, lab, areas = parts
+    h, w = lab.shape
     if n <= 1:
         return np.zeros((h, w), bool)
     keep = (areas >= MIN_AREA * h * w) & (areas >= KEEP_FRACTION * areas.max())

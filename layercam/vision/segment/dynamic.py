@@ -86,34 +86,34 @@ def _sign_p(sums) -> float:
     return float(binomtest(sum(x > 0 for x in sums), len(sums), 0.5, alternative="greater").pvalue)
 
 
-def follow(raw: np.ndarray, score: np.ndarray, bw: np.ndarray) -> np.ndarray | None:
+def follow(parts: list, score: np.ndarray, bw: np.ndarray) -> np.ndarray | None:
     """The clip's one object, followed along the flow: ``(T, H, W)`` bool, or None where no track of
-    parts scores above 0 in more frames than chance. ``raw``: the motion masks before cleaning;
+    parts scores above 0 in more frames than chance. ``parts``: per frame, the motion mask's parts
+    before cleaning (:func:`~layercam.vision.segment.clean.mask_parts`: ``(n, labels (H, W), areas)``);
     ``score`` ``(T, H, W)``, what a part scores, summed over its pixels: its :func:`travel` (where
-    the largest parts keep their place) or ``raw`` itself (its area); ``bw`` ``(T-1, H, W, 2)`` the
+    the largest parts keep their place) or the mask itself (its area); ``bw`` ``(T-1, H, W, 2)`` the
     backward flows (frame t+1's pixels -> t).
 
-    Each frame's parts (:func:`~layercam.vision.segment.clean.mask_parts`, over ``MIN_AREA``) are
+    Each frame's parts (over ``MIN_AREA``) are
     linked to the next frame's where one, carried along the flow, holds ``LINK`` of the smaller;
     linked parts form tracks. A track's part in a frame is its part of the largest score there (a
     texture beside the object can join its track where the two touch); the track of the largest
     score summed over its parts is the object where they score above 0 in more frames of the clip
     than chance (the sign test of :func:`keeps_place`, every frame counted, those without the track
     as 0). Each frame keeps the track's part, with the parts an occluder split off it
-    (:func:`~layercam.vision.segment.clean.clean_mask`'s ``seed``), where that part is at least
+    (:func:`~layercam.vision.segment.clean.keep_object`'s ``seed``), where that part is at least
     ``KEEP_FRACTION`` of the frame's largest or the track's median size (a small object beside a
     large texture still counts; a part under both is a fragment of the object), and is empty
     elsewhere (left to the frames that hold it at its typical size)."""
-    from layercam.vision.segment.clean import KEEP_FRACTION, MIN_AREA, clean_mask, mask_parts, warp_mask
+    from layercam.vision.segment.clean import KEEP_FRACTION, MIN_AREA, keep_object, warp_mask
 
-    T, h, w = raw.shape
-    labels, parts, nodes = [], [], []  # per frame: (labels, areas), its parts' labels; nodes: (frame, label, score)
-    for t in range(T):
-        n, lab, areas = mask_parts(raw[t])
+    T = len(parts)
+    h, w = parts[0][1].shape
+    big, nodes = [], []  # per frame: the labels of its parts over MIN_AREA; nodes: (frame, label, score)
+    for t, (n, lab, areas) in enumerate(parts):
         sums = np.bincount(lab.ravel(), weights=np.asarray(score[t], np.float64).ravel(), minlength=n)
-        labels.append((lab, areas))
-        parts.append([i for i in range(1, n) if areas[i - 1] >= MIN_AREA * h * w])
-        nodes += [(t, i, float(sums[i])) for i in parts[t]]
+        big.append([i for i in range(1, n) if areas[i - 1] >= MIN_AREA * h * w])
+        nodes += [(t, i, float(sums[i])) for i in big[t]]
     index = {(t, i): k for k, (t, i, _) in enumerate(nodes)}
     root = list(range(len(nodes)))
 
@@ -124,10 +124,10 @@ def follow(raw: np.ndarray, score: np.ndarray, bw: np.ndarray) -> np.ndarray | N
         return k
 
     for t in range(T - 1):
-        (lab0, a0), (lab1, a1) = labels[t], labels[t + 1]
-        for i in parts[t]:
+        (_, lab0, a0), (_, lab1, a1) = parts[t], parts[t + 1]
+        for i in big[t]:
             held = np.bincount(lab1[warp_mask(lab0 == i, bw[t]) > 0.5], minlength=len(a1) + 1)
-            for j in parts[t + 1]:
+            for j in big[t + 1]:
                 if held[j] >= LINK * min(a0[i - 1], a1[j - 1]):
                     root[find(index[(t, i)])] = find(index[(t + 1, j)])
     tracks: dict[int, dict] = {}  # per track, its part of the largest score in each frame it holds
@@ -140,11 +140,11 @@ def follow(raw: np.ndarray, score: np.ndarray, bw: np.ndarray) -> np.ndarray | N
     best = max(tracks.values(), key=lambda fr: sum(x for _, x in fr.values()))
     if _sign_p([best[t][1] if t in best else 0.0 for t in range(T)]) >= SIGNIFICANCE:
         return None
-    size = {t: labels[t][1][i - 1] for t, (i, _) in best.items()}
+    size = {t: parts[t][2][i - 1] for t, (i, _) in best.items()}
     typical = np.median(list(size.values()))
     out = np.zeros((T, h, w), bool)
     for t, (i, _) in best.items():
-        lab, areas = labels[t]
+        _, lab, areas = parts[t]
         if size[t] >= min(KEEP_FRACTION * areas.max(), typical):
-            out[t] = clean_mask(raw[t], seed=lab == i)
+            out[t] = keep_object(parts[t], seed=lab == i)
     return out

@@ -20,7 +20,7 @@ from __future__ import annotations
 import numpy as np
 
 from layercam.core.errors import LayercamError
-from layercam.vision.segment.clean import clean_mask, fill_still_frames, warp_mask
+from layercam.vision.segment.clean import clean_mask, fill_still_frames, keep_object, mask_parts, warp_mask
 
 EVIDENCE = 0.5       # a pixel moved in this share of its pairs
 WINDOW = 2           # neighbours on each side that vote
@@ -102,14 +102,15 @@ def motion_masks(fw, bw, fw_ok=None, bw_ok=None, *, cfg, frames=None, homs=None)
     raw = temporal_vote(soft >= EVIDENCE, f, b, WINDOW) >= VOTE
     if tex is not None:
         raw &= tex
-    masks = [clean_mask(m) for m in raw]
+    parts = [mask_parts(m) for m in raw]  # cut once: the largest part of each, and the tracks, choose among them
+    masks = [keep_object(p) for p in parts]
     if homs is not None:
         from layercam.vision.segment.dynamic import follow, keeps_place, travel
 
         moves = travel(raw, f, b, fo, bo, homs, cfg.reach)
         keeps, info["travel_p"] = keeps_place(masks, moves)
         # one object over the clip: where the largest parts are a dynamic texture, the track that travels
-        followed = follow(raw, moves if keeps else raw, b)
+        followed = follow(parts, moves if keeps else raw, b)
         if followed is not None:
             masks = list(followed)
     masks, filled = fill_still_frames(np.stack(masks), f, b)

@@ -28,7 +28,7 @@ from layercam.core.errors import LayercamError
 from layercam.io.atomic import atomic_write, ensure_writable_dir
 from layercam.io.clip import fingerprint
 
-CACHE_VERSION = 18  # bumped when what a cached stage holds, or how a key is made, changes; older caches are made anew
+CACHE_VERSION = 19  # bumped when what a cached stage holds, or how a key is made, changes; older caches are made anew
 
 
 @dataclass

@@ -95,25 +95,20 @@ def test_clean_mask_drops_specks_and_fills_holes():
     assert c[10:30, 10:30].mean() > 0.95
 
 
-def test_clean_mask_keeps_a_split_off_part_of_the_objects_colours_within_reach():
-    """An object a trunk cuts in two (8 px apart, beyond the gap for its size) keeps both halves
-    where the far half has the object's colours and lies within reach; a far part of the
-    background's colours, or one out of reach, goes."""
+def test_clean_mask_keeps_a_split_off_part_within_the_gap():
+    """An object a trunk cuts in two keeps both halves where they lie within ``GAP`` times the
+    larger half's size (the square root of its area) of each other; a part farther away goes,
+    whatever its colours."""
     m = np.zeros((60, 80), bool)
-    m[20:40, 10:30] = True  # the larger half
-    m[22:38, 38:50] = True  # the other half, 8 px beyond a trunk
+    m[15:45, 5:30] = True  # the larger half: size 27 px, the gap 6.8 px
+    m[22:38, 35:47] = True  # the other half, beyond a trunk 5 px wide (the closing does not bridge it)
     m[22:38, 64:72] = True  # a third part, 34 px away
-    colour = np.full(m.shape, -2.0)
-    colour[20:40, 10:30] = 0.5
-    colour[22:38, 38:50] = 2.0
-    assert not segment.clean_mask(m)[30, 44]  # one object: the gap is 0.25 x 20 px
-    c = segment.clean_mask(m, colour=colour, reach=20.0)
-    assert c[30, 20] and c[30, 44] and not c[30, 68]
-    assert not segment.clean_mask(m, colour=colour, reach=5.0)[30, 44]
-    colour[22:38, 38:50] = 0.5  # not clearly the object's colours
-    assert not segment.clean_mask(m, colour=colour, reach=20.0)[30, 44]
-    colour[22:38, 64:72] = 3.0  # the object's colours but out of reach
-    assert not segment.clean_mask(m, colour=colour, reach=20.0)[30, 68]
+    colour = np.full(m.shape, 3.0)  # the object's colours everywhere
+    for c in (segment.clean_mask(m), segment.clean_mask(m, colour=colour)):
+        assert c[30, 20] and c[30, 40] and not c[30, 68]
+    m[22:38, 35:47] = False
+    m[22:38, 38:50] = True  # a trunk 8 px wide: beyond the gap
+    assert not segment.clean_mask(m, colour=colour)[30, 44]
 
 
 def test_clean_mask_with_a_seed_keeps_the_part_that_holds_it():

@@ -13,7 +13,6 @@ OPEN = 0.01          # the opening's radius, a share of the short side (the clos
 MIN_AREA = 0.002     # a part smaller than this share of the frame is a speck
 KEEP_FRACTION = 0.15  # ... and one smaller than this share of the largest part is not the object
 GAP = 0.25           # parts an occluder splits off lie within this many object sizes of the largest
-PART_LLR = 1.0       # a farther part is the object's where its mean colour log-likelihood ratio is this high
 THIN_LLR = 3.0       # a thin part the opening took comes back where its ratio is this high
 
 
@@ -49,26 +48,23 @@ def mask_parts(mask: np.ndarray, colour: np.ndarray | None = None,
     return n, lab, stats[1:, cv2.CC_STAT_AREA]
 
 
-def clean_mask(mask: np.ndarray, colour: np.ndarray | None = None, reach: float = 0.0,
-               scale: float = 1.0, seed: np.ndarray | None = None) -> np.ndarray:
+def clean_mask(mask: np.ndarray, colour: np.ndarray | None = None, scale: float = 1.0,
+               seed: np.ndarray | None = None) -> np.ndarray:
     """Morphology on one ``(H, W)`` bool mask: open, close, fill holes, drop small components, and
     keep one object: the largest component and those within ``GAP`` times its size of it (parts an
     occluder splits off). With ``colour`` (``(H, W)``, the object : background colour
-    log-likelihood ratio of :func:`layercam.vision.segment.colour.colour_cut`), a component farther than
-    that is kept too when its mean ratio is at least ``PART_LLR`` and it lies within ``reach``
-    pixels of the largest, and what the opening took comes back where its ratio is at least
-    ``THIN_LLR`` and it touches what the opening left (legs, a tail). ``scale``: the radii of the
-    opening and the closing times this (0: neither). With ``seed`` (``(H, W)`` bool: the mask a cut
-    grew from, or the part a followed track holds), the part kept is the one that holds most of it,
-    whatever its size (a cut grows the object; a larger part it found apart from it is not the
-    object), or the largest where none does."""
-    return keep_object(mask_parts(mask, colour, scale), colour, reach, seed)
+    log-likelihood ratio of :func:`layercam.vision.segment.colour.colour_cut`), what the opening took
+    comes back where its ratio is at least ``THIN_LLR`` and it touches what the opening left (legs,
+    a tail). ``scale``: the radii of the opening and the closing times this (0: neither). With
+    ``seed`` (``(H, W)`` bool: the mask a cut grew from, or the part a followed track holds), the
+    part kept is the one that holds most of it, whatever its size (a cut grows the object; a larger
+    part it found apart from it is not the object), or the largest where none does."""
+    return keep_object(mask_parts(mask, colour, scale), seed)
 
 
-def keep_object(parts: tuple[int, np.ndarray, np.ndarray], colour: np.ndarray | None = None,
-                reach: float = 0.0, seed: np.ndarray | None = None) -> np.ndarray:
+def keep_object(parts: tuple[int, np.ndarray, np.ndarray], seed: np.ndarray | None = None) -> np.ndarray:
     """:func:`clean_mask`'s choice of parts, ``(H, W)`` bool, on parts already cut by
-    :func:`mask_parts` (``(n, labels, areas)``); ``colour``, ``reach`` and ``seed`` as there."""
+    :func:`mask_parts` (``(n, labels, areas)``); ``seed`` as there."""
     import cv2
     from scipy import ndimage
 
@@ -86,10 +82,7 @@ def keep_object(parts: tuple[int, np.ndarray, np.ndarray], colour: np.ndarray | 
     if keep.sum() > 1:
         dist = cv2.distanceTransform((lab != main).astype(np.uint8), cv2.DIST_L2, 3)
         gaps = ndimage.minimum(dist, lab, np.arange(1, n))
-        near = gaps <= GAP * np.sqrt(areas.max())
-        if colour is not None:
-            near |= (gaps <= reach) & (part_means(lab, n, colour)[1:] >= PART_LLR)
-        keep &= near
+        keep &= gaps <= GAP * np.sqrt(areas.max())
     return np.isin(lab, 1 + np.flatnonzero(keep))
 
 

@@ -17,8 +17,8 @@ carried pixels by their colours alone, wherever the residual is (the clean plate
 hold the object too). Then :func:`layercam.vision.segment.clean.clean_mask` at half its radii (legs
 and tails 1-3 px wide) keeps the part that holds most of the mask the cut grew from (not the
 largest: a cut that reaches a larger moving thing apart from the object, a flower pot by the lens,
-a stream, grows the object and must not trade it for that), with parts of the object's colours
-within its size; a cut that leaves nothing keeps the mask.
+a stream, grows the object and must not trade it for that), with the parts an occluder split off
+it; a cut that leaves nothing keeps the mask.
 """
 
 from __future__ import annotations
@@ -147,6 +147,6 @@ def colour_cut(frames: np.ndarray, masks: np.ndarray, residual: np.ndarray,
         guide = equalised_lab(frames[t])[box] / 100.0  # again, not kept from the histogram pass: 12
                                                        # bytes a pixel of the clip
         cut[box] = graph_cut(unary, guide, SMOOTH)
-        cut = clean_mask(cut, colour=llr[bins[t]], reach=size, scale=CLEAN, seed=prior)
+        cut = clean_mask(cut, colour=llr[bins[t]], scale=CLEAN, seed=prior)
         out[t] = cut if cut.any() else m[t]  # a cut that leaves nothing keeps the mask it had
     return out

@@ -129,7 +129,7 @@ def _set_aside(run: Path, m: dict, say) -> None:
                 os.rename(run / n, dest / n)
             moved = True
     if moved:
-        say(f"settings or layercam's cache version changed: earlier outputs moved to {dest}")
+        say(f"the input, the settings or layercam's cache version changed: earlier outputs moved to {dest}")
 
 
 def publish(run: Path, sources: dict[str, Path], report: dict, key: str, say=print) -> None:

@@ -94,9 +94,9 @@ def follow(parts: list, score: np.ndarray, bw: np.ndarray) -> np.ndarray | None:
     the largest parts keep their place) or the mask itself (its area); ``bw`` ``(T-1, H, W, 2)`` the
     backward flows (frame t+1's pixels -> t).
 
-    Each frame's parts (over ``MIN_AREA``) are
-    linked to the next frame's where one, carried along the flow, holds ``LINK`` of the smaller;
-    linked parts form tracks. A track's part in a frame is its part of the largest score there (a
+    Each frame's parts over ``MIN_AREA`` are linked to the next frame's where one, carried along
+    the flow, holds ``LINK`` of the smaller; linked parts form tracks. A track's part in a frame is
+    its part of the largest score there (a
     texture beside the object can join its track where the two touch); the track of the largest
     score summed over its parts is the object where they score above 0 in more frames of the clip
     than chance (the sign test of :func:`keeps_place`, every frame counted, those without the track
